@@ -1,0 +1,1 @@
+"""vt4dcodec.model: the VideoTok4D networks."""

@@ -1,0 +1,1 @@
+"""Training commands for the VideoTok4D networks."""

@@ -1,0 +1,12 @@
+"""vt4dcodec: a file format, storage library and neural codec for compact 4D scene tokens.
+
+Reading and writing ``.vt4d`` files needs only numpy, msgpack and zstandard; the codec functions
+import torch lazily, on first use.
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from .errors import *  # noqa: F401,F403  (the exception family is part of the public API)
+from .cameras import Trajectory  # noqa: F401
