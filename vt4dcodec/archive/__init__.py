@@ -1,0 +1,1 @@
+"""Multi-scene archives: records, index, footer, recovery, fsspec access."""

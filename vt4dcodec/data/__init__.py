@@ -1,0 +1,1 @@
+"""Torch datasets over archives and over multi-camera scenes."""

@@ -1,0 +1,1 @@
+"""The single-scene .vt4d container (numpy, msgpack and zstandard only; never torch)."""

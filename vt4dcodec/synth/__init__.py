@@ -1,0 +1,1 @@
+"""The synthetic multi-camera dynamic scene generator."""
