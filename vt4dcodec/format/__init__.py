@@ -1,1 +1,20 @@
-"""The single-scene .vt4d container (numpy, msgpack and zstandard only; never torch)."""
+"""The single-scene ``.vt4d`` container (numpy, msgpack and zstandard only; never torch or cv2).
+
+Specification: FORMAT.md, Part I.  Typical use::
+
+    from vt4dcodec.format import Scene, ModelFingerprint, save, load, open_scene
+    save(scene, "clip.vt4d")                 # int8 tokens by default
+    f = open_scene("clip.vt4d")              # lazy: header and table only
+    f.fingerprint, f.static_tokens()         # sections decoded on access
+"""
+
+from .encodings import ENCODINGS, max_abs_error
+from .fingerprint import PROVENANCE_KINDS, ModelFingerprint, Provenance
+from .layout import FORMAT_MAJOR, FORMAT_MINOR, SCENE_MAGIC
+from .reader import SceneFile, load, loads, open_scene, verify
+from .scene import Scene
+from .writer import DEFAULT_COMPRESSION_LEVEL, dumps, save
+
+__all__ = ["Scene", "ModelFingerprint", "Provenance", "SceneFile", "save", "load", "dumps", "loads", "open_scene",
+           "verify", "ENCODINGS", "SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "PROVENANCE_KINDS",
+           "DEFAULT_COMPRESSION_LEVEL", "max_abs_error"]

@@ -1,0 +1,164 @@
+"""Token encodings: how an (N, d) float32 token matrix becomes section bytes and back (FORMAT.md,
+"Token encodings").
+
+=========  ===========================  =============================================================
+encoding   stored per value             maximum error |x - decode(encode(x))|
+=========  ===========================  =============================================================
+float32    little-endian IEEE binary32  0 (lossless)
+float16    little-endian IEEE binary16  max(2^-11 * |x|, 2^-25); |x| must be <= 65504
+int8       u8 code, per-channel affine  scale_c / 2 * (1 + 2^-20) + 2^-23 * max(|lo_c|, |hi_c|)
+int4       u4 code, two per byte        same formula with the 4-bit scale
+=========  ===========================  =============================================================
+
+Affine encodings (b = 8 or 4 bits, channel c = column of the token matrix):
+``lo_c = min x[:, c]``, ``hi_c = max x[:, c]`` (float32), ``scale_c = float32((hi_c - lo_c) / (2^b - 1))``
+computed in float64 then rounded to float32, ``offset_c = lo_c``.  Codes
+``q = clip(round_half_to_even((x - offset_c) / scale_c), 0, 2^b - 1)`` in float64 (``q = 0`` where
+``scale_c == 0``).  Decoding: ``x = float32(float64(offset_c) + float64(scale_c) * q)``.
+int4 packs the row-major code sequence two per byte, element ``2i`` in the LOW nibble and ``2i+1`` in the
+HIGH nibble of byte ``i``; an odd count leaves the last high nibble 0.
+The quantization section holds ``scale[0..d)`` then ``offset[0..d)``, little-endian float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FormatError, MalformedSectionError
+
+__all__ = ["ENCODINGS", "EncodedTokens", "encode_tokens", "decode_tokens", "codes_from_payload",
+           "payload_size", "is_affine", "FLOAT16_MAX", "max_abs_error"]
+
+ENCODINGS = ("float32", "float16", "int8", "int4")
+_BITS = {"int8": 8, "int4": 4}
+FLOAT16_MAX = 65504.0
+
+
+def is_affine(encoding: str) -> bool:
+    """True for the encodings that store per-channel scale/offset (a quantization section)."""
+    return encoding in _BITS
+
+
+def payload_size(encoding: str, rows: int, cols: int) -> int:
+    """Bytes of the raw (uncompressed) token payload for an (rows, cols) matrix."""
+    n = rows * cols
+    return {"float32": 4 * n, "float16": 2 * n, "int8": n, "int4": (n + 1) // 2}[encoding]
+
+
+@dataclass(frozen=True)
+class EncodedTokens:
+    """Section payloads of one token matrix: ``tokens`` bytes and, for affine encodings, ``quant`` bytes."""
+
+    tokens: bytes
+    quant: bytes | None
+
+
+def _affine_params(x: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
+    lo = x.min(axis=0).astype(np.float64)
+    hi = x.max(axis=0).astype(np.float64)
+    scale = ((hi - lo) / float((1 << bits) - 1)).astype(np.float32)
+    return scale, lo.astype(np.float32)
+
+
+def encode_tokens(tokens: np.ndarray, encoding: str) -> EncodedTokens:
+    """Encode finite float32 tokens (N, d) with ``encoding``; deterministic (round half to even)."""
+    x = np.ascontiguousarray(tokens, dtype=np.float32)
+    if encoding == "float32":
+        return EncodedTokens(x.astype("<f4", copy=False).tobytes(), None)
+    if encoding == "float16":
+        big = float(np.abs(x).max(initial=0.0))
+        if big > FLOAT16_MAX:
+            raise FormatError(
+                f"tokens reach |x| = {big:.6g}, beyond float16's range (65504); use int8 or float32"
+            )
+        return EncodedTokens(x.astype("<f2").tobytes(), None)
+    if encoding not in _BITS:
+        raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ENCODINGS}")
+    bits = _BITS[encoding]
+    scale, offset = _affine_params(x, bits)
+    s64 = scale.astype(np.float64)
+    safe = np.where(s64 > 0, s64, 1.0)
+    q = np.rint((x.astype(np.float64) - offset.astype(np.float64)) / safe)  # rint: half to even
+    q = np.where(s64 > 0, q, 0.0)
+    codes = np.clip(q, 0, (1 << bits) - 1).astype(np.uint8)
+    quant = np.concatenate([scale, offset]).astype("<f4").tobytes()
+    if bits == 8:
+        return EncodedTokens(codes.tobytes(), quant)
+    flat = codes.reshape(-1)
+    if flat.size % 2:
+        flat = np.concatenate([flat, np.zeros(1, np.uint8)])
+    packed = (flat[0::2] | (flat[1::2] << 4)).astype(np.uint8)
+    return EncodedTokens(packed.tobytes(), quant)
+
+
+def codes_from_payload(payload, encoding: str, rows: int, cols: int) -> np.ndarray:
+    """The stored values as an (rows, cols) array without dequantizing.
+
+    float32 / float16 / int8 payloads are returned as zero-copy read-only views of ``payload``; int4
+    codes are unpacked into a new uint8 array.  Raises MalformedSectionError if the size is wrong or an
+    int4 padding nibble is not zero.
+    """
+    expected = payload_size(encoding, rows, cols)
+    if len(payload) != expected:
+        raise MalformedSectionError(
+            f"{encoding} token payload is {len(payload)} bytes; a {rows}x{cols} matrix needs {expected}"
+        )
+    if encoding in ("float32", "float16", "int8"):
+        dtype = {"float32": "<f4", "float16": "<f2", "int8": np.uint8}[encoding]
+        return np.frombuffer(payload, dtype=dtype).reshape(rows, cols)
+    packed = np.frombuffer(payload, dtype=np.uint8)
+    n = rows * cols
+    if n % 2 and packed[-1] >> 4:
+        raise MalformedSectionError("int4 payload: the unused last high nibble must be 0")
+    codes = np.empty(2 * packed.size, np.uint8)
+    codes[0::2] = packed & 0x0F
+    codes[1::2] = packed >> 4
+    return codes[:n].reshape(rows, cols)
+
+
+def parse_quant(payload, cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """(scale, offset) float32 (cols,) arrays from a quantization payload; both finite, scale >= 0."""
+    if len(payload) != 8 * cols:
+        raise MalformedSectionError(
+            f"quantization payload is {len(payload)} bytes; d = {cols} needs {8 * cols} (scale + offset)"
+        )
+    both = np.frombuffer(payload, dtype="<f4")
+    scale, offset = both[:cols], both[cols:]
+    if not (np.all(np.isfinite(both)) and np.all(scale >= 0)):
+        raise MalformedSectionError("quantization parameters must be finite with scale >= 0")
+    return scale, offset
+
+
+def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.ndarray:
+    """Decode a token payload into (rows, cols) float32 values.
+
+    float32 payloads come back as zero-copy read-only views.  Every decoded value must be finite,
+    otherwise MalformedSectionError (a reader never hands out NaN/inf tokens).
+    """
+    codes = codes_from_payload(payload, encoding, rows, cols)
+    if encoding == "float32":
+        out = codes
+    elif encoding == "float16":
+        out = codes.astype(np.float32)
+    else:
+        scale, offset = parse_quant(quant, cols)
+        out = (offset.astype(np.float64) + scale.astype(np.float64) * codes).astype(np.float32)
+    if not np.all(np.isfinite(out)):
+        raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
+    return out
+
+
+def max_abs_error(tokens: np.ndarray, encoding: str) -> np.ndarray:
+    """The documented worst-case |x - decode(encode(x))| for each entry of ``tokens`` (N, d)."""
+    x = np.asarray(tokens, dtype=np.float32).astype(np.float64)
+    if encoding == "float32":
+        return np.zeros_like(x)
+    if encoding == "float16":
+        return np.maximum(2.0**-11 * np.abs(x), 2.0**-25)
+    bits = _BITS[encoding]
+    scale, offset = _affine_params(np.asarray(tokens, np.float32), bits)
+    big = np.maximum(np.abs(x.min(axis=0)), np.abs(x.max(axis=0)))
+    bound = scale.astype(np.float64) / 2 * (1 + 2.0**-20) + 2.0**-23 * big
+    return np.broadcast_to(bound, x.shape)

@@ -1,0 +1,173 @@
+"""The msgpack header of a v1 scene (FORMAT.md, "Header"): bounded parsing and exact validation.
+
+The header is one msgpack map with exactly these keys (version 1.0)::
+
+    static_shape   [N_s, d]          ints
+    dynamic_shape  [N_d, d]          ints, same d
+    encoding       "float32" | "float16" | "int8" | "int4"
+    cameras        {num_frames: T, width: W, height: H, distortion_terms: 0|4|5|8|12|14,
+                    has_timestamps: bool}
+    fingerprint    {model_id, model_version, config_sha256, weights_sha256, static_shape,
+                    dynamic_shape, token_dtype}
+    provenance     nil | {library_version, created_utc, source_capture_id (str | nil), kind}
+    metadata       map (user key/values)
+
+A file whose minor version is newer than this reader's may add keys; they are ignored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+
+from ..cameras import DISTORTION_LENGTHS
+from ..errors import LimitExceededError, MalformedHeaderError
+from .checks import exact_keys, require_bool, require_int, require_map, require_shape
+from .encodings import ENCODINGS
+from .fingerprint import ModelFingerprint, Provenance
+from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEADER_DEPTH, MAX_IMAGE_SIDE,
+                     MAX_METADATA_BYTES, MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
+from .metadata import normalize_metadata
+
+__all__ = ["HeaderInfo", "CameraLayout", "pack_header", "unpack_header", "parse_header"]
+
+HEADER_KEYS = {"static_shape", "dynamic_shape", "encoding", "cameras", "fingerprint", "provenance", "metadata"}
+CAMERA_KEYS = {"num_frames", "width", "height", "distortion_terms", "has_timestamps"}
+
+
+@dataclass(frozen=True)
+class CameraLayout:
+    """What the header says about the cameras section."""
+
+    num_frames: int
+    width: int
+    height: int
+    distortion_terms: int
+    has_timestamps: bool
+
+    @property
+    def raw_length(self) -> int:
+        """Bytes of the cameras section: K (T*9), w2c (T*16), distortion, timestamps; float64 each."""
+        t = self.num_frames
+        return 8 * (25 * t + self.distortion_terms + (t if self.has_timestamps else 0))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"num_frames": self.num_frames, "width": self.width, "height": self.height,
+                "distortion_terms": self.distortion_terms, "has_timestamps": self.has_timestamps}
+
+
+@dataclass(frozen=True)
+class HeaderInfo:
+    """The validated header."""
+
+    static_shape: tuple[int, int]
+    dynamic_shape: tuple[int, int]
+    encoding: str
+    cameras: CameraLayout
+    fingerprint: ModelFingerprint
+    provenance: Provenance | None
+    metadata: dict[str, Any]
+    raw: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "static_shape": list(self.static_shape), "dynamic_shape": list(self.dynamic_shape),
+            "encoding": self.encoding, "cameras": self.cameras.to_dict(),
+            "fingerprint": self.fingerprint.to_dict(),
+            "provenance": None if self.provenance is None else self.provenance.to_dict(),
+            "metadata": self.metadata,
+        }
+
+
+def pack_header(info: HeaderInfo) -> bytes:
+    """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above)."""
+    data = msgpack.packb(info.to_dict(), use_bin_type=True)
+    if len(data) > MAX_HEADER_BYTES:
+        raise LimitExceededError(f"the header would be {len(data)} bytes, over the {MAX_HEADER_BYTES} limit")
+    return data
+
+
+def _refuse_ext(code: int, data: bytes) -> Any:
+    raise MalformedHeaderError(f"the header uses msgpack extension type {code}; extension types are not allowed")
+
+
+def _pairs_no_duplicates(pairs: list) -> dict:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise MalformedHeaderError("the header has a map with a duplicated key")
+    return out
+
+
+def unpack_header(raw) -> dict[str, Any]:
+    """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth."""
+    if len(raw) > MAX_HEADER_BYTES:
+        raise LimitExceededError(f"header is {len(raw)} bytes; the limit is {MAX_HEADER_BYTES}")
+    try:
+        value = msgpack.unpackb(
+            bytes(raw), raw=False, strict_map_key=True, ext_hook=_refuse_ext, use_list=True,
+            object_pairs_hook=_pairs_no_duplicates,
+            max_str_len=MAX_STRING_CHARS, max_bin_len=0, max_array_len=MAX_CONTAINER_ITEMS,
+            max_map_len=MAX_CONTAINER_ITEMS, max_ext_len=0,
+        )
+    except MalformedHeaderError:
+        raise
+    except (ValueError, TypeError, RecursionError, msgpack.exceptions.UnpackException) as exc:
+        kind = type(exc).__name__
+        raise MalformedHeaderError(f"the header is not valid bounded msgpack ({kind}: {str(exc)[:120]})") from None
+    _check_depth(value)
+    return require_map(value, "header")
+
+
+def _check_depth(value: Any) -> None:
+    stack = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, (dict, list)):
+            if depth > MAX_HEADER_DEPTH:
+                raise LimitExceededError(f"the header nests deeper than {MAX_HEADER_DEPTH} levels")
+            children = item.values() if isinstance(item, dict) else item
+            stack.extend((c, depth + 1) for c in children)
+
+
+def parse_header(raw, *, newer_minor: bool = False) -> HeaderInfo:
+    """Decode and validate a header.  ``newer_minor``: the file's minor version is newer than this
+    reader's, so unknown keys are tolerated (known keys are still checked exactly)."""
+    h = unpack_header(raw)
+    exact_keys(h, HEADER_KEYS, "header", allow_extra=newer_minor)
+    static_shape = require_shape(h["static_shape"], "static_shape", MAX_TOKENS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES,
+                                 LimitExceededError)
+    dynamic_shape = require_shape(h["dynamic_shape"], "dynamic_shape", MAX_TOKENS, MAX_TOKEN_DIM,
+                                  MAX_TOKEN_VALUES, LimitExceededError)
+    if static_shape[1] != dynamic_shape[1]:
+        raise MalformedHeaderError(f"static tokens have d = {static_shape[1]} but dynamic tokens d = {dynamic_shape[1]}")
+    encoding = h["encoding"]
+    if encoding not in ENCODINGS:
+        raise MalformedHeaderError(f"encoding {encoding!r:.40} is not one of {ENCODINGS}")
+    cam = require_map(h["cameras"], "cameras")
+    exact_keys(cam, CAMERA_KEYS, "cameras", allow_extra=newer_minor)
+    layout = CameraLayout(
+        num_frames=require_int(cam["num_frames"], "cameras.num_frames", 1, MAX_FRAMES, LimitExceededError),
+        width=require_int(cam["width"], "cameras.width", 1, MAX_IMAGE_SIDE, LimitExceededError),
+        height=require_int(cam["height"], "cameras.height", 1, MAX_IMAGE_SIDE, LimitExceededError),
+        distortion_terms=require_int(cam["distortion_terms"], "cameras.distortion_terms", 0, 14),
+        has_timestamps=require_bool(cam["has_timestamps"], "cameras.has_timestamps"),
+    )
+    if layout.distortion_terms not in (0, *DISTORTION_LENGTHS):
+        raise MalformedHeaderError(
+            f"cameras.distortion_terms = {layout.distortion_terms}; allowed: 0 or one of {DISTORTION_LENGTHS}"
+        )
+    fingerprint = ModelFingerprint.from_dict(h["fingerprint"], allow_extra=newer_minor)
+    if fingerprint.static_shape != static_shape or fingerprint.dynamic_shape != dynamic_shape:
+        raise MalformedHeaderError(
+            f"token shapes {static_shape} / {dynamic_shape} differ from the model fingerprint's "
+            f"{fingerprint.static_shape} / {fingerprint.dynamic_shape}"
+        )
+    prov = h["provenance"]
+    provenance = None if prov is None else Provenance.from_dict(prov, allow_extra=newer_minor)
+    metadata = normalize_metadata(h["metadata"])
+    return HeaderInfo(static_shape, dynamic_shape, encoding, layout, fingerprint, provenance, metadata, h)
+
+
+assert MAX_METADATA_BYTES < MAX_HEADER_BYTES

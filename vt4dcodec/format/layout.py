@@ -1,0 +1,208 @@
+"""Binary layout of a v1 scene container: preamble and section table (FORMAT.md, "File layout").
+
+All integers are little-endian.  Offsets are relative to the first byte of the container, so a
+container embedded in a larger file (an archive record) reads identically when extracted.
+
+Preamble (64 bytes)::
+
+    off size field
+      0    9 magic            89 56 54 34 44 0D 0A 1A 0A  ("\\x89VT4D\\r\\n\\x1a\\n")
+      9    1 zero             00
+     10    2 major            u16 = 1
+     12    2 minor            u16 = 0
+     14    2 reserved         u16 = 0
+     16    8 required_flags   u64 (none defined in 1.0: a reader refuses any set bit it does not know)
+     24    8 optional_flags   u64 (none defined in 1.0: unknown bits are ignored)
+     32    8 file_length      u64, total container bytes
+     40    4 header_length    u32, msgpack header bytes (starts at offset 64)
+     44    4 header_crc32     u32, CRC-32 of the header bytes
+     48    4 section_count    u32
+     52    4 table_crc32      u32, CRC-32 of the section table
+     56    4 reserved         u32 = 0
+     60    4 preamble_crc32   u32, CRC-32 of bytes 0..59
+
+Section table entry (40 bytes), the table starting right after the header::
+
+      0    4 type             4 ASCII letters/digits, e.g. "ZSTA"
+      4    2 flags            u16, bit 0 = critical; other bits 0
+      6    1 compression      u8, 0 = stored raw, 1 = one zstd frame
+      7    1 reserved         u8 = 0
+      8    8 offset           u64, container-relative, multiple of 64
+     16    8 stored_length    u64, bytes in the file
+     24    8 raw_length       u64, bytes after decompression (= stored_length when raw)
+     32    4 crc32            u32, CRC-32 of the stored bytes
+     36    4 reserved         u32 = 0
+
+CRC-32 is the ISO-HDLC / zlib / PNG CRC (polynomial 0xEDB88320 reflected, init and xorout 0xFFFFFFFF).
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+import zlib
+from dataclasses import dataclass
+
+from ..errors import (BadMagicError, ChecksumError, LimitExceededError, MalformedSectionError, TruncatedError,
+                      UnsupportedFeatureError, UnsupportedVersionError)
+from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREAMBLE_SIZE, SECTION_ALIGNMENT,
+                     SECTION_ENTRY_SIZE)
+
+__all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
+           "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD"]
+
+SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
+FORMAT_MAJOR = 1
+FORMAT_MINOR = 0
+KNOWN_REQUIRED_FLAGS = 0  # v1.0 defines no required feature
+FLAG_CRITICAL = 0x0001
+COMPRESSION_RAW, COMPRESSION_ZSTD = 0, 1
+
+_PREAMBLE = struct.Struct("<9sBHHHQQQIIIIII")
+_ENTRY = struct.Struct("<4sHBBQQQII")
+_TYPE = re.compile(rb"[A-Za-z0-9]{4}")
+assert _PREAMBLE.size == PREAMBLE_SIZE and _ENTRY.size == SECTION_ENTRY_SIZE
+
+
+def crc32(data) -> int:
+    return zlib.crc32(data) & 0xFFFFFFFF
+
+
+def align(n: int) -> int:
+    """Round ``n`` up to the section alignment (64)."""
+    return -(-n // SECTION_ALIGNMENT) * SECTION_ALIGNMENT
+
+
+@dataclass(frozen=True)
+class Preamble:
+    major: int
+    minor: int
+    required_flags: int
+    optional_flags: int
+    file_length: int
+    header_length: int
+    header_crc32: int
+    section_count: int
+    table_crc32: int
+
+
+@dataclass(frozen=True)
+class SectionEntry:
+    type: str
+    critical: bool
+    compression: int
+    offset: int
+    stored_length: int
+    raw_length: int
+    crc32: int
+
+
+def pack_preamble(p: Preamble) -> bytes:
+    body = _PREAMBLE.pack(SCENE_MAGIC, 0, p.major, p.minor, 0, p.required_flags, p.optional_flags,
+                          p.file_length, p.header_length, p.header_crc32, p.section_count, p.table_crc32, 0, 0)
+    return body[:-4] + struct.pack("<I", crc32(body[:-4]))
+
+
+def check_magic(data) -> None:
+    """Raise BadMagicError (with a diagnosis) unless ``data`` starts with the scene signature."""
+    head = bytes(data[:len(SCENE_MAGIC)])
+    if head == SCENE_MAGIC:
+        return
+    if len(head) < len(SCENE_MAGIC) and SCENE_MAGIC.startswith(head) and head:
+        raise TruncatedError(f"the data ends after {len(head)} bytes, inside the vt4d signature")
+    first = bytes(data[:16])
+    if first.startswith(b"\x89VT4D"):
+        raise BadMagicError(
+            "the vt4d signature is damaged: line endings were converted (text-mode transfer?); "
+            "copy the file again in binary mode"
+        )
+    if first.startswith(b"\x09VT4D") or first.startswith(b"VT4D"):
+        raise BadMagicError("the vt4d signature lost its high bit (7-bit transfer?); copy the file in binary mode")
+    if first.startswith(b"\x89VT4"):
+        raise BadMagicError(
+            f"this is a vt4d file of another kind (signature {first[:9]!r}), not a single scene; "
+            "archives are read with vt4dcodec.archive"
+        )
+    raise BadMagicError(f"not a .vt4d scene: the file starts with {first!r}, expected {SCENE_MAGIC!r}")
+
+
+def parse_preamble(data) -> Preamble:
+    """Parse and check the 64-byte preamble (signature, CRC, version, flags, declared sizes)."""
+    check_magic(data)
+    if len(data) < PREAMBLE_SIZE:
+        raise TruncatedError(f"the data ends after {len(data)} bytes, inside the {PREAMBLE_SIZE}-byte preamble")
+    raw = bytes(data[:PREAMBLE_SIZE])
+    (_, zero, major, minor, res16, req, opt, file_length, header_length, header_crc, count, table_crc,
+     res32, stored_crc) = _PREAMBLE.unpack(raw)
+    if crc32(raw[:-4]) != stored_crc:
+        raise ChecksumError("the preamble checksum does not match (bytes 0..59 are damaged)")
+    if zero or res16 or res32:
+        raise MalformedSectionError("reserved preamble bytes must be zero")
+    if major != FORMAT_MAJOR:
+        raise UnsupportedVersionError(
+            f"format version {major}.{minor} is not supported: this reader handles major version "
+            f"{FORMAT_MAJOR}; upgrade vt4dcodec to read it"
+        )
+    unknown = req & ~KNOWN_REQUIRED_FLAGS
+    if unknown:
+        raise UnsupportedFeatureError(
+            f"the file requires feature flag(s) 0x{unknown:016x} this reader does not know; upgrade vt4dcodec"
+        )
+    if header_length > MAX_HEADER_BYTES:
+        raise LimitExceededError(f"header length {header_length} exceeds the {MAX_HEADER_BYTES}-byte limit")
+    if count > MAX_SECTIONS:
+        raise LimitExceededError(f"{count} sections exceed the limit of {MAX_SECTIONS}")
+    table_end = PREAMBLE_SIZE + header_length + count * SECTION_ENTRY_SIZE
+    if file_length < table_end:
+        raise MalformedSectionError(
+            f"declared file length {file_length} is shorter than its own header and section table ({table_end})"
+        )
+    return Preamble(major, minor, req, opt, file_length, header_length, header_crc, count, table_crc)
+
+
+def pack_table(entries: list[SectionEntry]) -> bytes:
+    return b"".join(
+        _ENTRY.pack(e.type.encode("ascii"), FLAG_CRITICAL if e.critical else 0, e.compression, 0, e.offset,
+                    e.stored_length, e.raw_length, e.crc32, 0)
+        for e in entries
+    )
+
+
+def parse_table(raw, count: int, table_end: int, file_length: int) -> list[SectionEntry]:
+    """Parse ``count`` entries and check the canonical layout: each payload starts at the 64-aligned end
+    of the previous one (the first after the table), no overlap, and the last one ends the container."""
+    entries: list[SectionEntry] = []
+    expected_offset = align(table_end)
+    seen: set[str] = set()
+    for i in range(count):
+        tcode, flags, comp, res8, offset, stored, rawlen, crc, res32 = _ENTRY.unpack_from(raw, i * SECTION_ENTRY_SIZE)
+        if not _TYPE.fullmatch(tcode):
+            raise MalformedSectionError(f"section {i} has an invalid type code {tcode!r}")
+        name = tcode.decode("ascii")
+        if name in seen:
+            raise MalformedSectionError(f"section {name} appears twice")
+        seen.add(name)
+        if flags & ~FLAG_CRITICAL or res8 or res32:
+            raise MalformedSectionError(f"section {name} sets reserved bits or bytes")
+        if comp not in (COMPRESSION_RAW, COMPRESSION_ZSTD):
+            if flags & FLAG_CRITICAL:
+                raise UnsupportedFeatureError(f"critical section {name} uses unknown compression {comp}")
+        if rawlen > MAX_SECTION_RAW_BYTES:
+            raise LimitExceededError(f"section {name} declares {rawlen} raw bytes, over the {MAX_SECTION_RAW_BYTES} limit")
+        if comp == COMPRESSION_RAW and stored != rawlen:
+            raise MalformedSectionError(f"raw section {name}: stored length {stored} != raw length {rawlen}")
+        if offset != expected_offset:
+            raise MalformedSectionError(
+                f"section {name} starts at {offset}; the layout requires {expected_offset} "
+                "(64-aligned, in table order, no overlap or gaps)"
+            )
+        end = offset + stored
+        if end > file_length:
+            raise MalformedSectionError(f"section {name} ({offset}..{end}) runs past the container end {file_length}")
+        entries.append(SectionEntry(name, bool(flags & FLAG_CRITICAL), comp, offset, stored, rawlen, crc))
+        expected_offset = align(end)
+    last_end = entries[-1].offset + entries[-1].stored_length if entries else table_end
+    if last_end != file_length:
+        raise MalformedSectionError(f"the last section ends at {last_end} but the container is {file_length} bytes")
+    return entries

@@ -1,0 +1,263 @@
+"""Reading scenes: :func:`open_scene` (lazy), :func:`load` / :func:`loads` (everything), :func:`verify`."""
+
+from __future__ import annotations
+
+import os
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from ..cameras import Trajectory
+from ..errors import ChecksumError, FormatError, MalformedSectionError, TruncatedError, UnsupportedFeatureError
+from .encodings import codes_from_payload, decode_tokens, is_affine, parse_quant
+from .fingerprint import ModelFingerprint, Provenance
+from .header import HeaderInfo, parse_header
+from .layout import FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble, SectionEntry, crc32, parse_preamble
+from .layout import parse_table
+from .scene import Scene
+from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
+                       SECTION_STATIC_QUANT, section_payload, unpack_cameras)
+
+__all__ = ["SceneFile", "open_scene", "load", "loads", "verify", "read_container_bytes"]
+
+_TOKENS = {"static": (SECTION_STATIC, SECTION_STATIC_QUANT), "dynamic": (SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)}
+
+
+def read_container_bytes(source: Any):
+    """The container bytes of ``source`` (a path, a bytes-like object, or a binary file object).
+
+    A path or bytes must hold exactly one container; a file object is read from its current position
+    for the container's declared length only (never more than the preamble's limits allow).
+    """
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return source
+    if isinstance(source, (str, os.PathLike)):
+        with open(source, "rb") as fh:
+            return fh.read()
+    if hasattr(source, "read"):
+        head = source.read(PREAMBLE_SIZE)
+        if not isinstance(head, (bytes, bytearray)):
+            raise FormatError("the file object must be opened in binary mode ('rb')")
+        pre = parse_preamble(head)  # raises typed errors on short or bad data
+        rest = _read_exactly(source, pre.file_length - PREAMBLE_SIZE)
+        return bytes(head) + rest
+    raise FormatError(f"cannot read a scene from {type(source).__name__}; pass a path, bytes or a binary file")
+
+
+def _read_exactly(fh: BinaryIO, n: int) -> bytes:
+    chunks, left = [], n
+    while left > 0:
+        chunk = fh.read(min(left, 1 << 24))  # bounded reads: never allocate a claimed size up front
+        if not chunk:
+            raise TruncatedError(f"the file ends {left} bytes before the container's declared end")
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b"".join(chunks)
+
+
+class SceneFile:
+    """A parsed container: preamble, header and section table are checked on open; sections are read,
+    checksummed and decoded only when asked for.
+
+    Attributes:
+        header: the decoded msgpack header (dict).
+        preamble: the parsed preamble (version, flags, sizes).
+        sections: the section table entries in file order.
+    """
+
+    def __init__(self, data) -> None:
+        data = memoryview(data).cast("B") if not isinstance(data, bytes) else data
+        self._data = data
+        pre = parse_preamble(data)
+        if len(data) < pre.file_length:
+            raise TruncatedError(
+                f"the data is {len(data)} bytes but the container declares {pre.file_length}; the file is cut short"
+            )
+        if len(data) > pre.file_length:
+            raise MalformedSectionError(
+                f"{len(data) - pre.file_length} unexpected bytes follow the container's declared end {pre.file_length}"
+            )
+        header_raw = data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length]
+        if crc32(header_raw) != pre.header_crc32:
+            raise ChecksumError("the header checksum does not match: the header bytes are damaged")
+        table_start = PREAMBLE_SIZE + pre.header_length
+        table_end = table_start + pre.section_count * SECTION_ENTRY_SIZE
+        table_raw = data[table_start:table_end]
+        if crc32(table_raw) != pre.table_crc32:
+            raise ChecksumError("the section table checksum does not match: the table is damaged")
+        self.preamble: Preamble = pre
+        self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR)
+        self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length)
+        self._by_type = {e.type: e for e in self.sections}
+        self._check_section_set()
+        self._cameras: Trajectory | None = None
+
+    # --- structure ---------------------------------------------------------------------------------
+    def _check_section_set(self) -> None:
+        required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
+        if is_affine(self._info.encoding):
+            required |= {SECTION_STATIC_QUANT, SECTION_DYNAMIC_QUANT}
+        for entry in self.sections:
+            if entry.type in required:
+                if not entry.critical:
+                    raise MalformedSectionError(f"section {entry.type} must be marked critical")
+            elif entry.type in KNOWN_SECTIONS:
+                raise MalformedSectionError(
+                    f"section {entry.type} is not allowed with encoding {self._info.encoding}"
+                )
+            elif entry.critical:
+                raise UnsupportedFeatureError(
+                    f"the file holds critical section {entry.type!r} this reader does not know; upgrade vt4dcodec"
+                )
+        missing = required - set(self._by_type)
+        if missing:
+            raise MalformedSectionError(f"the file lacks required section(s) {sorted(missing)}")
+
+    def raw_section(self, name: str):
+        """The decompressed, checksum-verified bytes of section ``name`` (a zero-copy view when stored raw)."""
+        entry = self._by_type.get(name)
+        if entry is None:
+            raise MalformedSectionError(f"the file has no section {name!r}; it has {[e.type for e in self.sections]}")
+        return section_payload(self._data, entry)
+
+    # --- header fields -----------------------------------------------------------------------------
+    @property
+    def header(self) -> dict[str, Any]:
+        return self._info.raw
+
+    @property
+    def version(self) -> tuple[int, int]:
+        return self.preamble.major, self.preamble.minor
+
+    @property
+    def fingerprint(self) -> ModelFingerprint:
+        return self._info.fingerprint
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        return self._info.metadata
+
+    @property
+    def provenance(self) -> Provenance | None:
+        return self._info.provenance
+
+    @property
+    def encoding(self) -> str:
+        return self._info.encoding
+
+    @property
+    def num_frames(self) -> int:
+        return self._info.cameras.num_frames
+
+    @property
+    def static_shape(self) -> tuple[int, int]:
+        return self._info.static_shape
+
+    @property
+    def dynamic_shape(self) -> tuple[int, int]:
+        return self._info.dynamic_shape
+
+    @property
+    def nbytes(self) -> int:
+        return self.preamble.file_length
+
+    # --- sections ----------------------------------------------------------------------------------
+    @property
+    def cameras(self) -> Trajectory:
+        """The source camera trajectory (K, w2c, size, distortion, timestamps)."""
+        if self._cameras is None:
+            self._cameras = unpack_cameras(self.raw_section(SECTION_CAMERAS), self._info.cameras)
+        return self._cameras
+
+    def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only)."""
+        tok_name, quant_name = _TOKENS[which]
+        if not is_affine(self.encoding):
+            raise FormatError(f"encoding {self.encoding} has no quantization parameters")
+        return parse_quant(self.raw_section(quant_name), self.static_shape[1])
+
+    def _tokens(self, which: str, dequantize: bool) -> np.ndarray:
+        tok_name, quant_name = _TOKENS[which]
+        rows, cols = self.static_shape if which == "static" else self.dynamic_shape
+        payload = self.raw_section(tok_name)
+        if not dequantize:
+            return codes_from_payload(payload, self.encoding, rows, cols)
+        quant = self.raw_section(quant_name) if is_affine(self.encoding) else None
+        return decode_tokens(payload, quant, self.encoding, rows, cols)
+
+    def static_tokens(self, dequantize: bool = True) -> np.ndarray:
+        """Z_s as (N_s, d) float32 (zero-copy read-only view for raw-stored float32); with
+        ``dequantize=False`` the stored values (float32, float16, or uint8 codes for int8/int4)."""
+        return self._tokens("static", dequantize)
+
+    def dynamic_tokens(self, dequantize: bool = True) -> np.ndarray:
+        """Z_d as (N_d, d) float32; see :meth:`static_tokens`."""
+        return self._tokens("dynamic", dequantize)
+
+    def verify(self) -> None:
+        """Check every byte: padding is zero, every section's checksum, size, and decoded content
+        (including ancillary sections' checksums).  Raises the FormatError subclass of the first problem."""
+        end = PREAMBLE_SIZE + self.preamble.header_length + self.preamble.section_count * SECTION_ENTRY_SIZE
+        for entry in self.sections:
+            if any(self._data[end:entry.offset]):
+                raise MalformedSectionError(f"padding before section {entry.type} is not zero")
+            end = entry.offset + entry.stored_length
+            if entry.type not in KNOWN_SECTIONS:
+                if crc32(self._data[entry.offset:end]) != entry.crc32:
+                    raise ChecksumError(f"ancillary section {entry.type} is damaged (CRC-32 mismatch)")
+        self.to_scene()
+
+    def to_scene(self) -> Scene:
+        """Decode everything into a :class:`Scene` (tokens dequantized to float32)."""
+        return Scene(static_tokens=self.static_tokens(), dynamic_tokens=self.dynamic_tokens(), cameras=self.cameras,
+                     fingerprint=self.fingerprint, metadata=self.metadata, provenance=self.provenance,
+                     encoding=self.encoding)
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-able overview: format_version, bytes, frames, width, height, static_shape, dynamic_shape,
+        encoding, fingerprint (dict), source_capture_id, kind, created_utc, metadata_keys, sections."""
+        prov = self.provenance
+        cams = self._info.cameras
+        return {
+            "format_version": f"{self.preamble.major}.{self.preamble.minor}",
+            "bytes": self.nbytes,
+            "frames": cams.num_frames, "width": cams.width, "height": cams.height,
+            "static_shape": list(self.static_shape), "dynamic_shape": list(self.dynamic_shape),
+            "encoding": self.encoding,
+            "fingerprint": self.fingerprint.to_dict(),
+            "source_capture_id": None if prov is None else prov.source_capture_id,
+            "kind": None if prov is None else prov.kind,
+            "created_utc": None if prov is None else prov.created_utc,
+            "metadata_keys": sorted(self.metadata),
+            "sections": [{"type": e.type, "critical": e.critical, "stored_bytes": e.stored_length,
+                          "raw_bytes": e.raw_length, "compression": ["raw", "zstd"][e.compression]
+                          if e.compression < 2 else str(e.compression)} for e in self.sections],
+        }
+
+    def __repr__(self) -> str:
+        return (f"<SceneFile v{self.preamble.major}.{self.preamble.minor} {self.nbytes} bytes, {self.encoding}, "
+                f"Z_s {self.static_shape}, Z_d {self.dynamic_shape}, {self.num_frames} frames>")
+
+
+def open_scene(source: Any) -> SceneFile:
+    """Open a scene lazily from a path, bytes-like object or binary file: the preamble, header and section
+    table are parsed and checked now; sections are decoded on access."""
+    return SceneFile(read_container_bytes(source))
+
+
+def load(source: Any) -> Scene:
+    """Read and fully validate a scene (every section decoded and checksummed)."""
+    return open_scene(source).to_scene()
+
+
+def loads(data: bytes) -> Scene:
+    """:func:`load` from bytes."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise FormatError(f"loads() takes bytes, got {type(data).__name__}")
+    return load(data)
+
+
+def verify(source: Any) -> None:
+    """Check a whole scene file; raises the FormatError subclass describing the first problem."""
+    open_scene(source).verify()
+

@@ -1,0 +1,95 @@
+"""The in-memory scene: what one ``.vt4d`` file holds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..cameras import Trajectory
+from ..errors import FormatError, LimitExceededError
+from .encodings import ENCODINGS
+from .fingerprint import ModelFingerprint, Provenance
+from .limits import MAX_FRAMES, MAX_IMAGE_SIDE
+from .metadata import normalize_metadata
+
+__all__ = ["Scene"]
+
+
+def _tokens(value: Any, what: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.ndim != 2:
+        raise FormatError(f"{what} must be a 2-D (N, d) array, got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise FormatError(f"{what} must hold real numbers, got dtype {arr.dtype}")
+    arr = arr.astype(np.float32, copy=False)
+    if not np.all(np.isfinite(arr)):
+        raise FormatError(f"{what} holds NaN or inf (or values beyond float32's range)")
+    return arr
+
+
+@dataclass
+class Scene:
+    """One encoded scene.
+
+    Attributes:
+        static_tokens: (N_s, d) float32 static tokens Z_s.
+        dynamic_tokens: (N_d, d) float32 dynamic tokens Z_d.
+        cameras: the source camera trajectory the tokens were encoded from (one pose per frame).
+        fingerprint: the model that made the tokens; its shapes must equal the token shapes.
+        metadata: bounded user key/values (see FORMAT.md, "Metadata").
+        provenance: where the tokens came from, or None.
+        encoding: the token encoding used by :func:`save` unless overridden
+            ("float32" | "float16" | "int8" | "int4"); a loaded scene carries its file's encoding.
+    """
+
+    static_tokens: np.ndarray
+    dynamic_tokens: np.ndarray
+    cameras: Trajectory
+    fingerprint: ModelFingerprint
+    metadata: dict[str, Any] = field(default_factory=dict)
+    provenance: Provenance | None = None
+    encoding: str = "int8"
+
+    def __post_init__(self) -> None:
+        self.static_tokens = _tokens(self.static_tokens, "static_tokens")
+        self.dynamic_tokens = _tokens(self.dynamic_tokens, "dynamic_tokens")
+        if not isinstance(self.cameras, Trajectory):
+            raise FormatError(f"cameras must be a vt4dcodec.cameras.Trajectory, got {type(self.cameras).__name__}")
+        if not isinstance(self.fingerprint, ModelFingerprint):
+            raise FormatError("fingerprint must be a ModelFingerprint")
+        if self.provenance is not None and not isinstance(self.provenance, Provenance):
+            raise FormatError("provenance must be a Provenance or None")
+        if self.encoding not in ENCODINGS:
+            raise FormatError(f"encoding must be one of {ENCODINGS}, got {self.encoding!r}")
+        if self.static_tokens.shape != self.fingerprint.static_shape:
+            raise FormatError(f"static_tokens have shape {self.static_tokens.shape} but the model fingerprint "
+                              f"says {self.fingerprint.static_shape}")
+        if self.dynamic_tokens.shape != self.fingerprint.dynamic_shape:
+            raise FormatError(f"dynamic_tokens have shape {self.dynamic_tokens.shape} but the model fingerprint "
+                              f"says {self.fingerprint.dynamic_shape}")
+        if self.static_tokens.shape[1] != self.dynamic_tokens.shape[1]:
+            raise FormatError("static and dynamic tokens must have the same width d")
+        if self.cameras.num_frames > MAX_FRAMES:
+            raise LimitExceededError(f"{self.cameras.num_frames} frames exceed the limit of {MAX_FRAMES}")
+        if max(self.cameras.width, self.cameras.height) > MAX_IMAGE_SIDE:
+            raise LimitExceededError(f"image size exceeds {MAX_IMAGE_SIDE} pixels per side")
+        self.metadata = normalize_metadata(self.metadata)
+
+    @property
+    def num_frames(self) -> int:
+        return self.cameras.num_frames
+
+    @property
+    def static_shape(self) -> tuple[int, int]:
+        return tuple(self.static_tokens.shape)  # type: ignore[return-value]
+
+    @property
+    def dynamic_shape(self) -> tuple[int, int]:
+        return tuple(self.dynamic_tokens.shape)  # type: ignore[return-value]
+
+    def __repr__(self) -> str:
+        return (f"Scene(Z_s {self.static_shape[0]}x{self.static_shape[1]}, Z_d {self.dynamic_shape[0]}x"
+                f"{self.dynamic_shape[1]}, {self.num_frames} frames {self.cameras.width}x{self.cameras.height}, "
+                f"encoding={self.encoding}, model={self.fingerprint.short()})")

@@ -1,0 +1,116 @@
+"""Section payloads: compression with a declared raw size, and the cameras section (FORMAT.md,
+"Sections")."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import zstandard
+
+from ..cameras import Trajectory
+from ..errors import CameraError, ChecksumError, MalformedSectionError, UnsupportedFeatureError
+from .header import CameraLayout
+from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, SectionEntry, crc32
+
+__all__ = ["SECTION_CAMERAS", "SECTION_STATIC", "SECTION_DYNAMIC", "SECTION_STATIC_QUANT",
+           "SECTION_DYNAMIC_QUANT", "KNOWN_SECTIONS", "compress_payload", "section_payload",
+           "pack_cameras", "unpack_cameras"]
+
+SECTION_CAMERAS = "CAMS"
+SECTION_STATIC = "ZSTA"
+SECTION_DYNAMIC = "ZDYN"
+SECTION_STATIC_QUANT = "QSTA"
+SECTION_DYNAMIC_QUANT = "QDYN"
+KNOWN_SECTIONS = (SECTION_CAMERAS, SECTION_STATIC_QUANT, SECTION_STATIC, SECTION_DYNAMIC_QUANT, SECTION_DYNAMIC)
+
+
+def compress_payload(raw: bytes, level: int | None) -> tuple[int, bytes]:
+    """(compression code, stored bytes): zstd at ``level`` when it is smaller, else raw.  ``level=None``
+    always stores raw (aligned, so readers get zero-copy arrays)."""
+    if level is None or not raw:
+        return COMPRESSION_RAW, raw
+    packed = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=False).compress(raw)
+    if len(packed) >= len(raw):
+        return COMPRESSION_RAW, raw
+    return COMPRESSION_ZSTD, packed
+
+
+def section_payload(container, entry: SectionEntry, *, check_crc: bool = True):
+    """The raw (decompressed) bytes of a section, as a zero-copy memoryview when stored raw.
+
+    Checks the CRC-32 of the stored bytes first, then decompresses at most ``raw_length`` bytes, so a
+    decompression bomb stops at the declared size (the zstd frame's own size field is never trusted).
+    """
+    stored = memoryview(container)[entry.offset:entry.offset + entry.stored_length]
+    if check_crc and crc32(stored) != entry.crc32:
+        raise ChecksumError(
+            f"section {entry.type} is damaged: CRC-32 0x{crc32(stored):08x} != stored 0x{entry.crc32:08x}"
+        )
+    if entry.compression == COMPRESSION_RAW:
+        return stored
+    if entry.compression != COMPRESSION_ZSTD:
+        raise UnsupportedFeatureError(f"section {entry.type} uses unknown compression {entry.compression}")
+    return _bounded_zstd(stored, entry)
+
+
+def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
+    try:
+        declared = zstandard.frame_content_size(stored)
+    except zstandard.ZstdError as exc:
+        raise MalformedSectionError(f"section {entry.type} is not a zstd frame: {exc}") from None
+    if declared not in (-1, entry.raw_length):  # -1: the frame does not declare its size
+        raise MalformedSectionError(
+            f"section {entry.type}: zstd frame declares {declared} bytes but the table declares {entry.raw_length}"
+        )
+    reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(stored), read_across_frames=False)
+    chunks, total = [], 0
+    try:
+        while total <= entry.raw_length:
+            chunk = reader.read(entry.raw_length + 1 - total)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+    except zstandard.ZstdError as exc:
+        raise MalformedSectionError(f"section {entry.type}: corrupt zstd data ({exc})") from None
+    if total != entry.raw_length:
+        raise MalformedSectionError(
+            f"section {entry.type} decompresses to {'more than ' if total > entry.raw_length else ''}"
+            f"{min(total, entry.raw_length) if total > entry.raw_length else total} bytes; "
+            f"the table declares {entry.raw_length}"
+        )
+    return b"".join(chunks)
+
+
+def pack_cameras(traj: Trajectory) -> tuple[CameraLayout, bytes]:
+    """The cameras section: K (T,3,3), w2c (T,4,4), distortion (n,), timestamps (T,) as little-endian
+    float64, row-major, concatenated in that order (absent parts take no bytes)."""
+    parts = [traj.K, traj.w2c]
+    if traj.distortion is not None:
+        parts.append(traj.distortion)
+    if traj.timestamps is not None:
+        parts.append(traj.timestamps)
+    raw = b"".join(np.ascontiguousarray(p, dtype="<f8").tobytes() for p in parts)
+    layout = CameraLayout(traj.num_frames, traj.width, traj.height,
+                          0 if traj.distortion is None else int(traj.distortion.shape[0]),
+                          traj.timestamps is not None)
+    return layout, raw
+
+
+def unpack_cameras(raw, layout: CameraLayout) -> Trajectory:
+    """Rebuild the trajectory; any convention violation becomes MalformedSectionError."""
+    if len(raw) != layout.raw_length:
+        raise MalformedSectionError(
+            f"cameras section is {len(raw)} bytes; the header's layout needs {layout.raw_length}"
+        )
+    values = np.frombuffer(raw, dtype="<f8")
+    t, n = layout.num_frames, layout.distortion_terms
+    K = values[: 9 * t].reshape(t, 3, 3)
+    w2c = values[9 * t: 25 * t].reshape(t, 4, 4)
+    dist = values[25 * t: 25 * t + n] if n else None
+    ts = values[25 * t + n:] if layout.has_timestamps else None
+    try:
+        return Trajectory(K=K, w2c=w2c, width=layout.width, height=layout.height, distortion=dist, timestamps=ts)
+    except CameraError as exc:
+        raise MalformedSectionError(f"cameras section breaks the camera conventions: {exc}") from None
