@@ -1,0 +1,212 @@
+"""Fit captures to a model's resolution and clip length: undistort, resize, centre-crop (numpy + OpenCV).
+
+The steps, per camera, in order:
+
+1. **Undistort** (only when the camera has distortion terms): remap every frame to the ideal pinhole
+   camera with the *same* ``K`` (``cv2.initUndistortRectifyMap(K, dist, None, K)``), bilinear for RGB,
+   nearest for depth; pixels that map outside the source image become black / unknown depth (0).
+   The distortion is then dropped from the calibration.
+2. **Resize** by one factor so the image covers ``height`` x ``width`` (the shorter side fits):
+   ``s = max(height / H, width / W)``, new size ``round(W s) x round(H s)``; the intrinsics follow
+   the pixel-centre mapping ``u' = (u + 0.5) * sx - 0.5`` with the exact per-axis ratios.
+   RGB uses area averaging when shrinking (bilinear when enlarging); depth uses exact nearest.
+3. **Centre-crop** to ``height`` x ``width``: offset ``x0 = (W' - width) // 2``, ``y0 = (H' - height)
+   // 2``; ``cx -= x0``, ``cy -= y0``.
+
+Frames ``[start, start + num_frames)`` are kept and the rest dropped (``num_frames=None`` keeps all
+from ``start``); poses and timestamps are sliced the same way.  :class:`FitPlan` applies the same
+mapping to pixel coordinates, so observations (e.g. detected corners) can follow the images.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cameras import Trajectory
+from ..errors import CaptureError
+from .capture import Capture
+
+__all__ = [
+    "FitPlan",
+    "plan_fit",
+    "Undistorter",
+    "undistort_pixels",
+    "fit_image",
+    "fit_trajectory",
+    "fit_capture",
+    "select_frames",
+]
+
+# Tight criteria so point undistortion converges even for strongly distorted webcams (k1 ~ -0.34).
+_UNDISTORT_CRITERIA = (3, 200, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
+
+
+def _cv2():
+    import cv2
+
+    return cv2
+
+
+@dataclass(frozen=True)
+class FitPlan:
+    """How an ``in_width`` x ``in_height`` image becomes ``out_width`` x ``out_height``: a resize to
+    ``scaled_width`` x ``scaled_height`` then a crop starting at pixel ``(x0, y0)``."""
+
+    in_width: int
+    in_height: int
+    scaled_width: int
+    scaled_height: int
+    x0: int
+    y0: int
+    out_width: int
+    out_height: int
+
+    @property
+    def sx(self) -> float:
+        return self.scaled_width / self.in_width
+
+    @property
+    def sy(self) -> float:
+        return self.scaled_height / self.in_height
+
+    def intrinsics(self, K: np.ndarray) -> np.ndarray:
+        """(..., 3, 3) intrinsics of the fitted image (pixel-centre resize, then crop offset)."""
+        K = np.array(K, dtype=np.float64)
+        out = K.copy()
+        out[..., 0, :] *= self.sx
+        out[..., 1, :] *= self.sy
+        out[..., 0, 2] = (K[..., 0, 2] + 0.5) * self.sx - 0.5 - self.x0
+        out[..., 1, 2] = (K[..., 1, 2] + 0.5) * self.sy - 0.5 - self.y0
+        return out
+
+    def points(self, uv: np.ndarray) -> np.ndarray:
+        """(..., 2) pixel coordinates of the (undistorted) input image -> fitted image coordinates."""
+        uv = np.asarray(uv, dtype=np.float64)
+        return np.stack([
+            (uv[..., 0] + 0.5) * self.sx - 0.5 - self.x0,
+            (uv[..., 1] + 0.5) * self.sy - 0.5 - self.y0,
+        ], axis=-1)
+
+
+def plan_fit(width: int, height: int, *, out_height: int, out_width: int) -> FitPlan:
+    """The resize-then-centre-crop plan that fits ``width`` x ``height`` to ``out_width`` x ``out_height``."""
+    for label, v in (("width", width), ("height", height), ("out_width", out_width), ("out_height", out_height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+            raise CaptureError(f"{label} must be a positive integer number of pixels, got {v!r}")
+    s = max(out_height / height, out_width / width)
+    sw = max(out_width, int(round(width * s)))
+    sh = max(out_height, int(round(height * s)))
+    return FitPlan(int(width), int(height), sw, sh, (sw - out_width) // 2, (sh - out_height) // 2,
+                   int(out_width), int(out_height))
+
+
+class Undistorter:
+    """Remaps images of a distorted camera (``K``, OpenCV ``dist``, ``width`` x ``height``) to the
+    ideal pinhole camera with the same ``K``.  Build once per camera; the maps are reused."""
+
+    def __init__(self, K: np.ndarray, dist: np.ndarray, width: int, height: int) -> None:
+        cv2 = _cv2()
+        self.K = np.asarray(K, dtype=np.float64)
+        self.dist = np.asarray(dist, dtype=np.float64)
+        self.map_x, self.map_y = cv2.initUndistortRectifyMap(
+            self.K, self.dist, None, self.K, (int(width), int(height)), cv2.CV_32FC1
+        )
+
+    def image(self, image: np.ndarray) -> np.ndarray:
+        """Undistort an (H, W, 3) uint8 image (bilinear; outside the source -> 0)."""
+        cv2 = _cv2()
+        return cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    def depth(self, depth: np.ndarray) -> np.ndarray:
+        """Undistort an (H, W) float32 depth map (nearest; outside the source -> 0 = unknown)."""
+        cv2 = _cv2()
+        return cv2.remap(depth, self.map_x, self.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def undistort_pixels(uv: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Distorted pixel coordinates (N, 2) -> pixels of the ideal pinhole camera with the same ``K``."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+    K = np.asarray(K, dtype=np.float64)
+    out = _cv2().undistortPoints(uv, K, np.asarray(dist, dtype=np.float64), None, K, criteria=_UNDISTORT_CRITERIA)
+    return out.reshape(-1, 2)
+
+
+def fit_image(image: np.ndarray, plan: FitPlan, *, depth: bool = False) -> np.ndarray:
+    """Resize and centre-crop one (H, W, 3) uint8 image or (H, W) float32 depth map by ``plan``."""
+    cv2 = _cv2()
+    if image.shape[:2] != (plan.in_height, plan.in_width):
+        raise CaptureError(f"image is {image.shape[1]}x{image.shape[0]}, the plan is for {plan.in_width}x{plan.in_height}")
+    size = (plan.scaled_width, plan.scaled_height)
+    if size != (plan.in_width, plan.in_height):
+        if depth:
+            interp = cv2.INTER_NEAREST_EXACT
+        elif plan.sx <= 1 and plan.sy <= 1:
+            interp = cv2.INTER_AREA
+        else:
+            interp = cv2.INTER_LINEAR
+        image = cv2.resize(image, size, interpolation=interp)
+    return np.ascontiguousarray(image[plan.y0:plan.y0 + plan.out_height, plan.x0:plan.x0 + plan.out_width])
+
+
+def fit_trajectory(traj: Trajectory, plan: FitPlan) -> Trajectory:
+    """The calibration of the fitted images: intrinsics mapped by ``plan``, distortion dropped."""
+    return Trajectory(K=plan.intrinsics(traj.K), w2c=traj.w2c, width=plan.out_width, height=plan.out_height,
+                      timestamps=traj.timestamps)
+
+
+def select_frames(total: int, *, num_frames: int | None, start: int = 0) -> range:
+    """Frame indices ``[start, start + num_frames)`` of a ``total``-frame clip (checked)."""
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or not 0 <= start < total:
+        raise CaptureError(f"start frame {start!r} outside the capture's 0..{total - 1}")
+    available = total - start
+    if num_frames is None:
+        num_frames = available
+    if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or not 1 <= num_frames <= available:
+        raise CaptureError(f"num_frames {num_frames!r}: only {available} frames from frame {start} on")
+    return range(int(start), int(start + num_frames))
+
+
+def _fitted_camera(traj: Trajectory, frames: np.ndarray, depth: np.ndarray | None, plan: FitPlan,
+                   sel: range) -> tuple[Trajectory, np.ndarray, np.ndarray | None]:
+    undistorters: dict[bytes, Undistorter] = {}
+
+    def undistorter(i: int) -> Undistorter | None:
+        if traj.distortion is None:
+            return None
+        key = traj.K[i].tobytes()
+        if key not in undistorters:
+            undistorters[key] = Undistorter(traj.K[i], traj.distortion, traj.width, traj.height)
+        return undistorters[key]
+
+    out_rgb = np.empty((len(sel), plan.out_height, plan.out_width, 3), dtype=np.uint8)
+    out_depth = None if depth is None else np.empty((len(sel), plan.out_height, plan.out_width), dtype=np.float32)
+    for j, i in enumerate(sel):
+        u = undistorter(i)
+        out_rgb[j] = fit_image(frames[i] if u is None else u.image(frames[i]), plan)
+        if depth is not None:
+            d = np.asarray(depth[i], dtype=np.float32)
+            out_depth[j] = fit_image(d if u is None else u.depth(d), plan, depth=True)
+    return fit_trajectory(traj[sel.start:sel.stop], plan), out_rgb, out_depth
+
+
+def fit_capture(capture: Capture, *, height: int, width: int, num_frames: int | None = None,
+                start: int = 0) -> Capture:
+    """A copy of ``capture`` undistorted, resized (shorter side) and centre-cropped to ``height`` x
+    ``width`` with intrinsics updated, keeping frames ``[start, start + num_frames)``.
+
+    The result has no distortion terms; metadata records the fit under ``"fit"``.
+    """
+    sel = select_frames(capture.num_frames, num_frames=num_frames, start=start)
+    cameras, frames, depth = {}, {}, {}
+    for name, traj in capture.cameras.items():
+        plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width)
+        d = capture.depth[name] if capture.has_depth(name) else None
+        cameras[name], frames[name], dd = _fitted_camera(traj, capture.frames[name], d, plan, sel)
+        if dd is not None:
+            depth[name] = dd
+    metadata = dict(capture.metadata)
+    metadata["fit"] = {"height": height, "width": width, "start": sel.start, "num_frames": len(sel)}
+    return Capture(cameras=cameras, frames=frames, depth=depth or None, fps=capture.fps,
+                   capture_id=capture.capture_id, metadata=metadata)

@@ -1,0 +1,128 @@
+"""`vt4d capture-info` and `vt4d contact-sheet`: look at capture directories.
+
+Each command is one ``_register_*`` helper listed in :data:`REGISTER`; adding a command to this group
+is one function plus one entry there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = ["register", "capture_info", "REGISTER"]
+
+
+def capture_info(directory: str) -> dict[str, Any]:
+    """A JSON-ready summary of a capture directory (reads the manifest only, checks media exist)."""
+    from ..capture.io import read_manifest
+
+    m = read_manifest(directory)
+    cams = []
+    for e in m.cameras:
+        t = e.trajectory
+        centers = t.centers
+        media = m.directory / e.media_path
+        cams.append({
+            "name": e.name,
+            "width": t.width,
+            "height": t.height,
+            "fx": float(t.K[0, 0, 0]),
+            "fy": float(t.K[0, 1, 1]),
+            "cx": float(t.K[0, 0, 2]),
+            "cy": float(t.K[0, 1, 2]),
+            "distortion": None if t.distortion is None else t.distortion.tolist(),
+            "static": bool(np.all(t.w2c == t.w2c[0])),
+            "center_first": centers[0].round(6).tolist(),
+            "path_length_m": float(np.linalg.norm(np.diff(centers, axis=0), axis=1).sum()),
+            "media": {"type": e.media_type, "path": e.media_path, "exists": media.exists()},
+            "depth": None if e.depth_type is None else {
+                "type": e.depth_type, "path": e.depth_path, "exists": (m.directory / e.depth_path).exists(),
+            },
+            "duration_s": None if t.timestamps is None else float(t.timestamps[-1] - t.timestamps[0]),
+        })
+    return {
+        "directory": str(m.directory),
+        "capture_id": m.capture_id,
+        "fps": m.fps,
+        "num_frames": m.num_frames,
+        "num_cameras": len(m.cameras),
+        "cameras": cams,
+        "metadata": m.metadata,
+    }
+
+
+def _print_info(info: dict[str, Any]) -> None:
+    print(f"capture {info['capture_id']!r} in {info['directory']}")
+    print(f"  {info['num_cameras']} cameras, {info['num_frames']} frames at {info['fps']:.3f} fps")
+    for c in info["cameras"]:
+        depth = c["depth"]["type"] if c["depth"] else "no depth"
+        motion = "static" if c["static"] else f"moving, path {c['path_length_m']:.3f} m"
+        dist = "distorted" if c["distortion"] else "pinhole"
+        missing = "" if c["media"]["exists"] else "  [MEDIA MISSING]"
+        print(
+            f"  {c['name']:<12} {c['width']}x{c['height']}  fx={c['fx']:.1f} fy={c['fy']:.1f} "
+            f"cx={c['cx']:.1f} cy={c['cy']:.1f}  {dist}, {motion}, {c['media']['type']}, {depth}{missing}"
+        )
+
+
+def _run_capture_info(args: argparse.Namespace) -> int:
+    info = capture_info(args.directory)
+    if args.json:
+        print(json.dumps(info, indent=1))
+    else:
+        _print_info(info)
+    return 0
+
+
+def _run_contact_sheet(args: argparse.Namespace) -> int:
+    from ..capture.contact_sheet import write_contact_sheet
+    from ..capture.io import read_capture
+
+    capture = read_capture(args.directory)
+    w, h = write_contact_sheet(capture, args.output, max_frames=args.frames, thumb_height=args.thumb_height)
+    print(f"wrote {args.output} ({w}x{h}, {len(capture.cameras)} cameras)")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    return value
+
+
+def _register_capture_info(sub: Any) -> None:
+    p = sub.add_parser("capture-info", help="summarize a capture directory (cameras, frames, media)",
+                       description="Print a capture directory's cameras, frame count, fps and media.")
+    p.add_argument("directory", help="capture directory (holds capture.json)")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    p.set_defaults(func=_run_capture_info)
+
+
+def _register_contact_sheet(sub: Any) -> None:
+    p = sub.add_parser("contact-sheet", help="write a PNG grid of a capture (cameras x frames)",
+                       description="Write a PNG contact sheet: one row per camera, evenly spaced frames.")
+    p.add_argument("directory", help="capture directory (holds capture.json)")
+    p.add_argument("-o", "--output", required=True, help="PNG file to write")
+    p.add_argument("--frames", type=_positive_int, default=8, help="frame columns (default 8)")
+    p.add_argument("--thumb-height", type=_positive_int, default=96, help="thumbnail height in pixels (default 96)")
+    p.set_defaults(func=_run_contact_sheet)
+
+
+# One entry per command of this group, in --help order.
+REGISTER: list[Callable[[Any], None]] = [
+    _register_capture_info,
+    _register_contact_sheet,
+]
+
+
+def register(subparsers: Any) -> None:
+    """Add this group's commands to the ``vt4d`` parser."""
+    for add in REGISTER:
+        add(subparsers)
