@@ -1,0 +1,267 @@
+"""The index block: a sorted fixed-width table (key -> payload offset, length, CRC, summary).
+
+Layout (see ``spec/FORMAT.archive.md``)::
+
+    0   4  magic "V4AI"
+    4   4  u32 entry size (48)
+    8   8  u64 count
+    16  8  u64 keys blob length
+    24  8  u64 summaries blob length
+    32  count x 48-byte entries, sorted by key bytes, keys unique
+        then the keys blob (UTF-8 keys packed in entry order), then the summaries blob (msgpack maps)
+
+Parsing is O(1) allocation beyond the index bytes themselves (``np.frombuffer`` view) plus one O(n)
+validation pass; lookup is a binary search over the key blob (O(log n)).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Any, Iterator, Sequence
+
+import msgpack
+import numpy as np
+
+from ..errors import ArchiveError, ChecksumError, LimitExceededError, TruncatedError
+from .layout import (FRAME_HEADER_SIZE, HEADER_SIZE, INDEX_ENTRY_SIZE, INDEX_HEADER_SIZE, INDEX_MAGIC,
+                     MAX_SCENES, MAX_SUMMARY_BYTES, Commit, check_key, crc32)
+
+__all__ = ["IndexEntry", "ArchiveIndex", "DuplicateKeyError", "OverlappingRecordsError", "IndexChecksumError",
+           "encode_summary", "decode_summary"]
+
+ENTRY_DTYPE = np.dtype([
+    ("payload_offset", "<u8"), ("payload_length", "<u8"), ("payload_crc32", "<u4"),
+    ("key_len", "<u2"), ("flags", "<u2"), ("key_offset", "<u8"), ("summary_offset", "<u8"),
+    ("summary_len", "<u4"), ("reserved", "<u4"),
+])
+assert ENTRY_DTYPE.itemsize == INDEX_ENTRY_SIZE
+_INDEX_HEADER = struct.Struct("<4sIQQQ")
+
+
+class DuplicateKeyError(ArchiveError):
+    """Two records of one index (or an append without ``replace=True``) share a key."""
+
+
+class OverlappingRecordsError(ArchiveError):
+    """Two index entries point at overlapping byte ranges."""
+
+
+def _no_ext(code: int, data: bytes) -> Any:
+    raise ArchiveError(f"record summary uses msgpack extension type {code}; not allowed")
+
+
+def encode_summary(summary: dict) -> bytes:
+    """msgpack bytes of a JSON-like summary dict (str keys), bounded by MAX_SUMMARY_BYTES."""
+    if not isinstance(summary, dict):
+        raise ArchiveError(f"record summary must be a dict, got {type(summary).__name__}")
+    try:
+        raw = msgpack.packb(summary, use_bin_type=True, strict_types=False)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ArchiveError(f"record summary is not msgpack-serialisable: {exc}") from None
+    if len(raw) > MAX_SUMMARY_BYTES:
+        raise LimitExceededError(f"record summary is {len(raw)} bytes (limit {MAX_SUMMARY_BYTES})")
+    return raw
+
+
+def decode_summary(raw: bytes) -> dict:
+    """Inverse of :func:`encode_summary`; rejects non-maps, ext types and absurd nesting."""
+    try:
+        value = msgpack.unpackb(raw, raw=False, strict_map_key=True, ext_hook=_no_ext,
+                                use_list=True)
+    except ArchiveError:
+        raise
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise ArchiveError(f"record summary is not valid msgpack: {exc}") from None
+    if not isinstance(value, dict):
+        raise ArchiveError("record summary must be a msgpack map")
+    return value
+
+
+@dataclass(frozen=True)
+class IndexEntry:
+    """One committed scene: its payload (a complete ``.vt4d``) is ``length`` bytes at ``offset``."""
+
+    key: str
+    offset: int
+    length: int
+    crc32: int
+    summary_bytes: bytes = field(repr=False, default=b"\x80")
+
+    @property
+    def summary(self) -> dict:
+        return decode_summary(self.summary_bytes)
+
+    @property
+    def frame_offset(self) -> int:
+        """Where this record's frame (32-byte header + key + summary + payload) starts."""
+        return self.offset - FRAME_HEADER_SIZE - len(self.key.encode()) - len(self.summary_bytes)
+
+
+class ArchiveIndex:
+    """A parsed, validated index block.  Immutable; build new ones with :meth:`build`."""
+
+    def __init__(self, table: np.ndarray, keys_blob: bytes, summaries_blob: bytes):
+        self._table = table
+        self._keys = keys_blob
+        self._summaries = summaries_blob
+
+    # -- construction --------------------------------------------------------------------------
+    @staticmethod
+    def build(entries: Sequence[IndexEntry]) -> bytes:
+        """Serialise entries (any order; keys must be unique) into index-block bytes."""
+        ordered = sorted(entries, key=lambda e: e.key.encode())
+        keys = [check_key(e.key) for e in ordered]
+        for a, b in zip(keys, keys[1:]):
+            if a == b:
+                raise DuplicateKeyError(f"duplicate scene key {a.decode()!r} in one index")
+        if len(ordered) > MAX_SCENES:
+            raise LimitExceededError(f"{len(ordered)} scenes exceed the archive limit {MAX_SCENES}")
+        table = np.zeros(len(ordered), dtype=ENTRY_DTYPE)
+        key_off = summ_off = 0
+        for i, (e, k) in enumerate(zip(ordered, keys)):
+            table[i] = (e.offset, e.length, e.crc32, len(k), 0, key_off, summ_off, len(e.summary_bytes), 0)
+            key_off += len(k)
+            summ_off += len(e.summary_bytes)
+        head = _INDEX_HEADER.pack(INDEX_MAGIC, INDEX_ENTRY_SIZE, len(ordered), key_off, summ_off)
+        return b"".join([head, table.tobytes(), *keys, *(e.summary_bytes for e in ordered)])
+
+    @classmethod
+    def parse(cls, data: bytes, commit: Commit) -> "ArchiveIndex":
+        """Validate index bytes against their commit (CRC, counts, bounds, order, overlaps)."""
+        if len(data) != commit.index_length:
+            raise TruncatedError(f"index is {len(data)} bytes, commit says {commit.index_length}")
+        if crc32(data) != commit.index_crc32:
+            raise IndexChecksumError("archive index checksum mismatch (corrupted index)")
+        return cls.parse_unchecked(data, commit.index_offset, commit.scene_count)
+
+    @classmethod
+    def parse_unchecked(cls, data: bytes, index_offset: int, expected_count: int | None) -> "ArchiveIndex":
+        """Structure checks only (the CRC is the caller's business).  Records must end by ``index_offset``."""
+        if len(data) < INDEX_HEADER_SIZE:
+            raise TruncatedError("index block shorter than its 32-byte header")
+        magic, esize, count, keys_len, summ_len = _INDEX_HEADER.unpack_from(data)
+        if magic != INDEX_MAGIC:
+            raise ArchiveError("index block has a bad magic")
+        if esize != INDEX_ENTRY_SIZE:
+            raise ArchiveError(f"index entry size {esize}, expected {INDEX_ENTRY_SIZE}")
+        if count > MAX_SCENES:
+            raise LimitExceededError(f"index claims {count} scenes (limit {MAX_SCENES})")
+        if expected_count is not None and count != expected_count:
+            raise ArchiveError(f"index holds {count} scenes, its commit says {expected_count}")
+        table_end = INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE
+        if table_end + keys_len + summ_len != len(data):
+            raise ArchiveError(
+                f"index block sizes disagree: {count} entries + {keys_len} key bytes + "
+                f"{summ_len} summary bytes != {len(data) - INDEX_HEADER_SIZE}"
+            )
+        table = np.frombuffer(data, dtype=ENTRY_DTYPE, count=count, offset=INDEX_HEADER_SIZE)
+        keys_blob = data[table_end: table_end + keys_len]
+        summaries_blob = data[table_end + keys_len:]
+        cls._validate(table, keys_blob, summaries_blob, index_offset)
+        return cls(table, keys_blob, summaries_blob)
+
+    @staticmethod
+    def _validate(t: np.ndarray, keys: bytes, summaries: bytes, index_offset: int) -> None:
+        n = len(t)
+        if n == 0:
+            return
+        if np.any(t["flags"] != 0) or np.any(t["reserved"] != 0):
+            raise ArchiveError("index entry sets unknown flags")
+        klen = t["key_len"].astype(np.int64)
+        if np.any(klen < 1):
+            raise ArchiveError("index entry has an empty key")
+        expected_koff = np.concatenate([[0], np.cumsum(klen)[:-1]])
+        if np.any(t["key_offset"].astype(np.int64) != expected_koff) or int(klen.sum()) != len(keys):
+            raise ArchiveError("index keys are not packed in entry order")
+        slen = t["summary_len"].astype(np.int64)
+        expected_soff = np.concatenate([[0], np.cumsum(slen)[:-1]])
+        if np.any(t["summary_offset"].astype(np.int64) != expected_soff) or int(slen.sum()) != len(summaries):
+            raise ArchiveError("index summaries are not packed in entry order")
+        if np.any(slen > MAX_SUMMARY_BYTES):
+            raise LimitExceededError("index summary exceeds the size limit")
+        off = t["payload_offset"]
+        length = t["payload_length"]
+        # bounds without uint64 overflow: offset >= header + frame, length <= index_offset - offset
+        if np.any(off < HEADER_SIZE + FRAME_HEADER_SIZE) or np.any(off > index_offset):
+            raise ArchiveError("index entry offset lies outside the record area (past the end?)")
+        if np.any(length > np.uint64(index_offset) - off):
+            raise ArchiveError("index entry runs past the start of its index (offset + length past the end)")
+        order = np.argsort(off, kind="stable")
+        so, sl = off[order].astype(np.int64), length[order].astype(np.int64)
+        if n > 1 and np.any(so[1:] < so[:-1] + sl[:-1]):
+            raise OverlappingRecordsError("index entries point at overlapping records")
+        prev = None
+        for i in range(n):
+            start = int(expected_koff[i])
+            k = keys[start: start + int(klen[i])]
+            if prev is not None and k <= prev:
+                if k == prev:
+                    raise DuplicateKeyError(f"duplicate key {k.decode(errors='replace')!r} in the index")
+                raise ArchiveError("index keys are not sorted")
+            prev = k
+        for i in (0, n - 1):  # keys are cheap to check fully; do it on access too
+            _decode_key(keys[int(expected_koff[i]): int(expected_koff[i] + klen[i])])
+
+    # -- queries -----------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self._table)
+
+    def key_bytes(self, i: int) -> bytes:
+        row = self._table[i]
+        start = int(row["key_offset"])
+        return self._keys[start: start + int(row["key_len"])]
+
+    def key(self, i: int) -> str:
+        return _decode_key(self.key_bytes(i))
+
+    def find(self, key: str) -> int | None:
+        """Position of ``key`` (binary search over the sorted keys), or None."""
+        try:
+            target = key.encode("utf-8")
+        except (UnicodeEncodeError, AttributeError):
+            return None
+        lo, hi = 0, len(self._table)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            k = self.key_bytes(mid)
+            if k < target:
+                lo = mid + 1
+            elif k > target:
+                hi = mid
+            else:
+                return mid
+        return None
+
+    def summary_bytes(self, i: int) -> bytes:
+        row = self._table[i]
+        start = int(row["summary_offset"])
+        return self._summaries[start: start + int(row["summary_len"])]
+
+    def entry(self, i: int) -> IndexEntry:
+        row = self._table[i]
+        return IndexEntry(self.key(i), int(row["payload_offset"]), int(row["payload_length"]),
+                          int(row["payload_crc32"]), self.summary_bytes(i))
+
+    def entries(self) -> Iterator[IndexEntry]:
+        return (self.entry(i) for i in range(len(self)))
+
+    def keys(self) -> list[str]:
+        return [self.key(i) for i in range(len(self))]
+
+    @property
+    def payload_bytes(self) -> int:
+        return int(self._table["payload_length"].sum()) if len(self) else 0
+
+
+class IndexChecksumError(ArchiveError, ChecksumError):
+    """The index bytes do not match the CRC stored in the commit."""
+
+
+def _decode_key(raw: bytes) -> str:
+    try:
+        key = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ArchiveError("index key is not valid UTF-8") from None
+    check_key(key)
+    return key

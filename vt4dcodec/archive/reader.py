@@ -1,0 +1,167 @@
+"""Read an archive: find the last commit, load its index, fetch records by key.
+
+Opening costs two reads (the 64-byte tail and the index) when the file ends with a footer, three
+when it does not (a writer is appending, or one crashed): the tail, the 160-byte header whose commit
+slots point at the last commit, then the index.  Reading a scene is one read of exactly its payload.
+Readers never lock; they see the last state committed before they opened.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Iterator
+
+from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
+from .index import ArchiveIndex, IndexEntry
+from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
+                     parse_footer, parse_preamble, parse_slot)
+from .source import ByteSource, open_source
+
+__all__ = ["ArchiveReader", "open_archive", "find_commit", "NoCommitError", "RecordChecksumError",
+           "best_slot"]
+
+MIN_ARCHIVE_SIZE = HEADER_SIZE + INDEX_HEADER_SIZE + FOOTER_SIZE
+
+
+class NoCommitError(ArchiveError):
+    """Neither the tail nor a header slot holds a valid commit; ``vt4d repair --full-scan`` may help."""
+
+
+class RecordChecksumError(ArchiveError, ChecksumError):
+    """A record's bytes do not match the CRC in the index."""
+
+
+def best_slot(header: bytes, size: int) -> Commit | None:
+    """The valid header slot with the highest generation whose commit lies inside ``size`` bytes."""
+    best = None
+    for off in SLOT_OFFSETS:
+        c = parse_slot(header[off: off + SLOT_SIZE])
+        if c is not None and c.end <= size and (best is None or c.generation > best.generation):
+            best = c
+    return best
+
+
+def find_commit(source: ByteSource) -> tuple[Commit, bool]:
+    """The last commit and whether it is the file's tail footer (False: found via a header slot)."""
+    size = source.size()
+    if size < MIN_ARCHIVE_SIZE:
+        if size >= 8:
+            parse_preamble(source.read(0, min(size, 32)) + bytes(32))  # bad magic beats "too short"
+        raise TruncatedError(f"{source.name}: {size} bytes is too short for an archive ({MIN_ARCHIVE_SIZE} minimum)")
+    try:
+        commit = parse_footer(source.read(size - FOOTER_SIZE, FOOTER_SIZE))
+        if commit.end == size:
+            return commit, True
+    except ArchiveError:
+        pass
+    header = source.read(0, HEADER_SIZE)
+    parse_preamble(header)
+    commit = best_slot(header, size)
+    if commit is None:
+        raise NoCommitError(
+            f"{source.name}: no valid commit (footer and header slots damaged); "
+            "run `vt4d repair --full-scan` to rebuild the index from the records"
+        )
+    return commit, False
+
+
+class ArchiveReader:
+    """A read-only view of an archive's last commit.
+
+    ``path_or_url`` is a local path, an fsspec URL (``memory://``, ``http://``, ``s3://``...; extra
+    ``storage_options`` go to fsspec), raw bytes, or a :class:`ByteSource`.
+    """
+
+    def __init__(self, path_or_url: Any, **storage_options: Any):
+        self.source: ByteSource = open_source(path_or_url, **storage_options)
+        self.commit, self.committed_at_tail = find_commit(self.source)
+        data = self.source.read(self.commit.index_offset, self.commit.index_length)
+        self.index = ArchiveIndex.parse(data, self.commit)
+
+    # -- mapping-like access ---------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.source.name
+
+    @property
+    def generation(self) -> int:
+        return self.commit.generation
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str) and self.index.find(key) is not None
+
+    def __iter__(self) -> Iterator[str]:
+        return (self.index.key(i) for i in range(len(self.index)))
+
+    def keys(self) -> list[str]:
+        """All committed keys, sorted by their UTF-8 bytes."""
+        return self.index.keys()
+
+    def entry(self, key: str) -> IndexEntry:
+        i = self.index.find(key)
+        if i is None:
+            raise SceneNotFoundError(f"no scene {key!r} in {self.name}")
+        return self.index.entry(i)
+
+    def entries(self) -> Iterator[IndexEntry]:
+        return self.index.entries()
+
+    def summary(self, key: str) -> dict:
+        """The summary stored in the index (frames, shapes, encoding, fingerprint... as packed)."""
+        return self.entry(key).summary
+
+    # -- records -----------------------------------------------------------------------------------
+    def read_entry(self, entry: IndexEntry, *, check: bool = True) -> bytes:
+        """The payload of ``entry`` in one read; CRC-checked unless ``check=False``."""
+        data = self.source.read(entry.offset, entry.length)
+        if check and crc32(data) != entry.crc32:
+            raise RecordChecksumError(f"record {entry.key!r} in {self.name} fails its checksum")
+        return data
+
+    def read_bytes(self, key: str, *, check: bool = True) -> bytes:
+        """The scene's complete ``.vt4d`` bytes (byte-for-byte what was archived)."""
+        return self.read_entry(self.entry(key), check=check)
+
+    def open_scene(self, key: str) -> Any:
+        """A lazy ``vt4dcodec.format.SceneFile`` over the record."""
+        from .records import format_module
+
+        return format_module().open_scene(self.read_bytes(key))
+
+    def load(self, key: str) -> Any:
+        """The fully validated ``vt4dcodec.format.Scene``."""
+        from .records import format_module
+
+        return format_module().loads(self.read_bytes(key))
+
+    def iter_records(self, *, check: bool = True) -> Iterator[tuple[str, bytes]]:
+        """(key, payload) for every scene in file order (sequential reads, for bulk export)."""
+        for entry in sorted(self.index.entries(), key=lambda e: e.offset):
+            yield entry.key, self.read_entry(entry, check=check)
+
+    @property
+    def uncommitted_bytes(self) -> int:
+        """Bytes after the last commit (an active or crashed writer's records)."""
+        return self.source.size() - self.commit.end
+
+    def close(self) -> None:
+        self.source.close()
+
+    def __enter__(self) -> "ArchiveReader":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"ArchiveReader({self.name!r}, scenes={len(self)}, generation={self.generation})"
+
+
+def open_archive(path_or_url: Any, **storage_options: Any) -> ArchiveReader:
+    """Open an archive for reading (see :class:`ArchiveReader`)."""
+    if isinstance(path_or_url, os.PathLike):
+        path_or_url = os.fspath(path_or_url)
+    return ArchiveReader(path_or_url, **storage_options)

@@ -1,0 +1,70 @@
+"""Bridge between archive records and the single-scene container (``vt4dcodec.format``).
+
+A record payload is a complete ``.vt4d`` byte string.  The archive core treats it as opaque bytes
+plus a summary dict; this module turns a Scene (or ``.vt4d`` bytes) into that pair and back.
+The container is imported lazily so the archive machinery stays usable on its own.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import ArchiveError
+
+__all__ = ["record_from", "summarize_payload", "verify_payload", "format_module", "SUMMARY_FIELDS"]
+
+
+def format_module() -> Any:
+    """``vt4dcodec.format`` with its contract names, or an ArchiveError if this build lacks them."""
+    from .. import format as fmt
+
+    for name in ("dumps", "open_scene", "verify"):
+        if not hasattr(fmt, name):
+            raise ArchiveError(f"vt4dcodec.format.{name} is not available in this build")
+    return fmt
+
+
+def _jsonable(value: Any) -> Any:
+    """Reduce a summary to msgpack/JSON-safe types (tuples -> lists, numpy scalars -> Python)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):
+        return value.item()
+    return value
+
+
+#: the SceneFile.summary() fields an index keeps (the section table stays in the record)
+SUMMARY_FIELDS = ("bytes", "frames", "width", "height", "static_shape", "dynamic_shape", "encoding",
+                  "fingerprint", "source_capture_id", "kind", "created_utc")
+
+
+def summarize_payload(payload: bytes) -> dict:
+    """The index summary of a ``.vt4d`` payload: :data:`SUMMARY_FIELDS` of ``SceneFile.summary()``."""
+    fmt = format_module()
+    full = fmt.open_scene(payload).summary()
+    summary = {k: _jsonable(full[k]) for k in SUMMARY_FIELDS if k in full}
+    summary["bytes"] = len(payload)
+    return summary
+
+
+def verify_payload(payload: bytes) -> None:
+    """Full container validation of one record (raises a FormatError subclass)."""
+    format_module().verify(payload)
+
+
+def record_from(obj: Any, *, validate: bool = True) -> bytes:
+    """``.vt4d`` bytes for a Scene or for bytes/bytearray/memoryview already in the container format.
+
+    With ``validate`` the bytes are fully verified by the container (so nothing invalid is archived).
+    """
+    if isinstance(obj, (bytes, bytearray, memoryview)):
+        payload = bytes(obj)
+        if validate:
+            verify_payload(payload)
+        return payload
+    fmt = format_module()
+    if isinstance(obj, getattr(fmt, "Scene", ())):
+        return fmt.dumps(obj)
+    raise ArchiveError(f"cannot archive a {type(obj).__name__}: pass a Scene or .vt4d bytes")

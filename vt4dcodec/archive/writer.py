@@ -1,0 +1,306 @@
+"""Append scenes to an archive and commit them atomically (one writer at a time).
+
+Write protocol (normative text in ``spec/FORMAT.archive.md``):
+
+1. Take the writer lock (``<archive>.lock``).
+2. Make a header commit slot point at the last commit (fsync) *before* writing any byte after it,
+   so readers that find no footer at the tail still find the last commit.
+3. Append record frames after the last footer (pending, not yet visible).
+4. ``commit()``: write the new index block, fsync; write the new 64-byte footer, fsync - **this
+   fsync is the commit point**; then write the other header slot to point at it, fsync.
+
+A writer killed at any instant leaves the file readable at its last commit: either the tail is that
+commit's footer, or it is not and a header slot points at it (step 2).  Torn frames after the last
+commit are reported by readers as ``uncommitted_bytes``; :func:`repair_archive` (``vt4d repair``)
+adds the complete ones to a new commit, or a writer opened with ``on_uncommitted="recover"`` does.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Literal
+
+from ..errors import ArchiveError
+from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary
+from .layout import (HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, check_key, crc32, pack_footer,
+                     pack_frame_header, pack_preamble, pack_slot, parse_preamble, parse_slot)
+from .lock import WriterLock
+from .reader import NoCommitError, best_slot, find_commit
+from .recovery import RepairReport, scan_records
+from .records import record_from, summarize_payload
+from .source import LocalSource
+
+__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive"]
+
+Policy = Literal["error", "recover", "discard"]
+
+
+class UncommittedDataError(ArchiveError):
+    """The archive has bytes after its last commit (a crashed writer); repair or discard them first."""
+
+
+def _fsync_dir(path: str) -> None:
+    fd = os.open(os.path.dirname(os.path.abspath(path)) or ".", os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _empty_archive_bytes() -> bytes:
+    index = ArchiveIndex.build([])
+    commit = Commit(0, HEADER_SIZE, len(index), crc32(index), 0)
+    header = pack_preamble() + pack_slot(commit) + bytes(HEADER_SIZE - 32 - 64)
+    return header + index + pack_footer(commit)
+
+
+def create_archive(path: str | os.PathLike, *, exist_ok: bool = False) -> None:
+    """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename."""
+    path = os.fspath(path)
+    if os.path.exists(path) and not exist_ok:
+        raise FileExistsError(f"{path} already exists")
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "wb") as f:
+        f.write(_empty_archive_bytes())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path)
+
+
+class ArchiveWriter:
+    """Append-and-commit access to a local archive.
+
+    ``mode``: ``"a"`` open (create if missing), ``"x"`` create (fail if present), ``"w"`` replace
+    with an empty archive.  ``on_uncommitted`` decides what happens to bytes after the last commit
+    (left by a crashed writer): ``"error"`` (default) raises :class:`UncommittedDataError`,
+    ``"recover"`` commits the complete records among them, ``"discard"`` truncates them.
+    ``durable=False`` skips fsync (tests and throwaway benchmarks only).
+
+    As a context manager it commits on normal exit and aborts (drops pending records) on error.
+    """
+
+    def __init__(self, path: str | os.PathLike, mode: str = "a", *, on_uncommitted: Policy = "error",
+                 durable: bool = True, full_scan: bool = False, dry_run: bool = False):
+        if mode not in ("a", "x", "w"):
+            raise ArchiveError(f"mode must be 'a', 'x' or 'w', not {mode!r}")
+        if on_uncommitted not in ("error", "recover", "discard"):
+            raise ArchiveError(f"on_uncommitted must be error/recover/discard, not {on_uncommitted!r}")
+        self.path = os.fspath(path)
+        self.durable = durable
+        self.repair_report: RepairReport | None = None
+        self._lock = WriterLock(self.path).acquire()
+        self._fd: int | None = None
+        try:
+            if mode == "x" or (mode == "a" and not os.path.exists(self.path)):
+                create_archive(self.path, exist_ok=False)
+            elif mode == "w":
+                create_archive(self.path, exist_ok=True)
+            self._fd = os.open(self.path, os.O_RDWR)
+            self._open_existing(on_uncommitted, full_scan, dry_run)
+        except BaseException:
+            self._close_fd()
+            self._lock.release()
+            raise
+
+    # -- opening ---------------------------------------------------------------------------------
+    def _open_existing(self, policy: Policy, full_scan: bool, dry_run: bool) -> None:
+        source = LocalSource(self.path)
+        try:
+            size = source.size()
+            commit = None if full_scan else self._find_commit_or_none(source, policy)
+            if commit is None:  # full scan: rebuild from every frame in the file
+                scan = scan_records(source, HEADER_SIZE)
+                self._entries = scan.latest
+                self._commit = None
+                self._end = scan.end
+                recovered, discarded = list(self._entries), size - scan.end
+                self._pending = dict(self._entries)
+                self._entries = {}
+            else:
+                index = ArchiveIndex.parse(source.read(commit.index_offset, commit.index_length), commit)
+                self._entries = {e.key: e for e in index.entries()}
+                self._commit = commit
+                self._end = commit.end
+                self._pending = {}
+                recovered, discarded = [], 0
+                if size > commit.end:
+                    if policy == "error":
+                        raise UncommittedDataError(
+                            f"{self.path}: {size - commit.end} bytes after the last commit "
+                            f"(generation {commit.generation}) - a writer crashed or is running; run "
+                            "`vt4d repair` to keep its complete records, or open with "
+                            "on_uncommitted='discard' to drop them"
+                        )
+                    if policy == "recover":
+                        scan = scan_records(source, commit.end)
+                        for e in scan.records:
+                            self._pending[e.key] = e
+                        recovered, self._end = [e.key for e in scan.records], scan.end
+                    discarded = size - self._end
+        finally:
+            source.close()
+        self.repair_report = RepairReport(
+            self.path, None if self._commit is None else self._commit.generation,
+            0 if self._commit is None else len(self._entries), recovered, discarded, None, full_scan)
+        if dry_run:
+            self._pending = {}
+            self._dry_run = True
+            return
+        self._dry_run = False
+        if self._commit is None:  # a full scan also mends a damaged preamble and drops old slots
+            os.pwrite(self._fd, pack_preamble() + bytes(2 * SLOT_SIZE), 0)
+        if size != self._end:
+            os.ftruncate(self._fd, self._end)
+        if self._commit is not None:
+            self._ensure_slot(self._commit)
+        if self._pending or self._commit is None or discarded:
+            self.commit()
+            self.repair_report.new_generation = self._commit.generation
+
+    def _find_commit_or_none(self, source: LocalSource, policy: Policy) -> Commit | None:
+        try:
+            commit, at_tail = find_commit(source)
+        except NoCommitError:
+            if policy == "recover":
+                return None
+            raise
+        if not at_tail and source.size() == commit.end:  # damaged last footer, intact slot: mend it
+            os.pwrite(self._fd, pack_footer(commit), commit.footer_offset)
+            self._sync()
+        return commit
+
+    def _ensure_slot(self, commit: Commit) -> None:
+        """Step 2 of the protocol: a header slot names ``commit`` before anything follows it.
+
+        Slots claiming a *newer* generation than the last commit (left by a file truncated back to
+        an older footer) are cleared, so they can never outrank it once the file grows again.
+        """
+        header = os.pread(self._fd, HEADER_SIZE, 0)
+        parse_preamble(header)
+        for off in SLOT_OFFSETS:
+            stale = parse_slot(header[off: off + SLOT_SIZE])
+            if stale is not None and stale.generation > commit.generation:
+                os.pwrite(self._fd, bytes(SLOT_SIZE), off)
+        if best_slot(header, commit.end) != commit:
+            self._write_slot(commit)
+        else:
+            self._sync()
+
+    def _write_slot(self, commit: Commit) -> None:
+        os.pwrite(self._fd, pack_slot(commit), SLOT_OFFSETS[commit.generation % 2])
+        self._sync()
+
+    def _sync(self) -> None:
+        if self.durable:
+            os.fdatasync(self._fd)
+
+    # -- appending ---------------------------------------------------------------------------------
+    @property
+    def generation(self) -> int:
+        return -1 if self._commit is None else self._commit.generation
+
+    @property
+    def pending_keys(self) -> list[str]:
+        return list(self._pending)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._entries or key in self._pending
+
+    def __len__(self) -> int:
+        return len(self._entries.keys() | self._pending.keys())
+
+    def append(self, key: str, record: Any, *, summary: dict | None = None, replace: bool = False,
+               validate: bool = True) -> IndexEntry:
+        """Write one scene (a Scene or complete ``.vt4d`` bytes); visible to readers after commit().
+
+        ``summary`` defaults to the container's ``SceneFile.summary()``; ``validate=False`` stores
+        bytes without container validation (then pass ``summary`` or get ``{"bytes": n}``).
+        Appending a key that exists raises :class:`DuplicateKeyError` unless ``replace=True``.
+        """
+        self._check_open()
+        key_raw = check_key(key)
+        if not replace and key in self:
+            raise DuplicateKeyError(f"scene {key!r} is already in {self.path} (pass replace=True)")
+        if validate or not isinstance(record, (bytes, bytearray, memoryview)):
+            payload = record_from(record, validate=validate)
+        else:
+            payload = bytes(record)
+        if summary is None:
+            summary = summarize_payload(payload) if validate else {"bytes": len(payload)}
+        summary_raw = encode_summary(summary)
+        pcrc = crc32(payload)
+        frame = pack_frame_header(key_raw, summary_raw, pcrc, len(payload)) + key_raw + summary_raw
+        start = self._end
+        self._pwrite_all(frame + payload, start)
+        self._end = start + len(frame) + len(payload)
+        entry = IndexEntry(key, start + len(frame), len(payload), pcrc, summary_raw)
+        self._pending[key] = entry
+        return entry
+
+    def _pwrite_all(self, data: bytes, offset: int) -> None:
+        view = memoryview(data)
+        while view:
+            n = os.pwrite(self._fd, view, offset)
+            view, offset = view[n:], offset + n
+
+    def commit(self) -> int:
+        """Make every pending scene durable and visible; returns the new generation.
+
+        With nothing pending this is a no-op returning the current generation.
+        """
+        self._check_open()
+        if not self._pending and self._commit is not None:
+            return self._commit.generation
+        entries = dict(self._entries)
+        entries.update(self._pending)
+        index = ArchiveIndex.build(list(entries.values()))
+        new = Commit(self.generation + 1, self._end, len(index), crc32(index), len(entries))
+        self._pwrite_all(index, self._end)
+        self._sync()  # records + index durable before the footer can be
+        os.pwrite(self._fd, pack_footer(new), new.footer_offset)
+        self._sync()  # <- the commit point
+        self._entries, self._pending, self._commit, self._end = entries, {}, new, new.end
+        self._write_slot(new)
+        return new.generation
+
+    def abort(self) -> None:
+        """Drop pending scenes: truncate the file back to the last commit."""
+        if self._fd is not None and self._pending and not self._dry_run:
+            os.ftruncate(self._fd, self._commit.end)
+            self._end = self._commit.end
+        self._pending = {}
+
+    # -- lifetime ---------------------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._fd is None:
+            raise ArchiveError(f"archive writer for {self.path} is closed")
+        if self._dry_run:
+            raise ArchiveError("this writer was opened as a dry run")
+
+    def _close_fd(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def close(self, *, commit: bool = True) -> None:
+        """Commit pending scenes (unless ``commit=False``: abort them), then release the lock."""
+        if self._fd is None:
+            return
+        try:
+            if commit and self._pending and not self._dry_run:
+                self.commit()
+            else:
+                self.abort()
+        finally:
+            self._close_fd()
+            self._lock.release()
+
+    def __enter__(self) -> "ArchiveWriter":
+        return self
+
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+        self.close(commit=exc_type is None)
+
+    def __repr__(self) -> str:
+        return f"ArchiveWriter({self.path!r}, committed={len(self._entries)}, pending={len(self._pending)})"
