@@ -42,7 +42,7 @@ def _is_archive(path: str) -> bool:
     except ImportError:
         # No archive support in this build: anything with the vt4d family prefix that is not a scene is
         # treated as an archive so the user gets a clear message.
-        return head.startswith(b"\x89VT4") and not head.startswith(b"\x89VT4D")
+        return head.startswith((b"\x89V4", b"\x89VT4"))
     return head.startswith(ARCHIVE_MAGIC)
 
 

@@ -114,8 +114,8 @@ def unpack_header(raw) -> dict[str, Any]:
     except MalformedHeaderError:
         raise
     except (ValueError, TypeError, RecursionError, msgpack.exceptions.UnpackException) as exc:
-        kind = type(exc).__name__
-        raise MalformedHeaderError(f"the header is not valid bounded msgpack ({kind}: {str(exc)[:120]})") from None
+        detail = str(exc)[:120] or "undecodable bytes"
+        raise MalformedHeaderError(f"the header is not valid bounded msgpack ({type(exc).__name__}: {detail})") from None
     _check_depth(value)
     return require_map(value, "header")
 

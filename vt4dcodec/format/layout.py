@@ -119,10 +119,10 @@ def check_magic(data) -> None:
         )
     if first.startswith(b"\x09VT4D") or first.startswith(b"VT4D"):
         raise BadMagicError("the vt4d signature lost its high bit (7-bit transfer?); copy the file in binary mode")
-    if first.startswith(b"\x89VT4"):
+    if first.startswith((b"\x89VT4", b"\x89V4")):
         raise BadMagicError(
             f"this is a vt4d file of another kind (signature {first[:9]!r}), not a single scene; "
-            "archives are read with vt4dcodec.archive"
+            "archives are read with vt4dcodec.archive (`vt4d ls FILE`)"
         )
     raise BadMagicError(f"not a .vt4d scene: the file starts with {first!r}, expected {SCENE_MAGIC!r}")
 
@@ -190,8 +190,6 @@ def parse_table(raw, count: int, table_end: int, file_length: int) -> list[Secti
                 raise UnsupportedFeatureError(f"critical section {name} uses unknown compression {comp}")
         if rawlen > MAX_SECTION_RAW_BYTES:
             raise LimitExceededError(f"section {name} declares {rawlen} raw bytes, over the {MAX_SECTION_RAW_BYTES} limit")
-        if comp == COMPRESSION_RAW and stored != rawlen:
-            raise MalformedSectionError(f"raw section {name}: stored length {stored} != raw length {rawlen}")
         if offset != expected_offset:
             raise MalformedSectionError(
                 f"section {name} starts at {offset}; the layout requires {expected_offset} "
@@ -200,6 +198,8 @@ def parse_table(raw, count: int, table_end: int, file_length: int) -> list[Secti
         end = offset + stored
         if end > file_length:
             raise MalformedSectionError(f"section {name} ({offset}..{end}) runs past the container end {file_length}")
+        if comp == COMPRESSION_RAW and stored != rawlen:
+            raise MalformedSectionError(f"raw section {name}: stored length {stored} != raw length {rawlen}")
         entries.append(SectionEntry(name, bool(flags & FLAG_CRITICAL), comp, offset, stored, rawlen, crc))
         expected_offset = align(end)
     last_end = entries[-1].offset + entries[-1].stored_length if entries else table_end

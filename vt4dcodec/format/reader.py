@@ -205,7 +205,7 @@ class SceneFile:
             if entry.type not in KNOWN_SECTIONS:
                 if crc32(self._data[entry.offset:end]) != entry.crc32:
                     raise ChecksumError(f"ancillary section {entry.type} is damaged (CRC-32 mismatch)")
-        self.to_scene()
+        self._verified_scene = self.to_scene()
 
     def to_scene(self) -> Scene:
         """Decode everything into a :class:`Scene` (tokens dequantized to float32)."""
@@ -246,8 +246,10 @@ def open_scene(source: Any) -> SceneFile:
 
 
 def load(source: Any) -> Scene:
-    """Read and fully validate a scene (every section decoded and checksummed)."""
-    return open_scene(source).to_scene()
+    """Read and fully validate a scene: everything :meth:`SceneFile.verify` checks, then decode."""
+    f = open_scene(source)
+    f.verify()
+    return f._verified_scene
 
 
 def loads(data: bytes) -> Scene:

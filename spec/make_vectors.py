@@ -1,0 +1,339 @@
+#!/usr/bin/env python
+"""Regenerate the golden test vectors of the .vt4d scene container, deterministically.
+
+    python spec/make_vectors.py            # rewrite spec/vectors/
+    python spec/make_vectors.py --check    # exit 1 if the committed vectors differ from what this makes
+
+Valid vectors: ``valid/NAME.vt4d`` + ``valid/NAME.expected.json`` (decoded content: header fields,
+cameras, tokens as exact float32 values in decimal and a SHA-256 of their little-endian bytes).
+Invalid vectors: ``invalid/NAME.vt4d`` + ``invalid/NAME.expected.json`` naming the error class a reader
+MUST raise (any conforming reader must reject the file; the class names are this library's).
+
+Token values are small dyadic rationals, so every platform computes them exactly.  zstd output can change
+with the libzstd version; MANIFEST.json records the version used, and the byte-equality test only
+compares zstd-bearing vectors when the versions match (their decoded content is always compared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import struct
+import sys
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import zstandard
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT.parent))
+
+from vt4dcodec.cameras import Trajectory  # noqa: E402
+from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
+from vt4dcodec.format.layout import (PREAMBLE_SIZE, SECTION_ENTRY_SIZE, crc32, parse_preamble,  # noqa: E402
+                                     parse_table)
+from vt4dcodec.format.writer import build_container  # noqa: E402
+
+VECTORS = ROOT / "vectors"
+
+
+# --- deterministic scene content ---------------------------------------------------------------------
+def tokens(rows: int, cols: int, salt: int) -> np.ndarray:
+    """Exact dyadic values in [-4, 4): ((7i + 13j + salt) mod 32 - 16) / 4."""
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    return (((7 * i + 13 * j + salt) % 32 - 16) / 4.0).astype(np.float32)
+
+
+def cameras(frames: int, *, distortion: list[float] | None = None, timestamps: bool = False) -> Trajectory:
+    K = np.array([[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]])
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, 0, 3] = np.arange(frames) * 0.25  # a camera sliding along x, quarter-metre steps
+    w2c[:, 2, 3] = 2.0
+    ts = np.arange(frames) / 8.0 if timestamps else None
+    return Trajectory(K=np.tile(K, (frames, 1, 1)), w2c=w2c, width=64, height=48,
+                      distortion=None if distortion is None else np.array(distortion), timestamps=ts)
+
+
+def fingerprint(static_shape: tuple[int, int], dynamic_shape: tuple[int, int]) -> ModelFingerprint:
+    return ModelFingerprint("vt4d-test", "1.0", hashlib.sha256(b"config").hexdigest(),
+                            hashlib.sha256(b"weights").hexdigest(), static_shape, dynamic_shape)
+
+
+def scene(ns: int, nd: int, d: int, frames: int = 1, **kw: Any) -> Scene:
+    cam_kw = {k: kw.pop(k) for k in ("distortion", "timestamps") if k in kw}
+    return Scene(tokens(ns, d, 1), tokens(nd, d, 5), cameras(frames, **cam_kw), fingerprint((ns, d), (nd, d)), **kw)
+
+
+PROVENANCE = Provenance("0.1.0", "2026-01-01T00:00:00Z", "capture-0001", "encoded")
+
+
+# --- container surgery (also used by the tests) ------------------------------------------------------
+def split(data: bytes) -> tuple[dict, list[list]]:
+    """(header map, sections as [type, critical, compression, stored bytes, raw_length]) of a container."""
+    pre = parse_preamble(data)
+    header = msgpack.unpackb(data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length], raw=False)
+    start = PREAMBLE_SIZE + pre.header_length
+    end = start + pre.section_count * SECTION_ENTRY_SIZE
+    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length)
+    return header, [[e.type, e.critical, e.compression, data[e.offset:e.offset + e.stored_length], e.raw_length]
+                    for e in entries]
+
+
+def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
+    """A container with correct checksums from a header (map or raw msgpack bytes) and sections."""
+    raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
+    return build_container(raw, [tuple(s) for s in sections], **kw)
+
+
+def patch_preamble(data: bytes, offset: int, fmt: str, value: int, *, fix_crc: bool = True) -> bytes:
+    """Overwrite one preamble field (struct ``fmt`` at ``offset``) and recompute the preamble CRC."""
+    out = bytearray(data)
+    struct.pack_into(fmt, out, offset, value)
+    if fix_crc:
+        struct.pack_into("<I", out, 60, crc32(out[:60]))
+    return bytes(out)
+
+
+def patch_entry(data: bytes, index: int, field_offset: int, fmt: str, value: int) -> bytes:
+    """Overwrite one field of section-table entry ``index`` and fix the table CRC in the preamble."""
+    pre = parse_preamble(data)
+    start = PREAMBLE_SIZE + pre.header_length
+    out = bytearray(data)
+    struct.pack_into(fmt, out, start + index * SECTION_ENTRY_SIZE + field_offset, value)
+    table = out[start:start + pre.section_count * SECTION_ENTRY_SIZE]
+    return patch_preamble(bytes(out), 52, "<I", crc32(table))
+
+
+def find(sections: list[list], name: str) -> list:
+    return next(s for s in sections if s[0] == name)
+
+
+# --- the vectors -------------------------------------------------------------------------------------
+def valid_vectors() -> dict[str, tuple[bytes, str]]:
+    out = {
+        "float32_raw_minimal": (dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+                                "smallest useful file: float32 tokens, every section stored raw (the "
+                                "FORMAT.md hex dump)"),
+        "float16_zstd_timestamps": (dumps(scene(8, 4, 4, frames=3, timestamps=True), encoding="float16"),
+                                    "float16 tokens, zstd sections, three frames with timestamps"),
+        "int8_distortion_metadata": (
+            dumps(scene(16, 8, 4, frames=2, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001],
+                        metadata={"scene": "ramp", "tags": ["a", "b"], "nested": {"n": 3, "x": 0.5, "ok": True,
+                                                                             "none": None}},
+                        provenance=PROVENANCE), encoding="int8"),
+            "int8 per-channel affine tokens, 5 OpenCV distortion terms, metadata and provenance"),
+        "int4_odd_count": (dumps(scene(3, 1, 3, frames=2, provenance=Provenance(
+            "0.1.0", "2026-01-01T00:00:00.5Z", None, "generated")), encoding="int4"),
+                           "int4 with an odd number of codes per section (last high nibble is padding)"),
+    }
+    # A newer minor version (1.7) with an unknown optional flag, an unknown header key and an unknown
+    # ancillary section: a 1.0 reader MUST read it and ignore all three.
+    base = dumps(scene(4, 2, 2, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    header, sections = split(base)
+    header["future_key"] = {"anything": [1, 2]}
+    sections.insert(2, ["xTRA", False, 0, b"ancillary bytes a 1.0 reader skips", 34])
+    sections.append(["xZZZ", False, 7, b"unknown compression is fine when ancillary", 99])
+    out["future_minor_ancillary"] = (rebuild(header, sections, minor=7, optional_flags=1 << 40),
+                                     "minor version 7, unknown optional flag, unknown header key and two "
+                                     "unknown ancillary sections (one with an unknown compression code)")
+    return out
+
+
+def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(scene(4, 2, 4, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    header, sections = split(good)
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def add(name: str, data: bytes, error: str, why: str) -> None:
+        out[name] = (data, error, why)
+
+    def with_header(**changes: Any) -> bytes:
+        h = dict(header, **changes)
+        return rebuild(h, sections)
+
+    add("bad_magic", b"\x89PNG\r\n\x1a\n" + good[8:], "BadMagicError", "a PNG signature, not vt4d")
+    add("text_mode_damage", good.replace(b"\r\n", b"\n", 1), "BadMagicError",
+        "CR LF in the signature became LF (text-mode transfer)")
+    add("truncated", good[: len(good) - 5], "TruncatedError", "the last 5 bytes are missing")
+    add("empty", b"", "BadMagicError", "zero bytes")
+    add("trailing_bytes", good + b"\0", "MalformedSectionError", "one byte after the declared end")
+    add("major_2", patch_preamble(good, 10, "<H", 2), "UnsupportedVersionError", "major version 2")
+    add("unknown_required_flag", patch_preamble(good, 16, "<Q", 1 << 3), "UnsupportedFeatureError",
+        "required feature flag bit 3 (unknown in 1.0)")
+    add("preamble_checksum", patch_preamble(good, 24, "<Q", 1, fix_crc=False), "ChecksumError",
+        "an optional-flags byte changed without updating the preamble CRC")
+    flipped = bytearray(good)
+    flipped[PREAMBLE_SIZE + 10] ^= 0x01
+    add("header_checksum", bytes(flipped), "ChecksumError", "one header bit flipped")
+    zsta = find(sections, "ZSTA")
+    bad = [list(s) for s in sections]
+    find(bad, "ZSTA")[3] = bytes([zsta[3][0] ^ 0x80]) + zsta[3][1:]
+    data = bytearray(rebuild(header, bad))
+    # restore the original CRC in the table so only the payload is damaged
+    pre = parse_preamble(bytes(data))
+    idx = [s[0] for s in sections].index("ZSTA")
+    data = patch_entry(bytes(data), idx, 32, "<I", crc32(zsta[3]))
+    add("section_checksum", data, "ChecksumError", "one bit of a static-token code flipped")
+    add("header_too_large", patch_preamble(good, 40, "<I", (1 << 20) + 1), "LimitExceededError",
+        "the preamble claims a header of 1 MiB + 1 bytes")
+    deep: Any = 0
+    for _ in range(20):
+        deep = [deep]
+    add("header_too_deep", with_header(metadata={"deep": deep}), "LimitExceededError",
+        "metadata nested 21 levels deep")
+    raw_ext = msgpack.packb(dict(header, metadata={"x": msgpack.ExtType(5, b"abc")}), use_bin_type=True)
+    add("header_ext_type", rebuild(raw_ext, sections), "MalformedHeaderError", "a msgpack extension type")
+    raw_bin = msgpack.packb(dict(header, metadata={"x": b"bytes"}), use_bin_type=True)
+    add("header_bin_type", rebuild(raw_bin, sections), "MalformedHeaderError", "a msgpack bin value")
+    add("header_unknown_key", with_header(extra=1), "MalformedHeaderError",
+        "an unknown header key in a 1.0 file")
+    h = dict(header)
+    del h["provenance"]
+    add("header_missing_key", rebuild(h, sections), "MalformedHeaderError", "no provenance key")
+    add("header_not_msgpack", rebuild(b"\xc1" * 8, sections), "MalformedHeaderError",
+        "0xC1 is never valid msgpack")
+    raw_dup = msgpack.packb(header, use_bin_type=True)
+    raw_dup = b"\x88" + raw_dup[1:] + msgpack.packb("encoding") + msgpack.packb("float32")  # 8 pairs, one twice
+    add("header_duplicate_key", rebuild(raw_dup, sections), "MalformedHeaderError", "the key 'encoding' twice")
+    add("header_array_bomb", rebuild(b"\xdd\xff\xff\xff\xff", sections), "MalformedHeaderError",
+        "an array32 claiming 2^32-1 elements in 5 bytes")
+    fp = dict(header["fingerprint"], static_shape=[1 << 40, 4])
+    add("absurd_shape", with_header(static_shape=[1 << 40, 4], fingerprint=fp), "LimitExceededError",
+        "2^40 static tokens")
+    add("fingerprint_shape_mismatch", with_header(fingerprint=dict(header["fingerprint"], static_shape=[5, 4])),
+        "MalformedHeaderError", "the fingerprint's token shape differs from the header's")
+    add("bad_sha256", with_header(fingerprint=dict(header["fingerprint"], weights_sha256="XYZ")),
+        "MalformedHeaderError", "weights_sha256 is not 64 hex digits")
+    names = [s[0] for s in sections]
+    add("overlapping_sections", patch_entry(good, 2, 8, "<Q", parse_table_offsets(good)[1]),
+        "MalformedSectionError", "section 2 starts inside section 1")
+    add("section_out_of_file", patch_entry(good, len(sections) - 1, 16, "<Q", 1 << 40),
+        "MalformedSectionError", "the last section claims 2^40 stored bytes")
+    add("decompression_bomb_declared", patch_entry(good, names.index("ZSTA"), 24, "<Q", 1 << 40),
+        "LimitExceededError", "a section declares 2^40 raw bytes")
+    bomb = [list(s) for s in sections]
+    zeros = zstandard.ZstdCompressor(level=19, write_content_size=False).compress(b"\0" * (64 << 20))
+    find(bomb, "CAMS")[2:5] = [1, zeros, find(bomb, "CAMS")[4]]
+    add("decompression_bomb_frame", rebuild(header, bomb), "MalformedSectionError",
+        "a zstd frame without a size field that inflates to 64 MiB, declared as 200 bytes")
+    liar = [list(s) for s in sections]
+    find(liar, "CAMS")[2:4] = [1, zstandard.ZstdCompressor().compress(b"\0" * 4096)]
+    add("zstd_size_mismatch", rebuild(header, liar), "MalformedSectionError",
+        "the zstd frame declares 4096 bytes, the table 200")
+    add("unknown_critical_section", rebuild(header, sections + [["FUTR", True, 0, b"x", 1]]),
+        "UnsupportedFeatureError", "a critical section type unknown to 1.0")
+    add("missing_section", rebuild(header, [s for s in sections if s[0] != "QSTA"]), "MalformedSectionError",
+        "int8 tokens without their quantization section")
+    add("duplicate_section", rebuild(header, sections + [find(sections, "ZDYN")]), "MalformedSectionError",
+        "ZDYN twice")
+    short = [list(s) for s in sections]
+    find(short, "ZSTA")[3:5] = [zsta[3][:-1], zsta[4] - 1]
+    add("section_wrong_size", rebuild(header, short), "MalformedSectionError", "ZSTA one byte short for 4x4")
+    padded = bytearray(good)
+    padded[parse_table_offsets(good)[0] - 1] = 0xAA
+    add("nonzero_padding", bytes(padded), "MalformedSectionError", "a padding byte before the first section is set")
+    nan_q = [list(s) for s in sections]
+    qsta = find(nan_q, "QSTA")
+    qsta[3] = np.full(qsta[4] // 4, np.nan, "<f4").tobytes()
+    add("nan_quantization", rebuild(header, nan_q), "MalformedSectionError", "scale and offset are NaN")
+    cams = [list(s) for s in sections]
+    cam = np.frombuffer(find(cams, "CAMS")[3], "<f8").copy()
+    cam[9] = 2.0  # w2c[0, 0, 0]: the rotation is no longer orthonormal
+    find(cams, "CAMS")[3] = cam.tobytes()
+    add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
+    return out
+
+
+def parse_table_offsets(data: bytes) -> list[int]:
+    pre = parse_preamble(data)
+    start = PREAMBLE_SIZE + pre.header_length
+    end = start + pre.section_count * SECTION_ENTRY_SIZE
+    return [e.offset for e in parse_table(data[start:end], pre.section_count, end, pre.file_length)]
+
+
+# --- expected content ----------------------------------------------------------------------------
+def float_list(a: np.ndarray) -> list:
+    return np.asarray(a, np.float64).tolist()
+
+
+def expected_content(data: bytes, description: str) -> dict[str, Any]:
+    f = open_scene(data)
+    s = f.to_scene()
+    cams = s.cameras
+    return {
+        "description": description,
+        "file_sha256": hashlib.sha256(data).hexdigest(),
+        "bytes": len(data),
+        "version": list(f.version),
+        "encoding": f.encoding,
+        "static_shape": list(f.static_shape),
+        "dynamic_shape": list(f.dynamic_shape),
+        "fingerprint": f.fingerprint.to_dict(),
+        "provenance": None if f.provenance is None else f.provenance.to_dict(),
+        "metadata": f.metadata,
+        "cameras": {"width": cams.width, "height": cams.height, "K": float_list(cams.K), "w2c": float_list(cams.w2c),
+                    "distortion": None if cams.distortion is None else float_list(cams.distortion),
+                    "timestamps": None if cams.timestamps is None else float_list(cams.timestamps)},
+        "static_tokens": float_list(s.static_tokens),
+        "dynamic_tokens": float_list(s.dynamic_tokens),
+        "static_tokens_sha256": hashlib.sha256(s.static_tokens.astype("<f4").tobytes()).hexdigest(),
+        "dynamic_tokens_sha256": hashlib.sha256(s.dynamic_tokens.astype("<f4").tobytes()).hexdigest(),
+        "sections": [e.type for e in f.sections],
+    }
+
+
+def uses_zstd(data: bytes) -> bool:
+    try:
+        return any(s[2] == 1 for s in split(data)[1])
+    except Exception:  # invalid vectors may not even split; compare those byte for byte
+        return False
+
+
+def generate() -> dict[str, bytes]:
+    """Every vector file (relative path -> bytes), including expected JSON and the manifest."""
+    files: dict[str, bytes] = {}
+    manifest: dict[str, Any] = {"zstd_version": ".".join(map(str, zstandard.ZSTD_VERSION)),
+                                "valid": {}, "invalid": {}}
+    for name, (data, why) in valid_vectors().items():
+        files[f"valid/{name}.vt4d"] = data
+        files[f"valid/{name}.expected.json"] = _json(expected_content(data, why))
+        manifest["valid"][name] = {"uses_zstd": uses_zstd(data)}
+    for name, (data, error, why) in invalid_vectors().items():
+        files[f"invalid/{name}.vt4d"] = data
+        files[f"invalid/{name}.expected.json"] = _json({"error": error, "description": why,
+                                                        "file_sha256": hashlib.sha256(data).hexdigest()})
+        manifest["invalid"][name] = {"uses_zstd": uses_zstd(data), "error": error}
+    files["MANIFEST.json"] = _json(manifest)
+    return files
+
+
+def _json(obj: Any) -> bytes:
+    return (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="compare instead of writing")
+    args = parser.parse_args()
+    files = generate()
+    if args.check:
+        bad = [p for p, b in files.items() if not (VECTORS / p).is_file() or (VECTORS / p).read_bytes() != b]
+        for p in bad:
+            print(f"differs: spec/vectors/{p}")
+        return 1 if bad else 0
+    for sub in ("valid", "invalid"):
+        (VECTORS / sub).mkdir(parents=True, exist_ok=True)
+        for old in (VECTORS / sub).iterdir():
+            if f"{sub}/{old.name}" not in files:
+                old.unlink()
+    for p, b in files.items():
+        (VECTORS / p).write_bytes(b)
+    print(f"wrote {len(files)} files under {VECTORS}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

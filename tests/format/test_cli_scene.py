@@ -1,0 +1,58 @@
+"""`vt4d info` and `vt4d verify` on scenes, damaged files and (unsupported or supported) archives."""
+
+from __future__ import annotations
+
+import json
+
+from format_strategies import simple_scene
+from vt4dcodec.cli import main
+from vt4dcodec.format import save
+
+
+def test_info_text_and_json(tmp_path, capsys):
+    path = tmp_path / "s.vt4d"
+    save(simple_scene(metadata={"who": "me"}), path)
+    assert main(["info", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "Z_s 4x2" in text and "test-model" in text and "ZSTA" in text
+    assert main(["info", "--json", str(path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["static_shape"] == [4, 2] and summary["metadata_keys"] == ["who"]
+
+
+def test_verify_exit_codes(tmp_path, capsys):
+    good, bad = tmp_path / "good.vt4d", tmp_path / "bad.vt4d"
+    save(simple_scene(), good)
+    data = bytearray(good.read_bytes())
+    data[-1] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(good)]) == 0
+    assert main(["verify", str(good), str(bad)]) == 1
+    assert main(["verify", str(tmp_path / "missing.vt4d")]) == 3
+    capsys.readouterr()
+    assert main(["verify", "--json", str(good), str(bad)]) == 1
+    results = json.loads(capsys.readouterr().out)
+    assert [r["ok"] for r in results] == [True, False]
+    assert results[1]["error"] == "ChecksumError"
+
+
+def test_info_on_a_damaged_file_is_exit_code_1(tmp_path, capsys):
+    path = tmp_path / "x.vt4d"
+    path.write_bytes(b"hello world, not a scene")
+    assert main(["info", str(path)]) == 1
+    assert "not a .vt4d scene" in capsys.readouterr().err
+
+
+def test_verify_routes_archive_signatures_to_the_archive_module(tmp_path, capsys):
+    path = tmp_path / "a.vt4d"
+    try:
+        from vt4dcodec.archive import ARCHIVE_MAGIC, verify_archive  # noqa: F401
+    except ImportError:
+        path.write_bytes(b"\x89VT4A\r\n\x1a\n" + b"\0" * 64)
+        assert main(["verify", str(path)]) == 1
+        assert "archives not supported by this build" in capsys.readouterr().err
+        return
+    path.write_bytes(ARCHIVE_MAGIC + b"\0" * 64)  # a broken archive: the archive verifier must reject it
+    assert main(["verify", "--json", str(path)]) == 1
+    result = json.loads(capsys.readouterr().out)[0]
+    assert result["kind"] == "archive" and not result["ok"]

@@ -1,0 +1,151 @@
+"""Round trips of arbitrary scenes through every encoding, destination and reading path."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from format_strategies import scenes, simple_scene, token_matrix
+from vt4dcodec.format import ENCODINGS, dumps, load, loads, max_abs_error, open_scene, save, verify
+from vt4dcodec.format.encodings import decode_tokens, encode_tokens
+
+BIG = float(np.float32(3e38))
+
+
+def assert_same_scene(a, b, *, exact_tokens: bool) -> None:
+    assert b.fingerprint.matches(a.fingerprint)
+    assert b.metadata == a.metadata
+    assert b.provenance == a.provenance
+    assert b.cameras.equals(a.cameras)
+    for x, y in ((a.static_tokens, b.static_tokens), (a.dynamic_tokens, b.dynamic_tokens)):
+        assert y.dtype == np.float32 and y.shape == x.shape
+        if exact_tokens:
+            assert np.array_equal(x, y)
+        else:
+            assert np.all(np.abs(x.astype(np.float64) - y) <= max_abs_error(x, a.encoding))
+
+
+@given(scenes(), st.sampled_from([None, 1, 9]))
+def test_any_scene_round_trips_within_its_encodings_bound(scene, level):
+    data = dumps(scene, compression_level=level)
+    back = loads(data)
+    assert back.encoding == scene.encoding
+    assert_same_scene(scene, back, exact_tokens=scene.encoding == "float32")
+    verify(data)
+    assert dumps(back, compression_level=level) == data or scene.encoding != "float32"  # float32 is a fixed point
+
+
+@given(st.integers(1, 40), st.integers(1, 8), st.sampled_from(["int8", "int4"]), st.data())
+def test_affine_error_bound_holds_for_extreme_ranges(rows, cols, enc, data):
+    x = data.draw(token_matrix(rows, cols, st.floats(-BIG, BIG, allow_nan=False, width=32)))
+    enc_tokens = encode_tokens(x, enc)
+    y = decode_tokens(enc_tokens.tokens, enc_tokens.quant, enc, rows, cols)
+    assert np.all(np.abs(x.astype(np.float64) - y) <= max_abs_error(x, enc))
+
+
+@given(st.integers(1, 30), st.integers(1, 6), st.data())
+def test_float16_error_bound(rows, cols, data):
+    x = data.draw(token_matrix(rows, cols, st.floats(-65504, 65504, allow_nan=False, width=32)))
+    e = encode_tokens(x, "float16")
+    y = decode_tokens(e.tokens, None, "float16", rows, cols)
+    assert np.all(np.abs(x.astype(np.float64) - y) <= max_abs_error(x, "float16"))
+
+
+def test_int8_rounding_is_half_to_even_and_deterministic():
+    # channel range 0..255 gives scale 1: codes equal the rounded values, ties to even
+    x = np.array([[0.0], [255.0], [2.5], [3.5], [100.5]], np.float32)
+    e = encode_tokens(x, "int8")
+    assert list(np.frombuffer(e.tokens, np.uint8)) == [0, 255, 2, 4, 100]
+    assert encode_tokens(x, "int8") == e
+
+
+def test_int4_nibble_order_is_low_first():
+    x = np.array([[0.0, 15.0, 1.0]], np.float32).T.reshape(3, 1)  # one channel, codes 0, 15, 1
+    e = encode_tokens(x, "int4")
+    assert e.tokens == bytes([0x0 | (15 << 4), 0x1])
+
+
+def test_constant_channel_has_zero_scale_and_exact_values():
+    x = np.full((5, 2), 3.25, np.float32)
+    for enc in ("int8", "int4"):
+        e = encode_tokens(x, enc)
+        assert np.array_equal(decode_tokens(e.tokens, e.quant, enc, 5, 2), x)
+
+
+def test_float16_refuses_out_of_range_tokens():
+    from vt4dcodec.errors import FormatError
+
+    scene = simple_scene()
+    scene.static_tokens[0, 0] = 70000.0
+    with pytest.raises(FormatError, match="float16"):
+        dumps(scene, encoding="float16")
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_path_file_object_and_bytes_give_the_same_scene(tmp_path, encoding):
+    scene = simple_scene(encoding=encoding)
+    path = tmp_path / "s.vt4d"
+    n = save(scene, path)
+    assert n == path.stat().st_size
+    buf = io.BytesIO()
+    buf.write(b"prefix")
+    assert save(scene, buf) == n
+    buf.seek(6)
+    from_file = load(buf)
+    assert buf.tell() == 6 + n  # reads exactly the container, nothing after it
+    data = path.read_bytes()
+    for other in (load(path), load(str(path)), from_file, loads(data), load(memoryview(data)), load(bytearray(data))):
+        assert_same_scene(scene, other, exact_tokens=encoding == "float32")
+
+
+def test_container_is_position_independent():
+    data = dumps(simple_scene())
+    embedded = b"x" * 1000 + data + b"y" * 33
+    assert dumps(loads(embedded[1000:1000 + len(data)])) == data
+
+
+def test_raw_float32_tokens_are_zero_copy_views():
+    data = dumps(simple_scene(ns=8, d=16), encoding="float32", compression_level=None)
+    f = open_scene(data)
+    z = f.static_tokens()
+    assert not z.flags.owndata and not z.flags.writeable
+    assert np.shares_memory(z, np.frombuffer(data, np.uint8))
+    entry = next(e for e in f.sections if e.type == "ZSTA")
+    assert entry.offset % 64 == 0
+
+
+def test_lazy_open_reads_each_token_section_alone():
+    scene = simple_scene(encoding="int8")
+    f = open_scene(dumps(scene))
+    assert f.static_shape == scene.static_shape and f.num_frames == 2 and f.encoding == "int8"
+    codes = f.dynamic_tokens(dequantize=False)
+    assert codes.dtype == np.uint8 and codes.shape == scene.dynamic_shape
+    scale, offset = f.quantization("dynamic")
+    assert np.allclose(offset + scale * codes.astype(np.float64), f.dynamic_tokens(), atol=1e-6)
+    summary = f.summary()
+    assert summary["frames"] == 2 and summary["encoding"] == "int8"
+    assert summary["fingerprint"] == scene.fingerprint.to_dict()
+    import json
+
+    json.dumps(summary)
+
+
+def test_paper_size_int8_scene_is_under_110_kb():
+    rng = np.random.default_rng(1)
+    base = simple_scene(ns=1024, nd=512, d=64, frames=32)
+    base.static_tokens = rng.standard_normal((1024, 64)).astype(np.float32)
+    assert len(dumps(base, encoding="int8")) < 110_000
+    assert len(dumps(base, encoding="int8", compression_level=None)) < 110_000
+
+
+@settings(max_examples=20)
+@given(st.sampled_from(ENCODINGS), st.integers(1, 3))
+def test_requantizing_a_decoded_scene_is_stable(encoding, seed):
+    scene = simple_scene(seed=seed, encoding=encoding)
+    once = loads(dumps(scene))
+    twice = loads(dumps(once))
+    assert_same_scene(once, twice, exact_tokens=encoding in ("float32", "float16"))
