@@ -10,3 +10,6 @@ __version__ = "0.1.0"
 
 from .errors import *  # noqa: F401,F403  (the exception family is part of the public API)
 from .cameras import Trajectory  # noqa: F401
+from .format import (  # noqa: F401,E402  (the single-scene container: numpy + msgpack + zstandard only)
+    ModelFingerprint, Provenance, Scene, dumps, load, loads, open_scene, save, verify,
+)
