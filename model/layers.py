@@ -1,0 +1,165 @@
+"""Transformer building blocks shared by the branches and the renderer.
+
+All attention goes through :func:`masked_attention`, which accepts a key-validity mask and is safe
+when a query has no valid key at all (its output is zero instead of NaN) -- the Temporal Branch hits
+that case for empty motion masks and for tracks that are invalid in every frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = [
+    "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
+    "timestep_embedding", "patchify", "unpatchify",
+]
+
+
+def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor,
+                     key_valid: torch.Tensor | None = None) -> torch.Tensor:
+    """Scaled dot-product attention over heads.
+
+    Args:
+        q: (B, heads, Lq, Dh); k, v: (B, heads, Lk, Dh).
+        key_valid: optional (B, Lk) bool, False keys are ignored.
+    Returns:
+        (B, heads, Lq, Dh); rows whose batch item has no valid key are exactly zero.
+    """
+    if key_valid is None:
+        return F.scaled_dot_product_attention(q, k, v)
+    any_valid = key_valid.any(dim=-1)  # (B,)
+    safe = key_valid | ~any_valid[:, None]  # rows without keys attend everywhere, then get zeroed
+    out = F.scaled_dot_product_attention(q, k, v, attn_mask=safe[:, None, None, :])
+    return out * any_valid[:, None, None, None].to(out.dtype)
+
+
+class Attention(nn.Module):
+    """Multi-head attention; self-attention when ``context`` is None, cross-attention otherwise."""
+
+    def __init__(self, width: int, heads: int, context_width: int | None = None) -> None:
+        super().__init__()
+        self.heads = heads
+        self.q = nn.Linear(width, width)
+        self.kv = nn.Linear(context_width or width, 2 * width)
+        self.out = nn.Linear(width, width)
+
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
+                key_valid: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, Lq, D); context: (B, Lk, Dc) or None; key_valid: (B, Lk) bool. Returns (B, Lq, D)."""
+        B, Lq, D = x.shape
+        ctx = x if context is None else context
+        q = self.q(x).view(B, Lq, self.heads, D // self.heads).transpose(1, 2)
+        k, v = self.kv(ctx).view(B, ctx.shape[1], 2, self.heads, D // self.heads).permute(2, 0, 3, 1, 4)
+        out = masked_attention(q, k, v, key_valid)
+        return self.out(out.transpose(1, 2).reshape(B, Lq, D))
+
+
+class MLP(nn.Module):
+    def __init__(self, width: int, ratio: float) -> None:
+        super().__init__()
+        hidden = int(round(width * ratio))
+        self.net = nn.Sequential(nn.Linear(width, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, width))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class SelfAttentionBlock(nn.Module):
+    """Pre-norm self-attention + MLP over a set of tokens, with optional key validity."""
+
+    def __init__(self, width: int, heads: int, mlp_ratio: float) -> None:
+        super().__init__()
+        self.norm1, self.attn = nn.LayerNorm(width), Attention(width, heads)
+        self.norm2, self.mlp = nn.LayerNorm(width), MLP(width, mlp_ratio)
+
+    def forward(self, x: torch.Tensor, key_valid: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, L, D); key_valid: (B, L) bool or None."""
+        x = x + self.attn(self.norm1(x), key_valid=key_valid)
+        return x + self.mlp(self.norm2(x))
+
+
+class QueryBlock(nn.Module):
+    """Learnable queries: self-attention, cross-attention to a context, MLP (Sec. 3.1 and 3.2)."""
+
+    def __init__(self, width: int, heads: int, mlp_ratio: float) -> None:
+        super().__init__()
+        self.norm_self, self.self_attn = nn.LayerNorm(width), Attention(width, heads)
+        self.norm_q, self.norm_ctx = nn.LayerNorm(width), nn.LayerNorm(width)
+        self.cross_attn = Attention(width, heads)
+        self.norm_mlp, self.mlp = nn.LayerNorm(width), MLP(width, mlp_ratio)
+
+    def forward(self, queries: torch.Tensor, context: torch.Tensor,
+                context_valid: torch.Tensor | None = None) -> torch.Tensor:
+        """queries: (B, Nq, D); context: (B, L, D); context_valid: (B, L) bool. Returns (B, Nq, D)."""
+        queries = queries + self.self_attn(self.norm_self(queries))
+        queries = queries + self.cross_attn(self.norm_q(queries), self.norm_ctx(context), context_valid)
+        return queries + self.mlp(self.norm_mlp(queries))
+
+
+class AdaLNBlock(nn.Module):
+    """Renderer block: spatial self-attention (within a frame), temporal self-attention (across frames
+    at one patch), cross-attention to the scene tokens, MLP; each residual branch modulated by the
+    flow time tau (adaptive LayerNorm shift/scale/gate, zero-initialised gates as in DiT)."""
+
+    N_BRANCHES = 4
+
+    def __init__(self, width: int, heads: int, mlp_ratio: float) -> None:
+        super().__init__()
+        self.norms = nn.ModuleList(nn.LayerNorm(width, elementwise_affine=False) for _ in range(self.N_BRANCHES))
+        self.spatial = Attention(width, heads)
+        self.temporal = Attention(width, heads)
+        self.cross = Attention(width, heads)
+        self.norm_tokens = nn.LayerNorm(width)
+        self.mlp = MLP(width, mlp_ratio)
+        self.modulation = nn.Linear(width, 3 * self.N_BRANCHES * width)
+        nn.init.zeros_(self.modulation.weight)
+        nn.init.zeros_(self.modulation.bias)
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor, tokens: torch.Tensor,
+                tokens_valid: torch.Tensor | None) -> torch.Tensor:
+        """x: (B, T, P, D) video patch tokens; cond: (B, D) tau embedding; tokens: (B, N, D);
+        tokens_valid: (B, N) bool or None. Returns (B, T, P, D)."""
+        B, T, P, D = x.shape
+        mods = self.modulation(F.silu(cond)).view(B, self.N_BRANCHES, 3, 1, 1, D)
+
+        def branch(i: int, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            shift, scale, gate = mods[:, i, 0], mods[:, i, 1], mods[:, i, 2]
+            return self.norms[i](h) * (1 + scale) + shift, gate
+
+        h, gate = branch(0, x)
+        x = x + gate * self.spatial(h.reshape(B * T, P, D)).view(B, T, P, D)
+        h, gate = branch(1, x)
+        h = h.transpose(1, 2).reshape(B * P, T, D)
+        x = x + gate * self.temporal(h).view(B, P, T, D).transpose(1, 2)
+        h, gate = branch(2, x)
+        ctx = self.norm_tokens(tokens)
+        x = x + gate * self.cross(h.reshape(B, T * P, D), ctx, tokens_valid).view(B, T, P, D)
+        h, gate = branch(3, x)
+        return x + gate * self.mlp(h)
+
+
+def timestep_embedding(tau: torch.Tensor, dim: int, max_period: float = 10_000.0) -> torch.Tensor:
+    """Sinusoidal embedding of flow times tau in [0, 1] (scaled by 1000 as in DiT). (B,) -> (B, dim)."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, device=tau.device, dtype=torch.float32) / half)
+    args = 1000.0 * tau.float()[:, None] * freqs[None]
+    emb = torch.cat([torch.cos(args), torch.sin(args)], dim=-1)
+    return F.pad(emb, (0, dim - emb.shape[-1]))
+
+
+def patchify(x: torch.Tensor, p: int) -> torch.Tensor:
+    """(B, T, C, h, w) -> (B, T, (h/p)(w/p), C p p), patches in row-major order."""
+    B, T, C, h, w = x.shape
+    x = x.reshape(B, T, C, h // p, p, w // p, p).permute(0, 1, 3, 5, 2, 4, 6)
+    return x.reshape(B, T, (h // p) * (w // p), C * p * p)
+
+
+def unpatchify(x: torch.Tensor, p: int, C: int, h: int, w: int) -> torch.Tensor:
+    """Inverse of :func:`patchify`: (B, T, (h/p)(w/p), C p p) -> (B, T, C, h, w)."""
+    B, T = x.shape[:2]
+    x = x.reshape(B, T, h // p, w // p, C, p, p).permute(0, 1, 4, 2, 5, 3, 6)
+    return x.reshape(B, T, C, h, w)

@@ -1,0 +1,62 @@
+"""Spatial Branch E_s (paper Sec. 3.1): Z_s = E_s(X_{1:T}, P_s).
+
+Latent patches of every source frame, concatenated with the Plücker rays of P_s, are embedded and
+passed through factorized spatial (within a frame) and temporal (across frames at one patch)
+attention into a camera-aware feature grid; N_s learnable static queries then cross-attend to the
+grid (self-attention, cross-attention, MLP per layer) and their final states, through the token
+bottleneck, are Z_s.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .configs import ModelConfig
+from .layers import QueryBlock, SelfAttentionBlock, patchify
+
+__all__ = ["SpatialBranch"]
+
+
+class FactorizedBlock(nn.Module):
+    """Spatial self-attention per frame, then temporal self-attention per patch position."""
+
+    def __init__(self, width: int, heads: int, mlp_ratio: float) -> None:
+        super().__init__()
+        self.spatial = SelfAttentionBlock(width, heads, mlp_ratio)
+        self.temporal = SelfAttentionBlock(width, heads, mlp_ratio)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x: (B, T, P, D) -> (B, T, P, D)."""
+        B, T, P, D = x.shape
+        x = self.spatial(x.reshape(B * T, P, D)).view(B, T, P, D)
+        x = self.temporal(x.transpose(1, 2).reshape(B * P, T, D)).view(B, P, T, D)
+        return x.transpose(1, 2)
+
+
+class SpatialBranch(nn.Module):
+    """Returns query states (B, n_queries, D); the caller applies the token bottleneck."""
+
+    def __init__(self, cfg: ModelConfig, n_queries: int) -> None:
+        super().__init__()
+        p, D = cfg.patch_size, cfg.width
+        self.patch_size = p
+        self.embed = nn.Linear((cfg.latent_channels + 6) * p * p, D)
+        self.pos_space = nn.Parameter(torch.randn(cfg.patches_per_side ** 2, D) * 0.02)
+        self.pos_time = nn.Parameter(torch.randn(cfg.frames, D) * 0.02)
+        self.blocks = nn.ModuleList(FactorizedBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.spatial_layers))
+        self.queries = nn.Parameter(torch.randn(n_queries, D) * 0.02)
+        self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
+
+    def forward(self, latents: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
+        """latents X: (B, T, C, h, w); rays: (B, T, 6, h, w). Returns (B, n_queries, D)."""
+        x = self.embed(patchify(torch.cat([latents, rays], dim=2), self.patch_size))
+        T = x.shape[1]
+        x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
+        for block in self.blocks:
+            x = block(x)
+        grid = x.flatten(1, 2)  # camera-aware feature grid (B, T P, D)
+        q = self.queries[None].expand(x.shape[0], -1, -1)
+        for block in self.query_blocks:
+            q = block(q, grid)
+        return q

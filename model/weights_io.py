@@ -1,0 +1,147 @@
+"""Weights I/O (issue #5 item 8): safetensors + config.json, the fingerprint, ``from_pretrained``.
+
+A model directory holds
+
+* ``config.json``: ``{"format": "vt4d-model/1", "model_id", "model_version", "config": {...},
+  "config_sha256", "weights_sha256"}``;
+* ``model.safetensors``: the full state dict (float32), no pickle anywhere;
+* optionally ``MODEL_CARD.md``.
+
+The fingerprint a container stores is SHA-256 over the canonical config JSON (sorted keys, no
+whitespace) and SHA-256 over the weights in canonical order: for every tensor name in sorted order,
+the UTF-8 name, its dtype and shape, then its little-endian bytes. Loading recomputes the weights
+hash and refuses files whose hash disagrees with config.json.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from vt4dcodec.errors import ModelError, ModelNotFoundError
+
+from .configs import ModelConfig
+from .videotok4d import VideoTok4D
+
+__all__ = [
+    "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
+    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT",
+]
+
+MODEL_FORMAT = "vt4d-model/1"
+SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
+CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def weights_sha256(state: dict[str, torch.Tensor]) -> str:
+    """SHA-256 over tensors in sorted-name order: name, dtype, shape, then little-endian bytes."""
+    digest = hashlib.sha256()
+    for name in sorted(state):
+        tensor = state[name].detach().to("cpu").contiguous()
+        header = json.dumps([name, str(tensor.dtype).removeprefix("torch."), list(tensor.shape)],
+                            separators=(",", ":"))
+        digest.update(header.encode("utf-8"))
+        digest.update(tensor.view(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
+    return digest.hexdigest()
+
+
+def fingerprint_fields(model: VideoTok4D, model_id: str, model_version: str) -> dict[str, Any]:
+    """The keyword arguments of ``vt4dcodec.format.ModelFingerprint`` for ``model``."""
+    cfg = model.config
+    return dict(model_id=str(model_id), model_version=str(model_version), config_sha256=cfg.sha256(),
+                weights_sha256=weights_sha256(model.state_dict()), static_shape=tuple(cfg.static_shape),
+                dynamic_shape=tuple(cfg.dynamic_shape), token_dtype="float32")
+
+
+def model_fingerprint(model: VideoTok4D, model_id: str, model_version: str) -> Any:
+    from vt4dcodec.format import ModelFingerprint  # the container's record type
+
+    return ModelFingerprint(**fingerprint_fields(model, model_id, model_version))
+
+
+def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
+                    card: str | None = None) -> Path:
+    """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
+    digest = weights_sha256(state)
+    meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
+            "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
+    save_file(state, str(out / WEIGHTS_FILE), metadata={"format": MODEL_FORMAT, "weights_sha256": digest})
+    (out / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    if card is not None:
+        (out / CARD_FILE).write_text(card, encoding="utf-8")
+    return out
+
+
+def shipped_model_ids() -> list[str]:
+    """Ids of the models shipped inside the package (directories of model/weights/ with a config)."""
+    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / CONFIG_FILE).is_file())
+
+
+def _resolve(name_or_path: str | Path) -> Path:
+    path = Path(name_or_path)
+    if path.is_dir():
+        return path
+    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped_model_ids():
+        return SHIPPED_DIR / name_or_path
+    raise ModelNotFoundError(f"no model {str(name_or_path)!r}: not a directory and not a shipped id "
+                             f"(shipped: {shipped_model_ids() or 'none'})")
+
+
+def read_model_meta(directory: Path) -> dict[str, Any]:
+    """Parse and validate config.json of a model directory."""
+    cfg_path = directory / CONFIG_FILE
+    if not cfg_path.is_file() or not (directory / WEIGHTS_FILE).is_file():
+        raise ModelNotFoundError(f"{directory} lacks {CONFIG_FILE} or {WEIGHTS_FILE}")
+    if cfg_path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ModelError(f"{cfg_path} is larger than {MAX_CONFIG_BYTES} bytes")
+    try:
+        meta = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{cfg_path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
+        raise ModelError(f"{cfg_path}: format must be {MODEL_FORMAT!r}")
+    for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
+        if not isinstance(meta.get(key), str):
+            raise ModelError(f"{cfg_path}: {key} must be a string")
+    config = ModelConfig.from_dict(meta.get("config"))
+    if config.sha256() != meta["config_sha256"]:
+        raise ModelError(f"{cfg_path}: config_sha256 does not match the config")
+    meta["config"] = config
+    return meta
+
+
+def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> VideoTok4D:
+    """Load a shipped model id (e.g. "vt4d-tiny") or a model directory; autoencoder frozen, eval mode.
+
+    Raises ModelNotFoundError for an unknown id/path, ModelError for damaged or inconsistent files.
+    """
+    directory = _resolve(name_or_path)
+    meta = read_model_meta(directory)
+    try:
+        state = load_file(str(directory / WEIGHTS_FILE), device="cpu")
+    except (SafetensorError, ValueError, RuntimeError) as exc:
+        raise ModelError(f"{directory / WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / WEIGHTS_FILE}: weights do not match weights_sha256 in {CONFIG_FILE}")
+    model = VideoTok4D(meta["config"])
+    expected = model.state_dict()
+    if set(state) != set(expected):
+        missing, extra = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
+        raise ModelError(f"weights do not fit the config: missing {missing[:5]}, unexpected {extra[:5]}")
+    bad = [k for k in state if state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype]
+    if bad:
+        raise ModelError(f"weights do not fit the config: wrong shape/dtype for {bad[:5]}")
+    model.load_state_dict(state, strict=True)
+    model.freeze_autoencoder()
+    model.model_id, model.model_version = meta["model_id"], meta["model_version"]
+    return model.to(device).eval()
