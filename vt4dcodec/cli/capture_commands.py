@@ -126,3 +126,12 @@ def register(subparsers: Any) -> None:
     """Add this group's commands to the ``vt4d`` parser."""
     for add in REGISTER:
         add(subparsers)
+
+
+def _register_synth(sub: Any) -> None:
+    from ..synth.command import add_synth_parser  # numpy-only; the generator itself loads lazily
+
+    add_synth_parser(sub)
+
+
+REGISTER.append(_register_synth)

@@ -1,0 +1,72 @@
+"""The `vt4d synth` command: generate synthetic scenes as capture directories.
+
+Registered by :mod:`vt4dcodec.cli.capture_commands` (one line); the work is done here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+__all__ = ["add_synth_parser", "run_synth"]
+
+
+def _int_at_least(lo: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"{text!r} must be >= {lo}")
+        return value
+    return parse
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    from .dataset_writer import write_dataset
+    from .generator import SynthConfig
+
+    config = SynthConfig(
+        num_cameras=args.cameras, num_frames=args.frames, height=args.size, width=args.size,
+        num_objects=(args.min_objects, args.max_objects), static=args.static,
+        camera_motion=not args.fixed_cameras, fps=args.fps,
+    )
+    start = time.perf_counter()
+    paths = write_dataset(args.output, num_scenes=args.num_scenes, split=args.split, seed=args.seed,
+                          config=config, workers=args.workers, overwrite=args.overwrite,
+                          progress=not args.quiet)
+    elapsed = time.perf_counter() - start
+    print(f"{len(paths)} {args.split} scenes (seeds {args.seed}..{args.seed + len(paths) - 1}) in "
+          f"{args.output} [{elapsed:.1f} s]")
+    return 0
+
+
+def add_synth_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "synth", help="generate synthetic multi-camera dynamic scenes as capture directories",
+        description=(
+            "Generate N synthetic scenes (textured room, moving rigid objects, K synchronized moving "
+            "cameras) as capture directories OUT/<split>-<seed>/ with PNG frames, 16-bit PNG depth "
+            "(mm), and ground truth synth_flow.npy + synth_gt.npz.  Deterministic from (seed, split, "
+            "options); train and test scenes use disjoint textures and objects.  Complete scenes "
+            "already in OUT are kept, so an interrupted run can be resumed."
+        ),
+    )
+    p.add_argument("-n", "--num-scenes", type=_int_at_least(1), required=True, help="number of scenes")
+    p.add_argument("--split", choices=("train", "test"), default="train", help="asset pool (default train)")
+    p.add_argument("-o", "--output", required=True, help="output directory")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="first scene seed (default 0)")
+    p.add_argument("--workers", type=_int_at_least(1), default=2, help="processes (default 2)")
+    p.add_argument("--cameras", type=_int_at_least(1), default=10, help="cameras per scene (default 10)")
+    p.add_argument("--frames", type=_int_at_least(2), default=8, help="frames per camera (default 8)")
+    p.add_argument("--size", type=_int_at_least(2), default=64, help="square image side in pixels (default 64)")
+    p.add_argument("--fps", type=float, default=8.0, help="frame rate (default 8)")
+    p.add_argument("--min-objects", type=_int_at_least(0), default=2, help="fewest objects (default 2)")
+    p.add_argument("--max-objects", type=_int_at_least(0), default=4, help="most objects (default 4)")
+    p.add_argument("--static", action="store_true", help="objects stand still (nothing moves)")
+    p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
+    p.add_argument("--overwrite", action="store_true", help="regenerate scenes that already exist")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_synth)
