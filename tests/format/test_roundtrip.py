@@ -149,3 +149,20 @@ def test_requantizing_a_decoded_scene_is_stable(encoding, seed):
     once = loads(dumps(scene))
     twice = loads(dumps(once))
     assert_same_scene(once, twice, exact_tokens=encoding in ("float32", "float16"))
+
+
+def test_fast_float16_conversion_matches_numpy_for_every_finite_half():
+    from vt4dcodec.format.encodings import float16_to_float32
+
+    bits = np.arange(1 << 16, dtype=np.uint16)
+    bits = bits[(bits & 0x7C00) != 0x7C00]
+    ref = bits.view(np.float16).astype(np.float32)
+    assert np.array_equal(float16_to_float32(bits.view(np.float16)).view(np.uint32), ref.view(np.uint32))
+
+
+def test_float16_section_holding_infinity_is_refused():
+    from vt4dcodec.errors import MalformedSectionError
+
+    payload = np.array([1.0, np.inf], "<f2").tobytes()
+    with pytest.raises(MalformedSectionError, match="non-finite"):
+        decode_tokens(payload, None, "float16", 1, 2)

@@ -1,0 +1,144 @@
+#!/usr/bin/env python
+"""Write and read paper-size scenes (Z_s 1024x64 + Z_d 512x64, 32 frames) in every .vt4d encoding, and the
+same arrays with np.savez_compressed and safetensors (+zstd), in one run.
+
+    python bench/bench_format.py                 # 1,000 scenes per format (about a minute on 2 cores)
+    python bench/bench_format.py --scenes 100    # quicker
+
+Throughput is "logical" MB/s: float32 token megabytes (1536 x 64 x 4 B = 0.393 MB per scene) handled per
+second, the same yardstick for every format.  Write = encode + write the file; read = read the file +
+full validation + tokens as float32 arrays.  Files go to a temporary directory (page cache warm, as in
+repeated access to an archive).  Tokens are i.i.d. Gaussian, the hardest case for compression; real encoder
+outputs are smoother.  Results: bench/results/format.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import io
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import safetensors.numpy
+import zstandard
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from vt4dcodec.cameras import Trajectory  # noqa: E402
+from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, load, save  # noqa: E402
+
+NS, ND, D, FRAMES = 1024, 512, 64, 32
+TOKEN_MB = (NS + ND) * D * 4 / 1e6
+POOL = 16  # distinct scenes, cycled (making them is not timed)
+
+
+def make_scenes(seed: int) -> list[Scene]:
+    rng = np.random.default_rng(seed)
+    fp = ModelFingerprint("videotok4d-paper", "1.0", hashlib.sha256(b"cfg").hexdigest(),
+                          hashlib.sha256(b"w").hexdigest(), (NS, D), (ND, D))
+    K = np.tile([[220.0, 0, 127.5], [0, 220.0, 127.5], [0, 0, 1]], (FRAMES, 1, 1))
+    out = []
+    for i in range(POOL):
+        w2c = np.tile(np.eye(4), (FRAMES, 1, 1))
+        w2c[:, 0, 3] = np.linspace(-1, 1, FRAMES) + i
+        w2c[:, 2, 3] = 3.0
+        out.append(Scene(rng.standard_normal((NS, D)).astype(np.float32), rng.standard_normal((ND, D)).astype(np.float32),
+                         Trajectory(K, w2c, 256, 256, timestamps=np.arange(FRAMES) / 30.0), fp,
+                         {"pool_index": i}, Provenance("0.1.0", "2026-01-01T00:00:00Z", f"cap{i}", "encoded")))
+    return out
+
+
+def arrays_of(scene: Scene) -> dict[str, np.ndarray]:
+    return {"static": scene.static_tokens, "dynamic": scene.dynamic_tokens, "K": scene.cameras.K,
+            "w2c": scene.cameras.w2c, "timestamps": scene.cameras.timestamps}
+
+
+# --- the formats: (write(scene, path) -> None, read(path) -> (static, dynamic)) ---------------------------
+def vt4d(encoding: str):
+    def write(scene, path):
+        save(scene, path, encoding=encoding)
+
+    def read(path):
+        s = load(path)
+        return s.static_tokens, s.dynamic_tokens
+    return write, read
+
+
+def savez():
+    def write(scene, path):
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **arrays_of(scene))
+
+    def read(path):
+        with np.load(path, allow_pickle=False) as z:
+            return z["static"], z["dynamic"]
+    return write, read
+
+
+def safetensors_zstd():
+    cctx, dctx = zstandard.ZstdCompressor(level=3), zstandard.ZstdDecompressor()
+
+    def write(scene, path):
+        with open(path, "wb") as fh:
+            fh.write(cctx.compress(safetensors.numpy.save(arrays_of(scene))))
+
+    def read(path):
+        with open(path, "rb") as fh:
+            t = safetensors.numpy.load(dctx.decompress(fh.read()))
+        return t["static"], t["dynamic"]
+    return write, read
+
+
+def run(name, write, read, scenes, n, workdir) -> dict:
+    paths = [os.path.join(workdir, f"{name}-{i}.bin") for i in range(n)]
+    t0 = time.perf_counter()
+    for i, p in enumerate(paths):
+        write(scenes[i % POOL], p)
+    t1 = time.perf_counter()
+    err = 0.0
+    for i, p in enumerate(paths):
+        static, dynamic = read(p)
+        if i < POOL:
+            err = max(err, float(np.abs(static - scenes[i].static_tokens).max()),
+                      float(np.abs(dynamic - scenes[i].dynamic_tokens).max()))
+    t2 = time.perf_counter()
+    size = float(np.mean([os.path.getsize(p) for p in paths]))
+    for p in paths:
+        os.unlink(p)
+    res = {"format": name, "scenes": n, "bytes_per_scene": round(size), "write_ms_per_scene": (t1 - t0) / n * 1e3,
+           "read_ms_per_scene": (t2 - t1) / n * 1e3, "write_MBps": TOKEN_MB * n / (t1 - t0),
+           "read_MBps": TOKEN_MB * n / (t2 - t1), "max_abs_error": err}
+    print(f"{name:>22}: {res['bytes_per_scene']:>8} B/scene  write {res['write_MBps']:7.1f} MB/s  "
+          f"read {res['read_MBps']:7.1f} MB/s  max err {err:.3g}", flush=True)
+    return res
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=1000)
+    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
+    args = parser.parse_args()
+    scenes = make_scenes(0)
+    formats = [(f"vt4d-{e}", *vt4d(e)) for e in ENCODINGS]
+    formats += [("npz_compressed-float32", *savez()), ("safetensors+zstd-float32", *safetensors_zstd())]
+    with tempfile.TemporaryDirectory(prefix="vt4d-bench-") as workdir:
+        results = [run(name, w, r, scenes, args.scenes, workdir) for name, w, r in formats]
+    report = {"command": f"python bench/bench_format.py --scenes {args.scenes}", "token_MB_per_scene": TOKEN_MB,
+              "scene": {"static": [NS, D], "dynamic": [ND, D], "frames": FRAMES, "tokens": "iid N(0,1) float32"},
+              "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "numpy": np.__version__,
+                          "zstd": ".".join(map(str, zstandard.ZSTD_VERSION))},
+              "results": results}
+    Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
