@@ -78,6 +78,10 @@ class LatentAutoencoder(nn.Module):
         x = self.decode_raw(z)
         return x.view(B, T, *x.shape[1:])
 
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """Stage-1 reconstruction: (N, 3, H, W) in [0, 1] -> (N, 3, H, W) in [0, 1]."""
+        return self.decode_raw(self.encode_raw(images))
+
     @torch.no_grad()
     def set_latent_statistics(self, images: torch.Tensor) -> None:
         """Set the per-channel normalisation from a sample of frames (N, 3, H, W) in [0, 1]."""

@@ -172,6 +172,11 @@ class VideoTok4D(nn.Module):
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean())}
         return loss, logs
 
+    def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """The training objective (so DistributedDataParallel can wrap the model): see rectified_flow_loss."""
+        return self.rectified_flow_loss(batch, target_frames, K_tgt, w2c_tgt, generator)
+
     def fingerprint(self, model_id: str, model_version: str) -> Any:
         """The :class:`vt4dcodec.format.ModelFingerprint` a container stores for these weights."""
         from .weights_io import model_fingerprint

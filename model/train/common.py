@@ -1,0 +1,280 @@
+"""Shared training machinery: distributed setup (torchrun, gloo), resumable checkpoints without
+pickle, a JSONL log, the loss-curve PNG, bf16 autocast on CPU and the progress bar.
+
+Checkpoint layout (``<out>/checkpoint/``): ``model.safetensors`` (the module's state dict),
+``optimizer.pt`` (``torch.save`` of the optimizer state dict; read back with
+``torch.load(weights_only=True)``, which refuses arbitrary objects), and ``state.json`` (step, args,
+RNG seed) written last, so a checkpoint without ``state.json`` is ignored as incomplete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from vt4dcodec.errors import ModelError
+
+__all__ = [
+    "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
+    "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
+    "parse_overrides", "lr_at", "train_loop",
+]
+
+
+@dataclass(frozen=True)
+class DistInfo:
+    rank: int
+    world_size: int
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+
+def setup_distributed() -> DistInfo:
+    """Join the process group torchrun describes in the environment (gloo, CPU); else one process."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group(backend="gloo")
+    if dist.is_initialized():
+        return DistInfo(dist.get_rank(), dist.get_world_size())
+    return DistInfo(0, 1)
+
+
+def cleanup_distributed() -> None:
+    if dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (2 ** 32))
+    torch.manual_seed(seed)
+
+
+def autocast(bf16: bool) -> contextlib.AbstractContextManager:
+    """bf16 autocast on CPU when asked (matmuls and attention in bf16, losses kept in float32)."""
+    return torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+
+
+def cycle(loader: Any) -> Iterator[Any]:
+    """Iterate a DataLoader forever (re-shuffling every pass)."""
+    epoch = 0
+    while True:
+        sampler = getattr(loader, "sampler", None)
+        if hasattr(sampler, "set_epoch"):
+            sampler.set_epoch(epoch)
+        yield from loader
+        epoch += 1
+
+
+def _atomic_write(path: Path, write) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer, step: int,
+                    extra: dict[str, Any]) -> None:
+    """Write model (safetensors), optimizer (weights-only torch.save) and state.json, atomically each."""
+    directory.mkdir(parents=True, exist_ok=True)
+    state_json = directory / "state.json"
+    if state_json.exists():
+        state_json.unlink()  # the commit marker goes last; a crash in between leaves no valid checkpoint
+    tensors = {k: v.detach().cpu().contiguous().clone() for k, v in module.state_dict().items()}
+    _atomic_write(directory / "model.safetensors", lambda p: save_file(tensors, str(p)))
+    _atomic_write(directory / "optimizer.pt", lambda p: torch.save(optimizer.state_dict(), p))
+    payload = {"step": int(step), "time": time.time(), **extra}
+    _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
+
+
+def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None
+                    ) -> dict[str, Any] | None:
+    """Restore a checkpoint written by :func:`save_checkpoint`; None when there is no complete one."""
+    state_json = directory / "state.json"
+    if not state_json.is_file():
+        return None
+    try:
+        state = json.loads(state_json.read_text())
+        module.load_state_dict(load_file(str(directory / "model.safetensors")), strict=True)
+        if optimizer is not None:
+            optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))
+    except (OSError, ValueError, RuntimeError, KeyError) as exc:
+        raise ModelError(f"cannot resume from {directory}: {exc}") from None
+    return state
+
+
+class JsonlLog:
+    """Append-only JSON-lines log; one object per logged step."""
+
+    def __init__(self, path: Path, enabled: bool = True) -> None:
+        self.path, self.enabled = path, enabled
+        if enabled:
+            path.parent.mkdir(parents=True, exist_ok=True)
+
+    def write(self, record: dict[str, Any]) -> None:
+        if self.enabled:
+            with self.path.open("a", encoding="utf-8") as f:
+                f.write(json.dumps(record, sort_keys=True) + "\n")
+
+    def read(self) -> list[dict[str, Any]]:
+        if not self.path.is_file():
+            return []
+        return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
+
+
+def plot_loss_curve(records: list[dict[str, Any]], png: Path, title: str, key: str = "loss",
+                    smooth: int = 20) -> None:
+    """Loss against step (raw and a moving average), matplotlib Agg, log-scale y."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts = [(r["step"], r[key]) for r in records if key in r and "step" in r]
+    if not pts:
+        return
+    steps, values = np.array(pts, dtype=np.float64).T
+    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=100)
+    ax.plot(steps, values, color="0.7", linewidth=0.8, label=key)
+    if len(values) >= smooth:
+        kernel = np.ones(smooth) / smooth
+        ax.plot(steps[smooth - 1:], np.convolve(values, kernel, mode="valid"), color="C0",
+                label=f"{key} (mean of {smooth})")
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png)
+    plt.close(fig)
+
+
+def common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags both stages share."""
+    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, log, PNG)")
+    parser.add_argument("--config", default="tiny", help="model config name (tiny | paper)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="config overrides, e.g. unified_tokens=true renderer_layers=3")
+    parser.add_argument("--steps", type=int, required=True, help="total optimizer steps (resume continues to it)")
+    parser.add_argument("--batch-size", type=int, default=4, help="per process")
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--warmup", type=int, default=100, help="linear learning-rate warm-up steps")
+    parser.add_argument("--scenes", type=int, default=64, help="synthetic training scenes in the pool")
+    parser.add_argument("--cameras", type=int, default=4, help="cameras per synthetic scene")
+    parser.add_argument("--scene-seed", type=int, default=0, help="first synthetic scene seed")
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="scene cache directory (default <out>/../scene_cache); shared across runs")
+    parser.add_argument("--workers", type=int, default=1, help="DataLoader workers per process")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads per process")
+    parser.add_argument("--bf16", action="store_true", help="bf16 autocast on CPU")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--log-every", type=int, default=10)
+    parser.add_argument("--ckpt-every", type=int, default=200)
+    parser.add_argument("--no-progress", action="store_true", help="hide the tqdm bar")
+
+
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """["a=1", "b=true"] -> {"a": 1, "b": True} (JSON values; bare words stay strings)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ModelError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def lr_at(step: int, base: float, warmup: int, total: int) -> float:
+    """Linear warm-up, then cosine decay to 10% of ``base``."""
+    if step < warmup:
+        return base * (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total - warmup))
+    return base * (0.1 + 0.9 * 0.5 * (1.0 + np.cos(np.pi * progress)))
+
+
+def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trained: nn.Module,
+               optimizer: torch.optim.Optimizer, batches: Iterator[Any], step_fn, *, title: str,
+               extra_state: dict[str, Any]) -> list[dict[str, Any]]:
+    """Run optimizer steps up to ``args.steps``, resuming from ``<out>/checkpoint``.
+
+    ``trained`` is the bare module whose state is checkpointed (``module`` may be its DDP wrapper,
+    which ``step_fn(module, batch) -> (loss, logs)`` calls). Rank 0 logs every ``log_every`` steps to
+    ``<out>/log.jsonl`` (losses averaged over ranks), checkpoints every ``ckpt_every`` steps and at
+    the end, and draws ``<out>/loss.png``. Returns the log records.
+    """
+    from tqdm import tqdm
+
+    out: Path = args.out
+    ckpt = out / "checkpoint"
+    state = load_checkpoint(ckpt, trained, optimizer)
+    start = int(state["step"]) if state else 0
+    log = JsonlLog(out / "log.jsonl", enabled=info.is_main)
+    if info.is_main:  # drop records a crash left after the last checkpoint
+        kept = [r for r in log.read() if r.get("step", -1) < start]
+        log.path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept))
+    bar = tqdm(range(start, args.steps), initial=start, total=args.steps, desc=title,
+               disable=args.no_progress or not info.is_main, dynamic_ncols=True)
+    window: list[float] = []
+    t0 = time.time()
+    module.train()
+    for step in bar:
+        for group in optimizer.param_groups:
+            group["lr"] = lr_at(step, args.lr, args.warmup, args.steps)
+        batch = next(batches)
+        with autocast(args.bf16):
+            loss, logs = step_fn(module, batch)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_([p for p in trained.parameters() if p.requires_grad], 1.0)
+        optimizer.step()
+        window.append(float(loss.detach()))
+        last = step + 1 == args.steps
+        if (step + 1) % args.log_every == 0 or last:
+            mean = torch.tensor([sum(window) / len(window)], dtype=torch.float64)
+            if info.distributed:
+                dist.all_reduce(mean)
+                mean /= info.world_size
+            record = {"step": step + 1, "loss": float(mean), "lr": optimizer.param_groups[0]["lr"],
+                      "grad_norm": float(grad_norm), "elapsed_s": round(time.time() - t0, 2),
+                      **{k: v for k, v in logs.items() if k != "loss"}}
+            log.write(record)
+            bar.set_postfix(loss=f"{float(mean):.4f}")
+            window.clear()
+        if (step + 1) % args.ckpt_every == 0 or last:
+            if info.is_main:
+                save_checkpoint(ckpt, trained, optimizer, step + 1, {"args": _jsonable(vars(args)), **extra_state})
+            if info.distributed:
+                dist.barrier()
+    bar.close()
+    records = log.read() if info.is_main else []
+    if info.is_main:
+        plot_loss_curve(records, out / "loss.png", title)
+    return records
+
+
+def _jsonable(values: dict[str, Any]) -> dict[str, Any]:
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in values.items()}

@@ -1,0 +1,181 @@
+"""Training data from the synthetic multi-camera generator, cached on disk.
+
+Generating a scene (about 1 s per camera at 64x64) and preprocessing a source clip (DIS flow, motion
+isolation, tracks: about 1.5 s) cost far more than a training step, so each scene is generated once,
+each camera preprocessed once, and both are cached as ``.npz`` (no pickle) under ``cache``. Workers
+fill the cache lazily; later epochs, resumed runs and other runs with the same settings reuse it.
+
+* :class:`FrameDataset` (stage 1): single frames of every camera.
+* :class:`PairDataset` (stage 2): ordered camera pairs (source c, target a != c) of one event: the
+  source clip with its :class:`SourceInputs`, the target camera's frames and trajectory.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from vt4dcodec.cameras import Trajectory
+from vt4dcodec.synth import SynthConfig, generate_scene
+
+from ..configs import ModelConfig
+from ..preprocess import prepare_source
+from ..source_inputs import SourceBatch, SourceInputs
+
+__all__ = ["ScenePool", "FrameDataset", "PairDataset", "collate_pairs", "PairBatch", "rank_seeds"]
+
+
+def rank_seeds(first: int, count: int, rank: int, world_size: int) -> list[int]:
+    """The scene seeds of one process: disjoint across ranks, together ``first .. first+count-1``."""
+    return list(range(first + rank, first + count, world_size))
+
+
+def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+    with tmp.open("wb") as f:
+        np.savez(f, **arrays)
+    os.replace(tmp, path)
+
+
+def _load_npz(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+@dataclass(frozen=True)
+class ScenePool:
+    """Where and how the synthetic training scenes are made (picklable for DataLoader workers)."""
+
+    cache: Path
+    cameras: int
+    frames: int
+    image_size: int
+    latent_size: int
+    n_tracks: int
+    motion_isolation: bool = True
+    split: str = "train"
+
+    @classmethod
+    def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int) -> "ScenePool":
+        return cls(Path(cache), cameras, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks,
+                   cfg.motion_isolation)
+
+    def _stem(self, seed: int) -> str:
+        return f"{self.split}-{seed:06d}-c{self.cameras}-t{self.frames}-s{self.image_size}"
+
+    def scene(self, seed: int) -> dict[str, np.ndarray]:
+        """frames (C,T,H,W,3) uint8, K (C,T,3,3) and w2c (C,T,4,4) float64, depth (C,T,H,W) float32."""
+        return _cached_scene(self, seed)
+
+    def prepared(self, seed: int) -> dict[str, np.ndarray]:
+        """motion_mask (C,T,h,w), track_xy (C,N,T,2), track_valid (C,N,T) of every camera as source."""
+        return _cached_prepared(self, seed)
+
+    def build_scene(self, seed: int) -> dict[str, np.ndarray]:
+        path = self.cache / f"scene-{self._stem(seed)}.npz"
+        if path.is_file():
+            return _load_npz(path)
+        config = SynthConfig(num_cameras=self.cameras, num_frames=self.frames, height=self.image_size,
+                             width=self.image_size)
+        capture = generate_scene(seed, split=self.split, config=config).capture
+        names = sorted(capture.cameras)
+        arrays = {
+            "frames": np.stack([capture.frames[n] for n in names]),
+            "K": np.stack([capture.cameras[n].K for n in names]).astype(np.float64),
+            "w2c": np.stack([capture.cameras[n].w2c for n in names]).astype(np.float64),
+            "depth": np.stack([capture.depth[n] for n in names]).astype(np.float32),
+        }
+        self.cache.mkdir(parents=True, exist_ok=True)
+        _save_npz(path, arrays)
+        return arrays
+
+    def build_prepared(self, seed: int) -> dict[str, np.ndarray]:
+        iso = "iso" if self.motion_isolation else "noiso"
+        path = self.cache / f"prep-{self._stem(seed)}-l{self.latent_size}-n{self.n_tracks}-{iso}.npz"
+        if path.is_file():
+            return _load_npz(path)
+        scene = self.scene(seed)
+        masks, xys, valids = [], [], []
+        for c in range(self.cameras):
+            trajectory = Trajectory(K=scene["K"][c], w2c=scene["w2c"][c], width=self.image_size,
+                                    height=self.image_size)
+            src = prepare_source(scene["frames"][c], trajectory, scene["depth"][c],
+                                 latent_hw=(self.latent_size, self.latent_size), num_tracks=self.n_tracks,
+                                 seed=seed * 1009 + c, motion_isolation=self.motion_isolation)
+            masks.append(src.motion_mask)
+            xys.append(src.track_xy)
+            valids.append(src.track_valid)
+        arrays = {"motion_mask": np.stack(masks), "track_xy": np.stack(xys), "track_valid": np.stack(valids)}
+        _save_npz(path, arrays)
+        return arrays
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_scene(pool: ScenePool, seed: int) -> dict[str, np.ndarray]:
+    return pool.build_scene(seed)
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_prepared(pool: ScenePool, seed: int) -> dict[str, np.ndarray]:
+    return pool.build_prepared(seed)
+
+
+class FrameDataset(Dataset):
+    """Stage 1: every frame of every camera of the pool's scenes, as (3, H, W) float32 in [0, 1]."""
+
+    def __init__(self, pool: ScenePool, seeds: list[int]) -> None:
+        self.pool, self.seeds = pool, list(seeds)
+        self.per_scene = pool.cameras * pool.frames
+
+    def __len__(self) -> int:
+        return len(self.seeds) * self.per_scene
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        scene = self.pool.scene(self.seeds[index // self.per_scene])
+        c, t = divmod(index % self.per_scene, self.pool.frames)
+        return torch.from_numpy(scene["frames"][c, t]).permute(2, 0, 1).float().div_(255.0)
+
+
+@dataclass
+class PairBatch:
+    """A stage-2 batch: the source clips and the target cameras' videos and trajectories."""
+
+    source: SourceBatch
+    target_frames: torch.Tensor  # (B, T, 3, H, W) in [0, 1]
+    K_tgt: torch.Tensor  # (B, T, 3, 3) px
+    w2c_tgt: torch.Tensor  # (B, T, 4, 4)
+
+
+class PairDataset(Dataset):
+    """Stage 2: all ordered (source, target) camera pairs of the pool's scenes."""
+
+    def __init__(self, pool: ScenePool, seeds: list[int]) -> None:
+        if pool.cameras < 2:
+            raise ValueError("stage 2 needs at least 2 cameras per scene")
+        self.pool, self.seeds = pool, list(seeds)
+        self.pairs = [(a, b) for a in range(pool.cameras) for b in range(pool.cameras) if a != b]
+
+    def __len__(self) -> int:
+        return len(self.seeds) * len(self.pairs)
+
+    def __getitem__(self, index: int) -> tuple[SourceInputs, np.ndarray, np.ndarray, np.ndarray]:
+        seed = self.seeds[index // len(self.pairs)]
+        src, tgt = self.pairs[index % len(self.pairs)]
+        scene, prep = self.pool.scene(seed), self.pool.prepared(seed)
+        source = SourceInputs(frames=scene["frames"][src], K=scene["K"][src].astype(np.float32),
+                              w2c=scene["w2c"][src].astype(np.float32), motion_mask=prep["motion_mask"][src],
+                              track_xy=prep["track_xy"][src], track_valid=prep["track_valid"][src])
+        return source, scene["frames"][tgt], scene["K"][tgt], scene["w2c"][tgt]
+
+
+def collate_pairs(items: list[tuple[SourceInputs, np.ndarray, np.ndarray, np.ndarray]]) -> PairBatch:
+    target = torch.from_numpy(np.stack([it[1] for it in items])).permute(0, 1, 4, 2, 3).float().div_(255.0)
+    return PairBatch(source=SourceBatch.collate([it[0] for it in items]), target_frames=target,
+                     K_tgt=torch.from_numpy(np.stack([it[2] for it in items])).float(),
+                     w2c_tgt=torch.from_numpy(np.stack([it[3] for it in items])).float())

@@ -1,0 +1,145 @@
+"""Stage 2: train the tokenizer (Spatial + Temporal Branch) and the renderer with the rectified-flow
+loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (paper Eq. 2), on pairs
+of cameras of synthetic dynamic scenes, with the stage-1 autoencoder frozen (issue #6 item 1).
+
+    python -m vt4dcodec.model.train.tokenizer --autoencoder runs/ae/autoencoder.safetensors \
+        --out runs/tok --steps 3000
+    torchrun --nproc_per_node=2 -m vt4dcodec.model.train.tokenizer --autoencoder ... --out ... --steps ...
+
+Each sample: one scene, a source camera c (its clip, cameras, motion mask and tracks from
+``model.preprocess``) and a different target camera a (its video is Y^0, its trajectory P_tgt).
+Ranks train on disjoint scene seeds. The finished model is written with ``save_pretrained`` to
+``<out>/model`` (loadable by ``from_pretrained``); ``<out>/samples.png`` shows source | target |
+render for a few training pairs, and ``<out>/summary.json`` their PSNR.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, RandomSampler
+
+from vt4dcodec.errors import ModelError
+
+from ..configs import ModelConfig, get_config
+from ..videotok4d import VideoTok4D
+from ..weights_io import save_pretrained
+from .common import (DistInfo, cleanup_distributed, common_arguments, cycle, parse_overrides, seed_everything,
+                     setup_distributed, train_loop)
+from .data import PairBatch, PairDataset, ScenePool, collate_pairs, rank_seeds
+
+__all__ = ["main", "load_autoencoder"]
+
+
+def load_autoencoder(model: VideoTok4D, path: Path) -> None:
+    """Copy stage-1 weights (``autoencoder.safetensors``) into ``model`` and freeze them."""
+    try:
+        state = load_file(str(path))
+    except (OSError, SafetensorError, ValueError) as exc:
+        raise ModelError(f"cannot read autoencoder weights {path}: {exc}") from None
+    expected = model.autoencoder.state_dict()
+    if set(state) != set(expected) or any(state[k].shape != expected[k].shape for k in state):
+        raise ModelError(f"{path} does not fit the autoencoder of this config (ae_width, latent_channels, "
+                         f"ae_downsample must match stage 1)")
+    model.autoencoder.load_state_dict(state)
+    model.freeze_autoencoder()
+
+
+def flow_step(module: torch.nn.Module, batch: PairBatch) -> tuple[torch.Tensor, dict[str, float]]:
+    return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt)
+
+
+def make_loader(dataset: PairDataset, args: argparse.Namespace, info: DistInfo) -> DataLoader:
+    generator = torch.Generator().manual_seed(args.seed + info.rank)
+    return DataLoader(dataset, batch_size=args.batch_size, sampler=RandomSampler(dataset, generator=generator),
+                      num_workers=args.workers, drop_last=True, collate_fn=collate_pairs,
+                      persistent_workers=args.workers > 0)
+
+
+@torch.no_grad()
+def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Path, steps: int = 8
+                   ) -> dict[str, float]:
+    """PSNR of renders against the target camera for ``count`` pairs, and a PNG: rows are pairs,
+    columns source | target | render at the first, middle and last frame."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    model.eval()
+    idx = np.linspace(0, len(dataset) - 1, count).astype(int).tolist()
+    batch = collate_pairs([dataset[i] for i in idx])
+    z_s, z_d = model.encode(batch.source)
+    frames = model.render(z_s, z_d, batch.K_tgt, batch.w2c_tgt, steps=steps, seed=0)
+    mse = ((frames - batch.target_frames) ** 2).mean(dim=(1, 2, 3, 4)).clamp_min(1e-10)
+    psnr = (10 * torch.log10(1.0 / mse)).tolist()
+    T = frames.shape[1]
+    cols = [(batch.source.frames, t, "source") for t in (0, T - 1)] + \
+           [(batch.target_frames, t, "target") for t in (0, T - 1)] + [(frames, t, "render") for t in (0, T - 1)]
+    fig, axes = plt.subplots(count, len(cols), figsize=(1.4 * len(cols), 1.5 * count), dpi=80, squeeze=False)
+    for r in range(count):
+        for c, (video, t, name) in enumerate(cols):
+            axes[r, c].imshow(video[r, t].permute(1, 2, 0).clamp(0, 1).numpy())
+            axes[r, c].set_axis_off()
+            if r == 0:
+                axes[r, c].set_title(f"{name} t={t}", fontsize=7)
+        axes[r, -1].text(66, 32, f"{psnr[r]:.1f} dB", fontsize=7, va="center")
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+    return {"psnr_db": psnr, "mean_psnr_db": float(np.mean(psnr)), "pairs": idx, "render_steps": steps}
+
+
+def build_model(cfg: ModelConfig, autoencoder: Path) -> VideoTok4D:
+    model = VideoTok4D(cfg)
+    load_autoencoder(model, autoencoder)
+    return model
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.tokenizer", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    common_arguments(parser)
+    parser.add_argument("--autoencoder", type=Path, required=True, help="stage-1 autoencoder.safetensors")
+    parser.add_argument("--model-id", default="vt4d-tiny")
+    parser.add_argument("--model-version", default="0.1.0")
+    parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end")
+    args = parser.parse_args(argv)
+    info = setup_distributed()
+    torch.set_num_threads(args.threads)
+    seed_everything(args.seed + info.rank)
+    cfg = get_config(args.config, **parse_overrides(args.set))
+    args.out.mkdir(parents=True, exist_ok=True)
+    cache = args.cache or args.out.parent / "scene_cache"
+
+    model = build_model(cfg, args.autoencoder)
+    optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
+    module = DistributedDataParallel(model) if info.distributed else model
+    pool = ScenePool.for_config(cfg, cache, args.cameras)
+    dataset = PairDataset(pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size))
+    records = train_loop(args, info, module, model, optimizer, cycle(make_loader(dataset, args, info)), flow_step,
+                         title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
+    if info.is_main:
+        directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
+                                    model_version=args.model_version)
+        summary = {"config": cfg.to_dict(), "steps": args.steps,
+                   "final_loss": records[-1]["loss"] if records else None,
+                   "first_loss": records[0]["loss"] if records else None,
+                   **render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png")}
+        (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        print(f"tokenizer: loss {summary['first_loss']} -> {summary['final_loss']}, render PSNR "
+              f"{summary['mean_psnr_db']:.2f} dB on {len(summary['pairs'])} training pairs; model -> {directory}")
+    cleanup_distributed()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
