@@ -38,7 +38,7 @@ def intersect_sphere(o: np.ndarray, d: np.ndarray, radius: float) -> tuple[np.nd
 def intersect_box(o: np.ndarray, d: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box [-half, half] (slab method): (s, normal of the entered face)."""
     half = np.asarray(half, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         inv = 1.0 / d
         t1 = (-half[None] - o) * inv
         t2 = (half[None] - o) * inv

@@ -10,8 +10,8 @@ flow of a pixel all describe the SAME surface point, the first one the ray hits.
   ground and walls), X' = R(t+1) R(t)^T (X - p(t)) + p(t+1), and projected by the same camera at frame
   t+1; flow = (u', v') - (u, v) in pixels.  Exact up to float rounding.
 * Flow validity: True where X' lands inside frame t+1, in front of the camera, and is visible there
-  (all four pixels around (u', v') show the same surface and their interpolated inverse depth equals
-  1 / z' within 1 %), i.e. the point is neither occluded nor out of view at t+1.
+  (the pixels around (u', v') with non-zero bilinear weight show the same surface, and their
+  interpolated inverse depth equals 1 / z' within 1 %), i.e. the point is neither occluded nor out of view at t+1.
 
 World frame: z up, metres; the ground is z = 0; four walls x = +-L, y = +-L close the room, so every
 ray hits something and depth is finite everywhere.
@@ -248,8 +248,9 @@ def _visible(uv: np.ndarray, z: np.ndarray, surf: np.ndarray, depth_next: np.nda
     (C, P) are seen in the next frames ``depth_next``/``surf_next`` (C, H, W); returns (C, P) bool."""
     C, H, W = depth_next.shape
     ok = (z > 0) & np.all(np.isfinite(uv), axis=-1)
-    ok &= (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
-    uvc = np.where(ok[..., None], uv, 0.0)
+    eps = 1e-6   # pixels; keeps border points with zero flow (up to rounding) inside
+    ok &= (uv[..., 0] >= -eps) & (uv[..., 0] <= W - 1 + eps) & (uv[..., 1] >= -eps) & (uv[..., 1] <= H - 1 + eps)
+    uvc = np.where(ok[..., None], np.clip(uv, 0.0, [W - 1, H - 1]), 0.0)
     x0 = np.minimum(np.floor(uvc[..., 0]).astype(np.int64), W - 2)
     y0 = np.minimum(np.floor(uvc[..., 1]).astype(np.int64), H - 2)
     fx = uvc[..., 0] - x0
@@ -259,7 +260,7 @@ def _visible(uv: np.ndarray, z: np.ndarray, surf: np.ndarray, depth_next: np.nda
     surf_flat = surf_next.reshape(-1)
     interp = np.zeros(z.shape)
     for off, w in ((0, (1 - fx) * (1 - fy)), (1, fx * (1 - fy)), (W, (1 - fx) * fy), (W + 1, fx * fy)):
-        ok &= surf_flat[base + off] == surf
+        ok &= (surf_flat[base + off] == surf) | (w < 1e-9)   # neighbours with zero weight do not count
         interp += w * inv[base + off]
     with np.errstate(divide="ignore", invalid="ignore"):
         ok &= np.abs(interp * z - 1.0) <= VISIBILITY_TOLERANCE
