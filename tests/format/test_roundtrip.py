@@ -166,3 +166,11 @@ def test_float16_section_holding_infinity_is_refused():
     payload = np.array([1.0, np.inf], "<f2").tobytes()
     with pytest.raises(MalformedSectionError, match="non-finite"):
         decode_tokens(payload, None, "float16", 1, 2)
+
+
+def test_scene_equality_compares_contents():
+    a, b = simple_scene(seed=3, encoding="float32"), simple_scene(seed=3, encoding="float32")
+    assert a == b
+    b.dynamic_tokens = b.dynamic_tokens + 1
+    assert a != b
+    assert loads(dumps(a)) == a

@@ -29,7 +29,7 @@ def _tokens(value: Any, what: str) -> np.ndarray:
     return arr
 
 
-@dataclass
+@dataclass(eq=False)
 class Scene:
     """One encoded scene.
 
@@ -88,6 +88,18 @@ class Scene:
     @property
     def dynamic_shape(self) -> tuple[int, int]:
         return tuple(self.dynamic_tokens.shape)  # type: ignore[return-value]
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when every field is equal (tokens and cameras exactly)."""
+        if not isinstance(other, Scene):
+            return NotImplemented
+        return (self.encoding == other.encoding and self.fingerprint == other.fingerprint
+                and self.provenance == other.provenance and self.metadata == other.metadata
+                and self.cameras.equals(other.cameras)
+                and np.array_equal(self.static_tokens, other.static_tokens)
+                and np.array_equal(self.dynamic_tokens, other.dynamic_tokens))
+
+    __hash__ = None  # mutable
 
     def __repr__(self) -> str:
         return (f"Scene(Z_s {self.static_shape[0]}x{self.static_shape[1]}, Z_d {self.dynamic_shape[0]}x"
