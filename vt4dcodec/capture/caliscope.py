@@ -78,16 +78,22 @@ def read_caliscope_cameras(path: str | os.PathLike) -> dict[str, Trajectory]:
     return {name: traj for name, (_, traj) in sorted(out.items(), key=lambda kv: kv[1][0])}
 
 
+def recording_file(path: str | os.PathLike, name: str, what: str) -> Path:
+    """``path/name`` (or ``path`` itself when it is a file), checked to exist and be of sane size."""
+    path = Path(path)
+    file = path / name if path.is_dir() else path
+    if not file.is_file():
+        raise CaptureError(f"{file}: missing {name} ({what})")
+    if file.stat().st_size > MAX_CSV_BYTES:
+        raise CaptureError(f"{file}: larger than {MAX_CSV_BYTES} bytes")
+    return file
+
+
 def read_caliscope_timestamps(path: str | os.PathLike) -> tuple[list[int], dict[str, np.ndarray]]:
     """``timestamps.csv`` -> (ascending sync indices, ``cam_N`` -> (S,) frame times in seconds).
 
     Every camera must have exactly one frame per sync index."""
-    path = Path(path)
-    csv_path = path / "timestamps.csv" if path.is_dir() else path
-    if not csv_path.is_file():
-        raise CaptureError(f"{csv_path}: missing timestamps.csv (frame synchronisation)")
-    if csv_path.stat().st_size > MAX_CSV_BYTES:
-        raise CaptureError(f"{csv_path}: larger than {MAX_CSV_BYTES} bytes")
+    csv_path = recording_file(path, "timestamps.csv", "frame synchronisation")
     times: dict[str, dict[int, float]] = defaultdict(dict)
     with csv_path.open(newline="", encoding="utf-8") as fh:
         reader = csv.DictReader(fh)

@@ -128,7 +128,7 @@ def look_at_w2c(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.nd
     if nz < 1e-12:
         raise TrajectoryError("look-at target coincides with the camera centre")
     z = z / nz
-    x = np.cross(z, -up)  # right = forward x down
+    x = np.cross(-up, z)  # right = down x forward (x = y cross z in a right-handed frame)
     nx = np.linalg.norm(x)
     if nx < 1e-9:
         raise TrajectoryError("look-at direction is parallel to the up vector")
