@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import io
 import json
 import os
 import platform
@@ -96,43 +95,66 @@ def safetensors_zstd():
     return write, read
 
 
-def run(name, write, read, scenes, n, workdir) -> dict:
-    paths = [os.path.join(workdir, f"{name}-{i}.bin") for i in range(n)]
-    t0 = time.perf_counter()
-    for i, p in enumerate(paths):
-        write(scenes[i % POOL], p)
-    t1 = time.perf_counter()
-    err = 0.0
-    for i, p in enumerate(paths):
-        static, dynamic = read(p)
-        if i < POOL:
-            err = max(err, float(np.abs(static - scenes[i].static_tokens).max()),
-                      float(np.abs(dynamic - scenes[i].dynamic_tokens).max()))
-    t2 = time.perf_counter()
-    size = float(np.mean([os.path.getsize(p) for p in paths]))
-    for p in paths:
-        os.unlink(p)
-    res = {"format": name, "scenes": n, "bytes_per_scene": round(size), "write_ms_per_scene": (t1 - t0) / n * 1e3,
-           "read_ms_per_scene": (t2 - t1) / n * 1e3, "write_MBps": TOKEN_MB * n / (t1 - t0),
-           "read_MBps": TOKEN_MB * n / (t2 - t1), "max_abs_error": err}
-    print(f"{name:>22}: {res['bytes_per_scene']:>8} B/scene  write {res['write_MBps']:7.1f} MB/s  "
-          f"read {res['read_MBps']:7.1f} MB/s  max err {err:.3g}", flush=True)
-    return res
+class Tally:
+    """Accumulated timings of one format over all rounds."""
+
+    def __init__(self, name: str, write, read) -> None:
+        self.name, self.write, self.read = name, write, read
+        self.n, self.write_s, self.read_s, self.bytes, self.err = 0, 0.0, 0.0, 0, 0.0
+
+    def round(self, scenes: list[Scene], start: int, count: int, workdir: str) -> None:
+        paths = [os.path.join(workdir, f"{self.name}-{i}.bin") for i in range(count)]
+        t0 = time.perf_counter()
+        for k, p in enumerate(paths):
+            self.write(scenes[(start + k) % POOL], p)
+        t1 = time.perf_counter()
+        for k, p in enumerate(paths):
+            static, dynamic = self.read(p)
+            if k < POOL:  # check decoded values against the originals
+                ref = scenes[(start + k) % POOL]
+                self.err = max(self.err, float(np.abs(static - ref.static_tokens).max()),
+                               float(np.abs(dynamic - ref.dynamic_tokens).max()))
+        t2 = time.perf_counter()
+        self.bytes += sum(os.path.getsize(p) for p in paths)
+        for p in paths:
+            os.unlink(p)
+        self.n += count
+        self.write_s += t1 - t0
+        self.read_s += t2 - t1
+
+    def result(self) -> dict:
+        res = {"format": self.name, "scenes": self.n, "bytes_per_scene": round(self.bytes / self.n),
+               "write_ms_per_scene": self.write_s / self.n * 1e3, "read_ms_per_scene": self.read_s / self.n * 1e3,
+               "write_MBps": TOKEN_MB * self.n / self.write_s, "read_MBps": TOKEN_MB * self.n / self.read_s,
+               "max_abs_error": self.err}
+        print(f"{self.name:>24}: {res['bytes_per_scene']:>8} B/scene  write {res['write_MBps']:7.1f} MB/s  "
+              f"read {res['read_MBps']:7.1f} MB/s  max err {self.err:.3g}", flush=True)
+        return res
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", type=int, default=1000)
+    parser.add_argument("--scenes", type=int, default=1000, help="scenes written and read per format")
+    parser.add_argument("--round-size", type=int, default=100, help="scenes per format per turn")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
     args = parser.parse_args()
     scenes = make_scenes(0)
     formats = [(f"vt4d-{e}", *vt4d(e)) for e in ENCODINGS]
     formats += [("npz_compressed-float32", *savez()), ("safetensors+zstd-float32", *safetensors_zstd())]
+    tallies = [Tally(name, w, r) for name, w, r in formats]
+    rounds = max(1, args.scenes // args.round_size)
     with tempfile.TemporaryDirectory(prefix="vt4d-bench-") as workdir:
-        results = [run(name, w, r, scenes, args.scenes, workdir) for name, w, r in formats]
+        # Formats take turns, round by round, so a shared machine's changing load hits them all alike.
+        for r in range(rounds):
+            count = args.scenes // rounds + (1 if r < args.scenes % rounds else 0)
+            for tally in tallies:
+                tally.round(scenes, r * args.round_size, count, workdir)
+            print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
+    results = [t.result() for t in tallies]
     report = {"command": f"python bench/bench_format.py --scenes {args.scenes}", "token_MB_per_scene": TOKEN_MB,
               "scene": {"static": [NS, D], "dynamic": [ND, D], "frames": FRAMES, "tokens": "iid N(0,1) float32"},
               "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "numpy": np.__version__,
+                          "load_average_at_end": os.getloadavg(),
                           "zstd": ".".join(map(str, zstandard.ZSTD_VERSION))},
               "results": results}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")

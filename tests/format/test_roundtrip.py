@@ -174,3 +174,9 @@ def test_scene_equality_compares_contents():
     b.dynamic_tokens = b.dynamic_tokens + 1
     assert a != b
     assert loads(dumps(a)) == a
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_loaded_scene_tokens_are_writable(encoding):
+    scene = loads(dumps(simple_scene(encoding=encoding), compression_level=None))
+    assert scene.static_tokens.flags.writeable and scene.dynamic_tokens.flags.writeable

@@ -208,10 +208,15 @@ class SceneFile:
         self._verified_scene = self.to_scene()
 
     def to_scene(self) -> Scene:
-        """Decode everything into a :class:`Scene` (tokens dequantized to float32)."""
-        return Scene(static_tokens=self.static_tokens(), dynamic_tokens=self.dynamic_tokens(), cameras=self.cameras,
-                     fingerprint=self.fingerprint, metadata=self.metadata, provenance=self.provenance,
-                     encoding=self.encoding)
+        """Decode everything into a :class:`Scene` (tokens dequantized to float32, writable arrays)."""
+        # Every part was validated while decoding (shapes, finiteness, cameras, header), so skip re-checks.
+        # Tokens are owned, writable arrays (raw float32 sections would otherwise be read-only views).
+        static, dynamic = self.static_tokens(), self.dynamic_tokens()
+        return Scene._from_verified(
+            static_tokens=static if static.flags.writeable else static.copy(),
+            dynamic_tokens=dynamic if dynamic.flags.writeable else dynamic.copy(), cameras=self.cameras,
+            fingerprint=self.fingerprint, metadata=dict(self.metadata), provenance=self.provenance,
+            encoding=self.encoding)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-able overview: format_version, bytes, frames, width, height, static_shape, dynamic_shape,

@@ -77,6 +77,14 @@ class Scene:
             raise LimitExceededError(f"image size exceeds {MAX_IMAGE_SIDE} pixels per side")
         self.metadata = normalize_metadata(self.metadata)
 
+    @classmethod
+    def _from_verified(cls, **fields: Any) -> "Scene":
+        """Build from parts a reader has already validated (skips re-checking every token)."""
+        scene = cls.__new__(cls)
+        for name, value in fields.items():
+            setattr(scene, name, value)
+        return scene
+
     @property
     def num_frames(self) -> int:
         return self.cameras.num_frames
