@@ -173,3 +173,26 @@ def test_wrong_input_types():
         loads("not bytes")  # type: ignore[arg-type]
     with pytest.raises(FormatError):
         load(12345)  # type: ignore[arg-type]
+
+
+def test_a_big_wrong_file_is_refused_from_its_first_bytes(tmp_path):
+    path = tmp_path / "video.mp4"
+    path.write_bytes(b"\0\0\0\x18ftypmp42" + b"\0" * (1 << 20))
+    peak, err = _peak_kib(lambda: load(path))
+    assert isinstance(err, BadMagicError) and peak < 256
+
+
+def test_path_with_trailing_bytes_or_cut_short(tmp_path):
+    path = tmp_path / "s.vt4d"
+    path.write_bytes(SMALL["raw"] + b"\0")
+    with pytest.raises(MalformedSectionError, match="unexpected bytes"):
+        load(path)
+    path.write_bytes(SMALL["raw"][:-1])
+    with pytest.raises(TruncatedError):
+        load(path)
+
+
+def test_non_contiguous_buffer_is_a_typed_error():
+    arr = np.frombuffer(SMALL["raw"], np.uint8)[::2]
+    with pytest.raises(FormatError):
+        load(memoryview(arr))

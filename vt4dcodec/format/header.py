@@ -28,7 +28,7 @@ from .checks import exact_keys, require_bool, require_int, require_map, require_
 from .encodings import ENCODINGS
 from .fingerprint import ModelFingerprint, Provenance
 from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEADER_DEPTH, MAX_IMAGE_SIDE,
-                     MAX_METADATA_BYTES, MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
+                     MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
 from .metadata import normalize_metadata
 
 __all__ = ["HeaderInfo", "CameraLayout", "pack_header", "unpack_header", "parse_header"]
@@ -169,5 +169,3 @@ def parse_header(raw, *, newer_minor: bool = False) -> HeaderInfo:
     metadata = normalize_metadata(h["metadata"])
     return HeaderInfo(static_shape, dynamic_shape, encoding, layout, fingerprint, provenance, metadata, h)
 
-
-assert MAX_METADATA_BYTES < MAX_HEADER_BYTES

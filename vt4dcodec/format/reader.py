@@ -26,21 +26,28 @@ _TOKENS = {"static": (SECTION_STATIC, SECTION_STATIC_QUANT), "dynamic": (SECTION
 def read_container_bytes(source: Any):
     """The container bytes of ``source`` (a path, a bytes-like object, or a binary file object).
 
-    A path or bytes must hold exactly one container; a file object is read from its current position
-    for the container's declared length only (never more than the preamble's limits allow).
+    A path or bytes must hold exactly one container.  A file object is read from its current position for
+    the container's declared length only.  Nothing is read or allocated beyond what the preamble declares
+    and the real data holds, so a wrong or hostile file costs at most its own size.
     """
     if isinstance(source, (bytes, bytearray, memoryview)):
         return source
     if isinstance(source, (str, os.PathLike)):
         with open(source, "rb") as fh:
-            return fh.read()
+            head = fh.read(PREAMBLE_SIZE)
+            pre = parse_preamble(head)
+            size = os.fstat(fh.fileno()).st_size
+            if size > pre.file_length:
+                raise MalformedSectionError(
+                    f"{size - pre.file_length} unexpected bytes follow the container's declared end {pre.file_length}"
+                )
+            return head + _read_exactly(fh, pre.file_length - PREAMBLE_SIZE)
     if hasattr(source, "read"):
         head = source.read(PREAMBLE_SIZE)
         if not isinstance(head, (bytes, bytearray)):
             raise FormatError("the file object must be opened in binary mode ('rb')")
         pre = parse_preamble(head)  # raises typed errors on short or bad data
-        rest = _read_exactly(source, pre.file_length - PREAMBLE_SIZE)
-        return bytes(head) + rest
+        return bytes(head) + _read_exactly(source, pre.file_length - PREAMBLE_SIZE)
     raise FormatError(f"cannot read a scene from {type(source).__name__}; pass a path, bytes or a binary file")
 
 
@@ -66,7 +73,11 @@ class SceneFile:
     """
 
     def __init__(self, data) -> None:
-        data = memoryview(data).cast("B") if not isinstance(data, bytes) else data
+        if not isinstance(data, bytes):
+            try:
+                data = memoryview(data).cast("B")
+            except TypeError as exc:
+                raise FormatError(f"the data must be a contiguous bytes-like object ({exc})") from None
         self._data = data
         pre = parse_preamble(data)
         if len(data) < pre.file_length:
