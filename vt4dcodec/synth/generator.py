@@ -108,18 +108,18 @@ def _rng(seed: int, split: str, config: SynthConfig) -> np.random.Generator:
 def _sample_object(rng: np.random.Generator, texture: int, kind: str) -> SceneObject:
     shape = SHAPES[int(rng.integers(len(SHAPES)))]
     angle = rng.uniform(0, 2 * np.pi)
-    dist = rng.uniform(0.0, 1.6)
+    dist = rng.uniform(0.0, 1.3)
     start = np.array([dist * np.cos(angle), dist * np.sin(angle)])
     tumbling = kind == "spinning" and shape != "card" and rng.random() < 0.5
     if shape == "sphere":
-        size = (float(rng.uniform(0.2, 0.5)),)
+        size = (float(rng.uniform(0.25, 0.6)),)
         radius, rest, upright = size[0], size[0], False
     elif shape == "box":
-        size = tuple(float(x) for x in rng.uniform(0.15, 0.45, 3))
+        size = tuple(float(x) for x in rng.uniform(0.2, 0.55, 3))
         radius = float(np.linalg.norm(size))
         rest, upright = (radius if tumbling else size[2]), not tumbling
     else:
-        size = (float(rng.uniform(0.25, 0.6)), float(rng.uniform(0.2, 0.5)))
+        size = (float(rng.uniform(0.3, 0.7)), float(rng.uniform(0.25, 0.6)))
         radius = float(np.hypot(*size))
         rest, upright = size[1] + 0.02, True
     motion = sample_motion(rng, kind, start=start, rest_height=rest, radius=radius, upright=upright)
@@ -145,7 +145,7 @@ def _sample_layout(rng: np.random.Generator, config: SynthConfig, num_textures: 
         ground_texture=int(textures[0]), ground_tile=float(rng.uniform(1.0, 3.0)),
         wall_textures=tuple(int(x) for x in textures[1:5]), wall_tile=float(rng.uniform(2.0, 4.0)),
         light_dir=np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]),
-        ambient=float(rng.uniform(0.35, 0.55)), objects=tuple(objects),
+        ambient=float(rng.uniform(0.45, 0.65)), objects=tuple(objects),
     )
 
 

@@ -95,8 +95,8 @@ class RenderedView:
 def _camera_rays(cameras: list[Trajectory], t: int, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rays of all cameras at frame t through pixel centres ``pix`` (P, 3) homogeneous.
 
-    Returns origins (C*P, 3), unit world directions (C*P, 3) and the camera-z component of each unit
-    direction (C*P,), which turns distance along the ray into depth.
+    Returns the camera centres (C, 3), unit world directions (C*P, 3) and the camera-z component of
+    each unit direction (C*P,), which turns distance along the ray into depth.
     """
     Kinv = np.linalg.inv(np.stack([c.K[t] for c in cameras]))                  # (C, 3, 3)
     R = np.stack([c.w2c[t, :3, :3] for c in cameras])                           # (C, 3, 3)
@@ -104,16 +104,19 @@ def _camera_rays(cameras: list[Trajectory], t: int, pix: np.ndarray) -> tuple[np
     dc /= np.linalg.norm(dc, axis=2, keepdims=True)
     d = dc @ R                                                                  # world = R^T dc
     centers = np.stack([c.centers[t] for c in cameras])
-    origin = np.broadcast_to(centers[:, None], d.shape).reshape(-1, 3)
-    return origin, d.reshape(-1, 3), dc[..., 2].reshape(-1)
+    return centers, d.reshape(-1, 3), dc[..., 2].reshape(-1)
 
 
-def _bounding_candidates(origin: np.ndarray, d: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
-    """Indices of the rays (N,) that pass within ``radius`` of ``center`` (a cheap, conservative cull)."""
-    oc = origin - center
-    b = np.einsum("ij,ij->i", oc, d)
-    c = np.einsum("ij,ij->i", oc, oc) - radius * radius
-    return np.flatnonzero((b * b - c >= 0) & ((b < 0) | (c < 0)))
+def _bounding_candidates(cam_origin: np.ndarray, d: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the rays that pass within ``radius`` of ``center`` (a cheap, conservative cull).
+
+    ``cam_origin`` (C, 3) are the camera centres and ``d`` (C*P, 3) the rays of each camera in turn.
+    """
+    C = len(cam_origin)
+    oc = cam_origin - center                                            # (C, 3)
+    b = (d.reshape(C, -1, 3) @ oc[:, :, None])[..., 0]                  # (C, P) = d . (o - c)
+    c = (np.sum(oc * oc, axis=1) - radius * radius)[:, None]            # (C, 1)
+    return np.flatnonzero(((b * b - c >= 0) & ((b < 0) | (c < 0))).ravel())
 
 
 def _object_intersect(obj: SceneObject, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,11 +170,14 @@ _WALLS = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))   # wall w is the plane x_ax
 
 
 def _render_frame(
-    layout: SceneLayout, bank: TextureBank, origin: np.ndarray, d: np.ndarray, focal: np.ndarray,
+    layout: SceneLayout, bank: TextureBank, cam_origin: np.ndarray, d: np.ndarray, focal: np.ndarray,
     poses: list, poses_next: list | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Shade the rays (N,) of one frame: RGB (N, 3) float32, distance (N,), surface id (N,) int16,
-    and each hit point moved to the next frame's pose (N, 3) (equal to the hit for static surfaces)."""
+    """Shade the rays of one frame, ``d`` (N = C*P, 3) from the C camera centres ``cam_origin`` (C, 3).
+
+    Returns RGB (N, 3) float32, distance (N,), surface id (N,) int16, and each hit point moved to the
+    next frame's pose (N, 3) (equal to the hit for static surfaces)."""
+    origin = np.repeat(cam_origin, len(d) // len(cam_origin), axis=0)
     N = len(d)
     L = layout.room_half
     s_best = intersect_plane_z(origin, d, 0.0)
@@ -184,7 +190,7 @@ def _render_frame(
         surf[better] = 1 + wall
     for k, obj in enumerate(layout.objects):
         R, p = poses[k]
-        cand = _bounding_candidates(origin, d, p, obj.bounding_radius)
+        cand = _bounding_candidates(cam_origin, d, p, obj.bounding_radius)
         if not len(cand):
             continue
         s, _ = _object_intersect(obj, (origin[cand] - p) @ R, d[cand] @ R)
@@ -284,11 +290,11 @@ def render_layout(
     surface = np.empty((T, C, P), dtype=np.int16)
     moved = []
     for t in range(T):
-        origin, d, zdir = _camera_rays(cams, t, pix)
+        centers, d, zdir = _camera_rays(cams, t, pix)
         focal = np.repeat([np.sqrt(c.K[t, 0, 0] * c.K[t, 1, 1]) for c in cams], P)
         poses = [(R[t], p[t]) for R, p in poses_all]
         poses_next = [(R[t + 1], p[t + 1]) for R, p in poses_all] if t + 1 < T else None
-        col, dist, surf, X_next = _render_frame(layout, bank, origin, d, focal, poses, poses_next)
+        col, dist, surf, X_next = _render_frame(layout, bank, centers, d, focal, poses, poses_next)
         rgb[t], depth[t], surface[t] = col.reshape(C, P, 3), (dist * zdir).reshape(C, P), surf.reshape(C, P)
         moved.append(X_next.reshape(C, P, 3))
     flow = np.zeros((max(T - 1, 0), C, P, 2), dtype=np.float32)

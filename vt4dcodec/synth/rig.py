@@ -1,7 +1,7 @@
 """Synchronized camera rigs on smooth trajectories around the action (numpy only).
 
 World frame: z up, metres, the action happens around the origin on the ground plane z = 0.
-Cameras are spread along an arc around the origin (span 120-360 degrees), 3.5-6 m away, 0.8-2.8 m
+Cameras are spread along an arc around the origin (span 120-360 degrees), 3-5 m away, 0.8-2.8 m
 high, with horizontal fields of view of 40-75 degrees (varied focal lengths), and each looks at a
 point near the centre.  With ``camera_motion`` each camera slowly orbits, dollies and bobs, and its
 look-at point drifts, all as smooth functions of time.  Poses use the OpenCV convention
@@ -14,9 +14,8 @@ import numpy as np
 
 from ..cameras import Trajectory
 
-__all__ = ["look_at", "sample_rig", "MAX_CAMERA_RADIUS"]
+__all__ = ["look_at", "sample_rig"]
 
-MAX_CAMERA_RADIUS = 6.0 + 0.5 * 1.5   # base radius + the largest dolly over a 1.5 s clip
 
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -47,7 +46,7 @@ def sample_rig(
     # Even spread along the arc with jitter; a full circle does not repeat its first camera.
     step = span / (num_cameras if span > 1.9 * np.pi else max(num_cameras - 1, 1))
     azim0 = start + step * np.arange(num_cameras) + rng.uniform(-0.25, 0.25, num_cameras) * step
-    radius0 = rng.uniform(3.5, 6.0, num_cameras)
+    radius0 = rng.uniform(3.0, 5.0, num_cameras)
     height0 = rng.uniform(0.8, 2.8, num_cameras)
     fov = np.deg2rad(rng.uniform(40.0, 75.0, num_cameras))
     target0 = np.stack([rng.uniform(-0.3, 0.3, num_cameras), rng.uniform(-0.3, 0.3, num_cameras),
