@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from vt4dcodec.errors import CameraError
 from vt4dcodec.geometry import (
-    camera_flow, crop_intrinsics, distort_points, invert_pose, pixel_grid, plucker_rays, project,
+    backward_warp, camera_flow, crop_intrinsics, distort_points, grid_to_pixels, invert_pose,
+    opencv_to_opengl_c2w, opengl_to_opencv_c2w, pixel_grid, pixels_to_grid, plucker_rays, project,
     relative_pose, scale_intrinsics, transform_points, undistort_points, unproject,
 )
 
@@ -242,3 +243,52 @@ def test_undistort_then_distort_round_trips(dist, seed):
 def test_bad_shapes_raise_camera_error(call):
     with pytest.raises(CameraError):
         call()
+
+
+# --- convention conversions ------------------------------------------------------------------------
+@given(seed=st.integers(0, 2**31 - 1))
+def test_opengl_conversion_round_trips_and_keeps_the_view(seed):
+    rng = np.random.default_rng(seed)
+    c2w = torch.linalg.inv(torch.from_numpy(random_pose(rng)))
+    gl = opencv_to_opengl_c2w(c2w)
+    torch.testing.assert_close(opengl_to_opencv_c2w(gl), c2w)
+    torch.testing.assert_close(gl[:3, 3], c2w[:3, 3])
+    # a point in front of the OpenCV camera (z > 0) is in front of the OpenGL one (z < 0), same image side
+    X = c2w[:3, :3] @ torch.tensor([0.3, -0.2, 2.0], dtype=torch.float64) + c2w[:3, 3]
+    x_gl = torch.linalg.inv(gl)[:3, :3] @ X + torch.linalg.inv(gl)[:3, 3]
+    torch.testing.assert_close(x_gl, torch.tensor([0.3, 0.2, -2.0], dtype=torch.float64))
+
+
+@given(H=st.integers(1, 50), W=st.integers(1, 50))
+@settings(max_examples=20)
+def test_grid_sample_coordinates_hit_pixel_centres(H, W):
+    img = torch.arange(H * W, dtype=torch.float64).reshape(1, 1, H, W)
+    grid = pixels_to_grid(pixel_grid(H, W, dtype=torch.float64), H, W)
+    torch.testing.assert_close(grid_to_pixels(grid, H, W), pixel_grid(H, W, dtype=torch.float64))
+    out = torch.nn.functional.grid_sample(img, grid[None], align_corners=False)
+    torch.testing.assert_close(out, img)
+
+
+def test_backward_warp_with_camera_flow_reproduces_frame_t():
+    """A fronto-parallel plane seen by a camera that moves sideways and forward: frame t+1 is the plane
+    texture rendered analytically; warping it by F_pose gives frame t's rendering wherever visible."""
+    H, W, z = 24, 32, 3.0
+    K = make_K(30, 30, 15.5, 11.5)
+    eye = torch.eye(4, dtype=torch.float64)
+    w1 = eye.clone()
+    w1[:3, 3] = torch.tensor([-0.25, 0.1, -0.5])  # camera moved right, up and forward
+
+    def render(w2c):  # texture (2 X + Y, X - Y) on the world plane Z = z (linear -> bilinear-exact)
+        c2w = invert_pose(w2c)
+        xy = unproject(torch.ones(H, W, dtype=torch.float64), K)  # rays with z = 1 in camera frame
+        d = xy @ c2w[:3, :3].T
+        s = (z - c2w[2, 3]) / d[..., 2]
+        X = c2w[:3, 3] + s[..., None] * d
+        return torch.stack([2 * X[..., 0] + X[..., 1], X[..., 0] - X[..., 1]])
+
+    depth_t = torch.full((H, W), z, dtype=torch.float64)
+    flow, valid = camera_flow(depth_t, K, K, eye, w1)
+    warped, inside = backward_warp(render(w1), flow)
+    ok = valid & inside
+    assert ok.float().mean() > 0.5
+    torch.testing.assert_close(warped[:, ok], render(eye)[:, ok], atol=1e-9, rtol=0)

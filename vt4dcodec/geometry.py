@@ -31,6 +31,11 @@ __all__ = [
     "plucker_rays",
     "distort_points",
     "undistort_points",
+    "opencv_to_opengl_c2w",
+    "opengl_to_opencv_c2w",
+    "pixels_to_grid",
+    "grid_to_pixels",
+    "backward_warp",
 ]
 
 # Points closer to the image plane than this (metres along z) count as "not in front" of a camera.
@@ -285,3 +290,67 @@ def undistort_points(uv, K, dist, *, num_iters: int = 40) -> torch.Tensor:
     K, dist = _tensor(K, like=uv), _tensor(dist, like=uv)
     _check_distortion(dist)
     return _kornia_undistort_points(uv, K, dist, num_iters=num_iters)
+
+
+# --- convention conversions ----------------------------------------------------------------------
+_FLIP_YZ = (1.0, -1.0, -1.0)
+
+
+def opencv_to_opengl_c2w(c2w) -> torch.Tensor:
+    """Camera-to-world (..., 4, 4) from OpenCV axes (x right, y down, z forward) to OpenGL/Blender
+    axes (x right, y up, z backward): the camera's y and z axes flip; the centre is unchanged."""
+    c2w = _tensor(c2w)
+    _check_square(c2w, 4, "c2w")
+    out = c2w.clone()
+    out[..., :3, 1:3] = -c2w[..., :3, 1:3]
+    return out
+
+
+def opengl_to_opencv_c2w(c2w) -> torch.Tensor:
+    """Inverse of :func:`opencv_to_opengl_c2w` (the same flip; it is its own inverse)."""
+    return opencv_to_opengl_c2w(c2w)
+
+
+def pixels_to_grid(uv, height: int, width: int) -> torch.Tensor:
+    """Pixel coordinates (..., 2) -> ``torch.nn.functional.grid_sample`` coordinates in [-1, 1]
+    (``align_corners=False``: -1 and 1 are the outer edges of the border pixels, so pixel centre
+    u maps to ``(2u + 1) / W - 1``)."""
+    uv = _tensor(uv)
+    scale = uv.new_tensor([2.0 / width, 2.0 / height])
+    return (uv + 0.5) * scale - 1.0
+
+
+def grid_to_pixels(grid, height: int, width: int) -> torch.Tensor:
+    """Inverse of :func:`pixels_to_grid`."""
+    grid = _tensor(grid)
+    scale = grid.new_tensor([width / 2.0, height / 2.0])
+    return (grid + 1.0) * scale - 0.5
+
+
+def backward_warp(image, flow) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sample ``image`` at ``p + flow(p)`` for every pixel p (bilinear).
+
+    With ``image`` = frame t+1 and ``flow`` = the t -> t+1 flow (e.g. :func:`camera_flow`), the result
+    predicts frame t wherever the scene point is visible in both frames.
+
+    Args:
+        image: (..., C, H', W') float image to sample.
+        flow: (..., H, W, 2) displacements in pixels of ``image``.
+    Returns:
+        ``(warped, inside)``: (..., C, H, W) samples and (..., H, W) bool, true where ``p + flow``
+        falls inside the image (outside samples are zero).
+    """
+    image = _tensor(image)
+    flow = _tensor(flow, like=image)
+    if image.ndim < 3 or flow.ndim < 3 or flow.shape[-1] != 2:
+        raise CameraError(f"backward_warp needs image (..., C, H, W) and flow (..., H, W, 2), got "
+                          f"{tuple(image.shape)} and {tuple(flow.shape)}")
+    H, W = flow.shape[-3:-1]
+    Hi, Wi = image.shape[-2:]
+    target = pixel_grid(H, W, device=flow.device, dtype=flow.dtype) + flow
+    batch = torch.broadcast_shapes(image.shape[:-3], flow.shape[:-3])
+    img = image.expand(*batch, *image.shape[-3:]).reshape(-1, *image.shape[-3:])
+    grid = pixels_to_grid(target, Hi, Wi).expand(*batch, H, W, 2).reshape(-1, H, W, 2)
+    warped = torch.nn.functional.grid_sample(img, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    inside = ((target[..., 0] >= 0) & (target[..., 0] <= Wi - 1) & (target[..., 1] >= 0) & (target[..., 1] <= Hi - 1))
+    return warped.reshape(*batch, image.shape[-3], H, W), inside.expand(*batch, H, W)

@@ -65,6 +65,6 @@ def write_contact_sheet(capture: Capture, path: str | os.PathLike, *, max_frames
 
     sheet = contact_sheet(capture, max_frames=max_frames, thumb_height=thumb_height)
     path = Path(path)
-    if not cv2.imwrite(str(path), np.ascontiguousarray(sheet[..., ::-1])):
+    if not cv2.imwrite(str(path), np.ascontiguousarray(sheet[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9]):
         raise OSError(f"could not write PNG {path}")
     return sheet.shape[1], sheet.shape[0]
