@@ -50,6 +50,15 @@ def test_box_hits_lie_on_the_boundary(origin, target, half):
         raise AssertionError("a ray aimed at a point inside the box must hit it")
 
 
+def test_box_ray_parallel_to_a_slab_outside_it_misses():
+    """Regression: a ray parallel to the z slab but above the box was reported as hitting it."""
+    o = np.array([[0.0, 3.0, 0.3], [0.0, 3.0, 0.1]])
+    d = np.array([[0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    s, normal = intersect_box(o, d, np.array([1.0, 1.0, 0.25]))
+    assert np.isinf(s[0])
+    assert s[1] == 2.0 and np.array_equal(normal[1], [0.0, 1.0, 0.0])
+
+
 def test_card_and_plane():
     o = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [5.0, 0.0, 2.0]])
     d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])

@@ -42,13 +42,13 @@ def intersect_box(o: np.ndarray, d: np.ndarray, half: np.ndarray) -> tuple[np.nd
         inv = 1.0 / d
         t1 = (-half[None] - o) * inv
         t2 = (half[None] - o) * inv
-    # Rays parallel to a slab: inside it -> (-inf, inf), outside -> empty.
-    par = np.abs(d) < 1e-12
-    inside = np.abs(o) <= half[None]
-    t1 = np.where(par, np.where(inside, -np.inf, np.inf), t1)
-    t2 = np.where(par, np.where(inside, np.inf, -np.inf), t2)
     tnear = np.minimum(t1, t2)
     tfar = np.maximum(t1, t2)
+    # Rays parallel to a slab: inside it -> the whole line (-inf, inf), outside -> empty (inf, -inf).
+    par = np.abs(d) < 1e-12
+    inside = np.abs(o) <= half[None]
+    tnear = np.where(par, np.where(inside, -np.inf, np.inf), tnear)
+    tfar = np.where(par, np.where(inside, np.inf, -np.inf), tfar)
     axis = np.argmax(tnear, axis=1)
     s_in = tnear[np.arange(len(o)), axis]
     s_out = tfar.min(axis=1)
