@@ -1,0 +1,158 @@
+"""The codec API: encode -> save -> load -> decode, fingerprints, determinism and clear errors."""
+
+import numpy as np
+import pytest
+
+from vt4dcodec import codec
+from vt4dcodec.cameras import Trajectory
+from vt4dcodec.capture import Capture
+from vt4dcodec.errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError, Vt4dError
+from vt4dcodec.format import load, save
+
+
+def test_encode_save_load_decode_round_trip(tmp_path, encoded, model_dir, synth_scene):
+    path = tmp_path / "s.vt4d"
+    nbytes = save(encoded, path)
+    assert nbytes == path.stat().st_size
+    loaded = load(path)
+    assert loaded.fingerprint.matches(encoded.fingerprint)
+    assert loaded.provenance.kind == "encoded" and loaded.provenance.source_capture_id == synth_scene.capture.capture_id
+    assert loaded.metadata["vt4d"]["source_camera"] == synth_scene.capture.camera_names[0]
+    assert loaded.cameras.equals(synth_scene.capture.cameras[synth_scene.capture.camera_names[0]], atol=1e-9)
+    frames = codec.decode(path, "source", steps=2, seed=3, model=model_dir)
+    cfg = codec.load_model(model_dir).config
+    assert frames.dtype == np.uint8 and frames.shape == (cfg.frames, cfg.image_size, cfg.image_size, 3)
+
+
+def test_decode_is_deterministic_for_file_trajectory_and_seed(tmp_path, encoded, model_dir):
+    path = tmp_path / "s.vt4d"
+    save(encoded, path)
+    a = codec.decode(path, "orbit:degrees=20", steps=2, seed=5, model=model_dir)
+    b = codec.decode(path, "orbit:degrees=20", steps=2, seed=5, model=model_dir)
+    c = codec.decode(path, "orbit:degrees=20", steps=2, seed=6, model=model_dir)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_render_many_reuses_one_token_state(encoded, model_dir, synth_scene, monkeypatch):
+    decoder = codec.SceneDecoder.open(encoded, model=model_dir)
+    calls = []
+    monkeypatch.setattr(decoder.model, "encode", lambda *a, **k: calls.append(1))
+    other = synth_scene.capture.cameras[synth_scene.capture.camera_names[1]]
+    views = decoder.render_many(["source", other, "dolly_in:metres=0.3"], steps=1)
+    assert len(views) == 3 and not calls
+    assert np.array_equal(views[0], decoder.render("source", steps=1))
+
+
+def test_encode_is_deterministic(synth_scene, model_dir, encoded):
+    again = codec.encode(synth_scene.capture, model=model_dir, seed=0)
+    assert np.array_equal(again.static_tokens, encoded.static_tokens)
+    assert np.array_equal(again.dynamic_tokens, encoded.dynamic_tokens)
+
+
+def test_model_mismatch_is_refused_naming_both_fingerprints(tmp_path, encoded, other_model_dir):
+    path = tmp_path / "s.vt4d"
+    save(encoded, path)
+    with pytest.raises(ModelMismatchError) as err:
+        codec.decode(path, "source", steps=1, model=other_model_dir)
+    message = str(err.value)
+    other = codec.model_fingerprint(codec.load_model(other_model_dir))
+    assert encoded.fingerprint.weights_sha256[:8] in message and other.weights_sha256[:8] in message
+    frames = codec.decode(path, "source", steps=1, model=other_model_dir, force=True)
+    assert frames.dtype == np.uint8
+
+
+def test_unknown_model_id_is_a_clear_error(encoded):
+    from dataclasses import replace
+
+    from vt4dcodec.format import Scene
+
+    fp = replace(encoded.fingerprint, model_id="no-such-model")
+    scene = Scene(encoded.static_tokens, encoded.dynamic_tokens, encoded.cameras, fp)
+    with pytest.raises(ModelNotFoundError, match="no-such-model"):
+        codec.SceneDecoder.open(scene)
+
+
+def test_user_model_found_through_model_path(monkeypatch, encoded, model_dir):
+    monkeypatch.setenv(codec.MODEL_PATH_ENV, str(model_dir.parent))
+    decoder = codec.SceneDecoder.open(encoded)  # the fingerprint's id names the directory
+    assert decoder.model.config == codec.load_model(model_dir).config
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("warp:speed=3", "unknown trajectory preset"),
+    ("orbit:degrees=abc", "not a number"),
+    (42, "a trajectory must be"),
+])
+def test_bad_trajectories_give_clear_errors(encoded, model_dir, spec, message):
+    decoder = codec.SceneDecoder.open(encoded, model=model_dir)
+    with pytest.raises(TrajectoryError, match=message):
+        decoder.render(spec, steps=1)
+
+
+def test_trajectory_too_long_or_distorted_is_refused(encoded, model_dir):
+    decoder = codec.SceneDecoder.open(encoded, model=model_dir)
+    src = encoded.cameras
+    long = Trajectory(K=np.concatenate([src.K, src.K]), w2c=np.concatenate([src.w2c, src.w2c]),
+                      width=src.width, height=src.height)
+    with pytest.raises(TrajectoryError, match="frames"):
+        decoder.render(long, steps=1)
+    distorted = Trajectory(K=src.K, w2c=src.w2c, width=src.width, height=src.height,
+                           distortion=np.array([0.1, 0, 0, 0]))
+    with pytest.raises(TrajectoryError, match="pinhole"):
+        decoder.render(distorted, steps=1)
+
+
+def test_trajectory_for_another_image_size_is_fitted(encoded, model_dir):
+    decoder = codec.SceneDecoder.open(encoded, model=model_dir)
+    src = encoded.cameras
+    big = Trajectory(K=src.K * np.array([[4, 1, 4], [1, 4, 4], [1, 1, 1]]) + np.array([[0, 0, 1.5], [0, 0, 1.5], [0, 0, 0]]),
+                     w2c=src.w2c, width=src.width * 4, height=src.height * 4)
+    fitted = decoder.trajectory(big)
+    assert (fitted.width, fitted.height) == (src.width, src.height)
+    assert np.allclose(fitted.K, src.K, atol=1e-9)
+
+
+def test_clip_policy(synth_scene, model_dir):
+    cap = synth_scene.capture
+    T = cap.num_frames
+    with pytest.raises(CaptureError, match="does not fit"):
+        codec.encode(cap, model=model_dir, start=1)
+    with pytest.raises(CaptureError, match="no camera"):
+        codec.encode(cap, model=model_dir, camera="nope")
+    # a capture twice as long splits into two clips; a shorter one is rejected
+    names = cap.camera_names
+    long = Capture(cameras={n: Trajectory(K=np.concatenate([cap.cameras[n].K] * 2),
+                                          w2c=np.concatenate([cap.cameras[n].w2c] * 2),
+                                          width=cap.cameras[n].width, height=cap.cameras[n].height) for n in names},
+                   frames={n: np.concatenate([cap.frames[n]] * 2) for n in names}, fps=cap.fps, capture_id="long")
+    clips = codec.encode_clips(long, model=model_dir)
+    assert [c.metadata["vt4d"]["clip_start"] for c in clips] == [0, T]
+    short = Capture(cameras={n: cap.cameras[n][: T - 1] for n in names},
+                    frames={n: cap.frames[n][: T - 1] for n in names}, fps=cap.fps, capture_id="short")
+    with pytest.raises(CaptureError, match="frames"):
+        codec.encode(short, model=model_dir)
+
+
+def test_encode_fits_larger_frames_with_updated_intrinsics(synth_scene, model_dir):
+    import cv2
+
+    cap = synth_scene.capture
+    name = cap.camera_names[0]
+    traj = cap.cameras[name]
+    s = 2
+    K2 = traj.K.copy()
+    K2[:, :2, :2] *= s
+    K2[:, :2, 2] = (traj.K[:, :2, 2] + 0.5) * s - 0.5
+    big = Capture(cameras={name: Trajectory(K=K2, w2c=traj.w2c, width=traj.width * s, height=traj.height * s)},
+                  frames={name: np.stack([cv2.resize(f, None, fx=s, fy=s, interpolation=cv2.INTER_CUBIC)
+                                          for f in cap.frames[name]])}, fps=cap.fps, capture_id="big")
+    scene = codec.encode(big, model=model_dir)
+    assert (scene.cameras.width, scene.cameras.height) == (traj.width, traj.height)
+    assert np.allclose(scene.cameras.K, traj.K, atol=1e-6)
+
+
+def test_bad_capture_directory_is_a_vt4d_error(tmp_path, model_dir):
+    (tmp_path / "capture.json").write_text("{not json")
+    with pytest.raises(Vt4dError):
+        codec.encode(tmp_path, model=model_dir)

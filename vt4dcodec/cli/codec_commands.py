@@ -1,0 +1,276 @@
+"""``vt4d encode``, ``vt4d decode``, ``vt4d demo``: the codec from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+from ..errors import CaptureError, TrajectoryError, Vt4dError
+
+__all__ = ["register"]
+
+ENCODE_EPILOG = """\
+examples:
+  vt4d encode demo_out/capture -o scene.vt4d                 one capture -> one scene file
+  vt4d encode demo_out/capture --camera cam03 --start 0 -o s.vt4d
+  vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive
+  vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips
+  torchrun --nproc_per_node=4 -m vt4dcodec encode captures/ --archive shards/train.vt4da
+                                                             each rank encodes its share into its own shard
+                                                             (train-rank00000-of-00004.vt4da, ...)
+A model encodes clips of exactly its frame count (vt4d-tiny: 8 frames at 64x64).  Larger frames are
+undistorted, resized and centre-cropped with the intrinsics updated; longer captures take the clip at
+--start, or all consecutive clips with --split (a shorter tail is dropped).
+"""
+
+DECODE_EPILOG = """\
+trajectories (-t, repeatable; one output per trajectory):
+  source                        the scene's own source cameras
+  orbit:degrees=30,distance=2   a preset built from the first source camera; presets: static, orbit,
+                                dolly_in, dolly_out, pan, tilt, crane (see vt4dcodec.capture.trajectories)
+  path/to/trajectory.json       a saved trajectory (vt4dcodec.capture.trajectories.save_trajectory)
+examples:
+  vt4d decode scene.vt4d -t source -t orbit:degrees=30 -o out/
+  vt4d decode train.vt4da --key scene-000042 -t dolly_in:metres=0.5 --format png -o out/
+"""
+
+
+def _progress(iterable: Iterable, total: int, desc: str, quiet: bool) -> Iterable:
+    from tqdm import tqdm
+
+    return tqdm(iterable, total=total, desc=desc, unit="clip", disable=quiet or not sys.stderr.isatty(),
+                file=sys.stderr)
+
+
+def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) -> None:
+    if args.json:
+        print(json.dumps(result, indent=2, sort_keys=True))
+    else:
+        print("\n".join(lines))
+
+
+def _dist_rank() -> tuple[int, int]:
+    """(rank, world size) from torchrun's environment; (0, 1) when not launched by torchrun."""
+    try:
+        rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
+    except ValueError:
+        raise CaptureError("RANK and WORLD_SIZE must be integers") from None
+    if not 0 <= rank < world:
+        raise CaptureError(f"RANK {rank} is outside WORLD_SIZE {world}")
+    return rank, world
+
+
+def _shard_path(path: str, rank: int, world: int) -> str:
+    if world == 1:
+        return path
+    stem, ext = os.path.splitext(path)
+    return f"{stem}-rank{rank:05d}-of-{world:05d}{ext or '.vt4da'}"
+
+
+def _captures(inputs: list[str]) -> list[Path]:
+    from ..codec import iter_capture_dirs
+    from ..capture.io import MANIFEST_NAME
+
+    found: list[Path] = []
+    for item in inputs:
+        p = Path(item)
+        if (p / MANIFEST_NAME).is_file():
+            found.append(p)
+        elif p.is_dir():
+            found.extend(iter_capture_dirs(p))
+        else:
+            raise CaptureError(f"{item} is not a capture directory (no {MANIFEST_NAME}) nor a directory of captures")
+    if not found:
+        raise CaptureError(f"no capture directories found in {inputs}")
+    return found
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    from .. import codec
+    from ..capture.io import read_capture
+    from ..format import dumps, save
+
+    captures = _captures(args.captures)
+    if args.output is None and args.archive is None:
+        raise CaptureError("give -o FILE.vt4d (one scene) or --archive FILE.vt4da (many scenes)")
+    if args.archive is None and (len(captures) > 1 or args.split):
+        raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
+    rank, world = _dist_rank()
+    mine = captures[rank::world]
+    model = codec.load_model(args.model or codec.DEFAULT_MODEL)
+    started = time.perf_counter()
+    results: list[dict[str, Any]] = []
+    writer = None
+    if args.archive is not None:
+        from ..archive import ArchiveWriter
+
+        writer = ArchiveWriter(_shard_path(args.archive, rank, world))
+    try:
+        for cap_dir in _progress(mine, len(mine), "encode", args.quiet):
+            cap = read_capture(cap_dir)
+            if args.split:
+                scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, seed=args.seed)
+            else:
+                scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, start=args.start,
+                                       seed=args.seed)]
+            for scene in scenes:
+                info = scene.metadata["vt4d"]
+                if writer is not None:
+                    key = f"{cap.capture_id}/{info['source_camera']}/{info['clip_start']:06d}"
+                    data = dumps(scene)
+                    writer.append(key, data)
+                    results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
+                else:
+                    n = save(scene, args.output)
+                    results.append({"file": args.output, "bytes": n, "capture": str(cap_dir)})
+        if writer is not None:
+            writer.commit()
+    finally:
+        if writer is not None:
+            writer.close(commit=False)
+    elapsed = time.perf_counter() - started
+    fp = codec.model_fingerprint(model)
+    summary = {"scenes": results, "seconds": round(elapsed, 3), "model": fp.to_dict(), "encoding": args.encoding,
+               "rank": rank, "world_size": world,
+               "archive": _shard_path(args.archive, rank, world) if args.archive else None}
+    lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
+    lines.append(f"encoded {len(results)} scene(s) with {fp.short()} in {elapsed:.1f} s")
+    _emit(args, summary, lines)
+    return 0
+
+
+def _open_scene_source(source: str, key: str | None):
+    from ..archive import is_archive, open_archive
+
+    if "::" in source and key is None:
+        source, key = source.split("::", 1)
+    with open(source, "rb") as fh:
+        head = fh.read(16)
+    if is_archive(head):
+        if key is None:
+            raise CaptureError(f"{source} is an archive: pick a scene with --key KEY (see `vt4d ls {source}`)")
+        with open_archive(source) as ar:
+            return ar.load(key), f"{Path(source).stem}_{key.replace('/', '_')}"
+    if key is not None:
+        raise CaptureError(f"{source} is a single scene file; --key applies to archives only")
+    from ..format import load
+
+    return load(source), Path(source).stem
+
+
+def _trajectory_label(spec: str, index: int) -> str:
+    if spec == "source":
+        return "source"
+    if os.path.isfile(spec):
+        return Path(spec).stem
+    return f"{index:02d}_" + "".join(c if c.isalnum() else "_" for c in spec)[:48]
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    from ..codec import SceneDecoder, model_fingerprint
+    from ..media import write_frames
+
+    scene, stem = _open_scene_source(args.source, args.key)
+    decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
+    specs = args.trajectory or ["source"]
+    trajectories = [decoder.trajectory(s) for s in specs]  # fail on a bad spec before any rendering
+    out_dir = Path(args.output)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    outputs = []
+    for i, (spec, traj) in enumerate(_progress(list(zip(specs, trajectories)), len(specs), "decode", args.quiet)):
+        frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
+                                drop_dynamic=args.drop == "dynamic")
+        path = write_frames(out_dir / f"{stem}_{_trajectory_label(spec, i)}", frames, args.format,
+                            extra={"K": traj.K, "w2c": traj.w2c})
+        outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
+    elapsed = time.perf_counter() - started
+    result = {"outputs": outputs, "seconds": round(elapsed, 3), "steps": args.steps, "seed": args.seed,
+              "model": model_fingerprint(decoder.model).to_dict()}
+    _emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
+          + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s"])
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ..codec import DEFAULT_MODEL
+    from ..demo import run_demo
+
+    result = run_demo(args.output, model=args.model or DEFAULT_MODEL, seed=args.seed, steps=args.steps,
+                      log=None if args.json else print)
+    if args.json:
+        print(json.dumps(result, indent=2, sort_keys=True))
+    return 0
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    value = _nonneg_int(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("expected a positive integer")
+    return value
+
+
+def register(subparsers: Any) -> None:
+    from ..codec import DEFAULT_STEPS
+    from ..format import ENCODINGS
+    from ..media import VIDEO_FORMATS
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--model", default=None,
+                        help="model id or model directory (encode default: vt4d-tiny; decode default: the "
+                             "model named by the file's fingerprint)")
+    common.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
+    common.add_argument("--json", action="store_true", help="print a JSON result for scripts")
+    common.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = subparsers.add_parser(
+        "encode", parents=[common], help="compress capture directories into .vt4d scenes or an archive",
+        description="Encode one camera of a capture (a clip of the model's frame count) into a .vt4d scene.",
+        epilog=ENCODE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("captures", nargs="+", help="capture directories, or directories holding capture directories")
+    p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip)")
+    p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
+    p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
+    p.add_argument("--start", type=_nonneg_int, default=0, help="first frame of the clip (default 0)")
+    p.add_argument("--split", action="store_true", help="encode every consecutive clip of a long capture")
+    p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding (default int8)")
+    p.set_defaults(func=cmd_encode)
+
+    p = subparsers.add_parser(
+        "decode", parents=[common], help="render camera trajectories from a .vt4d scene or an archive key",
+        description="Render a stored scene along one or more camera trajectories (no re-encoding).",
+        epilog=DECODE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("source", help="a .vt4d file, an archive (.vt4da) with --key, or ARCHIVE::KEY")
+    p.add_argument("--key", help="scene key inside an archive")
+    p.add_argument("-t", "--trajectory", action="append",
+                   help="trajectory: 'source', a preset spec, or a JSON file (repeatable; default source)")
+    p.add_argument("-o", "--output", required=True, help="output directory")
+    p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
+    p.add_argument("--steps", type=_positive_int, default=DEFAULT_STEPS,
+                   help=f"Euler steps of the rectified-flow sampler (default {DEFAULT_STEPS})")
+    p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
+    p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
+    p.set_defaults(func=cmd_decode)
+
+    p = subparsers.add_parser(
+        "demo", parents=[common], help="make a synthetic capture, encode it, render views, write videos + a picture",
+        description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
+                    "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
+    p.add_argument("-o", "--output", default="demo_out", help="output directory (default demo_out)")
+    p.add_argument("--steps", type=_positive_int, default=DEFAULT_STEPS, help="sampler steps")
+    p.set_defaults(func=cmd_demo)

@@ -1,0 +1,316 @@
+"""The codec: capture -> encoder -> Scene, and Scene -> renderer -> frames.
+
+The encoder is the compressor and the renderer the decompressor.  This module is glue: it fits a
+capture to the model's clip (undistort, resize, centre-crop, frame window), runs the non-learned
+preprocessing (flow, motion isolation, tracks) and the networks, and checks that a file is decoded by
+the model that made it.  It imports torch lazily, so ``import vt4dcodec`` stays light.
+
+Clip policy (documented in README and FORMAT.md "Captures"): a model encodes clips of exactly
+``config.frames`` frames at ``config.image_size`` pixels square.  Larger frames are undistorted,
+resized (shorter side) and centre-cropped with the intrinsics updated; :func:`encode` takes the
+``config.frames`` frames starting at ``start`` and :func:`encode_clips` splits a long capture into
+consecutive clips (a shorter tail is dropped and reported).  A capture with fewer frames than the
+clip is rejected with :class:`~vt4dcodec.errors.CaptureError`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Sequence
+
+import numpy as np
+
+from .cameras import Trajectory
+from .capture.capture import Capture
+from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
+from .format import ModelFingerprint, Provenance, Scene, load
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .model import VideoTok4D
+
+__all__ = [
+    "DEFAULT_MODEL", "DEFAULT_STEPS", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
+    "resolve_trajectory", "model_fingerprint",
+]
+
+DEFAULT_MODEL = "vt4d-tiny"
+DEFAULT_STEPS = 8
+MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model directories
+
+
+# --- models -----------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=4)
+def _load_model_cached(resolved: str) -> "VideoTok4D":
+    from .model import from_pretrained
+
+    return from_pretrained(resolved)
+
+
+def _user_model_dirs() -> list[Path]:
+    dirs = []
+    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
+        root_path = Path(root)
+        if root_path.is_dir():
+            dirs.extend(p for p in sorted(root_path.iterdir()) if (p / "config.json").is_file())
+    return dirs
+
+
+def _find_model_dir(model_id: str) -> str:
+    """A shipped id, or a directory under $VT4D_MODEL_PATH whose name is ``model_id``."""
+    from .model import shipped_model_ids
+
+    if model_id in shipped_model_ids():
+        return model_id
+    for d in _user_model_dirs():
+        if d.name == model_id:
+            return str(d)
+    raise ModelNotFoundError(
+        f"model {model_id!r} is neither shipped (shipped: {shipped_model_ids() or 'none'}) nor a directory "
+        f"under ${MODEL_PATH_ENV}; pass model=<path to the model directory>"
+    )
+
+
+def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "VideoTok4D":
+    """A model by shipped id, by directory path, or an already loaded one (returned as is)."""
+    from .model import VideoTok4D
+
+    if isinstance(model, VideoTok4D):
+        return model
+    path = Path(model)
+    if path.is_dir():
+        return _load_model_cached(str(path.resolve()))
+    return _load_model_cached(_find_model_dir(str(model)))
+
+
+def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
+    """The fingerprint a container stores for ``model`` (cached on the model object)."""
+    cached = getattr(model, "_vt4d_fingerprint", None)
+    if cached is None:
+        model_id = getattr(model, "model_id", None) or "unnamed"
+        model_version = getattr(model, "model_version", None) or "0"
+        cached = model.fingerprint(model_id, model_version)
+        model._vt4d_fingerprint = cached
+    return cached
+
+
+# --- encoding ---------------------------------------------------------------------------------------
+def _as_capture(capture: "Capture | str | os.PathLike") -> Capture:
+    if isinstance(capture, Capture):
+        return capture
+    from .capture.io import read_capture
+
+    return read_capture(capture)
+
+
+def _pick_camera(capture: Capture, camera: str | None) -> str:
+    if camera is None:
+        return capture.camera_names[0]
+    if camera not in capture.cameras:
+        raise CaptureError(f"capture {capture.capture_id!r} has no camera {camera!r}; it has {capture.camera_names}")
+    return camera
+
+
+def encode(
+    capture: "Capture | str | os.PathLike",
+    model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
+    encoding: str = "int8",
+    *,
+    camera: str | None = None,
+    start: int = 0,
+    seed: int = 0,
+    metadata: dict[str, Any] | None = None,
+) -> Scene:
+    """Compress one clip of one camera of a capture into a :class:`~vt4dcodec.format.Scene`.
+
+    Args:
+        capture: a :class:`Capture` or a capture directory.
+        model: shipped model id, model directory, or a loaded model.
+        encoding: token encoding used when the scene is saved ("float32", "float16", "int8", "int4").
+        camera: the source camera (default: the capture's first camera).
+        start: first frame of the clip; the clip is ``model.config.frames`` frames long.
+        seed: seeds track sampling, so the same capture and seed give the same tokens.
+        metadata: user key/values stored in the file (bounded; see FORMAT.md "Metadata").
+    Returns:
+        The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
+        cameras, the model fingerprint, metadata and provenance ("encoded").
+    """
+    return _encode_clip(_as_capture(capture), load_model(model), encoding, camera, start, seed, metadata)
+
+
+def encode_clips(
+    capture: "Capture | str | os.PathLike",
+    model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
+    encoding: str = "int8",
+    *,
+    camera: str | None = None,
+    seed: int = 0,
+    metadata: dict[str, Any] | None = None,
+) -> list[Scene]:
+    """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each.
+
+    A tail shorter than one clip is dropped; each scene's metadata records its ``clip_start``.
+    """
+    cap = _as_capture(capture)
+    net = load_model(model)
+    T = net.config.frames
+    if cap.num_frames < T:
+        raise CaptureError(f"capture has {cap.num_frames} frames; model clips are {T} frames")
+    return [_encode_clip(cap, net, encoding, camera, s, seed, metadata) for s in range(0, cap.num_frames - T + 1, T)]
+
+
+def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, camera: str | None, start: int, seed: int,
+                 metadata: dict[str, Any] | None) -> Scene:
+    import torch
+
+    from .capture.resample import fit_capture
+    from .model.preprocess import prepare_source
+    from .model.source_inputs import SourceBatch
+
+    cfg = net.config
+    name = _pick_camera(cap, camera)
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+        raise CaptureError(f"start must be a non-negative frame index, got {start!r}")
+    if start + cfg.frames > cap.num_frames:
+        raise CaptureError(
+            f"capture {cap.capture_id!r} has {cap.num_frames} frames; a clip of {cfg.frames} frames starting at "
+            f"frame {start} does not fit (this model encodes exactly {cfg.frames} frames per scene)"
+        )
+    single = Capture(cameras={name: cap.cameras[name]}, frames={name: cap.frames[name]},
+                     depth={name: cap.depth[name]} if cap.has_depth(name) else None,
+                     fps=cap.fps, capture_id=cap.capture_id, metadata=cap.metadata)
+    fitted = fit_capture(single, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, start=start)
+    traj = fitted.cameras[name]
+    depth = fitted.depth[name] if fitted.has_depth(name) else None
+    inputs = prepare_source(fitted.frames[name], traj, depth, latent_hw=(cfg.latent_size, cfg.latent_size),
+                            num_tracks=cfg.n_tracks, seed=seed, motion_isolation=cfg.motion_isolation)
+    with torch.no_grad():
+        z_s, z_d = net.encode(SourceBatch.collate([inputs]))
+    info = {"source_camera": name, "clip_start": int(start), "clip_frames": int(cfg.frames),
+            "depth_source": "capture" if depth is not None else "estimated"}
+    return Scene(
+        static_tokens=z_s[0].numpy().astype(np.float32),
+        dynamic_tokens=z_d[0].numpy().astype(np.float32),
+        cameras=traj,
+        fingerprint=model_fingerprint(net),
+        metadata={**(metadata or {}), "vt4d": info},
+        provenance=Provenance.now(cap.capture_id, "encoded"),
+        encoding=encoding,
+    )
+
+
+# --- decoding ---------------------------------------------------------------------------------------
+def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajectory, *, size: int,
+                       max_frames: int) -> Trajectory:
+    """A target trajectory for rendering, fitted to the model's ``size`` x ``size`` image.
+
+    ``spec`` is a :class:`Trajectory`, ``"source"`` (the scene's own cameras), a preset spec such as
+    ``"orbit:degrees=30,distance=2"`` (built from the scene's first source camera), or a path to a
+    trajectory JSON file.  Trajectories for another image size are resized and centre-cropped the way
+    captures are (intrinsics updated).
+    """
+    from .capture.resample import fit_trajectory, plan_fit
+    from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
+
+    if isinstance(spec, Trajectory):
+        traj = spec
+    elif isinstance(spec, (str, os.PathLike)) and str(spec) == "source":
+        traj = reference
+    elif isinstance(spec, (str, os.PathLike)) and (str(spec).endswith(".json") or Path(spec).is_file()):
+        traj = load_trajectory(spec)
+    elif isinstance(spec, str):
+        preset, params = parse_trajectory_spec(spec)
+        traj = make_trajectory(preset, reference, **params)
+    else:
+        raise TrajectoryError(f"a trajectory must be a Trajectory, 'source', a preset spec or a JSON path, "
+                              f"got {type(spec).__name__}")
+    if traj.num_frames > max_frames:
+        raise TrajectoryError(f"trajectory has {traj.num_frames} frames; a scene covers {max_frames} frames")
+    if traj.distortion is not None and np.any(traj.distortion):
+        raise TrajectoryError("target trajectories must be pinhole (no distortion terms): the renderer draws "
+                              "ideal pinhole images")
+    if (traj.width, traj.height) != (size, size):
+        traj = fit_trajectory(traj, plan_fit(traj.width, traj.height, out_height=size, out_width=size))
+    return traj
+
+
+@dataclass
+class SceneDecoder:
+    """A loaded scene bound to its model: render as many trajectories as you like, no re-encoding.
+
+    Create with :meth:`open`.  ``render`` returns (T, H, W, 3) uint8 frames.
+    """
+
+    scene: Scene
+    model: "VideoTok4D"
+
+    @classmethod
+    def open(cls, scene_or_path: "Scene | str | os.PathLike | bytes", *,
+             model: "str | os.PathLike | VideoTok4D | None" = None, force: bool = False) -> "SceneDecoder":
+        """Load the scene and the model that made it (found from the stored fingerprint unless ``model``
+        is given).  A different model is refused with both fingerprints named unless ``force``."""
+        scene = scene_or_path if isinstance(scene_or_path, Scene) else load(scene_or_path)
+        stored = scene.fingerprint
+        try:
+            net = load_model(stored.model_id if model is None else model)
+        except ModelNotFoundError as exc:
+            raise ModelNotFoundError(f"the scene was made by {stored.short()}: {exc}") from None
+        have = model_fingerprint(net)
+        if not have.matches(stored):
+            if not force:
+                raise ModelMismatchError(
+                    f"the scene was encoded by {stored.short()} but the model given is {have.short()}; "
+                    "decode with the model that made it, or force=True (--force) to try anyway"
+                )
+            if (have.static_shape, have.dynamic_shape) != (stored.static_shape, stored.dynamic_shape):
+                raise ModelMismatchError(
+                    f"cannot force: token shapes differ ({stored.short()} vs {have.short()})")
+        return cls(scene=scene, model=net)
+
+    def trajectory(self, spec: "Trajectory | str | os.PathLike") -> Trajectory:
+        cfg = self.model.config
+        return resolve_trajectory(spec, self.scene.cameras, size=cfg.image_size, max_frames=cfg.frames)
+
+    def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int = DEFAULT_STEPS,
+               seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> np.ndarray:
+        """Frames (T, H, W, 3) uint8 of the scene seen along ``trajectory`` (deterministic per seed)."""
+        return self.render_many([trajectory], steps=steps, seed=seed, drop_static=drop_static,
+                                drop_dynamic=drop_dynamic)[0]
+
+    def render_many(self, trajectories: Sequence["Trajectory | str | os.PathLike"], *, steps: int = DEFAULT_STEPS,
+                    seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> list[np.ndarray]:
+        """Render several trajectories from the one token state, each with the same ``seed``."""
+        import torch
+
+        z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
+        z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
+        out = []
+        for spec in trajectories:
+            traj = self.trajectory(spec)
+            K = torch.from_numpy(traj.K.astype(np.float32))[None]
+            w2c = torch.from_numpy(traj.w2c.astype(np.float32))[None]
+            frames = self.model.render(z_s, z_d, K, w2c, steps=steps, seed=seed, drop_static=drop_static,
+                                       drop_dynamic=drop_dynamic)
+            video = (frames[0].permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+            out.append(video)
+        return out
+
+
+def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Trajectory | str | os.PathLike" = "source",
+           *, steps: int = DEFAULT_STEPS, seed: int = 0, model: "str | os.PathLike | VideoTok4D | None" = None,
+           force: bool = False) -> np.ndarray:
+    """Render a stored scene along ``trajectory``: (T, H, W, 3) uint8 frames.
+
+    For several trajectories of one scene use :class:`SceneDecoder` (loads the model once).
+    """
+    return SceneDecoder.open(scene_or_path, model=model, force=force).render(trajectory, steps=steps, seed=seed)
+
+
+def iter_capture_dirs(root: str | os.PathLike) -> Iterable[Path]:
+    """Capture directories (holding a manifest) directly under ``root``, sorted by name."""
+    from .capture.io import MANIFEST_NAME
+
+    root = Path(root)
+    return [p for p in sorted(root.iterdir()) if (p / MANIFEST_NAME).is_file()]
