@@ -1,0 +1,117 @@
+"""Write real scenes, read them back byte-for-byte, with a constant number of reads."""
+
+import os
+
+import numpy as np
+import pytest
+
+from vt4dcodec.archive import (ARCHIVE_MAGIC, ArchiveWriter, DuplicateKeyError, open_archive, verify_archive)
+from vt4dcodec.archive.layout import FOOTER_SIZE
+from vt4dcodec.errors import ArchiveError, FormatError, SceneNotFoundError
+from vt4dcodec.format import loads
+
+from .helpers import payload_for, scene_record
+
+
+def test_scene_records_round_trip_byte_for_byte(tmp_path):
+    path = tmp_path / "a.vt4da"
+    records = {f"scene-{i}": scene_record(i) for i in range(4)}
+    with ArchiveWriter(path) as w:
+        for k, v in records.items():
+            w.append(k, v)
+    with open_archive(path) as ar:
+        assert ar.keys() == sorted(records)
+        for k, v in records.items():
+            assert ar.read_bytes(k) == v
+            s = ar.summary(k)
+            assert s["bytes"] == len(v) and s["static_shape"] == [16, 8] and s["frames"] == 2
+            assert s["fingerprint"]["model_id"] == "vt4d-example"
+            scene = ar.load(k)
+            np.testing.assert_array_equal(scene.static_tokens, loads(v).static_tokens)
+    verify_archive(path)
+    assert path.read_bytes().startswith(ARCHIVE_MAGIC)
+
+
+def test_scene_objects_are_accepted(tmp_path):
+    from vt4dcodec.archive.examples import example_scene
+
+    scene = example_scene(3, static_shape=(8, 4), dynamic_shape=(4, 4), frames=2)
+    with ArchiveWriter(tmp_path / "a.vt4da") as w:
+        w.append("s", scene)
+    with open_archive(tmp_path / "a.vt4da") as ar:
+        assert ar.open_scene("s").static_shape == (8, 4)
+
+
+def test_invalid_record_is_refused(tmp_path):
+    with ArchiveWriter(tmp_path / "a.vt4da") as w:
+        with pytest.raises(FormatError):
+            w.append("bad", b"not a vt4d file")
+        with pytest.raises(ArchiveError):
+            w.append("bad", 12345)
+
+
+@pytest.mark.parametrize("n", [1, 30, 300])
+def test_open_and_get_cost_constant_reads(tmp_path, n):
+    path = tmp_path / "a.vt4da"
+    with ArchiveWriter(path, durable=False) as w:
+        for i in range(n):
+            w.append(f"k{i:05d}", payload_for(f"k{i}"), validate=False)
+    with open_archive(path) as ar:
+        assert (ar.source.reads, ar.source.bytes_read) == (2, FOOTER_SIZE + ar.commit.index_length)
+        before = ar.source.bytes_read
+        key = f"k{n // 2:05d}"
+        assert ar.read_bytes(key) == payload_for(f"k{n // 2}")
+        assert ar.source.reads == 3
+        assert ar.source.bytes_read - before == len(payload_for(f"k{n // 2}"))
+
+
+def test_duplicate_replace_abort_and_generations(tmp_path):
+    path = tmp_path / "a.vt4da"
+    with ArchiveWriter(path) as w:
+        assert w.generation == 0
+        w.append("a", b"1", validate=False)
+        with pytest.raises(DuplicateKeyError):
+            w.append("a", b"2", validate=False)
+        assert w.commit() == 1
+        with pytest.raises(DuplicateKeyError):
+            w.append("a", b"2", validate=False)
+        w.append("a", b"22", validate=False, replace=True)
+        w.append("b", b"3", validate=False)
+        assert w.commit() == 2
+        w.append("c", b"4", validate=False)
+        size_with_pending = os.path.getsize(path)
+        w.abort()
+        assert os.path.getsize(path) < size_with_pending
+        assert w.commit() == 2  # nothing pending
+    with open_archive(path) as ar:
+        assert dict(ar.iter_records()) == {"a": b"22", "b": b"3"}
+        assert ar.generation == 2
+    verify_archive(path, records=False)
+
+
+def test_exception_in_context_aborts(tmp_path):
+    path = tmp_path / "a.vt4da"
+    with ArchiveWriter(path) as w:
+        w.append("a", b"1", validate=False)
+    with pytest.raises(RuntimeError):
+        with ArchiveWriter(path) as w:
+            w.append("b", b"2", validate=False)
+            raise RuntimeError("boom")
+    with open_archive(path) as ar:
+        assert ar.keys() == ["a"] and ar.uncommitted_bytes == 0
+
+
+def test_missing_key_and_modes(tmp_path):
+    path = tmp_path / "a.vt4da"
+    with ArchiveWriter(path, "x") as w:
+        w.append("a", b"1", validate=False)
+    with pytest.raises(FileExistsError):
+        ArchiveWriter(path, "x")
+    with open_archive(path) as ar:
+        with pytest.raises(SceneNotFoundError):
+            ar.read_bytes("nope")
+        assert "a" in ar and "nope" not in ar and 5 not in ar
+    with ArchiveWriter(path, "w") as w:
+        assert len(w) == 0
+    with open_archive(path) as ar:
+        assert len(ar) == 0
