@@ -47,7 +47,7 @@ def test_plan_covers_then_crops(W, H, ow, oh):
     np.testing.assert_allclose(plan.intrinsics(K), expected.numpy(), atol=1e-9)
 
 
-@pytest.mark.parametrize("out_h, out_w", [(64, 64), (48, 96), (120, 160)])
+@pytest.mark.parametrize("out_h, out_w", [(64, 64), (48, 96), (120, 160), (300, 400)])
 def test_fit_capture_moves_points_where_the_new_intrinsics_say(out_h, out_w):
     """End to end: blobs at the distorted projections of known 3D points land, after undistortion,
     resizing and cropping, where the fitted pinhole camera projects those points."""
@@ -91,6 +91,17 @@ def test_fit_capture_frames_depth_and_timestamps():
     assert d_out.shape == (3, 16, 16) and d_out.dtype == np.float32
     assert set(np.unique(d_out)) <= set(np.unique(d_in[1:4]))  # nearest: no blended depths
     assert out.metadata["fit"] == {"height": 16, "width": 16, "start": 1, "num_frames": 3}
+
+
+def test_distorted_depth_is_resampled_without_blending():
+    cap = make_capture(T=2, width=40, height=30)
+    cams = {n: Trajectory(K=t.K, w2c=t.w2c, width=40, height=30, distortion=DIST) for n, t in cap.cameras.items()}
+    cap = Capture(cameras=cams, frames=cap.frames, depth=cap.depth)
+    for size in (12, 60):  # shrinking (area-averaged RGB first) and enlarging
+        out = fit_capture(cap, height=size, width=size)
+        d_in, d_out = cap.depth["cam_a"], out.depth["cam_a"]
+        assert d_out.shape == (2, size, size)
+        assert set(np.unique(d_out)) <= set(np.unique(d_in)) | {0.0}
 
 
 def test_identity_fit_is_exact():

@@ -27,7 +27,7 @@ import numpy as np
 from ..cameras import Trajectory
 from ..errors import CameraError, CaptureError
 from .capture import Capture
-from .resample import FitPlan, Undistorter, fit_image, fit_trajectory, plan_fit
+from .resample import FitPlan, FrameFitter, fit_trajectory, plan_fit
 
 __all__ = ["read_caliscope_cameras", "read_caliscope_timestamps", "import_caliscope"]
 
@@ -122,7 +122,7 @@ def read_caliscope_timestamps(path: str | os.PathLike) -> tuple[list[int], dict[
     return syncs, out
 
 
-def _stream_fitted_frames(video: Path, keep: list[int], total: int, undistort: Undistorter,
+def _stream_fitted_frames(video: Path, keep: list[int], total: int, fitter: FrameFitter,
                           plan: FitPlan, where: str) -> np.ndarray:
     """Decode ``video`` up to the last frame in ``keep``; undistort + fit the frames in ``keep``.
 
@@ -150,7 +150,7 @@ def _stream_fitted_frames(video: Path, keep: list[int], total: int, undistort: U
                                    f"for {plan.in_width}x{plan.in_height}")
             if i in wanted:
                 rgb = np.ascontiguousarray(bgr[..., ::-1])
-                out[wanted[i]] = fit_image(undistort.image(rgb), plan)
+                out[wanted[i]] = fitter.image(rgb)
     finally:
         cap.release()
     return out
@@ -194,8 +194,8 @@ def import_caliscope(
     cameras, frames = {}, {}
     for name, traj in calib.items():
         plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width)
-        undistort = Undistorter(traj.K[0], traj.distortion, traj.width, traj.height)
-        frames[name] = _stream_fitted_frames(path / "videos" / f"{name}.mp4", keep, len(syncs), undistort,
+        fitter = FrameFitter(traj.K[0], traj.distortion, plan)
+        frames[name] = _stream_fitted_frames(path / "videos" / f"{name}.mp4", keep, len(syncs), fitter,
                                              plan, f"camera {name!r}")
         T = len(keep)
         full = Trajectory(K=np.broadcast_to(traj.K[0], (T, 3, 3)), w2c=np.broadcast_to(traj.w2c[0], (T, 4, 4)),

@@ -1,17 +1,22 @@
 """Fit captures to a model's resolution and clip length: undistort, resize, centre-crop (numpy + OpenCV).
 
-The steps, per camera, in order:
+The mapping, per camera (one camera = one ``K``, optional distortion):
 
-1. **Undistort** (only when the camera has distortion terms): remap every frame to the ideal pinhole
-   camera with the *same* ``K`` (``cv2.initUndistortRectifyMap(K, dist, None, K)``), bilinear for RGB,
-   nearest for depth; pixels that map outside the source image become black / unknown depth (0).
+1. **Undistort** (only when the camera has distortion terms) to the ideal pinhole camera with the
+   *same* ``K``; pixels that map outside the source image become black / unknown depth (0).
    The distortion is then dropped from the calibration.
 2. **Resize** by one factor so the image covers ``height`` x ``width`` (the shorter side fits):
    ``s = max(height / H, width / W)``, new size ``round(W s) x round(H s)``; the intrinsics follow
    the pixel-centre mapping ``u' = (u + 0.5) * sx - 0.5`` with the exact per-axis ratios.
-   RGB uses area averaging when shrinking (bilinear when enlarging); depth uses exact nearest.
 3. **Centre-crop** to ``height`` x ``width``: offset ``x0 = (W' - width) // 2``, ``y0 = (H' - height)
    // 2``; ``cx -= x0``, ``cy -= y0``.
+
+How pixels are resampled (:class:`FrameFitter`): without distortion, an area-average resize when
+shrinking (bilinear when enlarging) and a crop.  With distortion, one ``cv2.remap`` straight from
+the source to the output pixels (map from ``cv2.initUndistortRectifyMap``); when shrinking, the
+source is first area-averaged to the resized size (a low-pass that prevents aliasing; the lens model
+is applied at that scale with the scaled ``K``, which is geometrically exact).  RGB is bilinear,
+depth nearest (never blends depths across edges).
 
 Frames ``[start, start + num_frames)`` are kept and the rest dropped (``num_frames=None`` keeps all
 from ``start``); poses and timestamps are sliced the same way.  :class:`FitPlan` applies the same
@@ -31,7 +36,7 @@ from .capture import Capture
 __all__ = [
     "FitPlan",
     "plan_fit",
-    "Undistorter",
+    "FrameFitter",
     "undistort_pixels",
     "fit_image",
     "fit_trajectory",
@@ -102,27 +107,50 @@ def plan_fit(width: int, height: int, *, out_height: int, out_width: int) -> Fit
                    int(out_width), int(out_height))
 
 
-class Undistorter:
-    """Remaps images of a distorted camera (``K``, OpenCV ``dist``, ``width`` x ``height``) to the
-    ideal pinhole camera with the same ``K``.  Build once per camera; the maps are reused."""
+class FrameFitter:
+    """Fits every frame of one camera (``K``, OpenCV ``dist`` or None, image size of ``plan``) to the
+    output of ``plan``: undistort + resize + centre-crop.  Build once per camera; maps are reused."""
 
-    def __init__(self, K: np.ndarray, dist: np.ndarray, width: int, height: int) -> None:
+    def __init__(self, K: np.ndarray, dist: np.ndarray | None, plan: FitPlan) -> None:
         cv2 = _cv2()
-        self.K = np.asarray(K, dtype=np.float64)
-        self.dist = np.asarray(dist, dtype=np.float64)
-        self.map_x, self.map_y = cv2.initUndistortRectifyMap(
-            self.K, self.dist, None, self.K, (int(width), int(height)), cv2.CV_32FC1
-        )
+        self.plan = plan
+        self.prefilter = plan.sx < 1 and plan.sy < 1 and dist is not None
+        self.maps = None
+        if dist is not None:
+            K = np.asarray(K, dtype=np.float64)
+            K_src = K
+            if self.prefilter:  # the intrinsics of the area-averaged, uncropped source
+                K_src = plan.intrinsics(K)
+                K_src[0, 2] += plan.x0
+                K_src[1, 2] += plan.y0
+            self.maps = cv2.initUndistortRectifyMap(
+                K_src, np.asarray(dist, dtype=np.float64), None, plan.intrinsics(K),
+                (plan.out_width, plan.out_height), cv2.CV_32FC1,
+            )
+
+    def _check(self, image: np.ndarray) -> None:
+        if image.shape[:2] != (self.plan.in_height, self.plan.in_width):
+            raise CaptureError(f"image is {image.shape[1]}x{image.shape[0]}, the camera is "
+                               f"{self.plan.in_width}x{self.plan.in_height}")
+
+    def _remap(self, image: np.ndarray, *, depth: bool) -> np.ndarray:
+        cv2 = _cv2()
+        if self.prefilter:
+            size = (self.plan.scaled_width, self.plan.scaled_height)
+            image = cv2.resize(image, size, interpolation=cv2.INTER_NEAREST_EXACT if depth else cv2.INTER_AREA)
+        return cv2.remap(image, *self.maps, cv2.INTER_NEAREST if depth else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
     def image(self, image: np.ndarray) -> np.ndarray:
-        """Undistort an (H, W, 3) uint8 image (bilinear; outside the source -> 0)."""
-        cv2 = _cv2()
-        return cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        """(H, W, 3) uint8 source frame -> (out_height, out_width, 3) uint8."""
+        self._check(image)
+        return fit_image(image, self.plan) if self.maps is None else self._remap(image, depth=False)
 
     def depth(self, depth: np.ndarray) -> np.ndarray:
-        """Undistort an (H, W) float32 depth map (nearest; outside the source -> 0 = unknown)."""
-        cv2 = _cv2()
-        return cv2.remap(depth, self.map_x, self.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        """(H, W) float32 depth (metres, 0 = unknown) -> (out_height, out_width) float32."""
+        self._check(depth)
+        depth = np.asarray(depth, dtype=np.float32)
+        return fit_image(depth, self.plan, depth=True) if self.maps is None else self._remap(depth, depth=True)
 
 
 def undistort_pixels(uv: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -170,24 +198,16 @@ def select_frames(total: int, *, num_frames: int | None, start: int = 0) -> rang
 
 def _fitted_camera(traj: Trajectory, frames: np.ndarray, depth: np.ndarray | None, plan: FitPlan,
                    sel: range) -> tuple[Trajectory, np.ndarray, np.ndarray | None]:
-    undistorters: dict[bytes, Undistorter] = {}
-
-    def undistorter(i: int) -> Undistorter | None:
-        if traj.distortion is None:
-            return None
-        key = traj.K[i].tobytes()
-        if key not in undistorters:
-            undistorters[key] = Undistorter(traj.K[i], traj.distortion, traj.width, traj.height)
-        return undistorters[key]
-
+    fitters: dict[bytes, FrameFitter] = {}  # one per distinct K (usually one per camera)
     out_rgb = np.empty((len(sel), plan.out_height, plan.out_width, 3), dtype=np.uint8)
     out_depth = None if depth is None else np.empty((len(sel), plan.out_height, plan.out_width), dtype=np.float32)
     for j, i in enumerate(sel):
-        u = undistorter(i)
-        out_rgb[j] = fit_image(frames[i] if u is None else u.image(frames[i]), plan)
+        key = traj.K[i].tobytes()
+        if key not in fitters:
+            fitters[key] = FrameFitter(traj.K[i], traj.distortion, plan)
+        out_rgb[j] = fitters[key].image(frames[i])
         if depth is not None:
-            d = np.asarray(depth[i], dtype=np.float32)
-            out_depth[j] = fit_image(d if u is None else u.depth(d), plan, depth=True)
+            out_depth[j] = fitters[key].depth(depth[i])
     return fit_trajectory(traj[sel.start:sel.stop], plan), out_rgb, out_depth
 
 
