@@ -209,3 +209,66 @@ def test_mp4_with_wrong_frame_count(tmp_path):
         edit_manifest(tmp_path, claim(n))
         with pytest.raises(CaptureError, match=expected):
             read_capture(tmp_path)
+
+
+def test_png_of_the_wrong_size_is_refused_before_decoding(written):
+    import cv2
+
+    cv2.imwrite(str(written / "cam_b" / "rgb" / "000002.png"), np.zeros((2000, 3000, 3), np.uint8))
+    with pytest.raises(CaptureError, match="3000x2000, manifest says 32x24"):
+        read_capture(written)
+    (written / "cam_b" / "rgb" / "000002.png").write_bytes(b"GIF89a not a png at all....")
+    with pytest.raises(CaptureError, match="not a PNG"):
+        read_capture(written)
+
+
+def test_symlink_out_of_the_directory_is_refused(written, tmp_path_factory):
+    outside = tmp_path_factory.mktemp("outside")
+    shutil.move(str(written / "cam_b" / "rgb"), str(outside / "rgb"))
+    (written / "cam_b" / "rgb").symlink_to(outside / "rgb", target_is_directory=True)
+    with pytest.raises(CaptureError, match="leaves the capture directory"):
+        read_capture(written)
+
+
+def test_strings_and_booleans_are_not_numbers(written):
+    edit_manifest(written, lambda d: d["cameras"][0]["K"].__setitem__(0, ["40", 0, 1]))
+    with pytest.raises(CameraError, match="list of numbers"):
+        read_manifest(written)
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
+    max_leaves=10,
+)
+
+
+def _paths(doc, prefix=()):
+    """Every (container, key) location in a JSON document."""
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for k, v in items:
+        yield prefix + (k,)
+        yield from _paths(v, prefix + (k,))
+
+
+@given(data=st.data())
+@settings(max_examples=60)
+def test_fuzzed_manifests_fail_cleanly(tmp_path_factory, data):
+    """Replacing any value of a valid manifest by arbitrary JSON gives a capture or a Vt4dError,
+    never another exception."""
+    from vt4dcodec.errors import Vt4dError
+
+    d = tmp_path_factory.mktemp("fuzz")
+    write_capture(make_capture(2, 6, 4), d)
+    doc = json.loads((d / MANIFEST_NAME).read_text())
+    locations = sorted(_paths(doc), key=repr)
+    where = data.draw(st.sampled_from(locations))
+    target = doc
+    for k in where[:-1]:
+        target = target[k]
+    target[where[-1]] = data.draw(json_values)
+    (d / MANIFEST_NAME).write_text(json.dumps(doc))
+    try:
+        read_capture(d)
+    except Vt4dError:
+        pass

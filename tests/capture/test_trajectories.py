@@ -215,3 +215,20 @@ def test_trajectory_file_not_json(tmp_path):
     path.write_text("{not json")
     with pytest.raises(TrajectoryError, match="JSON"):
         load_trajectory(path)
+
+
+@given(value=st.recursive(
+    st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=4),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=4), inner, max_size=3),
+    max_leaves=8), key=st.sampled_from(["format", "version", "width", "height", "num_frames", "K", "w2c",
+                                        "distortion", "timestamps"]))
+@settings(max_examples=60)
+def test_fuzzed_trajectory_documents_fail_cleanly(value, key):
+    from vt4dcodec.capture.trajectories import trajectory_from_json, trajectory_to_json
+
+    doc = trajectory_to_json(reference(T=2))
+    doc[key] = value
+    try:
+        trajectory_from_json(doc)
+    except TrajectoryError:
+        pass

@@ -110,13 +110,19 @@ def _safe_relpath(directory: Path, rel: Any, where: str) -> Path:
     parts = rel.split("/")
     if rel.startswith("/") or any(p in ("", ".", "..") for p in parts):
         raise CaptureError(f"{where}: media path {rel!r} must stay inside the capture directory")
-    return directory.joinpath(*parts)
+    path = directory.joinpath(*parts)
+    if path.exists() and not path.resolve().is_relative_to(directory.resolve()):
+        raise CaptureError(f"{where}: media path {rel!r} is a link that leaves the capture directory")
+    return path
 
 
 def _numbers(value: Any, shape: tuple[int, ...] | None, where: str) -> np.ndarray:
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (ValueError, TypeError):
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":  # no strings, booleans, objects or ragged lists
+            raise TypeError
+        arr = raw.astype(np.float64)
+    except (ValueError, TypeError, OverflowError):
         raise CameraError(f"{where} must be a (nested) list of numbers") from None
     if shape is not None and arr.shape != shape:
         raise CameraError(f"{where} has shape {arr.shape}, expected {shape}")
@@ -218,6 +224,17 @@ def read_manifest(directory: str | os.PathLike) -> CaptureManifest:
 
 
 # --- media -------------------------------------------------------------------------------------------
+def _check_png_header(path: Path, width: int, height: int, where: str) -> None:
+    """Refuse a file that is not a PNG of the manifest's size before decoding (no decompression bombs)."""
+    with path.open("rb") as fh:
+        head = fh.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise CaptureError(f"{where}: {path} is not a PNG file")
+    w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if (w, h) != (width, height):
+        raise CaptureError(f"{where}: {path} is {w}x{h}, manifest says {width}x{height}")
+
+
 def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str, *, depth: bool) -> np.ndarray:
     cv2 = _cv2()
     if not folder.is_dir():
@@ -235,6 +252,7 @@ def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str,
     out = np.empty((T, H, W) if depth else (T, H, W, 3), dtype=np.uint16 if depth else np.uint8)
     flag = cv2.IMREAD_UNCHANGED if depth else cv2.IMREAD_COLOR
     for i, name in enumerate(expected):
+        _check_png_header(folder / name, W, H, where)
         img = cv2.imread(str(folder / name), flag)
         if img is None:
             raise CaptureError(f"{where}: cannot decode {folder / name}")
@@ -256,6 +274,9 @@ def _read_mp4(path: Path, T: int, shape: tuple[int, int], where: str) -> np.ndar
     H, W = shape
     out = np.empty((T, H, W, 3), dtype=np.uint8)
     try:
+        size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        if size != (W, H):
+            raise CaptureError(f"{where}: {path} is {size[0]}x{size[1]}, manifest says {W}x{H}")
         for i in range(T):
             ok, img = cap.read()
             if not ok:

@@ -350,8 +350,11 @@ def _array(doc: dict, key: str, shape: tuple[int, ...], *, optional: bool = Fals
             return None
         raise TrajectoryError(f"trajectory: missing {key!r}")
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (ValueError, TypeError):
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":  # no strings, booleans, objects or ragged lists
+            raise TypeError
+        arr = raw.astype(np.float64)
+    except (ValueError, TypeError, OverflowError):
         raise TrajectoryError(f"trajectory: {key!r} must be a nested list of numbers") from None
     if shape and arr.shape != shape:
         raise TrajectoryError(f"trajectory: {key!r} has shape {arr.shape}, expected {shape}")
