@@ -74,8 +74,9 @@ class VideoTok4D(nn.Module):
             raise ModelError(f"{what}: cameras hold non-finite values")
 
     def rays(self, K: torch.Tensor, w2c: torch.Tensor) -> torch.Tensor:
-        """Plücker rays of cameras (B, T) at latent resolution: (B, T, 6, h, w)."""
-        return latent_rays(K, w2c, self.config.image_size, self.config.latent_size)
+        """Plücker rays of cameras (B, T) at latent resolution: (B, T, 6, h, w), always float32."""
+        with torch.autocast(K.device.type, enabled=False):
+            return latent_rays(K, w2c, self.config.image_size, self.config.latent_size)
 
     def latents(self, frames: torch.Tensor) -> torch.Tensor:
         """X_t of the frozen encoder: (B, T, 3, H, W) in [0, 1] -> (B, T, C, h, w)."""

@@ -211,9 +211,9 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
 def lr_at(step: int, base: float, warmup: int, total: int) -> float:
     """Linear warm-up, then cosine decay to 10% of ``base``."""
     if step < warmup:
-        return base * (step + 1) / warmup
+        return float(base * (step + 1) / warmup)
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
-    return base * (0.1 + 0.9 * 0.5 * (1.0 + np.cos(np.pi * progress)))
+    return float(base * (0.1 + 0.9 * 0.5 * (1.0 + np.cos(np.pi * progress))))  # python float: weights_only loads it
 
 
 def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trained: nn.Module,
@@ -234,7 +234,7 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     start = int(state["step"]) if state else 0
     log = JsonlLog(out / "log.jsonl", enabled=info.is_main)
     if info.is_main:  # drop records a crash left after the last checkpoint
-        kept = [r for r in log.read() if r.get("step", -1) < start]
+        kept = [r for r in log.read() if r.get("step", -1) <= start]
         log.path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept))
     bar = tqdm(range(start, args.steps), initial=start, total=args.steps, desc=title,
                disable=args.no_progress or not info.is_main, dynamic_ncols=True)

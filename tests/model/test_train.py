@@ -1,0 +1,122 @@
+"""The training commands: both stages run, resume, log, plot and save; a 2-rank torchrun path."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import from_pretrained
+from vt4dcodec.model.train import autoencoder as stage1
+from vt4dcodec.model.train import tokenizer as stage2
+from vt4dcodec.model.train.common import lr_at, load_checkpoint, parse_overrides, save_checkpoint
+from vt4dcodec.model.train.data import rank_seeds
+
+# A miniature config (4 frames at 32x32) so a training step takes well under a second.
+SMALL = ["frames=4", "image_size=32", "width=32", "heads=2", "ae_width=8", "spatial_layers=1",
+         "static_query_layers=1", "track_layers=1", "renderer_layers=1", "n_static=8", "n_dynamic=4",
+         "token_dim=8", "n_tracks=8"]
+
+
+def common(scenes: int = 1) -> list[str]:
+    return ["--scenes", str(scenes), "--cameras", "2", "--workers", "0", "--log-every", "1", "--no-progress",
+            "--warmup", "2", "--set", *SMALL]
+
+
+COMMON = common()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    torch.set_num_threads(1)
+    assert stage1.main(["--out", str(root / "ae"), "--steps", "3", "--batch-size", "4", "--ckpt-every", "2",
+                        "--cache", str(root / "cache"), *COMMON]) == 0
+    return root
+
+
+def test_stage1_writes_weights_log_plot_and_resumes(runs):
+    ae = runs / "ae"
+    for name in ("autoencoder.safetensors", "autoencoder.json", "log.jsonl", "loss.png", "checkpoint/state.json"):
+        assert (ae / name).is_file(), name
+    assert [json.loads(line)["step"] for line in (ae / "log.jsonl").read_text().splitlines()] == [1, 2, 3]
+    assert json.loads((ae / "checkpoint/state.json").read_text())["step"] == 3
+    # the same command with more steps continues from step 3 instead of starting over
+    assert stage1.main(["--out", str(ae), "--steps", "5", "--batch-size", "4", "--cache", str(runs / "cache"),
+                        *COMMON]) == 0
+    assert [json.loads(line)["step"] for line in (ae / "log.jsonl").read_text().splitlines()] == [1, 2, 3, 4, 5]
+    stats = json.loads((ae / "autoencoder.json").read_text())
+    assert len(stats["latent_std"]) == 4 and all(s > 0 for s in stats["latent_std"])
+
+
+def test_stage2_trains_and_saves_a_loadable_model(runs):
+    out = runs / "tok"
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out),
+                        "--steps", "3", "--batch-size", "2", "--samples", "2", "--cache", str(runs / "cache"),
+                        "--bf16", *COMMON]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 3 and len(summary["psnr_db"]) == 2
+    assert (out / "samples.png").is_file() and (out / "loss.png").is_file()
+    model = from_pretrained(out / "model")
+    assert model.config.frames == 4 and model.config.n_static == 8
+    # the frozen autoencoder is the stage-1 one
+    from safetensors.torch import load_file
+
+    ae_state = load_file(str(runs / "ae/autoencoder.safetensors"))
+    assert all(torch.equal(model.autoencoder.state_dict()[k], v) for k, v in ae_state.items())
+
+
+def test_stage2_refuses_a_mismatched_autoencoder(runs, tmp_path):
+    with pytest.raises(ModelError):
+        stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "x"),
+                     "--steps", "1", "--cache", str(runs / "cache"), *COMMON, "ae_width=16"])
+
+
+def test_checkpoint_round_trip_restores_optimizer_without_pickle(tmp_path):
+    model = torch.nn.Linear(3, 2)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
+    model(torch.randn(4, 3)).sum().backward()
+    opt.step()
+    save_checkpoint(tmp_path, model, opt, 7, {"note": "x"})
+    model2 = torch.nn.Linear(3, 2)
+    opt2 = torch.optim.AdamW(model2.parameters(), lr=1e-3)
+    state = load_checkpoint(tmp_path, model2, opt2)
+    assert state["step"] == 7 and state["note"] == "x"
+    assert torch.equal(model.weight, model2.weight)
+    assert torch.equal(opt.state_dict()["state"][0]["exp_avg"], opt2.state_dict()["state"][0]["exp_avg"])
+    (tmp_path / "state.json").unlink()
+    assert load_checkpoint(tmp_path, model2, opt2) is None  # incomplete checkpoints are ignored
+
+
+def test_helpers():
+    assert parse_overrides(["a=1", "b=true", "c=x"]) == {"a": 1, "b": True, "c": "x"}
+    with pytest.raises(ModelError):
+        parse_overrides(["novalue"])
+    assert lr_at(0, 1.0, 10, 100) == pytest.approx(0.1) and lr_at(100, 1.0, 10, 100) == pytest.approx(0.1)
+    assert lr_at(10, 1.0, 10, 100) == pytest.approx(1.0)
+    ranks = [rank_seeds(5, 7, r, 2) for r in range(2)]
+    assert sorted(ranks[0] + ranks[1]) == list(range(5, 12)) and not set(ranks[0]) & set(ranks[1])
+
+
+def _torchrun(args: list[str], timeout: float) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", "--master_port=0",
+           "--rdzv_backend=c10d", "--rdzv_endpoint=localhost:0", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.mark.slow
+def test_two_ranks_with_torchrun(runs, tmp_path):
+    out = tmp_path / "ddp"
+    proc = _torchrun(["-m", "vt4dcodec.model.train.tokenizer", "--autoencoder",
+                      str(runs / "ae/autoencoder.safetensors"), "--out", str(out), "--steps", "2",
+                      "--batch-size", "1", "--samples", "1", "--cache", str(runs / "cache"),
+                      *common(scenes=2)], timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert json.loads((out / "checkpoint/state.json").read_text())["step"] == 2
+    assert from_pretrained(out / "model").config.frames == 4
