@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from ..errors import ArchiveError
+from ..errors import ArchiveError, FormatError
 from .layout import (FOOTER_SIZE, FRAME_HEADER_SIZE, HEADER_SIZE, crc32, frame_meta_crc, parse_footer,
                      parse_frame_header, parse_preamble)
 from .reader import ArchiveReader, RecordChecksumError, open_archive
@@ -61,7 +61,7 @@ def _verify_records(reader: ArchiveReader, progress: Callable[[int], None] | Non
             verify_payload(payload)
         except ArchiveError:
             raise
-        except Exception as exc:  # FormatError from the container: name the record
+        except FormatError as exc:  # the container's error: name the record, keep the class
             raise type(exc)(f"record {entry.key!r}: {exc}") from exc
         if progress:
             progress(n)
