@@ -1,0 +1,153 @@
+#!/usr/bin/env python
+"""Deterministic generator of the archive golden vectors in ``spec/vectors/archive/``.
+
+    python spec/make_archive_vectors.py [OUTDIR]
+
+Writes ``*.vt4da`` files and ``expected.json``: for each valid vector the committed generation and
+the SHA-256 of every record's payload (what a reader must return), the keys a repair recovers,
+and for each invalid vector the error class ``verify_archive`` must raise.  Running it twice gives identical
+bytes (records are ``vt4dcodec.archive.examples`` scenes with fixed timestamps; writes are
+deterministic); ``tests/archive/test_vectors.py`` checks the committed files against a fresh run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import struct
+import sys
+import tempfile
+
+import numpy as np
+
+from vt4dcodec.archive import ArchiveWriter, open_archive
+from vt4dcodec.archive.examples import example_record
+from vt4dcodec.archive.index import ENTRY_DTYPE
+from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, Commit, crc32, pack_footer, parse_footer
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DEFAULT_OUT = os.path.join(HERE, "vectors", "archive")
+
+
+def _record(seed: int) -> bytes:
+    return example_record(seed, static_shape=(8, 4), dynamic_shape=(4, 4), frames=2)
+
+
+def _write(tmp: str, name: str, steps) -> bytes:
+    """Build an archive by ``steps``: a list of commits, each a list of (key, seed, replace)."""
+    path = os.path.join(tmp, name)
+    w = ArchiveWriter(path, "w", durable=False)
+    for batch in steps:
+        for key, seed, replace in batch:
+            w.append(key, _record(seed), replace=replace)
+        w.commit()
+    w.close()
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _crashed(tmp: str) -> bytes:
+    """One commit, then a complete uncommitted record, then a torn one (a writer killed mid-append)."""
+    path = os.path.join(tmp, "crashed.vt4da")
+    w = ArchiveWriter(path, "w", durable=False)
+    w.append("committed", _record(10))
+    w.commit()
+    w.append("complete-after-commit", _record(11))
+    torn = w.append("torn", _record(12))
+    os.truncate(path, torn.offset + torn.length // 2)
+    os.close(w._fd)  # abandon like a killed process (no abort, no commit)
+    w._fd = None
+    w._lock.release()
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _reindex(data: bytes, index: bytes, count: int | None = None) -> bytes:
+    """Replace the last commit's index, with a footer whose CRC matches, and empty header slots."""
+    c = parse_footer(data[-FOOTER_SIZE:])
+    new = Commit(c.generation + 1, c.index_offset, len(index), crc32(index),
+                 c.scene_count if count is None else count)
+    head = bytearray(data[: c.index_offset])
+    head[32:HEADER_SIZE] = bytes(HEADER_SIZE - 32)
+    return bytes(head) + index + pack_footer(new)
+
+
+def _index_parts(data: bytes) -> tuple[bytes, np.ndarray, bytes]:
+    c = parse_footer(data[-FOOTER_SIZE:])
+    index = data[c.index_offset: c.footer_offset]
+    n = struct.unpack_from("<Q", index, 8)[0]
+    table = np.frombuffer(index, ENTRY_DTYPE, n, INDEX_HEADER_SIZE).copy()
+    return index[:INDEX_HEADER_SIZE], table, index[INDEX_HEADER_SIZE + 48 * n:]
+
+
+def _invalid(base: bytes) -> dict[str, tuple[bytes, str]]:
+    c = parse_footer(base[-FOOTER_SIZE:])
+    out = {}
+    bad = bytearray(base)
+    bad[-8] ^= 0xFF
+    bad[40] ^= 0xFF
+    bad[104] ^= 0xFF
+    out["no_commit"] = (bytes(bad), "NoCommitError")
+    bad = bytearray(base)
+    bad[c.index_offset + 50] ^= 0x01
+    out["index_checksum"] = (bytes(bad), "IndexChecksumError")
+    out["bad_magic"] = (b"\x89PNG" + base[4:], "BadMagicError")
+    out["truncated"] = (base[:200], "TruncatedError")
+    head, t, blobs = _index_parts(base)
+    t[1]["payload_offset"] = t[0]["payload_offset"] + 3
+    out["overlapping_records"] = (_reindex(base, head + t.tobytes() + blobs), "OverlappingRecordsError")
+    head, t, blobs = _index_parts(base)
+    t[0]["payload_offset"] = 2**62
+    out["offset_past_end"] = (_reindex(base, head + t.tobytes() + blobs), "ArchiveError")
+    head, t, blobs = _index_parts(base)
+    keys_len = struct.unpack_from("<Q", head, 16)[0]
+    first = blobs[: int(t[0]["key_len"])]  # make key #1 a copy of key #0
+    dup_keys = first + first + blobs[int(t[0]["key_len"]) + int(t[1]["key_len"]): keys_len]
+    t[1]["key_len"] = t[0]["key_len"]
+    t["key_offset"] = np.concatenate([[0], np.cumsum(t["key_len"].astype(np.int64))[:-1]])
+    new_head = head[:16] + struct.pack("<Q", len(dup_keys)) + head[24:]
+    out["duplicate_keys"] = (_reindex(base, new_head + t.tobytes() + dup_keys + blobs[keys_len:]),
+                             "DuplicateKeyError")
+    huge = bytearray(head)
+    huge[8:16] = struct.pack("<Q", 2**40)
+    out["huge_count"] = (_reindex(base, bytes(huge) + t.tobytes() + blobs, count=len(t)), "LimitExceededError")
+    return out
+
+
+def build() -> dict[str, bytes | dict]:
+    """All vectors as {file name: bytes} plus the 'expected.json' manifest (a dict)."""
+    files: dict[str, bytes] = {}
+    expected: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        files["empty.vt4da"] = _write(tmp, "empty.vt4da", [])
+        files["two_commits.vt4da"] = _write(tmp, "two.vt4da", [
+            [("scene-a", 1, False), ("scene-b", 2, False), ("dir/scene-c", 3, False)],
+            [("scene-b", 4, True), ("scene-d", 5, False)],
+        ])
+        files["crashed.vt4da"] = _crashed(tmp)
+    for name, data in list(files.items()):
+        with open_archive(data) as ar:
+            expected[name] = {
+                "valid": True, "generation": ar.generation, "uncommitted_bytes": ar.uncommitted_bytes,
+                "records": {k: hashlib.sha256(v).hexdigest() for k, v in ar.iter_records()},
+            }
+    expected["crashed.vt4da"]["repair_recovers"] = ["complete-after-commit"]
+    for stem, (data, error) in _invalid(files["two_commits.vt4da"]).items():
+        files[f"invalid_{stem}.vt4da"] = data
+        expected[f"invalid_{stem}.vt4da"] = {"valid": False, "error": error}
+    return {**files, "expected.json": expected}
+
+
+def main(out: str = DEFAULT_OUT) -> None:
+    os.makedirs(out, exist_ok=True)
+    vectors = build()
+    for name, content in vectors.items():
+        data = (json.dumps(content, indent=1, sort_keys=True) + "\n").encode() if name.endswith(".json") else content
+        with open(os.path.join(out, name), "wb") as f:
+            f.write(data)
+    print(f"wrote {len(vectors)} files to {out}")
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:2])
