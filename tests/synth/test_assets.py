@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from vt4dcodec.synth import SynthError, texture_names, texture_split
-from vt4dcodec.synth.assets import PHOTO_TEXTURES, TEXTURE_SIZE, load_texture, texture_bank
+from vt4dcodec.synth.assets import PHOTO_TEXTURES, PROCEDURAL_KINDS, TEXTURE_SIZE, load_texture, texture_bank
 
 from .helpers import scene
 
@@ -18,6 +18,9 @@ def test_texture_pools_are_disjoint_and_cover_both_kinds():
     assert len(train) >= 40 and len(test) >= 10
     for pool in (train, test):
         assert any(n in PHOTO_TEXTURES for n in pool) and any(n.startswith("proc_") for n in pool)
+    kinds = {pool_name: {PROCEDURAL_KINDS[int(n[5:]) % len(PROCEDURAL_KINDS)] for n in pool if n.startswith("proc_")}
+             for pool_name, pool in (("train", train), ("test", test))}
+    assert kinds["train"] == kinds["test"] == set(PROCEDURAL_KINDS)   # same kinds, different instances
     assert all(texture_split(n) == "train" for n in train)
     assert all(texture_split(n) == "test" for n in test)
 
@@ -49,7 +52,7 @@ def test_textures_are_rgb_in_range_and_not_flat(name):
 
 
 def test_unknown_texture_and_split_are_errors():
-    for bad in ("nope", "proc_99", "proc_x"):
+    for bad in ("nope", "proc_48", "proc_x", "proc_"):
         with pytest.raises(SynthError):
             load_texture(bad)
         with pytest.raises(SynthError):

@@ -38,8 +38,9 @@ PHOTO_TEXTURES: dict[str, str] = {
     "rocket": "test", "coins": "test", "gravel": "test", "clock": "test", "retina": "test",
 }
 PROCEDURAL_KINDS = ("checker", "stripes", "noise", "gradient", "dots")
-NUM_PROCEDURAL = 40          # procedural textures proc_00 .. proc_39
-PROCEDURAL_TEST_EVERY = 5    # proc_i with i % 5 == 0 is a test texture (8 test, 32 train)
+NUM_PROCEDURAL = 48          # procedural textures proc_00 .. proc_47; proc_i is of kind i % 5
+PROCEDURAL_TEST_EVERY = 6    # proc_i with i % 6 == 5 is a test texture (8 test, 40 train); as 6 and 5
+                             # are coprime, both pools hold every procedural kind
 
 
 class SynthError(Vt4dError, ValueError):
@@ -53,7 +54,7 @@ def _check_split(split: str) -> str:
 
 
 def _procedural_split(index: int) -> str:
-    return "test" if index % PROCEDURAL_TEST_EVERY == 0 else "train"
+    return "test" if index % PROCEDURAL_TEST_EVERY == PROCEDURAL_TEST_EVERY - 1 else "train"
 
 
 def texture_names(split: str) -> list[str]:
