@@ -348,16 +348,12 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
-    cv2 = _cv2()
-    T, H, W, _ = frames.shape
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
-    if not writer.isOpened():
-        raise CaptureError(f"OpenCV cannot write mp4 video {path} (mp4v codec unavailable?)")
+    from ..media import write_mp4
+
     try:
-        for frame in frames:
-            writer.write(np.ascontiguousarray(frame[..., ::-1]))
-    finally:
-        writer.release()
+        write_mp4(path, frames, fps)
+    except OSError as exc:
+        raise CaptureError(str(exc)) from None
 
 
 def _depth_to_mm(depth: np.ndarray, name: str) -> np.ndarray:

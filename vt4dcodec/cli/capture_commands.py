@@ -12,6 +12,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from . import positive_int
+
 __all__ = ["register", "capture_info", "REGISTER"]
 
 
@@ -87,14 +89,6 @@ def _run_contact_sheet(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
-    return value
 
 
 def _register_capture_info(sub: Any) -> None:
@@ -110,8 +104,8 @@ def _register_contact_sheet(sub: Any) -> None:
                        description="Write a PNG contact sheet: one row per camera, evenly spaced frames.")
     p.add_argument("directory", help="capture directory (holds capture.json)")
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
-    p.add_argument("--frames", type=_positive_int, default=8, help="frame columns (default 8)")
-    p.add_argument("--thumb-height", type=_positive_int, default=96, help="thumbnail height in pixels (default 96)")
+    p.add_argument("--frames", type=positive_int, default=8, help="frame columns (default 8)")
+    p.add_argument("--thumb-height", type=positive_int, default=96, help="thumbnail height in pixels (default 96)")
     p.set_defaults(func=_run_contact_sheet)
 
 

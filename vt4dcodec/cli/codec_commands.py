@@ -10,7 +10,8 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from ..errors import CaptureError, TrajectoryError, Vt4dError
+from ..errors import CaptureError
+from . import nonneg_int, positive_int
 
 __all__ = ["register"]
 
@@ -208,21 +209,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    value = _nonneg_int(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError("expected a positive integer")
-    return value
 
 
 def register(subparsers: Any) -> None:
@@ -234,7 +220,7 @@ def register(subparsers: Any) -> None:
     common.add_argument("--model", default=None,
                         help="model id or model directory (encode default: vt4d-tiny; decode default: the "
                              "model named by the file's fingerprint)")
-    common.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
+    common.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     common.add_argument("--json", action="store_true", help="print a JSON result for scripts")
     common.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -246,7 +232,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip)")
     p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
-    p.add_argument("--start", type=_nonneg_int, default=0, help="first frame of the clip (default 0)")
+    p.add_argument("--start", type=nonneg_int, default=0, help="first frame of the clip (default 0)")
     p.add_argument("--split", action="store_true", help="encode every consecutive clip of a long capture")
     p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding (default int8)")
     p.set_defaults(func=cmd_encode)
@@ -261,7 +247,7 @@ def register(subparsers: Any) -> None:
                    help="trajectory: 'source', a preset spec, or a JSON file (repeatable; default source)")
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
-    p.add_argument("--steps", type=_positive_int, default=DEFAULT_STEPS,
+    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
                    help=f"Euler steps of the rectified-flow sampler (default {DEFAULT_STEPS})")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
@@ -272,5 +258,5 @@ def register(subparsers: Any) -> None:
         description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
                     "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
     p.add_argument("-o", "--output", default="demo_out", help="output directory (default demo_out)")
-    p.add_argument("--steps", type=_positive_int, default=DEFAULT_STEPS, help="sampler steps")
+    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS, help="sampler steps")
     p.set_defaults(func=cmd_demo)
