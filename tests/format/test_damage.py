@@ -196,3 +196,21 @@ def test_non_contiguous_buffer_is_a_typed_error():
     arr = np.frombuffer(SMALL["raw"], np.uint8)[::2]
     with pytest.raises(FormatError):
         load(memoryview(arr))
+
+
+@given(st.binary(max_size=200))
+def test_arbitrary_bytes_only_ever_raise_format_errors(blob):
+    for data in (blob, SMALL["raw"][:64] + blob, SMALL["zstd"][:100] + blob):
+        with pytest.raises(FormatError):
+            load(data)
+
+
+@given(st.integers(0, 10**6), st.binary(min_size=1, max_size=16))
+def test_spliced_garbage_inside_a_valid_file_is_rejected(position, garbage):
+    data = SMALL["zstd"]
+    at = position % len(data)
+    spliced = data[:at] + garbage + data[at + len(garbage):]
+    if spliced == data:
+        return
+    with pytest.raises(FormatError):
+        load(spliced)
