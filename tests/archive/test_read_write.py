@@ -115,3 +115,27 @@ def test_missing_key_and_modes(tmp_path):
         assert len(w) == 0
     with open_archive(path) as ar:
         assert len(ar) == 0
+
+
+def test_reader_remeasures_size_when_slots_point_past_its_snapshot(tmp_path):
+    """Regression: a writer committed between the reader's size() and its header read, so every slot
+    named a commit past the stale size and the reader raised NoCommitError mid-append."""
+    from vt4dcodec.archive.source import BytesSource
+
+    path = tmp_path / "a.vt4da"
+    w = ArchiveWriter(path, durable=False)
+    w.append("a", b"1", validate=False)
+    w.commit()
+    w.append("b", b"2", validate=False)  # uncommitted tail: the file does not end with a footer
+    data = path.read_bytes()
+    w.close(commit=False)
+
+    class Stale(BytesSource):
+        calls = 0
+
+        def size(self):
+            self.calls += 1
+            return super().size() - 200 if self.calls == 1 else super().size()
+
+    with open_archive(Stale(data)) as ar:
+        assert dict(ar.iter_records()) == {"a": b"1"}

@@ -246,6 +246,13 @@ class ArchiveIndex:
     def entries(self) -> Iterator[IndexEntry]:
         return (self.entry(i) for i in range(len(self)))
 
+    def layout_columns(self) -> tuple[list[int], list[int], list[int], list[int]]:
+        """(positions, payload offsets, lengths, CRCs) as lists sorted by offset (bulk reads)."""
+        order = np.argsort(self._table["payload_offset"], kind="stable")
+        t = self._table[order]
+        return (order.tolist(), t["payload_offset"].tolist(), t["payload_length"].tolist(),
+                t["payload_crc32"].tolist())
+
     def keys(self) -> list[str]:
         return [self.key(i) for i in range(len(self))]
 

@@ -56,7 +56,11 @@ def find_commit(source: ByteSource) -> tuple[Commit, bool]:
         pass
     header = source.read(0, HEADER_SIZE)
     parse_preamble(header)
-    commit = best_slot(header, size)
+    # A writer may have committed (and moved the slots past our size snapshot) since we measured:
+    # re-measure, so slots naming commits that are now complete count.
+    if hasattr(source, "refresh"):
+        source.refresh()
+    commit = best_slot(header, max(size, source.size()))
     if commit is None:
         raise NoCommitError(
             f"{source.name}: no valid commit (footer and header slots damaged); "
@@ -137,10 +141,27 @@ class ArchiveReader:
 
         return format_module().loads(self.read_bytes(key))
 
-    def iter_records(self, *, check: bool = True) -> Iterator[tuple[str, bytes]]:
-        """(key, payload) for every scene in file order (sequential reads, for bulk export)."""
-        for entry in sorted(self.index.entries(), key=lambda e: e.offset):
-            yield entry.key, self.read_entry(entry, check=check)
+    def iter_records(self, *, check: bool = True, chunk_bytes: int = 8 << 20) -> Iterator[tuple[str, bytes]]:
+        """(key, payload) for every scene in file order.
+
+        Neighbouring records are fetched together in reads of up to ``chunk_bytes`` (the frame
+        headers between them come along), so a full pass costs few large reads instead of one per
+        scene.  A record larger than ``chunk_bytes`` is read on its own.
+        """
+        positions, offsets, lengths, crcs = self.index.layout_columns()
+        i, n = 0, len(positions)
+        while i < n:
+            j, start = i + 1, offsets[i]
+            while j < n and offsets[j] + lengths[j] - start <= chunk_bytes:
+                j += 1
+            block = self.source.read(start, offsets[j - 1] + lengths[j - 1] - start)
+            for k in range(i, j):
+                data = block[offsets[k] - start: offsets[k] - start + lengths[k]]
+                if check and crc32(data) != crcs[k]:
+                    raise RecordChecksumError(f"record {self.index.key(positions[k])!r} in {self.name} "
+                                              "fails its checksum")
+                yield self.index.key(positions[k]), data
+            i = j
 
     @property
     def uncommitted_bytes(self) -> int:

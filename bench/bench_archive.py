@@ -1,0 +1,160 @@
+#!/usr/bin/env python
+"""Archive benchmark: random-read cost vs archive size, and sequential read throughput.
+
+    python bench/bench_archive.py [--sizes 1000 10000 100000] [--reads 2000] [--workdir /tmp/...]
+
+1. For each size N, pack N scenes (real ``.vt4d`` records, 96x64 static + 48x64 dynamic int8 tokens,
+   4 frames, ~11 KB; drawn from a pool of 64 distinct records so packing is I/O bound) into one
+   archive, open it, and time ``--reads`` random ``read_bytes(key)`` calls.  Reports open time and
+   bytes (footer + index), per-read time (mean, median, p95) and bytes per read (must equal the
+   record length: nothing else is read).
+2. Sequential training read of 1,000 scenes: archive (open_scene + dequantize both token sets per
+   scene, in file order) vs the same scenes as 1,000 separate ``.vt4d`` files.
+
+Writes ``bench/results/archive.json``; archives live in the workdir and are deleted afterwards.
+Timings are with a warm page cache (the archives were just written) on a shared 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import shutil
+import statistics
+import sys
+import time
+
+from vt4dcodec.archive import ArchiveWriter, open_archive
+from vt4dcodec.archive.examples import example_record
+from vt4dcodec.archive.layout import FOOTER_SIZE
+from vt4dcodec.archive.records import summarize_payload
+from vt4dcodec.format import open_scene
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+POOL = 64
+
+
+def _pool() -> list[tuple[bytes, dict]]:
+    out = []
+    for seed in range(POOL):
+        rec = example_record(seed)
+        out.append((rec, summarize_payload(rec)))
+    return out
+
+
+def pack(path: str, n: int, pool: list[tuple[bytes, dict]]) -> float:
+    t = time.perf_counter()
+    with ArchiveWriter(path, "w", durable=False) as w:
+        for i in range(n):
+            rec, summary = pool[i % POOL]
+            w.append(f"scene-{i:07d}", rec, summary=summary, validate=False)
+    return time.perf_counter() - t
+
+
+def random_reads(path: str, n: int, reads: int, seed: int = 0) -> dict:
+    t0 = time.perf_counter()
+    ar = open_archive(path)
+    open_s = time.perf_counter() - t0
+    open_reads, open_bytes = ar.source.reads, ar.source.bytes_read
+    assert open_bytes == FOOTER_SIZE + ar.commit.index_length
+    rng = random.Random(seed)
+    keys = [f"scene-{rng.randrange(n):07d}" for _ in range(reads)]
+    times, extra = [], []
+    for key in keys:
+        before_bytes, before_reads = ar.source.bytes_read, ar.source.reads
+        t = time.perf_counter()
+        data = ar.read_bytes(key)
+        times.append(time.perf_counter() - t)
+        assert ar.source.reads - before_reads == 1
+        extra.append(ar.source.bytes_read - before_bytes - len(data))
+    ar.close()
+    times.sort()
+    return {
+        "scenes": n, "file_bytes": os.path.getsize(path), "index_bytes": open_bytes - FOOTER_SIZE,
+        "open_ms": open_s * 1e3, "open_reads": open_reads, "open_bytes": open_bytes,
+        "read_us_mean": statistics.fmean(times) * 1e6, "read_us_median": times[len(times) // 2] * 1e6,
+        "read_us_p95": times[int(len(times) * 0.95)] * 1e6, "reads_per_scene": 1,
+        "bytes_per_read_beyond_record": max(extra),
+    }
+
+
+def _decode(data: bytes) -> None:
+    f = open_scene(data)
+    f.static_tokens()
+    f.dynamic_tokens()
+
+
+def sequential(workdir: str, archive: str, n: int) -> dict:
+    files_dir = os.path.join(workdir, "files")
+    os.makedirs(files_dir, exist_ok=True)
+    with open_archive(archive) as ar:
+        for key, data in ar.iter_records():
+            if len(os.listdir(files_dir)) >= n:
+                break
+            with open(os.path.join(files_dir, key + ".vt4d"), "wb") as f:
+                f.write(data)
+    paths = sorted(os.path.join(files_dir, p) for p in os.listdir(files_dir))[:n]
+    result = {"scenes": len(paths)}
+    for decode in (False, True):
+        t = time.perf_counter()
+        with open_archive(archive) as ar:
+            count = 0
+            for _, data in ar.iter_records():
+                if decode:
+                    _decode(data)
+                count += 1
+                if count == len(paths):
+                    break
+        arch_s = time.perf_counter() - t
+        t = time.perf_counter()
+        for p in paths:
+            with open(p, "rb") as f:
+                data = f.read()
+            if decode:
+                _decode(data)
+        files_s = time.perf_counter() - t
+        tag = "decode" if decode else "bytes"
+        result[f"archive_{tag}_scenes_per_s"] = len(paths) / arch_s
+        result[f"files_{tag}_scenes_per_s"] = len(paths) / files_s
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
+    ap.add_argument("--reads", type=int, default=2000)
+    ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "archive.json"))
+    args = ap.parse_args()
+    os.makedirs(args.workdir, exist_ok=True)
+    pool = _pool()
+    results = {"record_bytes": len(pool[0][0]), "pool": POOL, "python": sys.version.split()[0],
+               "machine": platform.machine(), "cpus": os.cpu_count(), "random_read": [], "command":
+               "python bench/bench_archive.py " + " ".join(sys.argv[1:])}
+    try:
+        for n in args.sizes:
+            path = os.path.join(args.workdir, f"a{n}.vt4da")
+            pack_s = pack(path, n, pool)
+            r = random_reads(path, n, args.reads)
+            r["pack_scenes_per_s"] = n / pack_s
+            results["random_read"].append(r)
+            print(json.dumps(r))
+            if n != min(args.sizes):
+                os.remove(path)
+        small = os.path.join(args.workdir, f"a{min(args.sizes)}.vt4da")
+        results["sequential"] = sequential(args.workdir, small, min(args.sizes))
+        print(json.dumps(results["sequential"]))
+        rr = results["random_read"]
+        results["read_time_ratio_largest_vs_smallest"] = rr[-1]["read_us_mean"] / rr[0]["read_us_mean"]
+    finally:
+        shutil.rmtree(args.workdir, ignore_errors=True)
+    with open(args.out, "w") as f:
+        json.dump(results, f, indent=1)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
