@@ -14,18 +14,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from safetensors.torch import save_file
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 
 from ..autoencoder import LatentAutoencoder
 from ..configs import get_config
-from .common import (DistInfo, cleanup_distributed, common_arguments, cycle, parse_overrides, seed_everything,
-                     setup_distributed, train_loop)
+from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
+                     seed_everything, setup_distributed, train_loop)
 from .data import FrameDataset, ScenePool, rank_seeds
 
 __all__ = ["main", "AE_WEIGHTS", "AE_CONFIG"]
@@ -38,12 +36,6 @@ def reconstruction_step(module: torch.nn.Module, images: torch.Tensor) -> tuple[
     l1, mse = F.l1_loss(recon, images), F.mse_loss(recon, images)
     psnr = float(10 * torch.log10(1.0 / mse.detach().clamp_min(1e-10)))
     return l1 + mse, {"l1": float(l1.detach()), "mse": float(mse.detach()), "psnr": psnr}
-
-
-def make_loader(dataset, args: argparse.Namespace, info: DistInfo) -> DataLoader:
-    generator = torch.Generator().manual_seed(args.seed + info.rank)
-    return DataLoader(dataset, batch_size=args.batch_size, sampler=RandomSampler(dataset, generator=generator),
-                      num_workers=args.workers, drop_last=True, persistent_workers=args.workers > 0)
 
 
 def main(argv: list[str] | None = None) -> int:

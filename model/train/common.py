@@ -30,7 +30,7 @@ from vt4dcodec.errors import ModelError
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
-    "parse_overrides", "lr_at", "train_loop",
+    "parse_overrides", "lr_at", "train_loop", "make_loader",
 ]
 
 
@@ -84,6 +84,16 @@ def cycle(loader: Any) -> Iterator[Any]:
             sampler.set_epoch(epoch)
         yield from loader
         epoch += 1
+
+
+def make_loader(dataset: Any, args: argparse.Namespace, info: DistInfo, collate_fn: Any = None) -> Any:
+    """Shuffled DataLoader with a per-rank seeded order (ranks already hold disjoint scenes)."""
+    from torch.utils.data import DataLoader, RandomSampler
+
+    generator = torch.Generator().manual_seed(args.seed + info.rank)
+    return DataLoader(dataset, batch_size=args.batch_size, sampler=RandomSampler(dataset, generator=generator),
+                      num_workers=args.workers, drop_last=True, collate_fn=collate_fn,
+                      persistent_workers=args.workers > 0)
 
 
 def _atomic_write(path: Path, write) -> None:

@@ -25,15 +25,14 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import DataLoader, RandomSampler
 
 from vt4dcodec.errors import ModelError
 
 from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import save_pretrained
-from .common import (DistInfo, cleanup_distributed, common_arguments, cycle, parse_overrides, seed_everything,
-                     setup_distributed, train_loop)
+from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
+                     seed_everything, setup_distributed, train_loop)
 from .data import PairBatch, PairDataset, ScenePool, collate_pairs, rank_seeds
 
 __all__ = ["main", "load_autoencoder"]
@@ -55,13 +54,6 @@ def load_autoencoder(model: VideoTok4D, path: Path) -> None:
 
 def flow_step(module: torch.nn.Module, batch: PairBatch) -> tuple[torch.Tensor, dict[str, float]]:
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt)
-
-
-def make_loader(dataset: PairDataset, args: argparse.Namespace, info: DistInfo) -> DataLoader:
-    generator = torch.Generator().manual_seed(args.seed + info.rank)
-    return DataLoader(dataset, batch_size=args.batch_size, sampler=RandomSampler(dataset, generator=generator),
-                      num_workers=args.workers, drop_last=True, collate_fn=collate_pairs,
-                      persistent_workers=args.workers > 0)
 
 
 @torch.no_grad()
@@ -125,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     module = DistributedDataParallel(model) if info.distributed else model
     pool = ScenePool.for_config(cfg, cache, args.cameras)
     dataset = PairDataset(pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size))
-    records = train_loop(args, info, module, model, optimizer, cycle(make_loader(dataset, args, info)), flow_step,
+    batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs))
+    records = train_loop(args, info, module, model, optimizer, batches, flow_step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
