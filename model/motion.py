@@ -31,7 +31,8 @@ all on the same residual, fix most of that:
    equally and the residual, however large, is ignored.
 4. Segment voting.  Uniform object interiors carry no flow evidence of their own; the frame is split
    into segments by Felzenszwalb's graph segmentation on colour and inverse depth, and a segment joins
-   the mask when at least ``VOTE_FRACTION`` of its pixels are evidence.  The result is cleaned by a
+   the mask when at least ``VOTE_FRACTION`` of its pixels are evidence, filling in only within
+   ``VOTE_REACH`` px of evidence (a segment can straddle an object edge).  The result is cleaned by a
    3x3 opening (drops isolated pixels) and closing (fills pinholes).
 
 A pixel is *usable* in a pair when F_pose is valid (known depth, in front of the partner camera), it
@@ -77,8 +78,9 @@ MAD_TO_SIGMA = 1.4826
 LONG_GAP = 3  # frames between a frame and its long-baseline partner
 PHOTO_MARGIN = 0.01  # mean |RGB| difference in [0, 1] by which F_pose must explain the pixel worse
 VOTE_FRACTION = 0.35  # fraction of evidence pixels that makes a segment move
+VOTE_REACH = 2  # px: a voted segment fills in at most this far (Chebyshev) from evidence pixels
 SEGMENT_SIGMA, SEGMENT_K, SEGMENT_MIN_SIZE = 0.5, 200.0, 8  # Felzenszwalb parameters (RGB in 0..255)
-INV_DEPTH_WEIGHT = 150.0  # inverse-depth channel scale for segmentation (1/m -> "intensity" units)
+INV_DEPTH_WEIGHT = 500.0  # inverse-depth channel scale for segmentation (1/m -> "intensity" units)
 OCCLUSION_RATIO = 0.05  # predicted depth > (1 + this) * depth at the landing point => occluded
 DEFAULT_DEPTH_RANGE = (0.3, 30.0)  # metres, plane-sweep range when the capture has no depth
 MIN_SIZE = 8  # px, smallest frame side DIS is run on
@@ -290,7 +292,12 @@ def _vote(frame: np.ndarray, depth: np.ndarray, evidence: np.ndarray) -> np.ndar
     n = int(labels.max()) + 1
     count = np.bincount(labels.ravel(), minlength=n)
     hits = np.bincount(labels.ravel(), weights=evidence.ravel().astype(np.float64), minlength=n)
-    return (hits >= VOTE_FRACTION * np.maximum(count, 1))[labels]
+    voted = (hits >= VOTE_FRACTION * np.maximum(count, 1))[labels]
+    if VOTE_REACH > 0:  # a voted segment only fills in near its evidence (segments may straddle edges)
+        size = 2 * VOTE_REACH + 1
+        near = cv2.dilate(evidence.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
+        voted &= near
+    return voted
 
 
 def _check_cameras_depth(frames: np.ndarray, K, w2c, depth) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
