@@ -279,3 +279,14 @@ def test_latent_rays_follow_the_pixel_centre_convention():
     centre_dir = d[..., 7:9, 7:9].mean(dim=(-1, -2))
     axis = w2c[:, :, 2, :3]  # camera z axis in world coordinates
     assert torch.allclose(torch.nn.functional.normalize(centre_dir, dim=-1), axis, atol=1e-3)
+
+
+def test_tracks_and_masks_reach_only_the_dynamic_tokens(tiny_model):
+    batch = random_batch(TINY, B=1, mask_density=0.3)
+    z_s, z_d = tiny_model.encode(batch)
+    moved = SourceBatch(**{**batch.__dict__, "track_xy": batch.track_xy.flip(1)})
+    z_s2, z_d2 = tiny_model.encode(moved)
+    masked = SourceBatch(**{**batch.__dict__, "motion_mask": torch.ones_like(batch.motion_mask)})
+    z_s3, z_d3 = tiny_model.encode(masked)
+    assert torch.equal(z_s, z_s2) and torch.equal(z_s, z_s3)  # Z_s = E_s(X, P_s) only
+    assert not torch.allclose(z_d, z_d2) and not torch.allclose(z_d, z_d3)
