@@ -9,7 +9,8 @@ Measures, for the default config (10 cameras, 8 frames, 64x64):
 * generate: ms per scene for ``generate_scene`` in one process (CPU time and wall time, median);
 * write: ms per scene for ``write_scene`` (PNG RGB, 16-bit PNG depth, flow .npy, masks .npz);
 * dataset: wall seconds for ``write_dataset(..., workers=2)`` of ``--disk-scenes`` train scenes
-  (the `vt4d synth` path), extrapolated linearly to 2,100 scenes, and bytes on disk per scene;
+  (the `vt4d synth` path), extrapolated linearly to 2,100 scenes; the workers' CPU seconds per scene
+  (independent of other users' load) and from them the time on an idle 2-core machine; bytes on disk;
 * with ``--full``: the two documented commands, timed end to end.
 The machine is shared, so the 1-minute load average before and after is recorded with the numbers.
 Scenes are written under a temporary directory that is deleted afterwards.
@@ -22,6 +23,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -81,14 +83,24 @@ def bench_texture_bank() -> dict:
     return {"train_bank_s": t1 - t0, "test_bank_s": time.perf_counter() - t1}
 
 
+def _cpu_children() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
 def bench_dataset(n: int, workers: int, tmp: Path) -> dict:
+    """The `vt4d synth` path.  Worker CPU time (rusage of the joined worker processes) does not depend
+    on how busy the shared machine is, so it also gives the time on an otherwise idle machine."""
     out = tmp / "dataset"
-    t0 = time.perf_counter()
+    cpu0, t0 = _cpu_children(), time.perf_counter()
     write_dataset(out, num_scenes=n, split="train", seed=0, config=SynthConfig(), workers=workers)
     secs = time.perf_counter() - t0
+    cpu = _cpu_children() - cpu0
     return {
         "scenes": n, "workers": workers, "wall_s": secs, "scenes_per_s": n / secs,
         "extrapolated_2100_scenes_min": 2100 * secs / n / 60.0,
+        "worker_cpu_s": cpu, "worker_cpu_ms_per_scene": 1e3 * cpu / n,
+        "idle_machine_estimate_2100_scenes_min": 2100 * cpu / n / min(workers, os.cpu_count() or 1) / 60.0,
         "bytes_per_scene": _du(out) / n,
     }
 

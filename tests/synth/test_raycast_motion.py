@@ -71,7 +71,7 @@ def test_card_and_plane():
 @given(seed=st.integers(0, 2**31), kind=st.sampled_from(MOTION_KINDS + ("static",)), upright=st.booleans())
 def test_motion_laws_are_rigid_and_stay_above_ground(seed, kind, upright):
     rng = np.random.default_rng(seed)
-    law = sample_motion(rng, kind, start=np.array([0.3, -0.2]), rest_height=0.4, radius=0.4, upright=upright)
+    law = sample_motion(rng, kind, start=np.array([0.3, -0.2]), rest_height=0.4, upright=upright)
     t = np.linspace(0, 2, 17)
     R, p = law.pose(t)
     assert R.shape == (17, 3, 3) and p.shape == (17, 3)

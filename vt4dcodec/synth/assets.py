@@ -83,14 +83,14 @@ def _tint(gray: np.ndarray, name: str) -> np.ndarray:
 
 
 def _resize_square(img: np.ndarray, size: int) -> np.ndarray:
-    """Centre-crop ``img`` (H, W, C) float to a square and box/bilinear-resize to ``size``."""
-    from skimage.transform import resize
+    """Centre-crop ``img`` (H, W, C) float to a square and area-resample it to ``size`` x ``size``."""
+    import cv2  # area resampling is ~100x faster than skimage's anti-aliased resize
 
     h, w = img.shape[:2]
     s = min(h, w)
     y0, x0 = (h - s) // 2, (w - s) // 2
-    sq = img[y0:y0 + s, x0:x0 + s]
-    return resize(sq, (size, size), order=1, anti_aliasing=True, preserve_range=True).astype(np.float32)
+    sq = np.ascontiguousarray(img[y0:y0 + s, x0:x0 + s], dtype=np.float32)
+    return cv2.resize(sq, (size, size), interpolation=cv2.INTER_AREA).reshape(size, size, -1)
 
 
 def _photo_texture(name: str) -> np.ndarray:

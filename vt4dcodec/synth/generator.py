@@ -113,16 +113,14 @@ def _sample_object(rng: np.random.Generator, texture: int, kind: str) -> SceneOb
     tumbling = kind == "spinning" and shape != "card" and rng.random() < 0.5
     if shape == "sphere":
         size = (float(rng.uniform(0.25, 0.6)),)
-        radius, rest, upright = size[0], size[0], False
+        rest, upright = size[0], False
     elif shape == "box":
         size = tuple(float(x) for x in rng.uniform(0.2, 0.55, 3))
-        radius = float(np.linalg.norm(size))
-        rest, upright = (radius if tumbling else size[2]), not tumbling
+        rest, upright = (float(np.linalg.norm(size)) if tumbling else size[2]), not tumbling
     else:
         size = (float(rng.uniform(0.3, 0.7)), float(rng.uniform(0.25, 0.6)))
-        radius = float(np.hypot(*size))
         rest, upright = size[1] + 0.02, True
-    motion = sample_motion(rng, kind, start=start, rest_height=rest, radius=radius, upright=upright)
+    motion = sample_motion(rng, kind, start=start, rest_height=rest, upright=upright)
     if shape == "card":
         # stand the card up: its local plane z = 0 becomes vertical (local y -> world z)
         stand = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

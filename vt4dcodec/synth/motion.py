@@ -82,14 +82,14 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def sample_motion(
-    rng: np.random.Generator, kind: str, *, start: np.ndarray, rest_height: float, radius: float,
-    upright: bool,
+    rng: np.random.Generator, kind: str, *, start: np.ndarray, rest_height: float, upright: bool,
 ) -> MotionLaw:
-    """Draw a motion law of ``kind`` for an object whose bounding radius is ``radius`` metres.
+    """Draw a motion law of ``kind`` ("static" or one of :data:`MOTION_KINDS`).
 
     ``start`` is the (x, y) ground position at t = 0; ``rest_height`` the z of the object's centre
-    when it rests on the ground.  ``upright`` objects (cards, boxes) only ever turn about the vertical
-    axis, so they never sink into the ground; free objects also tumble when spinning.
+    when it rests on the ground (for objects that tumble: their bounding radius).  ``upright``
+    objects (cards, boxes) only ever turn about the vertical axis, so they never sink into the
+    ground; free objects start in a random orientation and tumble when spinning.
     """
     yaw0 = rng.uniform(0, 2 * np.pi)
     R0 = rotation_about(np.array([0.0, 0.0, 1.0]), yaw0)
