@@ -106,3 +106,11 @@ def test_bad_directory_and_index(tmp_path):
         ds[3]
     with pytest.raises(TypeError):
         ds["0"]
+
+
+def test_dataloader_worker_processes_give_the_same_items():
+    ds = MultiViewPairs([3], pairing="same", config=CFG)
+    serial = [ds[i] for i in range(len(ds))]
+    loader = DataLoader(ds, batch_size=None, num_workers=1)
+    for a, b in zip(serial, loader):
+        assert torch.equal(a["source_frames"], b["source_frames"]) and a["target_camera"] == b["target_camera"]

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from vt4dcodec.capture.io import read_capture
 from vt4dcodec.cli import main
@@ -15,24 +19,31 @@ from .helpers import SMALL, scene
 TINY = SynthConfig(num_cameras=2, num_frames=3, height=24, width=24)
 
 
-def test_write_dataset_round_trips(tmp_path):
-    paths = write_dataset(tmp_path, num_scenes=2, split="test", seed=5, config=SMALL, workers=1)
-    assert [p.name for p in paths] == ["test-000005", "test-000006"]
-    for seed, path in zip((5, 6), paths):
-        sc = scene(seed, "test")
-        cap = read_capture(path)
-        gt = read_ground_truth(path)
-        assert cap.capture_id == sc.capture.capture_id and cap.fps == sc.capture.fps
-        assert cap.metadata["seed"] == seed and cap.metadata["textures"] == sc.textures
-        for name in sc.capture.camera_names:
-            assert np.array_equal(cap.frames[name], sc.capture.frames[name])
-            assert np.abs(cap.depth[name] - sc.capture.depth[name]).max() <= 0.0005 + 1e-6   # 1 mm PNG
-            assert cap.cameras[name].equals(sc.capture.cameras[name], atol=1e-12)
-            # float16 flow: relative error 2^-11
-            assert np.allclose(gt["flow"][name], sc.flow[name], rtol=2**-10, atol=1e-3)
-            assert np.array_equal(gt["flow_valid"][name], sc.flow_valid[name])
-            assert np.array_equal(gt["object_ids"][name], sc.object_ids[name])
-            assert np.array_equal(gt["dynamic_mask"][name], sc.dynamic_mask[name])
+@settings(max_examples=3)
+@given(seed=st.integers(0, 10**6), split=st.sampled_from(["train", "test"]))
+def test_write_dataset_round_trips(seed, split):
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = write_dataset(tmp, num_scenes=2, split=split, seed=seed, config=SMALL, workers=1)
+        assert [p.name for p in paths] == [f"{split}-{seed:06d}", f"{split}-{seed + 1:06d}"]
+        for i, path in enumerate(paths):
+            _check_round_trip(scene(seed + i, split), path)
+
+
+def _check_round_trip(sc, path: Path) -> None:
+    """The capture directory and ground truth on disk equal the in-memory scene."""
+    cap = read_capture(path)
+    gt = read_ground_truth(path)
+    assert cap.capture_id == sc.capture.capture_id and cap.fps == sc.capture.fps
+    assert cap.metadata["seed"] == sc.seed and cap.metadata["textures"] == sc.textures
+    for name in sc.capture.camera_names:
+        assert np.array_equal(cap.frames[name], sc.capture.frames[name])
+        assert np.abs(cap.depth[name] - sc.capture.depth[name]).max() <= 0.0005 + 2e-5   # 1 mm PNG, float32 metres
+        assert cap.cameras[name].equals(sc.capture.cameras[name], atol=1e-12)
+        # float16 flow: relative error 2^-11
+        assert np.allclose(gt["flow"][name], sc.flow[name], rtol=2**-10, atol=1e-3)
+        assert np.array_equal(gt["flow_valid"][name], sc.flow_valid[name])
+        assert np.array_equal(gt["object_ids"][name], sc.object_ids[name])
+        assert np.array_equal(gt["dynamic_mask"][name], sc.dynamic_mask[name])
 
 
 def test_parallel_workers_match_serial_and_resume_skips(tmp_path):
