@@ -25,8 +25,8 @@ def intersect_plane_z(o: np.ndarray, d: np.ndarray, z0: float = 0.0) -> np.ndarr
 
 def intersect_sphere(o: np.ndarray, d: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Sphere of ``radius`` at the origin: (s, normal)."""
-    b = np.einsum("ij,ij->i", o, d)
-    c = np.einsum("ij,ij->i", o, o) - radius * radius
+    b = o[:, 0] * d[:, 0] + o[:, 1] * d[:, 1] + o[:, 2] * d[:, 2]
+    c = o[:, 0] * o[:, 0] + o[:, 1] * o[:, 1] + o[:, 2] * o[:, 2] - radius * radius
     disc = b * b - c
     root = np.sqrt(np.maximum(disc, 0.0))
     s = -b - root

@@ -107,6 +107,11 @@ def _camera_rays(cameras: list[Trajectory], t: int, pix: np.ndarray) -> tuple[np
     return centers, d.reshape(-1, 3), dc[..., 2].reshape(-1)
 
 
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of (N, 3) arrays (faster than einsum for 3 columns)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
 def _bounding_candidates(cam_origin: np.ndarray, d: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
     """Indices of the rays that pass within ``radius`` of ``center`` (a cheap, conservative cull).
 
@@ -230,7 +235,7 @@ def _render_frame(
         if poses_next is not None:
             Rn, pn = poses_next[k]
             X_next[sel] = xl @ Rn.T + pn
-    cos = np.abs(np.einsum("ij,ij->i", normal, d))
+    cos = np.abs(_rowdot(normal, d))
     footprint = s_best / focal / np.sqrt(np.maximum(cos, 0.05))   # metres per pixel on the surface
     level = np.log2(np.maximum(footprint * dens, 1e-6)) + MIP_BIAS
     albedo = bank.sample(tex, u, v, level)
