@@ -105,6 +105,13 @@ class ArchiveIndex:
         self._table = table
         self._keys = keys_blob
         self._summaries = summaries_blob
+        # Plain-int columns (one O(n) conversion at open) keep each lookup to a few list reads;
+        # keys and summaries are packed, so entry i spans [offset[i], offset[i + 1]).
+        self._key_bounds = table["key_offset"].tolist() + [len(keys_blob)]
+        self._summary_bounds = table["summary_offset"].tolist() + [len(summaries_blob)]
+        self._offsets = table["payload_offset"].tolist()
+        self._lengths = table["payload_length"].tolist()
+        self._crcs = table["payload_crc32"].tolist()
 
     # -- construction --------------------------------------------------------------------------
     @staticmethod
@@ -208,9 +215,7 @@ class ArchiveIndex:
         return len(self._table)
 
     def key_bytes(self, i: int) -> bytes:
-        row = self._table[i]
-        start = int(row["key_offset"])
-        return self._keys[start: start + int(row["key_len"])]
+        return self._keys[self._key_bounds[i]: self._key_bounds[i + 1]]
 
     def key(self, i: int) -> str:
         return _decode_key(self.key_bytes(i))
@@ -234,14 +239,10 @@ class ArchiveIndex:
         return None
 
     def summary_bytes(self, i: int) -> bytes:
-        row = self._table[i]
-        start = int(row["summary_offset"])
-        return self._summaries[start: start + int(row["summary_len"])]
+        return self._summaries[self._summary_bounds[i]: self._summary_bounds[i + 1]]
 
     def entry(self, i: int) -> IndexEntry:
-        row = self._table[i]
-        return IndexEntry(self.key(i), int(row["payload_offset"]), int(row["payload_length"]),
-                          int(row["payload_crc32"]), self.summary_bytes(i))
+        return IndexEntry(self.key(i), self._offsets[i], self._lengths[i], self._crcs[i], self.summary_bytes(i))
 
     def entries(self) -> Iterator[IndexEntry]:
         return (self.entry(i) for i in range(len(self)))
