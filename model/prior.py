@@ -1,0 +1,418 @@
+"""Co4DGen: a flow-matching prior over the VideoTok4D token space (paper Sec. 3.3).
+
+    prior = Co4DGen(get_prior_config("co4dgen-tiny"))
+    loss, logs = prior.flow_matching_loss(z_s, z_d, cond)            # Eq. 9, one training step
+    z_s, z_d = prior.sample(cond, steps=16, seed=0, method="heun")  # one joint token state
+
+Training pairs (c != a) of one event: the target is the anchor camera's joint token state
+Z^a = [Z_s^a; Z_d^a] = E(V_a, P_a) (Eq. 8); the condition is (V_c, P_c, P_a) (:class:`PriorCondition`).
+Tokens are standardised per stream and channel with statistics of the training set (buffers stored
+with the weights) and perturbed on the linear path Z_tau = alpha_tau Z + sigma_tau eps with
+alpha_tau = 1 - tau, sigma_tau = tau (rectified flow, the renderer's convention); the network predicts
+the velocity v = eps - Z (Eq. 9).  Sampling integrates dZ/dtau = v from tau = 1 (seeded noise) to 0 with
+Euler or Heun steps, un-standardises and clips to the tokenizer's open interval (-1, 1).
+
+Weights: a prior directory holds ``prior.json`` (config, hashes and the fingerprint of the tokenizer the
+prior was trained on), ``prior.safetensors`` and optionally ``MODEL_CARD.md``.  :func:`load_prior`
+verifies the weights hash; :func:`check_tokenizer` refuses a tokenizer other than the recorded one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
+
+from .configs import ModelConfig
+from .layers import MLP
+from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
+from .weights_io import SHIPPED_DIR, weights_sha256
+
+__all__ = [
+    "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "save_prior",
+    "load_prior", "check_tokenizer", "shipped_prior_ids", "PRIOR_FORMAT", "SAMPLERS", "TOKEN_LIMIT",
+]
+
+PRIOR_FORMAT = "co4dgen-prior/1"
+PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, CARD_FILE = "prior.json", "prior.safetensors", "MODEL_CARD.md"
+MAX_META_BYTES = 1 << 20
+SAMPLERS = ("euler", "heun")
+TOKEN_LIMIT = 1.0 - 1e-4  # sampled tokens are clipped to the tokenizer's bounded range (-1, 1)
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    """Sizes of a Co4DGen prior.
+
+    Token state (must equal the tokenizer's): n_static (N_s), n_dynamic (N_d), token_dim (d).
+    Conditioning clip: frames (T), image_size (H = W pixels), cond_patch (pixels per video-token side),
+    anchor_grid (anchor-ray tokens per frame side), cond_layers (self-attention blocks of E_cond).
+    Denoiser: width (D), heads, mlp_ratio, layers (co-denoising blocks G^l).
+    """
+
+    name: str = "co4dgen-tiny"
+    n_static: int = 64
+    n_dynamic: int = 32
+    token_dim: int = 32
+    frames: int = 8
+    image_size: int = 64
+    cond_patch: int = 16
+    anchor_grid: int = 4
+    cond_layers: int = 2
+    width: int = 128
+    heads: int = 4
+    mlp_ratio: float = 2.0
+    layers: int = 4
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("name", "mlp_ratio"):
+                continue
+            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+                raise ModelError(f"prior config {f.name} must be a positive integer, got {value!r}")
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError("prior config name must be a non-empty string")
+        if self.width % self.heads or self.image_size % self.cond_patch:
+            raise ModelError("prior width must divide by heads and image_size by cond_patch")
+        if not (isinstance(self.mlp_ratio, (int, float)) and self.mlp_ratio > 0):
+            raise ModelError("prior mlp_ratio must be > 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def sha256(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "PriorConfig":
+        if not isinstance(data, dict):
+            raise ModelError("a prior config must be a JSON object")
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ModelError(f"unknown prior config keys: {unknown}")
+        try:
+            return cls(**data)
+        except TypeError as exc:
+            raise ModelError(f"bad prior config: {exc}") from None
+
+    @classmethod
+    def for_tokenizer(cls, tokenizer: ModelConfig, name: str = "co4dgen-tiny", **overrides: Any) -> "PriorConfig":
+        """The named prior config with the token and clip sizes of ``tokenizer``."""
+        base = get_prior_config(name).to_dict()
+        base.update(n_static=tokenizer.n_static, n_dynamic=tokenizer.n_dynamic, token_dim=tokenizer.token_dim,
+                    frames=tokenizer.frames, image_size=tokenizer.image_size, **overrides)
+        return cls.from_dict(base)
+
+    def fits_tokenizer(self, tokenizer: ModelConfig) -> bool:
+        return (self.n_static, self.n_dynamic, self.token_dim, self.frames, self.image_size) == (
+            tokenizer.n_static, tokenizer.n_dynamic, tokenizer.token_dim, tokenizer.frames, tokenizer.image_size)
+
+
+_PRIOR_CONFIGS: dict[str, dict[str, Any]] = {
+    "co4dgen-tiny": {},
+    "co4dgen-paper": dict(name="co4dgen-paper", n_static=1024, n_dynamic=512, token_dim=64, frames=32,
+                          image_size=256, cond_patch=16, anchor_grid=8, cond_layers=4, width=768, heads=12,
+                          mlp_ratio=4.0, layers=12),
+}
+PRIOR_CONFIG_NAMES = tuple(_PRIOR_CONFIGS)
+
+
+def get_prior_config(name: str, /, **overrides: Any) -> PriorConfig:
+    """"co4dgen-tiny" (for vt4d-tiny: 96 x 32 tokens, width 128, 4 blocks) or "co4dgen-paper"."""
+    if name not in _PRIOR_CONFIGS:
+        raise ModelError(f"unknown prior config {name!r}; choose one of {list(PRIOR_CONFIG_NAMES)}")
+    return PriorConfig.from_dict({**PriorConfig().to_dict(), **_PRIOR_CONFIGS[name], **overrides})
+
+
+@dataclass
+class PriorCondition:
+    """(V_c, P_c, P_a) for a batch.
+
+    frames: (B, T, 3, H, W) float32 in [0, 1], the conditioning video V_c.
+    K_c, w2c_c: (B, T, 3, 3) px and (B, T, 4, 4) metres, its cameras P_c.
+    K_a, w2c_a: the anchor trajectory P_a whose token state is sampled.
+    """
+
+    frames: torch.Tensor
+    K_c: torch.Tensor
+    w2c_c: torch.Tensor
+    K_a: torch.Tensor
+    w2c_a: torch.Tensor
+
+    @property
+    def batch_size(self) -> int:
+        return int(self.frames.shape[0])
+
+    def to(self, device: torch.device | str) -> "PriorCondition":
+        return PriorCondition(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
+
+    def repeat(self, n: int) -> "PriorCondition":
+        """Each item repeated ``n`` times along the batch (for n independent samples)."""
+        return PriorCondition(*(getattr(self, f.name).repeat_interleave(n, 0) for f in dataclasses.fields(self)))
+
+
+class Co4DGen(nn.Module):
+    """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder."""
+
+    def __init__(self, cfg: PriorConfig) -> None:
+        super().__init__()
+        self.config = cfg
+        D = cfg.width
+        self.cond_encoder = ConditionEncoder(D, cfg.heads, cfg.mlp_ratio, cfg.cond_layers, cfg.frames,
+                                             cfg.image_size, cfg.cond_patch, cfg.anchor_grid)
+        self.in_s, self.in_d = nn.Linear(cfg.token_dim, D), nn.Linear(cfg.token_dim, D)
+        self.pos_s = nn.Parameter(torch.randn(cfg.n_static, D) * 0.02)  # token identity (learned queries)
+        self.pos_d = nn.Parameter(torch.randn(cfg.n_dynamic, D) * 0.02)
+        self.time_mlp = MLP(D, 2.0)
+        self.cond_pool = nn.Linear(D, D)
+        self.blocks = nn.ModuleList(CoDenoisingBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.layers))
+        self.out_norm_s = nn.LayerNorm(D, elementwise_affine=False)
+        self.out_norm_d = nn.LayerNorm(D, elementwise_affine=False)
+        self.out_mod = nn.Linear(D, 4 * D)
+        self.out_s, self.out_d = nn.Linear(D, cfg.token_dim), nn.Linear(D, cfg.token_dim)
+        for layer in (self.out_mod, self.out_s, self.out_d):
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
+        # per-stream, per-channel token statistics of the training set (standardisation)
+        self.register_buffer("static_mean", torch.zeros(cfg.token_dim))
+        self.register_buffer("static_std", torch.ones(cfg.token_dim))
+        self.register_buffer("dynamic_mean", torch.zeros(cfg.token_dim))
+        self.register_buffer("dynamic_std", torch.ones(cfg.token_dim))
+
+    # ---------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def set_token_statistics(self, z_s: torch.Tensor, z_d: torch.Tensor, min_std: float = 1e-3) -> None:
+        """Standardisation constants from training tokens z_s (M, N_s, d), z_d (M, N_d, d)."""
+        self._check_tokens(z_s, z_d)
+        self.static_mean.copy_(z_s.float().mean(dim=(0, 1)))
+        self.static_std.copy_(z_s.float().std(dim=(0, 1)).clamp_min(min_std) if z_s.numel() > z_s.shape[-1]
+                              else torch.ones_like(self.static_std))
+        self.dynamic_mean.copy_(z_d.float().mean(dim=(0, 1)))
+        self.dynamic_std.copy_(z_d.float().std(dim=(0, 1)).clamp_min(min_std) if z_d.numel() > z_d.shape[-1]
+                               else torch.ones_like(self.dynamic_std))
+
+    def normalize(self, z_s: torch.Tensor, z_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return (z_s - self.static_mean) / self.static_std, (z_d - self.dynamic_mean) / self.dynamic_std
+
+    def denormalize(self, x_s: torch.Tensor, x_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return x_s * self.static_std + self.static_mean, x_d * self.dynamic_std + self.dynamic_mean
+
+    def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
+        cfg = self.config
+        if z_s.ndim != 3 or z_s.shape[1:] != (cfg.n_static, cfg.token_dim) or z_d.ndim != 3 \
+                or z_d.shape[1:] != (cfg.n_dynamic, cfg.token_dim) or z_s.shape[0] != z_d.shape[0]:
+            raise ModelError(f"prior tokens must be (B, {cfg.n_static}, {cfg.token_dim}) and (B, {cfg.n_dynamic}, "
+                             f"{cfg.token_dim}), got {tuple(z_s.shape)} and {tuple(z_d.shape)}")
+
+    def _check_condition(self, cond: PriorCondition) -> None:
+        cfg = self.config
+        if not isinstance(cond, PriorCondition):
+            raise ModelError("the condition must be a PriorCondition")
+        f = cond.frames
+        if f.ndim != 5 or f.shape[2:] != (3, cfg.image_size, cfg.image_size) or not 1 <= f.shape[1] <= cfg.frames:
+            raise ModelError(f"conditioning frames must be (B, 1..{cfg.frames}, 3, {cfg.image_size}, "
+                             f"{cfg.image_size}), got {tuple(f.shape)}")
+        B, T = f.shape[:2]
+        for name, shape in (("K_c", (B, T, 3, 3)), ("w2c_c", (B, T, 4, 4)), ("K_a", (B, T, 3, 3)),
+                            ("w2c_a", (B, T, 4, 4))):
+            value = getattr(cond, name)
+            if tuple(value.shape) != shape:
+                raise ModelError(f"condition {name} must be {shape}, got {tuple(value.shape)}")
+            if not torch.isfinite(value).all():
+                raise ModelError(f"condition {name} holds non-finite values")
+
+    # ---------------------------------------------------------------------------------------------
+    def encode_condition(self, cond: PriorCondition) -> torch.Tensor:
+        """h = E_cond(V_c, P_c, P_a): (B, L, D)."""
+        self._check_condition(cond)
+        return self.cond_encoder(cond.frames.float(), cond.K_c.float(), cond.w2c_c.float(), cond.K_a.float(),
+                                 cond.w2c_a.float())
+
+    def velocity(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+        """v_omega on standardised tokens x_s (B, N_s, d), x_d (B, N_d, d), tau (B,) -> (v_s, v_d)."""
+        c = flow_time_embedding(tau, self.config.width, self.time_mlp) + self.cond_pool(h.mean(dim=1))
+        h_s = self.in_s(x_s) + self.pos_s
+        h_d = self.in_d(x_d) + self.pos_d
+        for block in self.blocks:
+            h_s, h_d = block(h_s, h_d, h, c)
+        shift_s, scale_s, shift_d, scale_d = self.out_mod(F.silu(c))[:, None].chunk(4, dim=-1)
+        v_s = self.out_s(self.out_norm_s(h_s) * (1 + scale_s) + shift_s)
+        v_d = self.out_d(self.out_norm_d(h_d) * (1 + scale_d) + shift_d)
+        return v_s, v_d
+
+    def flow_matching_loss(self, z_s: torch.Tensor, z_d: torch.Tensor, cond: PriorCondition,
+                           generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """L_Co4DGen = E_{tau, Z^a, eps} || v_omega(Z_tau^a, h, tau) - v_tau ||^2 (Eq. 9).
+
+        z_s (B, N_s, d), z_d (B, N_d, d): the anchor tokens Z^a; ``generator`` (CPU) makes tau and eps
+        reproducible.  Returns the scalar loss (mean over both streams' elements) and float logs.
+        """
+        self._check_tokens(z_s, z_d)
+        if cond.batch_size != z_s.shape[0]:
+            raise ModelError("tokens and condition have different batch sizes")
+        B = z_s.shape[0]
+        x_s, x_d = self.normalize(z_s.float(), z_d.float())
+        eps_s = torch.randn(x_s.shape, generator=generator).to(x_s.device)
+        eps_d = torch.randn(x_d.shape, generator=generator).to(x_d.device)
+        tau = torch.rand((B,), generator=generator).to(x_s.device)
+        t = tau.view(B, 1, 1)
+        h = self.encode_condition(cond)
+        v_s, v_d = self.velocity((1 - t) * x_s + t * eps_s, (1 - t) * x_d + t * eps_d, h, tau)
+        err_s = (v_s.float() - (eps_s - x_s)).pow(2)
+        err_d = (v_d.float() - (eps_d - x_d)).pow(2)
+        loss = torch.cat([err_s.flatten(1), err_d.flatten(1)], dim=1).mean()
+        return loss, {"loss": float(loss.detach()), "loss_static": float(err_s.mean().detach()),
+                      "loss_dynamic": float(err_d.mean().detach()), "tau": float(tau.mean())}
+
+    def forward(self, z_s: torch.Tensor, z_d: torch.Tensor, cond: PriorCondition,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """The training objective (so DistributedDataParallel can wrap the prior)."""
+        return self.flow_matching_loss(z_s, z_d, cond, generator)
+
+    @torch.no_grad()
+    def sample(self, cond: PriorCondition, *, steps: int = 16, seed: int = 0, method: str = "heun"
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Draw one joint token state per condition: (Z_s (B, N_s, d), Z_d (B, N_d, d)) float32 in (-1, 1).
+
+        Integrates dx/dtau = v from tau = 1 (noise from ``torch.Generator().manual_seed(seed)``) to 0 in
+        ``steps`` uniform steps, Euler or Heun (2 network evaluations per step except the last).
+        Same condition, seed, steps and method -> the same tokens.
+        """
+        if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+            raise ModelError(f"steps must be a positive integer, got {steps!r}")
+        if method not in SAMPLERS:
+            raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
+        cfg = self.config
+        h = self.encode_condition(cond)
+        B, device = h.shape[0], h.device
+        generator = torch.Generator(device="cpu").manual_seed(int(seed))
+        x_s = torch.randn((B, cfg.n_static, cfg.token_dim), generator=generator).to(device)
+        x_d = torch.randn((B, cfg.n_dynamic, cfg.token_dim), generator=generator).to(device)
+        for i in range(steps):
+            t0, t1 = 1.0 - i / steps, 1.0 - (i + 1) / steps
+            v_s, v_d = self.velocity(x_s, x_d, h, torch.full((B,), t0, device=device))
+            e_s, e_d = x_s + (t1 - t0) * v_s.float(), x_d + (t1 - t0) * v_d.float()
+            if method == "heun" and t1 > 0:
+                w_s, w_d = self.velocity(e_s, e_d, h, torch.full((B,), t1, device=device))
+                e_s = x_s + (t1 - t0) * 0.5 * (v_s.float() + w_s.float())
+                e_d = x_d + (t1 - t0) * 0.5 * (v_d.float() + w_d.float())
+            x_s, x_d = e_s, e_d
+        z_s, z_d = self.denormalize(x_s, x_d)
+        return z_s.clamp(-TOKEN_LIMIT, TOKEN_LIMIT), z_d.clamp(-TOKEN_LIMIT, TOKEN_LIMIT)
+
+
+# --- weights I/O ------------------------------------------------------------------------------------
+def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_version: str,
+               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None) -> Path:
+    """Write prior.json + prior.safetensors (+ MODEL_CARD.md); ``tokenizer`` is the
+    :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in prior.state_dict().items()}
+    digest = weights_sha256(state)
+    meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
+            "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
+            "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
+    save_file(state, str(out / PRIOR_WEIGHTS_FILE), metadata={"format": PRIOR_FORMAT, "weights_sha256": digest})
+    (out / PRIOR_META_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    if card is not None:
+        (out / CARD_FILE).write_text(card, encoding="utf-8")
+    return out
+
+
+def shipped_prior_ids() -> list[str]:
+    """Ids of the priors shipped inside the package (directories of model/weights/ with prior.json)."""
+    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / PRIOR_META_FILE).is_file())
+
+
+def _resolve_prior(name_or_path: str | Path) -> Path:
+    path = Path(name_or_path)
+    if (path / PRIOR_META_FILE).is_file():
+        return path
+    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped_prior_ids():
+        return SHIPPED_DIR / name_or_path
+    raise ModelNotFoundError(f"no prior {str(name_or_path)!r}: not a prior directory (with {PRIOR_META_FILE}) "
+                             f"and not a shipped id (shipped: {shipped_prior_ids() or 'none'})")
+
+
+def _read_prior_meta(directory: Path) -> dict[str, Any]:
+    from vt4dcodec.format import ModelFingerprint
+
+    path = directory / PRIOR_META_FILE
+    if not (directory / PRIOR_WEIGHTS_FILE).is_file():
+        raise ModelNotFoundError(f"{directory} lacks {PRIOR_WEIGHTS_FILE}")
+    if path.stat().st_size > MAX_META_BYTES:
+        raise ModelError(f"{path} is larger than {MAX_META_BYTES} bytes")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("format") != PRIOR_FORMAT:
+        raise ModelError(f"{path}: format must be {PRIOR_FORMAT!r}")
+    for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
+        if not isinstance(meta.get(key), str):
+            raise ModelError(f"{path}: {key} must be a string")
+    meta["config"] = PriorConfig.from_dict(meta.get("config"))
+    if meta["config"].sha256() != meta["config_sha256"]:
+        raise ModelError(f"{path}: config_sha256 does not match the config")
+    try:
+        meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
+    except ValueError as exc:
+        raise ModelError(f"{path}: bad tokenizer fingerprint: {exc}") from None
+    return meta
+
+
+def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
+    """A shipped prior id (e.g. "co4dgen-tiny") or a prior directory, verified, in eval mode.
+
+    The result carries ``model_id``, ``model_version`` and ``tokenizer_fingerprint`` attributes.
+    """
+    directory = _resolve_prior(name_or_path)
+    meta = _read_prior_meta(directory)
+    try:
+        state = load_file(str(directory / PRIOR_WEIGHTS_FILE), device="cpu")
+    except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
+        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
+    prior = Co4DGen(meta["config"])
+    expected = prior.state_dict()
+    if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
+                                          for k in state):
+        raise ModelError(f"{directory}: weights do not fit the prior config")
+    prior.load_state_dict(state, strict=True)
+    prior.model_id, prior.model_version = meta["model_id"], meta["model_version"]
+    prior.tokenizer_fingerprint = meta["tokenizer"]
+    prior.requires_grad_(False)
+    return prior.to(device).eval()
+
+
+def check_tokenizer(prior: Co4DGen, tokenizer_fingerprint: Any, *, force: bool = False) -> None:
+    """Refuse (ModelMismatchError) a tokenizer other than the one the prior was trained on.
+
+    With ``force`` only the token shapes must agree.
+    """
+    recorded = getattr(prior, "tokenizer_fingerprint", None)
+    if recorded is None:
+        raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
+    if recorded.matches(tokenizer_fingerprint):
+        return
+    shapes_agree = (recorded.static_shape, recorded.dynamic_shape) == (
+        tokenizer_fingerprint.static_shape, tokenizer_fingerprint.dynamic_shape)
+    if force and shapes_agree:
+        return
+    raise ModelMismatchError(f"the prior was trained on tokens of {recorded.short()}, but the tokenizer given is "
+                             f"{tokenizer_fingerprint.short()}" + ("" if shapes_agree else " (token shapes differ)"))

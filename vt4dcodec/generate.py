@@ -1,0 +1,138 @@
+"""Co4DGen generation: one video + its cameras + an anchor trajectory -> one sampled 4D token state.
+
+    from vt4dcodec.generate import generate
+    scene = generate(frames, trajectory, "orbit:degrees=20", seed=0)      # a Scene, provenance "generated"
+    views = SceneDecoder.open(scene).render_many(["source", "pan:degrees=15", ...])
+
+The prior samples the token state of the anchor camera a, Z^a = [Z_s^a; Z_d^a], conditioned on the
+video V_c with its cameras P_c and on P_a.  The scene stores those tokens, the anchor trajectory as its
+cameras and the fingerprint of the tokenizer the prior was trained on, so the ordinary decoder renders
+any number of views from it without sampling again.  Torch is imported lazily.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .cameras import Trajectory
+from .capture.capture import Capture
+from .errors import CaptureError, ModelError, TrajectoryError
+from .format import Provenance, Scene
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .model.prior import Co4DGen
+
+__all__ = ["generate", "load_prior_model", "fit_conditioning", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS"]
+
+DEFAULT_PRIOR = "co4dgen-tiny"
+DEFAULT_PRIOR_STEPS = 16
+
+
+@functools.lru_cache(maxsize=4)
+def _load_prior_cached(resolved: str) -> "Co4DGen":
+    from .model.prior import load_prior
+
+    return load_prior(resolved)
+
+
+def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR) -> "Co4DGen":
+    """A prior by shipped id, by directory, or an already loaded :class:`Co4DGen` (returned as is)."""
+    from .model.prior import Co4DGen
+
+    if isinstance(model, Co4DGen):
+        if getattr(model, "tokenizer_fingerprint", None) is None:
+            raise ModelError("this prior records no tokenizer fingerprint: load it with load_prior")
+        return model
+    path = Path(model)
+    return _load_prior_cached(str(path.resolve()) if path.is_dir() else str(model))
+
+
+def fit_conditioning(video: np.ndarray, cameras: Trajectory, *, size: int, frames: int, start: int = 0
+                     ) -> tuple[np.ndarray, Trajectory]:
+    """The conditioning clip as the prior takes it: ``frames`` frames from ``start``, undistorted,
+    resized and centre-cropped to ``size`` x ``size`` with the intrinsics updated (like ``encode``)."""
+    from .capture.resample import fit_capture
+
+    if not isinstance(cameras, Trajectory):
+        raise TrajectoryError("cameras must be a vt4dcodec.cameras.Trajectory (one pose per video frame)")
+    if not isinstance(video, np.ndarray) or video.dtype != np.uint8 or video.ndim != 4 or video.shape[-1] != 3:
+        raise CaptureError("video must be a (T, H, W, 3) uint8 array")
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+        raise CaptureError(f"start must be a non-negative frame index, got {start!r}")
+    if start + frames > video.shape[0]:
+        raise CaptureError(f"the video has {video.shape[0]} frames; the prior takes a clip of {frames} frames "
+                           f"starting at frame {start}")
+    single = Capture(cameras={"c": cameras}, frames={"c": video}, capture_id="generate-input")
+    fitted = fit_capture(single, height=size, width=size, num_frames=frames, start=start)
+    return fitted.frames["c"], fitted.cameras["c"]
+
+
+def generate(
+    video: np.ndarray,
+    cameras: Trajectory,
+    anchor_trajectory: "Trajectory | str | os.PathLike" = "source",
+    *,
+    seed: int = 0,
+    model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR,
+    steps: int = DEFAULT_PRIOR_STEPS,
+    method: str = "heun",
+    start: int = 0,
+    encoding: str = "int8",
+    metadata: dict[str, Any] | None = None,
+) -> Scene:
+    """Sample one joint token state Z^a ~ p(Z^a | V_c, P_c, P_a) and return it as a Scene.
+
+    Args:
+        video: (T, H, W, 3) uint8 conditioning video V_c (any size; fitted like an encoded clip).
+        cameras: its trajectory P_c (one pose per video frame).
+        anchor_trajectory: P_a -- a :class:`Trajectory`, ``"source"`` (P_c itself), a preset spec such as
+            ``"orbit:degrees=30"`` built from the first conditioning camera, or a trajectory JSON path;
+            it must cover the clip's frames.
+        seed: seeds the prior's noise: same inputs, seed, steps and method -> the same tokens.
+        model: prior id ("co4dgen-tiny"), prior directory, or a loaded prior.
+        steps, method: sampler steps and "euler" / "heun".
+        start: first video frame of the clip.
+        encoding: token encoding used when the scene is saved.
+        metadata: user key/values stored in the file.
+    Returns:
+        A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
+        was trained on, and provenance kind "generated".
+    """
+    import torch
+
+    from .codec import resolve_trajectory
+    from .model.prior import PriorCondition
+
+    prior = load_prior_model(model)
+    cfg = prior.config
+    frames, cond_traj = fit_conditioning(video, cameras, size=cfg.image_size, frames=cfg.frames, start=start)
+    anchor = resolve_trajectory(anchor_trajectory, cond_traj, size=cfg.image_size, max_frames=cfg.frames)
+    if anchor.num_frames != cfg.frames:
+        raise TrajectoryError(f"the anchor trajectory has {anchor.num_frames} frames; the prior samples scenes of "
+                              f"{cfg.frames} frames")
+
+    def tensor(a: np.ndarray) -> "torch.Tensor":
+        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
+
+    cond = PriorCondition(frames=torch.from_numpy(frames).permute(0, 3, 1, 2).float().div(255.0)[None],
+                          K_c=tensor(cond_traj.K), w2c_c=tensor(cond_traj.w2c), K_a=tensor(anchor.K),
+                          w2c_a=tensor(anchor.w2c))
+    with torch.no_grad():
+        z_s, z_d = prior.sample(cond, steps=steps, seed=seed, method=method)
+    info = {"prior_id": getattr(prior, "model_id", "unnamed"), "prior_version": getattr(prior, "model_version", "0"),
+            "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
+            "clip_start": int(start), "clip_frames": int(cfg.frames)}
+    return Scene(
+        static_tokens=z_s[0].numpy().astype(np.float32),
+        dynamic_tokens=z_d[0].numpy().astype(np.float32),
+        cameras=anchor,
+        fingerprint=prior.tokenizer_fingerprint,
+        metadata={**(metadata or {}), "co4dgen": info},
+        provenance=Provenance.now(None, "generated"),
+        encoding=encoding,
+    )
