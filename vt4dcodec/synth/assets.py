@@ -22,7 +22,8 @@ from ..errors import Vt4dError
 
 __all__ = [
     "TEXTURE_SIZE", "MIP_LEVELS", "SPLITS", "PHOTO_TEXTURES", "PROCEDURAL_KINDS",
-    "texture_names", "load_texture", "TextureBank", "texture_bank", "SynthError",
+    "texture_names", "texture_split", "check_split", "load_texture", "TextureBank", "texture_bank",
+    "SynthError",
 ]
 
 TEXTURE_SIZE = 128          # texels along each side of mip level 0
@@ -47,7 +48,7 @@ class SynthError(Vt4dError, ValueError):
     """A synthetic-scene request is invalid (unknown split or texture, impossible configuration)."""
 
 
-def _check_split(split: str) -> str:
+def check_split(split: str) -> str:
     if split not in SPLITS:
         raise SynthError(f"split must be one of {SPLITS}, got {split!r}")
     return split
@@ -59,7 +60,7 @@ def _procedural_split(index: int) -> str:
 
 def texture_names(split: str) -> list[str]:
     """Names of the textures in the ``split`` pool ("train" or "test"), in a fixed order."""
-    _check_split(split)
+    check_split(split)
     photos = [n for n, s in PHOTO_TEXTURES.items() if s == split]
     procs = [f"proc_{i:02d}" for i in range(NUM_PROCEDURAL) if _procedural_split(i) == split]
     return photos + procs

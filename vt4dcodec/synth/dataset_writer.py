@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .assets import SynthError, _check_split
+from .assets import SynthError, check_split
 from .generator import SynthConfig, SynthScene, generate_scene
 
 __all__ = ["GT_NAME", "FLOW_NAME", "scene_dirname", "write_scene", "write_dataset", "read_ground_truth"]
@@ -107,7 +107,7 @@ def write_dataset(
     Uses ``workers`` processes (1 = in this process).  Complete scenes already on disk are kept unless
     ``overwrite``.  Returns the scene directories in seed order.  ``progress`` shows a tqdm bar.
     """
-    _check_split(split)
+    check_split(split)
     for name, v, lo in (("num_scenes", num_scenes, 0), ("seed", seed, 0), ("workers", workers, 1)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise SynthError(f"{name} must be an integer >= {lo}, got {v!r}")

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..capture import Capture
-from .assets import SynthError, texture_bank, _check_split
+from .assets import SynthError, texture_bank, check_split
 from .motion import MOTION_KINDS, sample_motion
 from .render import FIRST_OBJECT_SURFACE, SHAPES, SceneLayout, SceneObject, render_layout
 from .rig import sample_rig
@@ -149,7 +149,7 @@ def _sample_layout(rng: np.random.Generator, config: SynthConfig, num_textures: 
 
 def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = SynthConfig()) -> SynthScene:
     """Generate scene ``seed`` of ``split`` ("train" or "test"); the same arguments give the same scene."""
-    _check_split(split)
+    check_split(split)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SynthError(f"seed must be a non-negative integer, got {seed!r}")
     if config.num_cameras * config.num_frames * config.height * config.width > MAX_SCENE_PIXELS:
