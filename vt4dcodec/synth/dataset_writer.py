@@ -17,6 +17,7 @@ last, so a directory with ``capture.json`` is complete; re-running skips complet
 from __future__ import annotations
 
 import os
+import zipfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -37,6 +38,15 @@ def scene_dirname(seed: int, split: str) -> str:
     return f"{split}-{seed:06d}"
 
 
+def _save_npz(path: Path, arrays: dict[str, np.ndarray], level: int = 1) -> None:
+    """``np.savez_compressed`` with a fast deflate level (masks and ids are long runs: level 1 is
+    ~3x faster than numpy's default level 6 for ~2x the few tens of kB).  Plain .npz for ``np.load``."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=level) as zf:
+        for name, array in arrays.items():
+            with zf.open(name + ".npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(array), allow_pickle=False)
+
+
 def write_scene(scene: SynthScene, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write one generated scene (capture + ``synth_gt.npz``) into ``directory``; returns its path."""
     from ..capture.io import write_capture
@@ -55,7 +65,7 @@ def write_scene(scene: SynthScene, directory: str | os.PathLike, *, overwrite: b
         np.save(fh, flow, allow_pickle=False)
     os.replace(directory / (FLOW_NAME + ".tmp"), directory / FLOW_NAME)
     tmp = directory / (GT_NAME + ".tmp.npz")
-    np.savez_compressed(tmp, **gt)
+    _save_npz(tmp, gt)
     os.replace(tmp, directory / GT_NAME)
     write_capture(scene.capture, directory, media="png", depth="png16", overwrite=overwrite)
     return directory
