@@ -24,6 +24,8 @@ __all__ = ["Trajectory", "validate_intrinsics", "validate_w2c", "DISTORTION_LENG
 
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| entry accepted as orthonormal
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
 
 
 def validate_intrinsics(K: np.ndarray, *, what: str = "K") -> np.ndarray:
@@ -31,11 +33,11 @@ def validate_intrinsics(K: np.ndarray, *, what: str = "K") -> np.ndarray:
     K = np.asarray(K, dtype=np.float64)
     if K.shape[-2:] != (3, 3):
         raise CameraError(f"{what} must have shape (..., 3, 3), got {K.shape}")
-    if not np.all(np.isfinite(K)):
+    if not np.isfinite(K).all():
         raise CameraError(f"{what} holds non-finite values (NaN or inf)")
-    if np.any(K[..., 0, 0] <= 0) or np.any(K[..., 1, 1] <= 0):
+    if (K[..., 0, 0] <= 0).any() or (K[..., 1, 1] <= 0).any():
         raise CameraError(f"{what}: focal lengths fx and fy must be positive pixels")
-    if np.any(np.abs(K[..., 1, 0]) > 0) or np.any(np.abs(K[..., 2, :2]) > 0) or np.any(K[..., 2, 2] != 1):
+    if (K[..., 1, 0] != 0).any() or (K[..., 2, :2] != 0).any() or (K[..., 2, 2] != 1).any():
         raise CameraError(f"{what} must be upper triangular with K[2, 2] == 1 (OpenCV pinhole)")
     return K
 
@@ -45,17 +47,19 @@ def validate_w2c(w2c: np.ndarray, *, what: str = "w2c") -> np.ndarray:
     w2c = np.asarray(w2c, dtype=np.float64)
     if w2c.shape[-2:] != (4, 4):
         raise CameraError(f"{what} must have shape (..., 4, 4), got {w2c.shape}")
-    if not np.all(np.isfinite(w2c)):
+    if not np.isfinite(w2c).all():
         raise CameraError(f"{what} holds non-finite values (NaN or inf)")
-    if not np.allclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0], atol=0.0):
+    if (w2c[..., 3, :] != _LAST_ROW).any():
         raise CameraError(f"{what}: the last row of every pose must be exactly [0, 0, 0, 1]")
     R = w2c[..., :3, :3]
-    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
+    gram = np.matmul(np.swapaxes(R, -1, -2), R)
+    gram -= _EYE3
+    err = float(np.abs(gram).max(initial=0.0))
     if err > ROTATION_TOLERANCE:
         raise CameraError(
             f"{what}: rotation is not orthonormal (max |R^T R - I| = {err:.2e} > {ROTATION_TOLERANCE})"
         )
-    if np.any(np.linalg.det(R) < 0):
+    if (np.linalg.det(R) < 0).any():
         raise CameraError(f"{what}: rotation has determinant -1 (a reflection), not a rotation")
     return w2c
 
