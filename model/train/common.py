@@ -163,6 +163,7 @@ def plot_loss_curve(records: list[dict[str, Any]], png: Path, title: str, key: s
     if not pts:
         return
     steps, values = np.array(pts, dtype=np.float64).T
+    smooth = max(1, min(smooth, len(values) // 5))
     fig, ax = plt.subplots(figsize=(6, 3.5), dpi=100)
     ax.plot(steps, values, color="0.7", linewidth=0.8, label=key)
     if len(values) >= smooth:
