@@ -8,6 +8,8 @@ float32    little-endian IEEE binary32  0 (lossless)
 float16    little-endian IEEE binary16  max(2^-11 * |x|, 2^-25); |x| must be <= 65504
 int8       u8 code, per-channel affine  scale_c / 2 * (1 + 2^-20) + 2^-23 * max(|lo_c|, |hi_c|)
 int4       u4 code, two per byte        same formula with the 4-bit scale
+int<b>-rans  b-bit code (b = 3..8),     same formula with the b-bit scale of the code's channel group
+           rANS entropy-coded           (format 1.1; see rans_tokens.py)
 =========  ===========================  =============================================================
 
 Affine encodings (b = 8 or 4 bits, channel c = column of the token matrix):
@@ -27,11 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FormatError, MalformedSectionError
+from .affine import affine_codes, group_params
+from .rans_tokens import RANS_BITS, RANS_ENCODINGS, check_groups, decode_rans_codes, encode_rans_tokens
 
-__all__ = ["ENCODINGS", "EncodedTokens", "encode_tokens", "decode_tokens", "codes_from_payload",
-           "payload_size", "is_affine", "FLOAT16_MAX", "max_abs_error"]
+__all__ = ["ENCODINGS", "V1_0_ENCODINGS", "RANS_ENCODINGS", "EncodedTokens", "encode_tokens", "decode_tokens",
+           "codes_from_payload", "payload_size", "is_affine", "is_entropy_coded", "FLOAT16_MAX", "max_abs_error"]
 
-ENCODINGS = ("float32", "float16", "int8", "int4")
+V1_0_ENCODINGS = ("float32", "float16", "int8", "int4")
+ENCODINGS = V1_0_ENCODINGS + RANS_ENCODINGS
 _BITS = {"int8": 8, "int4": 4}
 FLOAT16_MAX = 65504.0
 
@@ -41,8 +46,13 @@ def is_affine(encoding: str) -> bool:
     return encoding in _BITS
 
 
+def is_entropy_coded(encoding: str) -> bool:
+    """True for the ``int<b>-rans`` encodings (format 1.1, required feature flag bit 0)."""
+    return encoding in RANS_BITS
+
+
 def payload_size(encoding: str, rows: int, cols: int) -> int:
-    """Bytes of the raw (uncompressed) token payload for an (rows, cols) matrix."""
+    """Bytes of the raw (uncompressed) token payload for an (rows, cols) matrix (fixed-size encodings)."""
     n = rows * cols
     return {"float32": 4 * n, "float16": 2 * n, "int8": n, "int4": (n + 1) // 2}[encoding]
 
@@ -56,15 +66,18 @@ class EncodedTokens:
 
 
 def _affine_params(x: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
-    lo = x.min(axis=0).astype(np.float64)
-    hi = x.max(axis=0).astype(np.float64)
-    scale = ((hi - lo) / float((1 << bits) - 1)).astype(np.float32)
-    return scale, lo.astype(np.float32)
+    return group_params(x, bits, x.shape[1])  # per channel
 
 
-def encode_tokens(tokens: np.ndarray, encoding: str) -> EncodedTokens:
-    """Encode finite float32 tokens (N, d) with ``encoding``; deterministic (round half to even)."""
+def encode_tokens(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> EncodedTokens:
+    """Encode finite float32 tokens (N, d) with ``encoding``; deterministic (round half to even).
+
+    ``groups``: channel groups of the ``int<b>-rans`` encodings (1 = one scale/offset for the matrix,
+    d = per channel; must divide d); ignored by the other encodings.
+    """
     x = np.ascontiguousarray(tokens, dtype=np.float32)
+    if encoding in RANS_BITS:
+        return EncodedTokens(encode_rans_tokens(x, encoding, groups), None)
     if encoding == "float32":
         return EncodedTokens(x.astype("<f4", copy=False).tobytes(), None)
     if encoding == "float16":
@@ -78,11 +91,7 @@ def encode_tokens(tokens: np.ndarray, encoding: str) -> EncodedTokens:
         raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ENCODINGS}")
     bits = _BITS[encoding]
     scale, offset = _affine_params(x, bits)
-    s64 = scale.astype(np.float64)
-    safe = np.where(s64 > 0, s64, 1.0)
-    q = np.rint((x.astype(np.float64) - offset.astype(np.float64)) / safe)  # rint: half to even
-    q = np.where(s64 > 0, q, 0.0)
-    codes = np.clip(q, 0, (1 << bits) - 1).astype(np.uint8)
+    codes = affine_codes(x, scale, offset, bits)
     quant = np.concatenate([scale, offset]).astype("<f4").tobytes()
     if bits == 8:
         return EncodedTokens(codes.tobytes(), quant)
@@ -97,9 +106,11 @@ def codes_from_payload(payload, encoding: str, rows: int, cols: int) -> np.ndarr
     """The stored values as an (rows, cols) array without dequantizing.
 
     float32 / float16 / int8 payloads are returned as zero-copy read-only views of ``payload``; int4
-    codes are unpacked into a new uint8 array.  Raises MalformedSectionError if the size is wrong or an
-    int4 padding nibble is not zero.
+    codes are unpacked and ``int<b>-rans`` codes entropy-decoded into new uint8 arrays.  Raises
+    MalformedSectionError if the size is wrong or an int4 padding nibble is not zero.
     """
+    if encoding in RANS_BITS:
+        return decode_rans_codes(payload, encoding, rows, cols)[0]
     expected = payload_size(encoding, rows, cols)
     if len(payload) != expected:
         raise MalformedSectionError(
@@ -149,6 +160,12 @@ def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.nda
     float32 payloads come back as zero-copy read-only views.  Every decoded value must be finite,
     otherwise MalformedSectionError (a reader never hands out NaN/inf tokens).
     """
+    if encoding in RANS_BITS:
+        codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols)
+        out = (offset.astype(np.float64) + scale.astype(np.float64) * codes).astype(np.float32)
+        if not np.all(np.isfinite(out)):
+            raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
+        return out
     codes = codes_from_payload(payload, encoding, rows, cols)
     if encoding == "float32":
         out = codes
@@ -164,15 +181,24 @@ def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.nda
     return out
 
 
-def max_abs_error(tokens: np.ndarray, encoding: str) -> np.ndarray:
-    """The documented worst-case |x - decode(encode(x))| for each entry of ``tokens`` (N, d)."""
+def max_abs_error(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> np.ndarray:
+    """The documented worst-case |x - decode(encode(x))| for each entry of ``tokens`` (N, d)
+    (``groups`` as in :func:`encode_tokens`, for the ``int<b>-rans`` encodings)."""
     x = np.asarray(tokens, dtype=np.float32).astype(np.float64)
     if encoding == "float32":
         return np.zeros_like(x)
     if encoding == "float16":
         return np.maximum(2.0**-11 * np.abs(x), 2.0**-25)
-    bits = _BITS[encoding]
-    scale, offset = _affine_params(np.asarray(tokens, np.float32), bits)
-    big = np.maximum(np.abs(x.min(axis=0)), np.abs(x.max(axis=0)))
+    x32 = np.asarray(tokens, np.float32)
+    if encoding in RANS_BITS:
+        check_groups(groups, x.shape[1])
+        bits, width = RANS_BITS[encoding], x.shape[1] // groups
+        scale = np.repeat(group_params(x32, bits, groups)[0], width)
+        grouped = x.reshape(x.shape[0], groups, width)
+        big = np.repeat(np.maximum(np.abs(grouped.min(axis=(0, 2))), np.abs(grouped.max(axis=(0, 2)))), width)
+    else:
+        bits = _BITS[encoding]
+        scale = _affine_params(x32, bits)[0]
+        big = np.maximum(np.abs(x.min(axis=0)), np.abs(x.max(axis=0)))
     bound = scale.astype(np.float64) / 2 * (1 + 2.0**-20) + 2.0**-23 * big
     return np.broadcast_to(bound, x.shape)

@@ -4,7 +4,7 @@ The header is one msgpack map with exactly these keys (version 1.0)::
 
     static_shape   [N_s, d]          ints
     dynamic_shape  [N_d, d]          ints, same d
-    encoding       "float32" | "float16" | "int8" | "int4"
+    encoding       "float32" | "float16" | "int8" | "int4" | "int3-rans" .. "int8-rans" (1.1)
     cameras        {num_frames: T, width: W, height: H, distortion_terms: 0|4|5|8|12|14,
                     has_timestamps: bool}
     fingerprint    {model_id, model_version, config_sha256, weights_sha256, static_shape,
@@ -26,6 +26,7 @@ from ..cameras import DISTORTION_LENGTHS
 from ..errors import LimitExceededError, MalformedHeaderError
 from .checks import exact_keys, require_bool, require_int, require_map, require_shape
 from .encodings import ENCODINGS
+from .rans_tokens import MAX_RANS_VALUES, RANS_BITS
 from .fingerprint import ModelFingerprint, Provenance
 from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEADER_DEPTH, MAX_IMAGE_SIDE,
                      MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
@@ -145,6 +146,8 @@ def parse_header(raw, *, newer_minor: bool = False) -> HeaderInfo:
     encoding = h["encoding"]
     if encoding not in ENCODINGS:
         raise MalformedHeaderError(f"encoding {encoding!r:.40} is not one of {ENCODINGS}")
+    if encoding in RANS_BITS and max(static_shape[0] * static_shape[1], dynamic_shape[0] * dynamic_shape[1]) > MAX_RANS_VALUES:
+        raise LimitExceededError(f"encoding {encoding} allows at most {MAX_RANS_VALUES} values per token matrix")
     cam = require_map(h["cameras"], "cameras")
     exact_keys(cam, CAMERA_KEYS, "cameras", allow_extra=newer_minor)
     layout = CameraLayout(

@@ -50,12 +50,13 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
-           "COMPRESSION_RAW", "COMPRESSION_ZSTD"]
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS"]
 
 SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
 FORMAT_MAJOR = 1
-FORMAT_MINOR = 0
-KNOWN_REQUIRED_FLAGS = 0  # v1.0 defines no required feature
+FORMAT_MINOR = 1  # 1.1 adds the entropy-coded token encodings (required flag bit 0)
+FLAG_ENTROPY_CODED_TOKENS = 1 << 0  # required flag: token sections use an int<b>-rans encoding (1.1)
+KNOWN_REQUIRED_FLAGS = FLAG_ENTROPY_CODED_TOKENS
 FLAG_CRITICAL = 0x0001
 COMPRESSION_RAW, COMPRESSION_ZSTD = 0, 1
 

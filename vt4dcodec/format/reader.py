@@ -8,11 +8,14 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..cameras import Trajectory
-from ..errors import ChecksumError, FormatError, MalformedSectionError, TruncatedError, UnsupportedFeatureError
-from .encodings import codes_from_payload, decode_tokens, is_affine, parse_quant
+from ..errors import (ChecksumError, FormatError, MalformedHeaderError, MalformedSectionError, TruncatedError,
+                      UnsupportedFeatureError)
+from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant
+from .rans_tokens import decode_rans_codes
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
-from .layout import FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble, SectionEntry, crc32, parse_preamble
+from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble,
+                     SectionEntry, crc32, parse_preamble)
 from .layout import parse_table
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -98,12 +101,26 @@ class SceneFile:
             raise ChecksumError("the section table checksum does not match: the table is damaged")
         self.preamble: Preamble = pre
         self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR)
+        self._check_encoding_version()
         self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length)
         self._by_type = {e.type: e for e in self.sections}
         self._check_section_set()
         self._cameras: Trajectory | None = None
 
     # --- structure ---------------------------------------------------------------------------------
+    def _check_encoding_version(self) -> None:
+        """Entropy-coded encodings exist from 1.1 on and are announced by required flag bit 0 (and the
+        flag announces nothing else)."""
+        entropy = is_entropy_coded(self._info.encoding)
+        flagged = bool(self.preamble.required_flags & FLAG_ENTROPY_CODED_TOKENS)
+        if entropy and self.preamble.minor < 1:
+            raise MalformedHeaderError(
+                f"encoding {self._info.encoding} was introduced in format 1.1 but the file says 1.{self.preamble.minor}")
+        if entropy != flagged:
+            raise MalformedHeaderError(
+                f"encoding {self._info.encoding} {'requires' if entropy else 'must not set'} required feature flag "
+                "bit 0 (entropy-coded tokens)")
+
     def _check_section_set(self) -> None:
         required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
         if is_affine(self._info.encoding):
@@ -181,8 +198,12 @@ class SceneFile:
         return self._cameras
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
-        """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only)."""
+        """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only; for
+        ``int<b>-rans`` each channel gets its group's pair)."""
         tok_name, quant_name = _TOKENS[which]
+        if is_entropy_coded(self.encoding):
+            rows, cols = self.static_shape if which == "static" else self.dynamic_shape
+            return decode_rans_codes(self.raw_section(tok_name), self.encoding, rows, cols)[1:]
         if not is_affine(self.encoding):
             raise FormatError(f"encoding {self.encoding} has no quantization parameters")
         return parse_quant(self.raw_section(quant_name), self.static_shape[1])
@@ -198,7 +219,7 @@ class SceneFile:
 
     def static_tokens(self, dequantize: bool = True) -> np.ndarray:
         """Z_s as (N_s, d) float32 (zero-copy read-only view for raw-stored float32); with
-        ``dequantize=False`` the stored values (float32, float16, or uint8 codes for int8/int4)."""
+        ``dequantize=False`` the stored values (float32, float16, or uint8 codes for int8/int4/int<b>-rans)."""
         return self._tokens("static", dequantize)
 
     def dynamic_tokens(self, dequantize: bool = True) -> np.ndarray:

@@ -8,8 +8,9 @@ from typing import BinaryIO
 from ..errors import FormatError
 from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, pack_header
-from .layout import (FORMAT_MAJOR, FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble, SectionEntry, align,
-                     crc32, pack_preamble, pack_table)
+from .encodings import is_entropy_coded
+from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE,
+                     Preamble, SectionEntry, align, crc32, pack_preamble, pack_table)
 from .scene import Scene
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, compress_payload, pack_cameras)
@@ -20,7 +21,7 @@ DEFAULT_COMPRESSION_LEVEL = 9  # zstd level; see docs/benchmarks/format.md for t
 
 
 def build_container(header: bytes, sections: list[tuple[str, bool, int, bytes, int]], *,
-                    minor: int = FORMAT_MINOR, required_flags: int = 0, optional_flags: int = 0) -> bytes:
+                    minor: int = 0, required_flags: int = 0, optional_flags: int = 0) -> bytes:
     """Lay out a container from already-encoded parts.
 
     ``sections`` holds ``(type, critical, compression, stored_bytes, raw_length)`` in file order.  Used by
@@ -45,13 +46,18 @@ def build_container(header: bytes, sections: list[tuple[str, bool, int, bytes, i
 
 
 def dumps(scene: Scene, *, encoding: str | None = None,
-          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL) -> bytes:
+          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
+
+    The file says the lowest format version that describes it: 1.0 for the float, int8 and int4
+    encodings (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0 for ``int<b>-rans``.
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
         compression_level: zstd level for every section (a section that does not shrink is stored raw);
             ``None`` stores every section raw and 64-byte aligned, for zero-copy reading.
+        groups: channel groups sharing one scale/offset in the ``int<b>-rans`` encodings (1 = one pair per
+            token matrix, d = per channel; must divide d).  Ignored by the other encodings.
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -64,7 +70,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     parts = [(SECTION_CAMERAS, cams)]
     for tokens, tok_name, quant_name in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT),
                                          (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)):
-        enc = encode_tokens(tokens, encoding)
+        enc = encode_tokens(tokens, encoding, groups=groups)
         if enc.quant is not None:
             parts.append((quant_name, enc.quant))
         parts.append((tok_name, enc.tokens))
@@ -72,16 +78,18 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     for name, raw in parts:
         compression, stored = compress_payload(raw, compression_level)
         sections.append((name, True, compression, stored, len(raw)))
-    return build_container(header, sections)
+    if is_entropy_coded(encoding):
+        return build_container(header, sections, minor=1, required_flags=FLAG_ENTROPY_CODED_TOKENS)
+    return build_container(header, sections, minor=0)
 
 
 def save(scene: Scene, path_or_file: str | os.PathLike | BinaryIO, *, encoding: str | None = None,
-         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL) -> int:
+         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
-    data = dumps(scene, encoding=encoding, compression_level=compression_level)
+    data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)

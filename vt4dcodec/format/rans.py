@@ -1,0 +1,172 @@
+"""A static rANS entropy coder with integer frequency tables (FORMAT.md, "Entropy-coded token encodings").
+
+Everything here is integer arithmetic on Python ints, so every machine encodes and decodes the same
+bytes.  Parameters (normative, fixed by the format):
+
+- probability precision ``PROB_BITS = 14``: frequencies are integers summing to ``M = 2^14``;
+- coder state ``x`` is an unsigned 32-bit integer kept in ``[L, 2^32)`` with ``L = 2^23``;
+- renormalisation moves single bytes.
+
+Stream = the final encoder state as a little-endian ``u32``, followed by the renormalisation bytes in the
+order the decoder reads them.  Decoding one symbol::
+
+    slot = x mod M;  s = the symbol with cum[s] <= slot < cum[s] + freq[s]
+    x = freq[s] * (x >> 14) + slot - cum[s]
+    while x < L: x = (x << 8) | next stream byte
+
+After the last symbol the state MUST equal ``L`` and every stream byte MUST have been read; both hold for
+every stream the encoder makes, so they double as an integrity check.  A hostile stream cannot make the
+decoder loop: each symbol reads at most 3 bytes, and running out of bytes is an error.
+
+Frequency table bytes: ``u8 first_symbol``, ``u16 count`` (little-endian), then ``count`` LEB128 varints,
+the frequencies of symbols ``first_symbol .. first_symbol + count - 1`` (every other symbol has frequency
+0).  Each varint is 1..3 bytes with no redundant trailing zero group, each frequency is at most ``M``, and
+they sum to exactly ``M``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import MalformedSectionError, TruncatedError
+
+__all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "normalize_counts", "pack_table", "parse_table",
+           "rans_encode", "rans_decode"]
+
+PROB_BITS = 14
+PROB_SCALE = 1 << PROB_BITS          # M: frequencies sum to this
+STATE_LOWER = 1 << 23                # L: the state lives in [L, 2^32)
+_STATE_UPPER_SHIFT = 23 - PROB_BITS + 8  # x_max(s) = freq[s] << 17
+
+
+def normalize_counts(counts: np.ndarray) -> list[int]:
+    """Integer frequencies summing to ``M`` from symbol counts (every symbol that occurs gets >= 1).
+
+    Deterministic: floor of the proportional share, the remainder handed out by largest fractional part
+    (ties to the lower symbol), then any symbol pushed to 0 is lifted to 1 by taking from the largest.
+    """
+    counts = [int(c) for c in counts]
+    total = sum(counts)
+    if total <= 0:
+        raise ValueError("cannot build a frequency table from zero symbols")
+    freqs = [c * PROB_SCALE // total for c in counts]
+    rema = sorted(range(len(counts)), key=lambda i: (-(counts[i] * PROB_SCALE % total), i))
+    for i in rema[: PROB_SCALE - sum(freqs)]:
+        freqs[i] += 1
+    for i, c in enumerate(counts):
+        if c and not freqs[i]:
+            freqs[i] = 1
+            big = max(range(len(freqs)), key=lambda j: (freqs[j], -j))
+            freqs[big] -= 1
+    return freqs
+
+
+def pack_table(freqs: list[int]) -> bytes:
+    """Table bytes (see the module doc) covering the used symbol range of ``freqs``."""
+    used = [i for i, f in enumerate(freqs) if f]
+    first, last = used[0], used[-1]
+    out = bytearray([first]) + (last - first + 1).to_bytes(2, "little")
+    for f in freqs[first:last + 1]:
+        while True:
+            byte, f = f & 0x7F, f >> 7
+            out.append(byte | (0x80 if f else 0))
+            if not f:
+                break
+    return bytes(out)
+
+
+def parse_table(data, alphabet: int) -> tuple[list[int], int]:
+    """(freqs of length ``alphabet``, bytes consumed) from table bytes at the start of ``data``.
+
+    Raises MalformedSectionError for a table that is cut short, overlong, names symbols outside
+    ``[0, alphabet)`` or does not sum to ``M``.
+    """
+    if len(data) < 3:
+        raise TruncatedError("entropy-coded section ends inside its frequency table header")
+    first, count = data[0], int.from_bytes(bytes(data[1:3]), "little")
+    if count < 1 or first + count > alphabet:
+        raise MalformedSectionError(
+            f"frequency table covers symbols {first}..{first + count - 1}; the alphabet is 0..{alphabet - 1}")
+    freqs, pos = [0] * alphabet, 3
+    for k in range(count):
+        value, shift = 0, 0
+        while True:
+            if pos >= len(data):
+                raise TruncatedError("entropy-coded section ends inside its frequency table")
+            byte = data[pos]
+            pos += 1
+            value |= (byte & 0x7F) << shift
+            shift += 7
+            if not byte & 0x80:
+                if byte == 0 and shift > 7:
+                    raise MalformedSectionError("frequency table varint has a redundant zero group")
+                break
+            if shift >= 21:
+                raise MalformedSectionError("frequency table varint is longer than 3 bytes")
+        if value > PROB_SCALE:
+            raise MalformedSectionError(f"symbol frequency {value} exceeds the total {PROB_SCALE}")
+        freqs[first + k] = value
+    total = sum(freqs)
+    if total != PROB_SCALE:
+        raise MalformedSectionError(f"frequency table sums to {total}; it must sum to {PROB_SCALE}")
+    return freqs, pos
+
+
+def _cumulative(freqs: list[int]) -> list[int]:
+    cum, acc = [], 0
+    for f in freqs:
+        cum.append(acc)
+        acc += f
+    return cum
+
+
+def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
+    """The rANS stream of ``symbols`` (1-D ints, each with a non-zero frequency) under ``freqs``."""
+    cum = _cumulative(freqs)
+    x, out = STATE_LOWER, bytearray()
+    for s in reversed(symbols.tolist()):
+        f = freqs[s]
+        x_max = f << _STATE_UPPER_SHIFT
+        while x >= x_max:
+            out.append(x & 0xFF)
+            x >>= 8
+        x = ((x // f) << PROB_BITS) + (x % f) + cum[s]
+    out.reverse()
+    return x.to_bytes(4, "little") + bytes(out)
+
+
+def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
+    """Decode ``count`` symbols (uint8 array) from ``stream`` under ``freqs`` (validated by parse_table).
+
+    Raises TruncatedError if the stream ends early, MalformedSectionError if bytes are left over or the
+    final state is not ``L`` (a damaged or forged stream).
+    """
+    data = bytes(stream)
+    if len(data) < 4:
+        raise TruncatedError("rANS stream is shorter than its 4-byte initial state")
+    x = int.from_bytes(data[:4], "little")
+    if x < STATE_LOWER:
+        raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
+    nonzero = [s for s, f in enumerate(freqs) if f]
+    if len(nonzero) == 1:  # one symbol of probability 1: the stream carries no information
+        out = np.full(count, nonzero[0], np.uint8)
+        pos = 4
+    else:
+        slot_symbol = np.repeat(np.arange(len(freqs), dtype=np.uint8), freqs).tolist()
+        cum, mask, end = _cumulative(freqs), PROB_SCALE - 1, len(data)
+        syms, pos = [0] * count, 4
+        for i in range(count):
+            slot = x & mask
+            s = slot_symbol[slot]
+            x = freqs[s] * (x >> PROB_BITS) + slot - cum[s]
+            while x < STATE_LOWER:
+                if pos >= end:
+                    raise TruncatedError(f"rANS stream ends after {i} of {count} symbols")
+                x = (x << 8) | data[pos]
+                pos += 1
+            syms[i] = s
+        out = np.array(syms, dtype=np.uint8)
+    if pos != len(data) or x != STATE_LOWER:
+        raise MalformedSectionError(
+            f"rANS stream does not end cleanly ({len(data) - pos} bytes left, final state {x} != {STATE_LOWER})")
+    return out
