@@ -23,8 +23,8 @@ from torch.nn.parallel import DistributedDataParallel
 from ..autoencoder import LatentAutoencoder
 from ..configs import get_config
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     seed_everything, setup_distributed, train_loop)
-from .data import FrameDataset, ScenePool, rank_seeds
+                     scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
+from .data import FrameDataset
 
 __all__ = ["main", "AE_WEIGHTS", "AE_CONFIG"]
 
@@ -49,13 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     seed_everything(args.seed + info.rank)
     cfg = get_config(args.config, **parse_overrides(args.set))
     args.out.mkdir(parents=True, exist_ok=True)
-    cache = args.cache or args.out.parent / "scene_cache"
 
     ae = LatentAutoencoder(cfg)
     optimizer = torch.optim.AdamW(ae.parameters(), lr=args.lr, weight_decay=0.0)
     module = DistributedDataParallel(ae) if info.distributed else ae
-    pool = ScenePool.for_config(cfg, cache, args.cameras)
-    dataset = FrameDataset(pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size))
+    dataset = FrameDataset(*scene_pool_and_seeds(args, cfg, info))
     records = train_loop(args, info, module, ae, optimizer, cycle(make_loader(dataset, args, info)),
                          reconstruction_step, title="stage 1: autoencoder",
                          extra_state={"config": cfg.to_dict()})

@@ -30,7 +30,7 @@ from vt4dcodec.errors import ModelError
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
-    "parse_overrides", "lr_at", "train_loop", "make_loader",
+    "parse_overrides", "lr_at", "train_loop", "make_loader", "scene_pool_and_seeds",
 ]
 
 
@@ -84,6 +84,21 @@ def cycle(loader: Any) -> Iterator[Any]:
             sampler.set_epoch(epoch)
         yield from loader
         epoch += 1
+
+
+def scene_pool_and_seeds(args: argparse.Namespace, cfg: Any, info: DistInfo) -> tuple[Any, list[int]]:
+    """The rank's share of the training scenes: seeds to generate, or indices into ``--data``."""
+    from .data import ScenePool, rank_seeds
+
+    cache = args.cache or args.out.parent / "scene_cache"
+    if args.data is None:
+        pool = ScenePool.for_config(cfg, cache, args.cameras)
+        return pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size)
+    from vt4dcodec.data.multiview import find_capture_dirs
+
+    captures = tuple(find_capture_dirs(args.data)[:args.scenes])
+    pool = ScenePool.for_config(cfg, cache, args.cameras, captures=captures)
+    return pool, rank_seeds(0, len(captures), info.rank, info.world_size)
 
 
 def make_loader(dataset: Any, args: argparse.Namespace, info: DistInfo, collate_fn: Any = None) -> Any:
@@ -191,7 +206,10 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, default=4, help="per process")
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--warmup", type=int, default=100, help="linear learning-rate warm-up steps")
-    parser.add_argument("--scenes", type=int, default=64, help="synthetic training scenes in the pool")
+    parser.add_argument("--scenes", type=int, default=64, help="training scenes in the pool")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="a directory of capture directories (e.g. from `vt4d synth`) instead of "
+                             "generating scenes from seeds; uses its first --scenes captures")
     parser.add_argument("--cameras", type=int, default=4, help="cameras per synthetic scene")
     parser.add_argument("--scene-seed", type=int, default=0, help="first synthetic scene seed")
     parser.add_argument("--cache", type=Path, default=None,

@@ -5,6 +5,10 @@ isolation, tracks: about 1.5 s) cost far more than a training step, so each scen
 each camera preprocessed once, and both are cached as ``.npz`` (no pickle) under ``cache``. Workers
 fill the cache lazily; later epochs, resumed runs and other runs with the same settings reuse it.
 
+Scenes come either from integer seeds (generated on the fly by :func:`vt4dcodec.synth.generate_scene`)
+or, with ``captures``, from capture directories on disk (e.g. written by ``vt4d synth``), read through
+:class:`vt4dcodec.data.multiview.MultiViewPairs`; then a "seed" is an index into ``captures``.
+
 * :class:`FrameDataset` (stage 1): single frames of every camera.
 * :class:`PairDataset` (stage 2): ordered camera pairs (source c, target a != c) of one event: the
   source clip with its :class:`SourceInputs`, the target camera's frames and trajectory.
@@ -22,6 +26,7 @@ import torch
 from torch.utils.data import Dataset
 
 from vt4dcodec.cameras import Trajectory
+from vt4dcodec.errors import CaptureError
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 from ..configs import ModelConfig
@@ -60,14 +65,17 @@ class ScenePool:
     n_tracks: int
     motion_isolation: bool = True
     split: str = "train"
+    captures: tuple[Path, ...] = ()
 
     @classmethod
-    def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int) -> "ScenePool":
+    def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int, captures: tuple[Path, ...] = ()
+                   ) -> "ScenePool":
         return cls(Path(cache), cameras, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks,
-                   cfg.motion_isolation)
+                   cfg.motion_isolation, captures=tuple(Path(p).resolve() for p in captures))
 
     def _stem(self, seed: int) -> str:
-        return f"{self.split}-{seed:06d}-c{self.cameras}-t{self.frames}-s{self.image_size}"
+        source = f"disk-{self.captures[seed].name}" if self.captures else f"{self.split}-{seed:06d}"
+        return f"{source}-c{self.cameras}-t{self.frames}-s{self.image_size}"
 
     def scene(self, seed: int) -> dict[str, np.ndarray]:
         """frames (C,T,H,W,3) uint8, K (C,T,3,3) and w2c (C,T,4,4) float64, depth (C,T,H,W) float32."""
@@ -81,19 +89,43 @@ class ScenePool:
         path = self.cache / f"scene-{self._stem(seed)}.npz"
         if path.is_file():
             return _load_npz(path)
+        arrays = self._read_capture(self.captures[seed]) if self.captures else self._generate(seed)
+        self.cache.mkdir(parents=True, exist_ok=True)
+        _save_npz(path, arrays)
+        return arrays
+
+    def _generate(self, seed: int) -> dict[str, np.ndarray]:
         config = SynthConfig(num_cameras=self.cameras, num_frames=self.frames, height=self.image_size,
                              width=self.image_size)
         capture = generate_scene(seed, split=self.split, config=config).capture
         names = sorted(capture.cameras)
-        arrays = {
+        return {
             "frames": np.stack([capture.frames[n] for n in names]),
             "K": np.stack([capture.cameras[n].K for n in names]).astype(np.float64),
             "w2c": np.stack([capture.cameras[n].w2c for n in names]).astype(np.float64),
             "depth": np.stack([capture.depth[n] for n in names]).astype(np.float32),
         }
-        self.cache.mkdir(parents=True, exist_ok=True)
-        _save_npz(path, arrays)
-        return arrays
+
+    def _read_capture(self, path: Path) -> dict[str, np.ndarray]:
+        """The first ``cameras`` cameras and ``frames`` frames of a capture directory (depth 0 = unknown)."""
+        from vt4dcodec.data.multiview import MultiViewPairs
+
+        views = MultiViewPairs([path], pairing="same")
+        if len(views) < self.cameras:
+            raise CaptureError(f"{path} has {len(views)} cameras; training asks for {self.cameras}")
+        items = [views[c] for c in range(self.cameras)]
+        T, _, H, W = items[0]["source_frames"].shape
+        if T < self.frames or (H, W) != (self.image_size, self.image_size):
+            raise CaptureError(f"{path}: {T} frames of {W}x{H}; the model needs >= {self.frames} frames of "
+                               f"{self.image_size}x{self.image_size}")
+        T = self.frames
+
+        def stack(key: str) -> np.ndarray:
+            return np.stack([it[key][:T].numpy() for it in items])
+
+        frames = np.round(stack("source_frames") * 255.0).clip(0, 255).astype(np.uint8).transpose(0, 1, 3, 4, 2)
+        return {"frames": np.ascontiguousarray(frames), "K": stack("source_K").astype(np.float64),
+                "w2c": stack("source_w2c").astype(np.float64), "depth": stack("source_depth").astype(np.float32)}
 
     def build_prepared(self, seed: int) -> dict[str, np.ndarray]:
         iso = "iso" if self.motion_isolation else "noiso"
@@ -105,7 +137,8 @@ class ScenePool:
         for c in range(self.cameras):
             trajectory = Trajectory(K=scene["K"][c], w2c=scene["w2c"][c], width=self.image_size,
                                     height=self.image_size)
-            src = prepare_source(scene["frames"][c], trajectory, scene["depth"][c],
+            depth = scene["depth"][c] if np.any(scene["depth"][c] > 0) else None  # None: plane-sweep estimate
+            src = prepare_source(scene["frames"][c], trajectory, depth,
                                  latent_hw=(self.latent_size, self.latent_size), num_tracks=self.n_tracks,
                                  seed=seed * 1009 + c, motion_isolation=self.motion_isolation)
             masks.append(src.motion_mask)

@@ -32,8 +32,8 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     seed_everything, setup_distributed, train_loop)
-from .data import PairBatch, PairDataset, ScenePool, collate_pairs, rank_seeds
+                     scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
+from .data import PairBatch, PairDataset, collate_pairs
 
 __all__ = ["main", "load_autoencoder"]
 
@@ -110,13 +110,11 @@ def main(argv: list[str] | None = None) -> int:
     seed_everything(args.seed + info.rank)
     cfg = get_config(args.config, **parse_overrides(args.set))
     args.out.mkdir(parents=True, exist_ok=True)
-    cache = args.cache or args.out.parent / "scene_cache"
 
     model = build_model(cfg, args.autoencoder)
     optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
-    pool = ScenePool.for_config(cfg, cache, args.cameras)
-    dataset = PairDataset(pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size))
+    dataset = PairDataset(*scene_pool_and_seeds(args, cfg, info))
     batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs))
     records = train_loop(args, info, module, model, optimizer, batches, flow_step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
