@@ -43,10 +43,11 @@ def split_view_specs(values: list[str]) -> list[str]:
 
 def cmd_generate(args: argparse.Namespace) -> int:
     from ..capture.io import read_capture
-    from ..codec import SceneDecoder, model_fingerprint
+    from ..codec import SceneDecoder, load_model, model_fingerprint
     from ..format import save
     from ..generate import DEFAULT_PRIOR, generate, load_prior_model
     from ..media import write_frames
+    from ..model.prior import check_tokenizer
     from .codec_commands import _trajectory_label
 
     views = split_view_specs(args.views) or ["source"]
@@ -55,6 +56,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if camera not in cap.cameras:
         raise CaptureError(f"capture {cap.capture_id!r} has no camera {camera!r}; it has {cap.camera_names}")
     prior = load_prior_model(args.prior or DEFAULT_PRIOR)
+    tokenizer = load_model(args.model or prior.tokenizer_fingerprint.model_id)
+    check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
     scene = generate(cap.frames[camera], cap.cameras[camera], args.anchor, seed=args.seed, model=prior,
                      steps=args.steps, method=args.sampler, start=args.start, encoding=args.encoding,
@@ -64,7 +67,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_path = out_dir / "scene.vt4d"
     size = save(scene, scene_path)
-    decoder = SceneDecoder.open(scene, model=args.model)
+    decoder = SceneDecoder(scene=scene, model=tokenizer)
     trajectories = [decoder.trajectory(v) for v in views]  # fail on a bad spec before rendering
     outputs = []
     for i, (spec, traj) in enumerate(zip(views, trajectories)):

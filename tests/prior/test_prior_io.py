@@ -1,0 +1,69 @@
+"""Prior weights I/O: safetensors + prior.json, hash verification, the tokenizer binding."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from co4dgen_helpers import random_condition, small_prior
+from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
+from vt4dcodec.format import ModelFingerprint
+from vt4dcodec.model.prior import check_tokenizer, load_prior, save_prior
+
+FP = ModelFingerprint(model_id="tok", model_version="1", config_sha256="a" * 64, weights_sha256="b" * 64,
+                      static_shape=(8, 8), dynamic_shape=(4, 8))
+
+
+def test_save_load_round_trip_gives_identical_samples(tmp_path):
+    prior = small_prior(scramble=True)
+    prior.set_token_statistics(torch.rand(3, 8, 8) - 0.5, torch.rand(3, 4, 8) - 0.5)
+    save_prior(prior, tmp_path / "p", model_id="p-test", model_version="2", tokenizer=FP, card="# card\n")
+    loaded = load_prior(tmp_path / "p")
+    assert (loaded.model_id, loaded.model_version) == ("p-test", "2")
+    assert loaded.tokenizer_fingerprint == FP and loaded.config == prior.config
+    cond = random_condition()
+    a, b = prior.sample(cond, steps=2, seed=4), loaded.sample(cond, steps=2, seed=4)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+    assert (tmp_path / "p" / "MODEL_CARD.md").read_text() == "# card\n"
+
+
+def test_damaged_or_foreign_prior_files_are_refused(tmp_path):
+    prior = small_prior()
+    d = save_prior(prior, tmp_path / "p", model_id="p", model_version="1", tokenizer=FP)
+    meta = json.loads((d / "prior.json").read_text())
+    with pytest.raises(ModelNotFoundError):
+        load_prior(tmp_path / "missing")
+    with pytest.raises(ModelNotFoundError):
+        load_prior("no-such-prior")
+    # flipped weight byte -> hash mismatch
+    raw = bytearray((d / "prior.safetensors").read_bytes())
+    raw[-3] ^= 0x40
+    (d / "prior.safetensors").write_bytes(bytes(raw))
+    with pytest.raises(ModelError):
+        load_prior(d)
+    save_prior(prior, d, model_id="p", model_version="1", tokenizer=FP)
+    for bad in ({**meta, "format": "vt4d-model/1"}, {**meta, "config_sha256": "0" * 64},
+                {**meta, "tokenizer": {"model_id": "x"}}, {**meta, "config": {**meta["config"], "width": 64}}):
+        (d / "prior.json").write_text(json.dumps(bad))
+        with pytest.raises(ModelError):
+            load_prior(d)
+    (d / "prior.json").write_text("{not json")
+    with pytest.raises(ModelError):
+        load_prior(d)
+
+
+def test_a_prior_is_only_used_with_its_tokenizer(tmp_path):
+    d = save_prior(small_prior(), tmp_path / "p", model_id="p", model_version="1", tokenizer=FP)
+    prior = load_prior(d)
+    check_tokenizer(prior, FP)
+    other = ModelFingerprint(**{**FP.to_dict(), "weights_sha256": "c" * 64})
+    with pytest.raises(ModelMismatchError, match="trained on tokens of tok@1"):
+        check_tokenizer(prior, other)
+    check_tokenizer(prior, other, force=True)  # same shapes: allowed when forced
+    wrong_shape = ModelFingerprint(**{**FP.to_dict(), "static_shape": (9, 8)})
+    with pytest.raises(ModelMismatchError):
+        check_tokenizer(prior, wrong_shape, force=True)
+    with pytest.raises(ModelMismatchError):
+        check_tokenizer(small_prior(), FP)  # never loaded: no recorded tokenizer
