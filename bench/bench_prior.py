@@ -1,0 +1,262 @@
+"""Co4DGen evaluation (issue #8 item 5): quality of views rendered from one prior sample against the
+ground truth of held-out scenes, and the time for 9 views from one sample against 9 independent samples.
+
+    python bench/bench_prior.py --shards data/co4dgen_test --prior co4dgen-tiny
+
+Held-out data: token shards of split="test" scenes written by ``model.train.tokenize_scenes`` (their clip
+sidecars hold every camera's ground-truth video and cameras).  For each event the conditioning camera
+is c = 0 and the anchor a = 1: the prior samples Z^a ~ p(. | V_c, P_c, P_a) once (seed 0) and the frozen
+renderer draws every camera k of the event from it.  PSNR/SSIM (kornia) are reported for the anchor view
+(k = a), the conditioning view (k = c) and the other cameras, next to three references rendered the
+same way:
+
+* ``encoded_anchor``: the tokenizer's own Z^a = E(V_a, P_a) (the record) -- the ceiling of the prior,
+  which can at best reproduce this state;
+* ``encoded_conditioning``: the tokenizer's Z^c = E(V_c, P_c) rendered at every camera -- what the
+  tokenizer alone makes of the same single video (no prior);
+* ``mean_tokens``: the prior's training-set mean tokens -- the floor (no information about the event).
+
+Timing (one event, measured in this one run, best of ``--repeats``): sampling one state and rendering
+9 trajectories around the anchor, against 9 independent (sample + render one view) runs; wall and
+process CPU seconds (the machine is shared).  Results -> ``--results`` (JSON), picture -> ``--figure``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+NINE_VIEWS = ["source", "orbit:degrees=10", "orbit:degrees=-10", "orbit:degrees=20", "orbit:degrees=-20",
+              "pan:degrees=15", "pan:degrees=-15", "dolly_in:metres=0.3", "tilt:degrees=10"]
+METHODS = ("co4dgen", "encoded_anchor", "encoded_conditioning", "mean_tokens")
+
+
+def quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """PSNR (dB) and SSIM (11x11 Gaussian window) of (T, H, W, 3) uint8 videos."""
+    import kornia
+
+    a = torch.from_numpy(pred).permute(0, 3, 1, 2).float() / 255.0
+    b = torch.from_numpy(truth).permute(0, 3, 1, 2).float() / 255.0
+    mse = float(((a - b) ** 2).mean().clamp_min(1e-10))
+    ssim = float(kornia.metrics.ssim(a, b, 11).mean())
+    return 10.0 * float(np.log10(1.0 / mse)), ssim
+
+
+def _to_video(frames: torch.Tensor) -> np.ndarray:
+    return (frames[0].permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+
+
+def _tensor(a: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
+
+
+def render(tokenizer: Any, z_s: torch.Tensor, z_d: torch.Tensor, K: np.ndarray, w2c: np.ndarray, steps: int) -> np.ndarray:
+    return _to_video(tokenizer.render(z_s, z_d, _tensor(K), _tensor(w2c), steps=steps, seed=0))
+
+
+def condition(clip_c: dict[str, np.ndarray], K_a: np.ndarray, w2c_a: np.ndarray) -> Any:
+    from vt4dcodec.model.prior import PriorCondition
+
+    frames = torch.from_numpy(clip_c["frames"]).permute(0, 3, 1, 2).float().div(255.0)[None]
+    return PriorCondition(frames=frames, K_c=_tensor(clip_c["K"]), w2c_c=_tensor(clip_c["w2c"]), K_a=_tensor(K_a),
+                          w2c_a=_tensor(w2c_a))
+
+
+def load_events(shards: str) -> dict[str, dict[int, dict[str, Any]]]:
+    """event -> camera -> {"z_s", "z_d" (1, N, d) tensors, "clip": frames/K/w2c} from test shards."""
+    from vt4dcodec.data.archive_dataset import ArchiveDataset
+    from vt4dcodec.model.train.tokenize_scenes import ClipStore
+
+    tokens = ArchiveDataset(shards)
+    clips = ClipStore(tokens.shards)
+    events: dict[str, dict[int, dict[str, Any]]] = {}
+    for i in range(len(tokens)):
+        sample = tokens[i]
+        meta = sample["metadata"]["user"]["co4dgen"]
+        events.setdefault(meta["event"], {})[int(meta["camera"])] = {
+            "z_s": sample["static_tokens"][None].float(), "z_d": sample["dynamic_tokens"][None].float(),
+            "clip": clips.load(sample["key"]), "fingerprint": sample["metadata"]["fingerprint"]}
+    return dict(sorted(events.items()))
+
+
+def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
+             render_steps: int, seed: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    rows: list[dict[str, Any]] = []
+    figure_rows: list[dict[str, Any]] = []
+    mean_s = prior.static_mean.expand(1, prior.config.n_static, -1)
+    mean_d = prior.dynamic_mean.expand(1, prior.config.n_dynamic, -1)
+    for event, cams in events.items():
+        clip_c, clip_a = cams[cond_cam]["clip"], cams[anchor_cam]["clip"]
+        z_s, z_d = prior.sample(condition(clip_c, clip_a["K"], clip_a["w2c"]), steps=prior_steps, seed=seed)
+        states = {"co4dgen": (z_s, z_d), "encoded_anchor": (cams[anchor_cam]["z_s"], cams[anchor_cam]["z_d"]),
+                  "encoded_conditioning": (cams[cond_cam]["z_s"], cams[cond_cam]["z_d"]),
+                  "mean_tokens": (mean_s, mean_d)}
+        fig = {"event": event, "cond": clip_c["frames"], "truth": {}, "pred": {}}
+        for k, cam in sorted(cams.items()):
+            kind = "anchor" if k == anchor_cam else "conditioning" if k == cond_cam else "other"
+            truth = cam["clip"]["frames"]
+            fig["truth"][k] = truth
+            for method, (s, d) in states.items():
+                pred = render(tokenizer, s, d, cam["clip"]["K"], cam["clip"]["w2c"], render_steps)
+                psnr, ssim = quality(pred, truth)
+                rows.append({"event": event, "camera": k, "view": kind, "method": method, "psnr": psnr, "ssim": ssim})
+                if method == "co4dgen":
+                    fig["pred"][k] = pred
+        figure_rows.append(fig)
+        print(f"  {event}: " + ", ".join(f"{r['method']}@{r['view']}{r['camera']} {r['psnr']:.1f}"
+                                        for r in rows if r["event"] == event and r["method"] == "co4dgen"),
+              file=sys.stderr)
+    summary: dict[str, Any] = {}
+    for method in METHODS:
+        for view in ("anchor", "conditioning", "other", "all"):
+            sel = [r for r in rows if r["method"] == method and (view == "all" or r["view"] == view)]
+            if sel:
+                summary.setdefault(method, {})[view] = {
+                    "psnr_db": round(float(np.mean([r["psnr"] for r in sel])), 3),
+                    "ssim": round(float(np.mean([r["ssim"] for r in sel])), 4), "videos": len(sel)}
+    return {"summary": summary, "rows": rows}, figure_rows
+
+
+def timing(tokenizer: Any, prior: Any, event: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
+           render_steps: int, repeats: int) -> dict[str, Any]:
+    """9 views from one sample vs 9 independent samples, interleaved, best of ``repeats``."""
+    from vt4dcodec.codec import resolve_trajectory
+
+    clip_c, clip_a = event[cond_cam]["clip"], event[anchor_cam]["clip"]
+    cfg = tokenizer.config
+    from vt4dcodec.cameras import Trajectory
+
+    ref = Trajectory(K=clip_a["K"].astype(np.float64), w2c=clip_a["w2c"].astype(np.float64), width=cfg.image_size,
+                     height=cfg.image_size)
+    views = [resolve_trajectory(v, ref, size=cfg.image_size, max_frames=cfg.frames) for v in NINE_VIEWS]
+    cond = condition(clip_c, clip_a["K"], clip_a["w2c"])
+
+    def one_sample() -> None:
+        z_s, z_d = prior.sample(cond, steps=prior_steps, seed=0)
+        for v in views:
+            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps)
+
+    def independent() -> None:
+        for i, v in enumerate(views):
+            z_s, z_d = prior.sample(cond, steps=prior_steps, seed=i)
+            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps)
+
+    def sample_only() -> None:
+        prior.sample(cond, steps=prior_steps, seed=0)
+
+    results: dict[str, dict[str, list[float]]] = {n: {"wall": [], "cpu": []} for n in ("one", "nine", "sample")}
+    for _ in range(repeats):
+        for name, fn in (("one", one_sample), ("nine", independent), ("sample", sample_only)):
+            w0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            results[name]["wall"].append(time.perf_counter() - w0)
+            results[name]["cpu"].append(time.process_time() - c0)
+    best = {n: {k: min(v) for k, v in r.items()} for n, r in results.items()}
+    render_one = (best["one"]["cpu"] - best["sample"]["cpu"]) / len(views)
+    return {
+        "views": NINE_VIEWS, "repeats": repeats, "prior_steps": prior_steps, "render_steps": render_steps,
+        "one_sample_nine_views_s": {k: round(v, 3) for k, v in best["one"].items()},
+        "nine_independent_samples_s": {k: round(v, 3) for k, v in best["nine"].items()},
+        "one_prior_sample_s": {k: round(v, 3) for k, v in best["sample"].items()},
+        "render_one_view_cpu_s": round(render_one, 3),
+        "speedup_cpu": round(best["nine"]["cpu"] / best["one"]["cpu"], 3),
+        "speedup_wall": round(best["nine"]["wall"] / best["one"]["wall"], 3),
+        "all_runs": results,
+    }
+
+
+def draw_figure(rows: list[dict[str, Any]], path: Path, cond_cam: int, anchor_cam: int, count: int = 3) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = rows[:count]
+    cams = sorted(rows[0]["truth"])
+    cols = [("V_c (input)", None, None)] + [(f"cam{k} {'GT'}", k, "truth") for k in cams if k != cond_cam] + \
+           [(f"cam{k} sample", k, "pred") for k in cams if k != cond_cam]
+    fig, axes = plt.subplots(len(rows), len(cols), figsize=(1.25 * len(cols), 1.35 * len(rows)), dpi=90,
+                             squeeze=False)
+    for r, row in enumerate(rows):
+        t = row["cond"].shape[0] // 2
+        for c, (title, k, which) in enumerate(cols):
+            image = row["cond"][t] if k is None else row[which][k][t]
+            axes[r, c].imshow(image)
+            axes[r, c].set_axis_off()
+            if r == 0:
+                label = title + (" (anchor)" if k == anchor_cam else "")
+                axes[r, c].set_title(label, fontsize=6)
+    fig.suptitle(f"Co4DGen: one sample per row (conditioning cam{cond_cam}, anchor cam{anchor_cam}), middle frame",
+                 fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--shards", required=True, help="test-split token shards (tokenize_scenes --split test)")
+    parser.add_argument("--prior", default="co4dgen-tiny", help="prior id or directory")
+    parser.add_argument("--tokenizer", default=None, help="tokenizer id or directory (default: the prior's)")
+    parser.add_argument("--events", type=int, default=8, help="held-out events to evaluate")
+    parser.add_argument("--cond-camera", type=int, default=0)
+    parser.add_argument("--anchor-camera", type=int, default=1)
+    parser.add_argument("--prior-steps", type=int, default=16)
+    parser.add_argument("--render-steps", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best is kept)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--results", type=Path, default=ROOT / "bench" / "results" / "prior.json")
+    parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "co4dgen.png")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    from vt4dcodec.codec import load_model, model_fingerprint
+    from vt4dcodec.generate import load_prior_model
+    from vt4dcodec.model.prior import check_tokenizer
+
+    prior = load_prior_model(args.prior)
+    tokenizer = load_model(args.tokenizer or prior.tokenizer_fingerprint.model_id)
+    fp = model_fingerprint(tokenizer)
+    check_tokenizer(prior, fp)
+    events = dict(list(load_events(args.shards).items())[: args.events])
+    for event, cams in events.items():
+        if cams[args.cond_camera]["fingerprint"] != fp.to_dict():
+            raise SystemExit(f"{event} was tokenized by another tokenizer than {fp.short()}")
+    t0 = time.perf_counter()
+    quality_result, figure_rows = evaluate(tokenizer, prior, events, args.cond_camera, args.anchor_camera,
+                                           args.prior_steps, args.render_steps, args.seed)
+    eval_s = time.perf_counter() - t0
+    timing_result = timing(tokenizer, prior, next(iter(events.values())), args.cond_camera, args.anchor_camera,
+                           args.prior_steps, args.render_steps, args.repeats)
+    result = {
+        "command": "python bench/bench_prior.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "tokenizer": fp.to_dict(), "prior": {"model_id": prior.model_id, "model_version": prior.model_version,
+                                             "config": prior.config.to_dict()},
+        "events": list(events), "cond_camera": args.cond_camera, "anchor_camera": args.anchor_camera,
+        "prior_steps": args.prior_steps, "render_steps": args.render_steps, "seed": args.seed,
+        "threads": args.threads, "evaluation_seconds": round(eval_s, 1),
+        "quality": quality_result["summary"], "per_video": quality_result["rows"], "timing": timing_result,
+    }
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps(result, indent=1) + "\n")
+    draw_figure(figure_rows, args.figure, args.cond_camera, args.anchor_camera)
+    for method, views in result["quality"].items():
+        print(f"{method:22s} " + "  ".join(f"{v}: {m['psnr_db']:.2f} dB / {m['ssim']:.3f}" for v, m in views.items()))
+    t = timing_result
+    print(f"9 views from 1 sample: {t['one_sample_nine_views_s']['cpu']:.2f} s CPU; 9 independent samples: "
+          f"{t['nine_independent_samples_s']['cpu']:.2f} s CPU -> {t['speedup_cpu']:.2f}x "
+          f"(wall {t['speedup_wall']:.2f}x); results -> {args.results}, figure -> {args.figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
