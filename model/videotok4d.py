@@ -75,7 +75,7 @@ class VideoTok4D(nn.Module):
 
     def rays(self, K: torch.Tensor, w2c: torch.Tensor) -> torch.Tensor:
         """Plücker rays of cameras (B, T) at latent resolution: (B, T, 6, h, w), always float32."""
-        with torch.autocast(K.device.type, enabled=False):
+        with torch.autocast("cuda" if K.device.type == "cuda" else "cpu", enabled=False):
             return latent_rays(K, w2c, self.config.image_size, self.config.latent_size)
 
     def latents(self, frames: torch.Tensor) -> torch.Tensor:
