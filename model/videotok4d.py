@@ -65,6 +65,8 @@ class VideoTok4D(nn.Module):
             raise ModelError(f"{what} must be (B, T, 3, {cfg.image_size}, {cfg.image_size}), got {tuple(frames.shape)}")
         if not 1 <= frames.shape[1] <= cfg.frames:
             raise ModelError(f"{what} has {frames.shape[1]} frames; this model takes 1..{cfg.frames}")
+        if not frames.is_meta and not torch.isfinite(frames).all():
+            raise ModelError(f"{what} hold non-finite values")
 
     def _check_cameras(self, K: torch.Tensor, w2c: torch.Tensor, B: int, T: int, what: str) -> None:
         if K.shape != (B, T, 3, 3) or w2c.shape != (B, T, 4, 4):

@@ -102,6 +102,13 @@ def test_bad_inputs_raise_model_error(tiny_model):
         tiny_model.encode(wrong)
     with pytest.raises(ModelError):
         tiny_model.encode(SourceBatch(**{**batch.__dict__, "motion_mask": batch.motion_mask[..., :8]}))
+    nan_frames = batch.frames.clone()
+    nan_frames[0, 1, 2, 3, 4] = float("nan")
+    with pytest.raises(ModelError):
+        tiny_model.encode(SourceBatch(**{**batch.__dict__, "frames": nan_frames}))
+    no_tracks = SourceBatch(**{**batch.__dict__, "track_xy": batch.track_xy[:, :0],
+                               "track_valid": batch.track_valid[:, :0]})
+    assert torch.isfinite(tiny_model.encode(no_tracks)[1]).all()  # zero tracks is legal (N = 0)
     z_s, z_d = tiny_model.encode(batch)
     with pytest.raises(ModelError):
         tiny_model.render(z_s[:, :10], z_d, batch.K, batch.w2c)
