@@ -98,6 +98,12 @@ def test_bad_arguments(scenes, kwargs):
 def test_bad_directory_and_index(tmp_path):
     with pytest.raises(Vt4dError):
         MultiViewPairs(tmp_path)
+    for text in ("not json", '{"cameras": []}', '{"cameras": [{"nom": 1}]}', "[1, 2]"):
+        (tmp_path / "broken").mkdir(exist_ok=True)
+        (tmp_path / "broken" / "capture.json").write_text(text)
+        with pytest.raises(Vt4dError):
+            MultiViewPairs(tmp_path)
+    (tmp_path / "broken" / "capture.json").unlink()
     with pytest.raises(Vt4dError):
         MultiViewPairs([tmp_path])
     ds = MultiViewPairs(range(1), pairing="same", config=CFG)

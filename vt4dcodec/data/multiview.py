@@ -11,6 +11,7 @@ always the same pair (deterministic for an index).
 
 from __future__ import annotations
 
+import json
 import os
 from collections import OrderedDict
 from pathlib import Path
@@ -73,6 +74,22 @@ def camera_pairs(names: Sequence[str], pairing: str, source_camera: str | int | 
     return [(s, t) for s in sources for t in targets if keep(s, t)]
 
 
+def _manifest_camera_names(path: Path) -> list[str]:
+    """Camera names listed in a capture manifest, without the full (slower) validated read.
+
+    Only used to count pairs; the scene is read and validated with ``read_manifest`` when an item
+    of it is first loaded."""
+    try:
+        with open(path / MANIFEST, "rb") as fh:
+            doc = json.load(fh)
+        names = [str(cam["name"]) for cam in doc["cameras"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CaptureError(f"{path / MANIFEST}: cannot list its cameras ({exc})") from None
+    if not names:
+        raise CaptureError(f"{path / MANIFEST} lists no cameras")
+    return names
+
+
 class _DiskScene:
     """A capture directory read one camera at a time (only the cameras a pair needs)."""
 
@@ -125,7 +142,10 @@ class _GeneratedScene:
 
 def _video_tensor(frames: np.ndarray) -> torch.Tensor:
     """(T, H, W, 3) uint8 -> (T, 3, H, W) float32 in [0, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float().div_(255.0)
+    # numpy, not torch ops: tiny torch kernels stall on the thread pool when the machine is busy
+    video = np.ascontiguousarray(frames.transpose(0, 3, 1, 2), dtype=np.float32)
+    video /= np.float32(255.0)
+    return torch.from_numpy(video)
 
 
 def _f32(a: np.ndarray) -> torch.Tensor:
@@ -200,7 +220,7 @@ class MultiViewPairs(Dataset):
             if isinstance(src, int):   # generate_scene names its cameras cam00, cam01, ...
                 names = [f"cam{i:02d}" for i in range(self.config.num_cameras)]
             else:
-                names = self._scene(j).names
+                names = _manifest_camera_names(src)
             self._names[j] = names
         return names
 
@@ -240,6 +260,8 @@ class MultiViewPairs(Dataset):
     def __getitem__(self, index: int) -> dict[str, Any]:
         j, src_name, tgt_name = self.locate(index)
         scene = self._scene(j)
+        if scene.names != self._camera_names(j):
+            raise CaptureError(f"capture {self._sources[j]} changed while in use (its cameras differ)")
         src = scene.camera(src_name, depth=True, mask=True)
         tgt = src if tgt_name == src_name else scene.camera(tgt_name, depth=True, mask=False)
         T, H, W = src["frames"].shape[:3]
