@@ -35,6 +35,7 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
 from vt4dcodec.format.layout import (PREAMBLE_SIZE, SECTION_ENTRY_SIZE, crc32, parse_preamble,  # noqa: E402
                                      parse_table)
+from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
 VECTORS = ROOT / "vectors"
@@ -139,6 +140,97 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
     out["future_minor_ancillary"] = (rebuild(header, sections, minor=7, optional_flags=1 << 40),
                                      "minor version 7, unknown optional flag, unknown header key and two "
                                      "unknown ancillary sections (one with an unknown compression code)")
+    out.update(rans_valid_vectors())
+    return out
+
+
+# --- format 1.1: entropy-coded tokens ------------------------------------------------------------------
+def rans_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    constant = scene(6, 3, 2, provenance=PROVENANCE)
+    constant.dynamic_tokens[:] = 0.75
+    i, c = np.meshgrid(np.arange(12), np.arange(4), indexing="ij")
+    narrow = scene(12, 3, 4, frames=1)
+    narrow.static_tokens[:] = (c / 4.0 - 0.5 + ((i * (c + 1)) % 3 - 1) / 64.0).astype(np.float32)
+    return {
+        "int5_rans_centre_prediction": (
+            dumps(narrow, encoding="int5-rans", compression_level=None),
+            "1.1: int5-rans where Z_s's channels each span a narrow range: coded as residuals from per-channel "
+            "centre codes (prediction 1); Z_d without prediction"),
+        "int4_rans_one_group": (dumps(scene(16, 8, 4), encoding="int4-rans", compression_level=None),
+                                "1.1: int4-rans, one scale/offset per token matrix, every section raw"),
+        "int6_rans_channel_groups": (
+            dumps(scene(24, 8, 4, frames=2, timestamps=True, provenance=PROVENANCE), encoding="int6-rans",
+                  groups=2, compression_level=None),
+            "1.1: int6-rans with 2 channel groups of 2 channels each"),
+        "int3_rans_constant_matrix": (
+            dumps(constant, encoding="int3-rans", compression_level=None),
+            "1.1: int3-rans; Z_d is constant (scale 0, a one-symbol frequency table, a 4-byte stream)"),
+    }
+
+
+def rans_payload(head: bytes, freqs: list[int], codes: list[int]) -> bytes:
+    """A token payload from its parts: group count + parameters, table, stream (for hand-made damage)."""
+    return head + pack_table(freqs) + rans_encode(np.array(codes), freqs)
+
+
+def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(scene(4, 2, 4, provenance=PROVENANCE), encoding="int2-rans", compression_level=None)
+    header, sections = split(good)
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def with_payload(name: str, payload: bytes, error: str, why: str) -> None:
+        bad = [list(s) for s in sections]
+        find(bad, "ZSTA")[3:5] = [payload, len(payload)]
+        out[name] = (rebuild(header, bad, minor=1, required_flags=1), error, why)
+
+    head = struct.pack("<HffB", 1, 0.5, -1.0, 0)  # one group: scale 0.5, offset -1; no prediction
+    codes = [0, 1, 2, 3] * 4
+    with_payload("rans_table_bad_sum", head + b"\x00\x00\x04\x00" + bytes([0x80, 0x20] * 3 + [0x7F]) +
+                 rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError",
+                 "frequency table sums to 12,415, not 16,384")
+    with_payload("rans_table_outside_alphabet", head + b"\x02\x00\x04\x00" + bytes([0x80, 0x20] * 4) +
+                 rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError",
+                 "a 2-bit alphabet (symbols 0..3) but the table covers symbols 2..5")
+    with_payload("rans_table_overlong_varint", head + b"\x00\x00\x01\x00\x80\x80\x81\x00" + b"\x00\x00\x80\x00",
+                 "MalformedSectionError", "a 4-byte varint in the frequency table")
+    full = rans_payload(head, [4096] * 4, codes)
+    with_payload("rans_truncated_stream", full[:-1], "TruncatedError", "the rANS stream lost its last byte")
+    with_payload("rans_trailing_stream_bytes", full + b"\x00", "MalformedSectionError",
+                 "one byte after the end of the rANS stream")
+    forged = bytearray(full)
+    forged[-1] ^= 0x01  # the lowest bit of the last renormalisation byte ends up in the final state
+    with_payload("rans_bad_final_state", bytes(forged),
+                 "MalformedSectionError", "a stream whose state never returns to L (forged bytes)")
+    with_payload("rans_state_below_l", head + pack_table([4096] * 4) + b"\x00\x00\x00\x00",
+                 "MalformedSectionError", "initial rANS state 0, below L = 2^23")
+    with_payload("rans_bad_groups", struct.pack("<HffffffB", 3, *[0.5] * 3, *[-1.0] * 3, 0) + pack_table([4096] * 4) +
+                 rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError", "3 channel groups for d = 4")
+    with_payload("rans_nan_scale", struct.pack("<HffB", 1, float("nan"), -1.0, 0) + pack_table([4096] * 4) +
+                 rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError", "the group's scale is NaN")
+    centred = struct.pack("<HffB", 1, 0.5, -1.0, 1)  # prediction 1: 4 centre codes follow
+    with_payload("rans_unknown_prediction", struct.pack("<HffB", 1, 0.5, -1.0, 2) + pack_table([4096] * 4) +
+                 rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError", "prediction mode 2")
+    with_payload("rans_centre_out_of_range", centred + bytes([0, 1, 4, 3]) +
+                 rans_payload(b"", [0, 0, 0, 16384], [3] * 16),
+                 "MalformedSectionError", "centre code 4 in a 2-bit alphabet")
+    with_payload("rans_residual_out_of_range", centred + bytes([3, 3, 3, 3]) +
+                 rans_payload(b"", [0] * 4 + [16384, 0, 0], [4] * 16), "MalformedSectionError",
+                 "residual symbol 4 (+1) on centre code 3 gives code 4 in a 2-bit alphabet")
+    out["rans_without_flag"] = (patch_preamble(good, 16, "<Q", 0), "MalformedHeaderError",
+                                "int2-rans tokens but required flag bit 0 is clear")
+    out["rans_in_1_0_file"] = (patch_preamble(good, 12, "<H", 0), "MalformedHeaderError",
+                               "int2-rans tokens in a file that says version 1.0")
+    int8 = dumps(scene(4, 2, 4), encoding="int8", compression_level=None)
+    out["flag_without_rans"] = (patch_preamble(patch_preamble(int8, 12, "<H", 1), 16, "<Q", 1),
+                                "MalformedHeaderError", "required flag bit 0 set on an int8 file")
+    quant = [list(s) for s in sections]
+    quant.insert(1, ["QSTA", True, 0, bytes(32), 32])
+    out["rans_with_quant_section"] = (rebuild(header, quant, minor=1, required_flags=1), "MalformedSectionError",
+                                      "a QSTA section next to int2-rans tokens")
+    fp = dict(header["fingerprint"], static_shape=[1 << 20, 4])
+    out["rans_too_many_values"] = (rebuild(dict(header, static_shape=[1 << 20, 4], fingerprint=fp), sections,
+                                           minor=1, required_flags=1), "LimitExceededError",
+                                   "2^22 values in one int2-rans matrix (the limit is 2^21)")
     return out
 
 
@@ -244,6 +336,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     cam[9] = 2.0  # w2c[0, 0, 0]: the rotation is no longer orthonormal
     find(cams, "CAMS")[3] = cam.tobytes()
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
+    out.update(rans_invalid_vectors())
     return out
 
 

@@ -21,6 +21,7 @@ mv = load_vector_tool()
 SMALL = {
     "zstd": dumps(simple_scene(ns=3, nd=2, d=3, frames=2, encoding="int4", metadata={"k": [1, 2]})),
     "raw": dumps(simple_scene(ns=3, nd=2, d=3, frames=1, encoding="float32"), compression_level=None),
+    "rans": dumps(simple_scene(ns=5, nd=2, d=3, frames=1, encoding="int5-rans"), compression_level=None),
 }
 
 

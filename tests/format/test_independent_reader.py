@@ -30,7 +30,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and required == 0 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and required in (0, 1) and file_length == len(data)
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(header_bytes, raw=False)
@@ -50,7 +50,54 @@ def read_scene(data: bytes) -> dict:
             payload = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(payload)).read(raw + 1)
         assert len(payload) == raw
         sections[code.decode()] = payload
+    entropy = header["encoding"].endswith("-rans")
+    assert (required == 1) == entropy and (minor >= 1 or not entropy)
     return {"minor": minor, "optional": optional, "header": header, "sections": sections}
+
+
+def read_varint(raw: bytes, pos: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = raw[pos]
+        value |= (byte & 0x7F) << shift
+        pos, shift = pos + 1, shift + 7
+        if byte < 0x80:
+            assert shift <= 21 and not (byte == 0 and shift > 7)
+            return value, pos
+
+
+def rans_codes(raw: bytes, bits: int, rows: int, cols: int) -> tuple[list[int], list[float], list[float]]:
+    """FORMAT.md I.6.1: (codes in row-major order, per-channel scale, per-channel offset)."""
+    M, L = 1 << 14, 1 << 23
+    (groups,) = struct.unpack_from("<H", raw, 0)
+    scale = struct.unpack_from(f"<{groups}f", raw, 2)
+    offset = struct.unpack_from(f"<{groups}f", raw, 2 + 4 * groups)
+    pos = 2 + 8 * groups
+    mode, pos = raw[pos], pos + 1
+    centre = list(raw[pos:pos + cols]) if mode == 1 else None
+    pos += cols if mode == 1 else 0
+    alphabet = (1 << bits) if mode == 0 else (2 << bits) - 1
+    first, count = struct.unpack_from("<HH", raw, pos)
+    pos += 4
+    freq = [0] * alphabet
+    for k in range(count):
+        freq[first + k], pos = read_varint(raw, pos)
+    assert sum(freq) == M
+    cum = [sum(freq[:s]) for s in range(alphabet)]
+    x, pos = struct.unpack_from("<I", raw, pos)[0], pos + 4
+    symbols = []
+    for _ in range(rows * cols):
+        slot = x % M
+        s = max(t for t in range(alphabet) if freq[t] and cum[t] <= slot)
+        x = freq[s] * (x // M) + slot - cum[s]
+        while x < L:
+            x, pos = x * 256 + raw[pos], pos + 1
+        symbols.append(s)
+    assert pos == len(raw) and x == L
+    codes = symbols if mode == 0 else [s - (1 << bits) + 1 + centre[k % cols] for k, s in enumerate(symbols)]
+    assert all(0 <= q < (1 << bits) for q in codes)
+    width = cols // groups
+    return codes, [scale[c // width] for c in range(cols)], [offset[c // width] for c in range(cols)]
 
 
 def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[list[float]]:
@@ -61,11 +108,14 @@ def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[l
     elif enc == "float16":
         values = list(struct.unpack(f"<{n}e", raw))
     else:
-        q = scene["sections"][quant]
-        scale, offset = struct.unpack(f"<{cols}f", q[:4 * cols]), struct.unpack(f"<{cols}f", q[4 * cols:])
+        if enc.endswith("-rans"):
+            codes, scale, offset = rans_codes(raw, int(enc[3]), rows, cols)
+        else:
+            q = scene["sections"][quant]
+            scale, offset = struct.unpack(f"<{cols}f", q[:4 * cols]), struct.unpack(f"<{cols}f", q[4 * cols:])
         if enc == "int8":
             codes = list(raw)
-        else:
+        elif enc == "int4":
             codes = [c for b in raw for c in (b & 0x0F, b >> 4)][:n]
         # f32(f64(offset) + f64(scale) * q): round the binary64 result to binary32
         values = [struct.unpack("<f", struct.pack("<f", offset[k % cols] + scale[k % cols] * c))[0]

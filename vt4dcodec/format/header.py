@@ -4,7 +4,7 @@ The header is one msgpack map with exactly these keys (version 1.0)::
 
     static_shape   [N_s, d]          ints
     dynamic_shape  [N_d, d]          ints, same d
-    encoding       "float32" | "float16" | "int8" | "int4" | "int3-rans" .. "int8-rans" (1.1)
+    encoding       "float32" | "float16" | "int8" | "int4" | "int2-rans" .. "int8-rans" (1.1)
     cameras        {num_frames: T, width: W, height: H, distortion_terms: 0|4|5|8|12|14,
                     has_timestamps: bool}
     fingerprint    {model_id, model_version, config_sha256, weights_sha256, static_shape,

@@ -18,7 +18,7 @@ After the last symbol the state MUST equal ``L`` and every stream byte MUST have
 every stream the encoder makes, so they double as an integrity check.  A hostile stream cannot make the
 decoder loop: each symbol reads at most 3 bytes, and running out of bytes is an error.
 
-Frequency table bytes: ``u8 first_symbol``, ``u16 count`` (little-endian), then ``count`` LEB128 varints,
+Frequency table bytes: ``u16 first_symbol``, ``u16 count`` (little-endian), then ``count`` LEB128 varints,
 the frequencies of symbols ``first_symbol .. first_symbol + count - 1`` (every other symbol has frequency
 0).  Each varint is 1..3 bytes with no redundant trailing zero group, each frequency is at most ``M``, and
 they sum to exactly ``M``.
@@ -65,7 +65,7 @@ def pack_table(freqs: list[int]) -> bytes:
     """Table bytes (see the module doc) covering the used symbol range of ``freqs``."""
     used = [i for i, f in enumerate(freqs) if f]
     first, last = used[0], used[-1]
-    out = bytearray([first]) + (last - first + 1).to_bytes(2, "little")
+    out = bytearray(first.to_bytes(2, "little")) + (last - first + 1).to_bytes(2, "little")
     for f in freqs[first:last + 1]:
         while True:
             byte, f = f & 0x7F, f >> 7
@@ -81,13 +81,13 @@ def parse_table(data, alphabet: int) -> tuple[list[int], int]:
     Raises MalformedSectionError for a table that is cut short, overlong, names symbols outside
     ``[0, alphabet)`` or does not sum to ``M``.
     """
-    if len(data) < 3:
+    if len(data) < 4:
         raise TruncatedError("entropy-coded section ends inside its frequency table header")
-    first, count = data[0], int.from_bytes(bytes(data[1:3]), "little")
+    first, count = int.from_bytes(bytes(data[0:2]), "little"), int.from_bytes(bytes(data[2:4]), "little")
     if count < 1 or first + count > alphabet:
         raise MalformedSectionError(
             f"frequency table covers symbols {first}..{first + count - 1}; the alphabet is 0..{alphabet - 1}")
-    freqs, pos = [0] * alphabet, 3
+    freqs, pos = [0] * alphabet, 4
     for k in range(count):
         value, shift = 0, 0
         while True:
@@ -136,7 +136,7 @@ def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
 
 
 def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
-    """Decode ``count`` symbols (uint8 array) from ``stream`` under ``freqs`` (validated by parse_table).
+    """Decode ``count`` symbols (uint16 array) from ``stream`` under ``freqs`` (validated by parse_table).
 
     Raises TruncatedError if the stream ends early, MalformedSectionError if bytes are left over or the
     final state is not ``L`` (a damaged or forged stream).
@@ -149,10 +149,10 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
         raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
     nonzero = [s for s, f in enumerate(freqs) if f]
     if len(nonzero) == 1:  # one symbol of probability 1: the stream carries no information
-        out = np.full(count, nonzero[0], np.uint8)
+        out = np.full(count, nonzero[0], np.uint16)
         pos = 4
     else:
-        slot_symbol = np.repeat(np.arange(len(freqs), dtype=np.uint8), freqs).tolist()
+        slot_symbol = np.repeat(np.arange(len(freqs), dtype=np.uint16), freqs).tolist()
         cum, mask, end = _cumulative(freqs), PROB_SCALE - 1, len(data)
         syms, pos = [0] * count, 4
         for i in range(count):
@@ -165,8 +165,9 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
                 x = (x << 8) | data[pos]
                 pos += 1
             syms[i] = s
-        out = np.array(syms, dtype=np.uint8)
-    if pos != len(data) or x != STATE_LOWER:
-        raise MalformedSectionError(
-            f"rANS stream does not end cleanly ({len(data) - pos} bytes left, final state {x} != {STATE_LOWER})")
+        out = np.array(syms, dtype=np.uint16)
+    if pos != len(data):
+        raise MalformedSectionError(f"rANS stream has {len(data) - pos} bytes left after its last symbol")
+    if x != STATE_LOWER:
+        raise MalformedSectionError(f"rANS stream ends in state {x}, not {STATE_LOWER}: damaged or forged bytes")
     return out

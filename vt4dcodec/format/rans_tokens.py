@@ -1,19 +1,24 @@
-"""Entropy-coded token encodings ``int3-rans`` .. ``int8-rans`` (FORMAT.md, "Entropy-coded token
+"""Entropy-coded token encodings ``int2-rans`` .. ``int8-rans`` (FORMAT.md, "Entropy-coded token
 encodings"; format version 1.1, required feature flag bit 0).
 
 A token matrix X (N, d) is quantized with ``b`` bits per value by the same affine rule as ``int8``, but
 with one (scale, offset) pair per *group* of ``d / G`` consecutive channels (G = 1: one pair for the
-whole matrix; G = d: per channel), and the N*d codes (row-major) are rANS-coded with one static
-frequency table stored in the section.  Token section payload, little-endian::
+whole matrix; G = d: per channel).  The N*d codes (row-major) are rANS-coded with one static frequency
+table stored in the section, either as they are (prediction 0) or as residuals from a per-channel centre
+code (prediction 1: symbol = q - centre_c + 2^b - 1), whichever is smaller.  Token section payload,
+little-endian::
 
     u16        G          number of channel groups, 1 <= G <= d, d % G == 0
     f32[G]     scale      per group, finite, >= 0
     f32[G]     offset     per group, finite
-    table                 frequency table over the alphabet 0 .. 2^b - 1 (rans.py)
-    stream                the rANS stream of the N*d codes, to the end of the payload (rans.py)
+    u8         P          prediction: 0 = none, 1 = per-channel centre codes
+    u8[d]      centre     (P = 1 only) each < 2^b; the writer uses the lower median of the channel's codes
+    table                 frequency table over 0 .. 2^b - 1 (P = 0) or 0 .. 2^(b+1) - 2 (P = 1) (rans.py)
+    stream                the rANS stream of the N*d symbols, to the end of the payload (rans.py)
 
-Decoding: ``x[i, c] = f32(f64(offset_g) + f64(scale_g) * q[i, c])`` with ``g = c // (d / G)``; the
-maximum error is the int8 formula with the group's scale and range.
+Decoding: ``q = symbol`` (P = 0) or ``q = symbol - (2^b - 1) + centre_c`` (P = 1, must lie in
+0 .. 2^b - 1), then ``x[i, c] = f32(f64(offset_g) + f64(scale_g) * q[i, c])`` with ``g = c // (d / G)``;
+the maximum error is the int8 formula with the group's scale and range.
 """
 
 from __future__ import annotations
@@ -29,9 +34,10 @@ from .affine import affine_codes, group_params
 __all__ = ["RANS_ENCODINGS", "RANS_BITS", "MAX_RANS_VALUES", "encode_rans_tokens", "decode_rans_codes",
            "check_groups"]
 
-RANS_BITS = {f"int{b}-rans": b for b in (3, 4, 5, 6, 7, 8)}
+RANS_BITS = {f"int{b}-rans": b for b in (2, 3, 4, 5, 6, 7, 8)}
 RANS_ENCODINGS = tuple(RANS_BITS)
 MAX_RANS_VALUES = 1 << 21  # N * d per entropy-coded matrix: bounds the decoder's work (~1 s in pure Python)
+PREDICT_NONE, PREDICT_CENTRE = 0, 1
 
 
 def check_groups(groups: int, cols: int) -> None:
@@ -39,8 +45,14 @@ def check_groups(groups: int, cols: int) -> None:
         raise FormatError(f"quantization groups must divide d = {cols} (1 <= groups <= d), got {groups!r}")
 
 
+def _entropy_part(symbols: np.ndarray, alphabet: int) -> bytes:
+    freqs = rans.normalize_counts(np.bincount(symbols, minlength=alphabet))
+    return rans.pack_table(freqs) + rans.rans_encode(symbols, freqs)
+
+
 def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
-    """The token section payload of finite float32 tokens ``x`` (N, d) in ``encoding`` (deterministic)."""
+    """The token section payload of finite float32 tokens ``x`` (N, d) in ``encoding`` (deterministic:
+    both predictions are coded and the shorter kept, prediction 0 on a tie)."""
     bits = RANS_BITS[encoding]
     n, d = x.shape
     check_groups(groups, d)
@@ -49,19 +61,24 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
                                  "matrix may hold; use int8 or int4")
     scale, offset = group_params(x, bits, groups)
     width = d // groups
-    codes = affine_codes(x, np.repeat(scale, width), np.repeat(offset, width), bits).reshape(-1)
-    freqs = rans.normalize_counts(np.bincount(codes, minlength=1 << bits))
+    codes = affine_codes(x, np.repeat(scale, width), np.repeat(offset, width), bits)
     head = struct.pack("<H", groups) + np.concatenate([scale, offset]).astype("<f4").tobytes()
-    return head + rans.pack_table(freqs) + rans.rans_encode(codes, freqs)
+    plain = bytes([PREDICT_NONE]) + _entropy_part(codes.reshape(-1).astype(np.int64), 1 << bits)
+    centre = np.sort(codes, axis=0)[(n - 1) // 2]  # lower median per channel
+    residual = codes.astype(np.int64) - centre.astype(np.int64) + ((1 << bits) - 1)
+    predicted = bytes([PREDICT_CENTRE]) + centre.tobytes() + _entropy_part(residual.reshape(-1), (2 << bits) - 1)
+    return head + (predicted if len(predicted) < len(plain) else plain)
 
 
 def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(codes uint8 (rows, cols), scale float32 (cols,), offset float32 (cols,)) of a token payload.
 
-    Every field is checked before use: group count, parameters finite with scale >= 0, the frequency
-    table, the stream length and its clean end.  Raises MalformedSectionError / TruncatedError.
+    Every field is checked before use: group count, parameters finite with scale >= 0, prediction mode and
+    centre codes, the frequency table, the stream length and its clean end, every code in range.  Raises
+    MalformedSectionError / TruncatedError / LimitExceededError.
     """
     bits = RANS_BITS[encoding]
+    top = (1 << bits) - 1
     data = bytes(payload)
     if rows * cols > MAX_RANS_VALUES:
         raise LimitExceededError(f"{rows}x{cols} tokens exceed the {MAX_RANS_VALUES}-value limit of {encoding}")
@@ -70,15 +87,31 @@ def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.
     groups = struct.unpack_from("<H", data)[0]
     if not 1 <= groups <= cols or cols % groups:
         raise MalformedSectionError(f"{encoding} section has {groups} channel groups; they must divide d = {cols}")
-    table_at = 2 + 8 * groups
-    if len(data) < table_at:
+    mode_at = 2 + 8 * groups
+    if len(data) < mode_at + 1:
         raise TruncatedError(f"{encoding} section ends inside its {groups} quantization parameter pairs")
     both = np.frombuffer(data, dtype="<f4", count=2 * groups, offset=2)
     scale, offset = both[:groups], both[groups:]
     if not (np.all(np.isfinite(both)) and np.all(scale >= 0)):
         raise MalformedSectionError("quantization parameters must be finite with scale >= 0")
-    freqs, used = rans.parse_table(memoryview(data)[table_at:], 1 << bits)
-    codes = rans.rans_decode(memoryview(data)[table_at + used:], freqs, rows * cols)
+    mode, table_at = data[mode_at], mode_at + 1
+    if mode == PREDICT_CENTRE:
+        if len(data) < table_at + cols:
+            raise TruncatedError(f"{encoding} section ends inside its {cols} centre codes")
+        centre = np.frombuffer(data, dtype=np.uint8, count=cols, offset=table_at).astype(np.int64)
+        if np.any(centre > top):
+            raise MalformedSectionError(f"{encoding} centre code above {top}")
+        table_at += cols
+    elif mode != PREDICT_NONE:
+        raise MalformedSectionError(f"{encoding} section has unknown prediction mode {mode}")
+    alphabet = (1 << bits) if mode == PREDICT_NONE else (2 << bits) - 1
+    freqs, used = rans.parse_table(memoryview(data)[table_at:], alphabet)
+    symbols = rans.rans_decode(memoryview(data)[table_at + used:], freqs, rows * cols).reshape(rows, cols)
+    if mode == PREDICT_CENTRE:
+        codes = symbols.astype(np.int64) - top + centre
+        if codes.min() < 0 or codes.max() > top:
+            raise MalformedSectionError(f"{encoding} residuals decode to codes outside 0..{top}")
+        symbols = codes
     width = cols // groups
-    return (codes.reshape(rows, cols), np.repeat(scale, width).astype(np.float32),
+    return (symbols.astype(np.uint8), np.repeat(scale, width).astype(np.float32),
             np.repeat(offset, width).astype(np.float32))

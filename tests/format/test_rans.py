@@ -1,0 +1,186 @@
+"""The entropy-coded encodings of format 1.1 (FORMAT.md I.6.1): the rANS coder, its frequency tables,
+the int<b>-rans token payloads, the version/flag rules, and hostile sections."""
+
+from __future__ import annotations
+
+import struct
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from format_strategies import simple_scene, token_matrix
+from vt4dcodec.errors import FormatError, MalformedSectionError, TruncatedError, UnsupportedFeatureError
+from vt4dcodec.format import dumps, loads, max_abs_error, open_scene
+from vt4dcodec.format import layout
+from vt4dcodec.format.encodings import decode_tokens, encode_tokens
+from vt4dcodec.format.rans import PROB_SCALE, normalize_counts, pack_table, parse_table, rans_decode, rans_encode
+from vt4dcodec.format.rans_tokens import MAX_RANS_VALUES, RANS_BITS, RANS_ENCODINGS, decode_rans_codes
+
+counts_lists = st.lists(st.integers(0, 1000), min_size=1, max_size=80).filter(lambda c: sum(c) > 0)
+
+
+@given(counts_lists)
+def test_normalized_frequencies_sum_to_m_and_keep_every_present_symbol(counts):
+    freqs = normalize_counts(np.array(counts))
+    assert sum(freqs) == PROB_SCALE and len(freqs) == len(counts)
+    assert all((f > 0) == (c > 0) for f, c in zip(freqs, counts))
+    assert normalize_counts(np.array(counts)) == freqs  # deterministic
+
+
+@given(counts_lists)
+def test_frequency_table_bytes_round_trip(counts):
+    freqs = normalize_counts(np.array(counts))
+    raw = pack_table(freqs)
+    assert parse_table(raw + b"tail", len(freqs)) == (freqs, len(raw))
+
+
+@given(st.data())
+def test_rans_round_trip_of_any_symbol_sequence(data):
+    alphabet = data.draw(st.integers(1, 300))
+    symbols = np.array(data.draw(st.lists(st.integers(0, alphabet - 1), min_size=1, max_size=400)))
+    freqs = normalize_counts(np.bincount(symbols, minlength=alphabet))
+    stream = rans_encode(symbols, freqs)
+    assert np.array_equal(rans_decode(stream, freqs, symbols.size), symbols)
+
+
+def test_skewed_sources_cost_about_their_entropy():
+    rng = np.random.default_rng(0)
+    p = np.array([0.7, 0.2, 0.05, 0.05])
+    symbols = rng.choice(4, size=20000, p=p)
+    freqs = normalize_counts(np.bincount(symbols, minlength=4))
+    entropy_bytes = -(np.log2(p[symbols])).sum() / 8
+    assert len(rans_encode(symbols, freqs)) <= entropy_bytes * 1.01 + 8
+
+
+@given(st.lists(st.integers(0, 5), min_size=2, max_size=200), st.data())
+def test_every_truncated_or_extended_stream_is_a_typed_error(symbols, data):
+    symbols = np.array(symbols)
+    freqs = normalize_counts(np.bincount(symbols, minlength=6))
+    stream = rans_encode(symbols, freqs)
+    cut = data.draw(st.integers(0, len(stream) - 1))
+    for bad in (stream[:cut], stream + bytes([data.draw(st.integers(0, 255))])):
+        try:
+            out = rans_decode(bad, freqs, symbols.size)
+        except (TruncatedError, MalformedSectionError):
+            continue
+        # the only way to survive: a one-symbol table (the stream carries nothing) -- not the case here
+        assert len(set(symbols.tolist())) == 1 and np.array_equal(out, symbols)
+
+
+@pytest.mark.parametrize("table, why", [
+    (b"\x00\x00", "header"), (b"\x00\x00\x00\x00", "count 0"), (b"\x00\x00\x01\x00", "cut short"),
+    (b"\x00\x00\x01\x00\x80\x80\x80\x01", "4-byte varint"), (b"\x00\x00\x02\x00\x80\x00\x00", "redundant zero"),
+    (b"\x00\x00\x01\x00\x81\x80\x01", "above M"), (b"\x00\x00\x01\x00\x7f", "sum"),
+    (b"\x03\x00\x02\x00\x80\x40\x80\x40", "outside the alphabet"),
+])
+def test_malformed_frequency_tables_are_refused(table, why):
+    with pytest.raises((MalformedSectionError, TruncatedError)):
+        parse_table(table, 4)
+
+
+@settings(max_examples=40)
+@given(st.sampled_from(RANS_ENCODINGS), st.integers(1, 6), st.sampled_from([1, 2, 3, 6]), st.data())
+def test_round_trip_within_the_documented_error_for_any_grouping(encoding, rows, groups, data):
+    x = data.draw(token_matrix(rows, 6, st.floats(-1e6, 1e6, allow_nan=False, width=32)))
+    enc = encode_tokens(x, encoding, groups=groups)
+    assert enc.quant is None and enc.tokens == encode_tokens(x.copy(), encoding, groups=groups).tokens
+    y = decode_tokens(enc.tokens, None, encoding, rows, 6)
+    assert y.dtype == np.float32 and np.all(np.abs(x.astype(np.float64) - y) <= max_abs_error(x, encoding,
+                                                                                                groups=groups))
+    codes, _, _ = decode_rans_codes(enc.tokens, encoding, rows, 6)
+    assert codes.max() < (1 << RANS_BITS[encoding])
+
+
+def test_per_channel_grouping_matches_int8_codes_exactly():
+    x = simple_scene(ns=40, d=8).static_tokens
+    a = decode_tokens(encode_tokens(x, "int8-rans", groups=8).tokens, None, "int8-rans", 40, 8)
+    e = encode_tokens(x, "int8")
+    assert np.array_equal(a, decode_tokens(e.tokens, e.quant, "int8", 40, 8))
+
+
+def _mode(payload: bytes) -> int:
+    groups = struct.unpack_from("<H", payload)[0]
+    return payload[2 + 8 * groups]
+
+
+def test_narrow_channels_use_centre_prediction_and_iid_tokens_do_not():
+    rng = np.random.default_rng(3)
+    narrow = (rng.uniform(-1, 1, 32)[None, :] + rng.normal(0, 0.01, (64, 32))).astype(np.float32)
+    wide = rng.normal(0, 1, (64, 32)).astype(np.float32)
+    pn, pw = encode_tokens(narrow, "int6-rans").tokens, encode_tokens(wide, "int6-rans").tokens
+    assert _mode(pn) == 1 and _mode(pw) == 0
+    assert len(pn) < 0.5 * len(pw)  # same bits, same distortion bound, far fewer bytes
+    for p, x in ((pn, narrow), (pw, wide)):
+        assert np.all(np.abs(decode_tokens(p, None, "int6-rans", 64, 32) - x) <= max_abs_error(x, "int6-rans"))
+
+
+def test_rans_files_say_1_1_with_the_flag_and_others_stay_1_0():
+    scene = simple_scene(ns=6, d=4)
+    for encoding in ("float32", "float16", "int8", "int4"):
+        f = open_scene(dumps(scene, encoding=encoding))
+        assert f.version == (1, 0) and f.preamble.required_flags == 0
+    for encoding in RANS_ENCODINGS:
+        data = dumps(scene, encoding=encoding, groups=2)
+        f = open_scene(data)
+        assert f.version == (1, 1) and f.preamble.required_flags == layout.FLAG_ENTROPY_CODED_TOKENS
+        assert {e.type for e in f.sections} == {"CAMS", "ZSTA", "ZDYN"}
+        assert loads(data).encoding == encoding
+
+
+def test_a_1_0_reader_refuses_entropy_coded_files_by_the_required_flag(monkeypatch):
+    data = dumps(simple_scene(), encoding="int4-rans")
+    monkeypatch.setattr(layout, "KNOWN_REQUIRED_FLAGS", 0)
+    with pytest.raises(UnsupportedFeatureError, match="upgrade"):
+        loads(data)
+    loads(dumps(simple_scene(), encoding="int8"))
+
+
+def test_lazy_access_codes_and_group_parameters():
+    scene = simple_scene(ns=10, nd=5, d=4, seed=2)
+    f = open_scene(dumps(scene, encoding="int5-rans", groups=2))
+    codes = f.static_tokens(dequantize=False)
+    scale, offset = f.quantization("static")
+    assert codes.dtype == np.uint8 and codes.shape == (10, 4) and scale.shape == offset.shape == (4,)
+    assert scale[0] == scale[1] and scale[2] == scale[3]
+    expected = (offset.astype(np.float64) + scale.astype(np.float64) * codes).astype(np.float32)
+    assert np.array_equal(expected, f.static_tokens())
+
+
+def test_bad_group_argument_is_a_format_error():
+    with pytest.raises(FormatError, match="groups"):
+        dumps(simple_scene(d=4), encoding="int4-rans", groups=3)
+
+
+def test_single_symbol_matrix_at_the_limit_decodes_without_a_per_symbol_loop():
+    rows = MAX_RANS_VALUES // 64
+    payload = encode_tokens(np.zeros((rows, 64), np.float32), "int3-rans").tokens
+    assert len(payload) < 40
+    start = time.perf_counter()
+    assert decode_rans_codes(payload, "int3-rans", rows, 64)[0].sum() == 0
+    assert time.perf_counter() - start < 1.0
+
+
+@settings(max_examples=150)
+@given(st.binary(max_size=120), st.sampled_from(RANS_ENCODINGS))
+def test_arbitrary_payloads_only_raise_format_errors(blob, encoding):
+    try:
+        codes, scale, offset = decode_rans_codes(blob, encoding, 3, 4)
+    except FormatError:
+        return
+    assert codes.shape == (3, 4) and codes.max() < (1 << RANS_BITS[encoding]) and np.all(np.isfinite(scale))
+
+
+@settings(max_examples=60)
+@given(st.integers(0, 10_000), st.sampled_from(RANS_ENCODINGS))
+def test_damaged_payload_bytes_are_rejected_or_stay_in_range(position, encoding):
+    x = simple_scene(ns=16, d=4, seed=5).static_tokens
+    payload = bytearray(encode_tokens(x, encoding).tokens)
+    payload[position % len(payload)] ^= 0x5A
+    try:
+        y = decode_tokens(bytes(payload), None, encoding, 16, 4)
+    except FormatError:
+        return
+    assert y.shape == (16, 4) and np.all(np.isfinite(y))  # only a parameter byte changed: still a valid matrix
