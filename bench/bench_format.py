@@ -4,6 +4,8 @@ same arrays with np.savez_compressed and safetensors (+zstd), in one run.
 
     python bench/bench_format.py                 # 1,000 scenes per format (about a minute on 2 cores)
     python bench/bench_format.py --scenes 100    # quicker
+    python bench/bench_format.py --scenes 20 --encodings int8,int6-rans,int4-rans --out /tmp/f.json
+                                                 # the entropy-coded 1.1 encodings (pure-Python rANS: slow)
 
 Throughput is "logical" MB/s: float32 token megabytes (1536 x 64 x 4 B = 0.393 MB per scene) handled per
 second, the same yardstick for every format.  Write = encode + write the file; read = read the file +
@@ -34,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, load, open_scene, save  # noqa: E402
+from vt4dcodec.format.encodings import V1_0_ENCODINGS  # noqa: E402
 
 NS, ND, D, FRAMES = 1024, 512, 64, 32
 TOKEN_MB = (NS + ND) * D * 4 / 1e6
@@ -148,10 +151,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=1000, help="scenes written and read per format")
     parser.add_argument("--round-size", type=int, default=100, help="scenes per format per turn")
+    parser.add_argument("--encodings", default=",".join(V1_0_ENCODINGS),
+                        help=f"comma-separated .vt4d encodings, or 'all' (default: the 1.0 ones; any of {ENCODINGS})")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
     args = parser.parse_args()
+    encodings = ENCODINGS if args.encodings == "all" else tuple(args.encodings.split(","))
+    unknown = set(encodings) - set(ENCODINGS)
+    if unknown:
+        parser.error(f"unknown encoding(s) {sorted(unknown)}; choose from {ENCODINGS}")
     scenes = make_scenes(0)
-    formats = [(f"vt4d-{e}", *vt4d(e)) for e in ENCODINGS]
+    formats = [(f"vt4d-{e}", *vt4d(e)) for e in encodings]
     formats += [("vt4d-int8-tokens-only", *vt4d_lazy_tokens("int8"))]
     formats += [("npz_compressed-float32", *savez()), ("safetensors+zstd-float32", *safetensors_zstd())]
     tallies = [Tally(name, w, r) for name, w, r in formats]
@@ -164,7 +173,7 @@ def main() -> int:
                 tally.round(scenes, r * args.round_size, count, workdir)
             print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
     results = [t.result() for t in tallies]
-    report = {"command": f"python bench/bench_format.py --scenes {args.scenes}", "token_MB_per_scene": TOKEN_MB,
+    report = {"command": f"python bench/bench_format.py --scenes {args.scenes} --encodings {','.join(encodings)}", "token_MB_per_scene": TOKEN_MB,
               "scene": {"static": [NS, D], "dynamic": [ND, D], "frames": FRAMES, "tokens": "iid N(0,1) float32"},
               "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "numpy": np.__version__,
                           "load_average_at_end": os.getloadavg(),

@@ -4,11 +4,12 @@ Specification: FORMAT.md, Part I.  Typical use::
 
     from vt4dcodec.format import Scene, ModelFingerprint, save, load, open_scene
     save(scene, "clip.vt4d")                 # int8 tokens by default
+    save(scene, "small.vt4d", encoding="int6-rans")   # entropy-coded tokens (format 1.1)
     f = open_scene("clip.vt4d")              # lazy: header and table only
     f.fingerprint, f.static_tokens()         # sections decoded on access
 """
 
-from .encodings import ENCODINGS, max_abs_error
+from .encodings import ENCODINGS, RANS_ENCODINGS, max_abs_error
 from .fingerprint import PROVENANCE_KINDS, ModelFingerprint, Provenance
 from .layout import FORMAT_MAJOR, FORMAT_MINOR, SCENE_MAGIC
 from .reader import SceneFile, load, loads, open_scene, verify
@@ -16,5 +17,5 @@ from .scene import Scene
 from .writer import DEFAULT_COMPRESSION_LEVEL, dumps, save
 
 __all__ = ["Scene", "ModelFingerprint", "Provenance", "SceneFile", "save", "load", "dumps", "loads", "open_scene",
-           "verify", "ENCODINGS", "SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "PROVENANCE_KINDS",
+           "verify", "ENCODINGS", "RANS_ENCODINGS", "SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "PROVENANCE_KINDS",
            "DEFAULT_COMPRESSION_LEVEL", "max_abs_error"]

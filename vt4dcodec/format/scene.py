@@ -41,7 +41,8 @@ class Scene:
         metadata: bounded user key/values (see FORMAT.md, "Metadata").
         provenance: where the tokens came from, or None.
         encoding: the token encoding used by :func:`save` unless overridden
-            ("float32" | "float16" | "int8" | "int4"); a loaded scene carries its file's encoding.
+            ("float32" | "float16" | "int8" | "int4" | "int2-rans" .. "int8-rans"); a loaded scene carries
+            its file's encoding.
     """
 
     static_tokens: np.ndarray
