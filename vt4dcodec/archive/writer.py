@@ -71,6 +71,10 @@ def create_archive(path: str | os.PathLike, *, exist_ok: bool = False) -> None:
 class ArchiveWriter:
     """Append-and-commit access to a local archive.
 
+    Writers need a local POSIX file system (``flock``, ``pwrite``, ``fdatasync``, ``ftruncate``);
+    readers work on any fsspec file system.  To publish to object storage, write locally and upload
+    the finished file (it is immutable until the next append).
+
     ``mode``: ``"a"`` open (create if missing), ``"x"`` create (fail if present), ``"w"`` replace
     with an empty archive.  ``on_uncommitted`` decides what happens to bytes after the last commit
     (left by a crashed writer): ``"error"`` (default) raises :class:`UncommittedDataError`,
