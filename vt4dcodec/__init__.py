@@ -13,3 +13,16 @@ from .cameras import Trajectory  # noqa: F401
 from .format import (  # noqa: F401,E402  (the single-scene container: numpy + msgpack + zstandard only)
     ModelFingerprint, Provenance, Scene, dumps, load, loads, open_scene, save, verify,
 )
+from .archive import ArchiveWriter, open_archive, verify_archive  # noqa: F401,E402  (torch-free too)
+
+# The codec needs torch; it is imported on first use so that `import vt4dcodec` stays light.
+_LAZY = {"encode": "codec", "encode_clips": "codec", "decode": "codec", "SceneDecoder": "codec",
+         "generate": "generate"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'vt4dcodec' has no attribute {name!r}")

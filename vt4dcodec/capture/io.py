@@ -27,7 +27,7 @@ from ..errors import CameraError, CaptureError
 from .capture import Capture
 
 __all__ = [
-    "MANIFEST_NAME",
+    "MANIFEST_NAME", "read_camera_depth",
     "CAPTURE_FORMAT",
     "CAPTURE_VERSION",
     "CameraEntry",
@@ -316,7 +316,7 @@ def read_camera_frames(manifest: CaptureManifest, name: str) -> np.ndarray:
     return _read_mp4(path, manifest.num_frames, shape, f"camera {name!r}")
 
 
-def _read_camera_depth(manifest: CaptureManifest, entry: CameraEntry) -> np.ndarray:
+def read_camera_depth(manifest: CaptureManifest, entry: CameraEntry) -> np.ndarray:
     shape = (entry.trajectory.height, entry.trajectory.width)
     where = f"camera {entry.name!r} depth"
     path = _safe_relpath(manifest.directory, entry.depth_path, where)
@@ -330,7 +330,7 @@ def read_capture(directory: str | os.PathLike) -> Capture:
     """Load a capture directory into memory (frames RGB uint8, depth float32 metres, 0 = unknown)."""
     manifest = read_manifest(directory)
     frames = {e.name: read_camera_frames(manifest, e.name) for e in manifest.cameras}
-    depth = {e.name: _read_camera_depth(manifest, e) for e in manifest.cameras if e.depth_type}
+    depth = {e.name: read_camera_depth(manifest, e) for e in manifest.cameras if e.depth_type}
     return Capture(
         cameras={e.name: e.trajectory for e in manifest.cameras},
         frames=frames,

@@ -109,7 +109,7 @@ class _DiskScene:
                                "K": entry.trajectory.K, "w2c": entry.trajectory.w2c}
         if depth and entry.depth_type is not None:
             # TODO(capture owner): a public read_camera_depth(manifest, name); this is its private twin.
-            out["depth"] = capture_io._read_camera_depth(self.manifest, entry)
+            out["depth"] = capture_io.read_camera_depth(self.manifest, entry)
         if mask and (self.path / GT_NAME).is_file():
             try:
                 with np.load(self.path / GT_NAME, allow_pickle=False) as z:

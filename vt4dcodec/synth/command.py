@@ -9,19 +9,11 @@ import argparse
 import time
 from typing import Any
 
+from ..cli import int_at_least
+
 __all__ = ["add_synth_parser", "run_synth"]
 
 
-def _int_at_least(lo: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < lo:
-            raise argparse.ArgumentTypeError(f"{text!r} must be >= {lo}")
-        return value
-    return parse
 
 
 def run_synth(args: argparse.Namespace) -> int:
@@ -54,17 +46,17 @@ def add_synth_parser(sub: Any) -> None:
             "already in OUT are kept, so an interrupted run can be resumed."
         ),
     )
-    p.add_argument("-n", "--num-scenes", type=_int_at_least(1), required=True, help="number of scenes")
+    p.add_argument("-n", "--num-scenes", type=int_at_least(1), required=True, help="number of scenes")
     p.add_argument("--split", choices=("train", "test"), default="train", help="asset pool (default train)")
     p.add_argument("-o", "--output", required=True, help="output directory")
-    p.add_argument("--seed", type=_int_at_least(0), default=0, help="first scene seed (default 0)")
-    p.add_argument("--workers", type=_int_at_least(1), default=2, help="processes (default 2)")
-    p.add_argument("--cameras", type=_int_at_least(1), default=10, help="cameras per scene (default 10)")
-    p.add_argument("--frames", type=_int_at_least(2), default=8, help="frames per camera (default 8)")
-    p.add_argument("--size", type=_int_at_least(2), default=64, help="square image side in pixels (default 64)")
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="first scene seed (default 0)")
+    p.add_argument("--workers", type=int_at_least(1), default=2, help="processes (default 2)")
+    p.add_argument("--cameras", type=int_at_least(1), default=10, help="cameras per scene (default 10)")
+    p.add_argument("--frames", type=int_at_least(2), default=8, help="frames per camera (default 8)")
+    p.add_argument("--size", type=int_at_least(2), default=64, help="square image side in pixels (default 64)")
     p.add_argument("--fps", type=float, default=8.0, help="frame rate (default 8)")
-    p.add_argument("--min-objects", type=_int_at_least(0), default=2, help="fewest objects (default 2)")
-    p.add_argument("--max-objects", type=_int_at_least(0), default=4, help="most objects (default 4)")
+    p.add_argument("--min-objects", type=int_at_least(0), default=2, help="fewest objects (default 2)")
+    p.add_argument("--max-objects", type=int_at_least(0), default=4, help="most objects (default 4)")
     p.add_argument("--static", action="store_true", help="objects stand still (nothing moves)")
     p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
     p.add_argument("--overwrite", action="store_true", help="regenerate scenes that already exist")
