@@ -12,7 +12,7 @@ Writing (one writer at a time; readers see the last commit)::
     with ArchiveWriter("scenes.vt4da") as w:         # commits on exit
         w.append("scene-000042", scene_or_vt4d_bytes)
 
-The byte layout is specified in ``spec/FORMAT.archive.md``.  This package never imports torch.
+The byte layout is specified in FORMAT.md, Part II.  This package never imports torch.
 """
 
 from .index import ArchiveIndex, DuplicateKeyError, IndexChecksumError, IndexEntry, OverlappingRecordsError

@@ -1,6 +1,6 @@
 """The index block: a sorted fixed-width table (key -> payload offset, length, CRC, summary).
 
-Layout (see ``spec/FORMAT.archive.md``)::
+Layout (see FORMAT.md, Part II)::
 
     0   4  magic "V4AI"
     4   4  u32 entry size (48)

@@ -1,7 +1,7 @@
 """Byte layout of a ``.vt4da`` archive: header, commit slots, record frames, index block, footer.
 
 Everything is little-endian; checksums are CRC-32 (``zlib.crc32``, the PNG/zip polynomial).  The
-normative description with byte offsets is ``spec/FORMAT.archive.md``; this module is its code.
+normative description with byte offsets is FORMAT.md, Part II; this module is its code.
 
 File picture::
 

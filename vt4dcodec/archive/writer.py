@@ -1,6 +1,6 @@
 """Append scenes to an archive and commit them atomically (one writer at a time).
 
-Write protocol (normative text in ``spec/FORMAT.archive.md``):
+Write protocol (normative text in FORMAT.md, Part II):
 
 1. Take the writer lock (``<archive>.lock``).
 2. Make a header commit slot point at the last commit (fsync) *before* writing any byte after it,

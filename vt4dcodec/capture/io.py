@@ -1,4 +1,4 @@
-"""Capture directories on disk: read and write (spec: spec/FORMAT.captures.md).
+"""Capture directories on disk: read and write (spec: FORMAT.md, Part III).
 
 A capture directory holds ``capture.json`` (the manifest: cameras with intrinsics, optional distortion,
 one world-to-camera pose per frame, fps, frame count, timestamps, media paths) and per-camera media:
@@ -42,7 +42,7 @@ MANIFEST_NAME = "capture.json"
 CAPTURE_FORMAT = "vt4d-capture"
 CAPTURE_VERSION = 1
 
-# Documented limits (spec/FORMAT.captures.md, "Limits"): checked before anything is allocated.
+# Documented limits (FORMAT.md, Part III, "Limits"): checked before anything is allocated.
 MAX_MANIFEST_BYTES = 64 * 1024 * 1024
 MAX_CAMERAS = 256
 MAX_FRAMES = 100_000
