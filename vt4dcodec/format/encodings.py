@@ -8,7 +8,7 @@ float32    little-endian IEEE binary32  0 (lossless)
 float16    little-endian IEEE binary16  max(2^-11 * |x|, 2^-25); |x| must be <= 65504
 int8       u8 code, per-channel affine  scale_c / 2 * (1 + 2^-20) + 2^-23 * max(|lo_c|, |hi_c|)
 int4       u4 code, two per byte        same formula with the 4-bit scale
-int<b>-rans  b-bit code (b = 3..8),     same formula with the b-bit scale of the code's channel group
+int<b>-rans  b-bit code (b = 2..8),     same formula with the b-bit scale of the code's channel group
            rANS entropy-coded           (format 1.1; see rans_tokens.py)
 =========  ===========================  =============================================================
 
@@ -189,16 +189,14 @@ def max_abs_error(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> np.n
         return np.zeros_like(x)
     if encoding == "float16":
         return np.maximum(2.0**-11 * np.abs(x), 2.0**-25)
-    x32 = np.asarray(tokens, np.float32)
     if encoding in RANS_BITS:
         check_groups(groups, x.shape[1])
-        bits, width = RANS_BITS[encoding], x.shape[1] // groups
-        scale = np.repeat(group_params(x32, bits, groups)[0], width)
-        grouped = x.reshape(x.shape[0], groups, width)
-        big = np.repeat(np.maximum(np.abs(grouped.min(axis=(0, 2))), np.abs(grouped.max(axis=(0, 2)))), width)
+        bits = RANS_BITS[encoding]
     else:
-        bits = _BITS[encoding]
-        scale = _affine_params(x32, bits)[0]
-        big = np.maximum(np.abs(x.min(axis=0)), np.abs(x.max(axis=0)))
+        bits, groups = _BITS[encoding], x.shape[1]  # int8 / int4: per channel
+    width = x.shape[1] // groups
+    scale = np.repeat(group_params(np.asarray(tokens, np.float32), bits, groups)[0], width)
+    grouped = x.reshape(x.shape[0], groups, width)
+    big = np.repeat(np.maximum(np.abs(grouped.min(axis=(0, 2))), np.abs(grouped.max(axis=(0, 2)))), width)
     bound = scale.astype(np.float64) / 2 * (1 + 2.0**-20) + 2.0**-23 * big
     return np.broadcast_to(bound, x.shape)
