@@ -33,7 +33,7 @@ from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, s
                      train_loop)
 from .tokenize_scenes import ClipStore
 
-__all__ = ["PriorPairDataset", "PriorBatch", "collate_prior", "token_statistics", "main"]
+__all__ = ["PriorPairDataset", "PriorBatch", "collate_prior", "token_statistics", "model_card", "main"]
 
 
 @dataclass
@@ -118,6 +118,36 @@ def token_statistics(dataset: PriorPairDataset) -> tuple[torch.Tensor, torch.Ten
     return torch.stack(z_s), torch.stack(z_d), fingerprint
 
 
+def model_card(model_id: str, model_version: str, cfg: PriorConfig, tokenizer: Any, training: dict[str, Any]
+               ) -> str:
+    """MODEL_CARD.md of a trained prior: what it models, the tokenizer it is bound to, how it was trained."""
+    params = sum(p.numel() for p in Co4DGen(cfg).parameters())
+    return f"""# {model_id} {model_version}
+
+Co4DGen token-space prior (VideoTok4D paper, Sec. 3.3): samples the joint token state
+Z^a = [Z_s^a; Z_d^a] of an anchor camera a given one conditioning video V_c with its cameras P_c and the
+anchor trajectory P_a, by flow matching (Euler/Heun sampler, seeded).  Render the sample with the
+tokenizer's renderer along any trajectory: `vt4d generate CAPTURE --anchor PRESET --views ...`.
+
+* Tokenizer (the only one it may be used with): {tokenizer.short()}
+  config sha256 {tokenizer.config_sha256}, weights sha256 {tokenizer.weights_sha256}
+* Architecture: {cfg.layers} co-denoising blocks (Static-Dynamic Cross-Token Attention, cross-attention to
+  E_cond, adaLN from tau + pooled condition), width {cfg.width}, {cfg.heads} heads; E_cond with
+  {cfg.cond_layers} blocks over {cfg.cond_patch}x{cfg.cond_patch}-pixel video patches + Plucker rays and
+  {cfg.anchor_grid}x{cfg.anchor_grid} anchor-ray tokens per frame; {params / 1e6:.2f} M parameters.
+* Token state: N_s = {cfg.n_static}, N_d = {cfg.n_dynamic}, d = {cfg.token_dim}; clips of {cfg.frames} frames at
+  {cfg.image_size}x{cfg.image_size}.
+* Training: {training["steps"]} steps, batch {training["batch_size"]}, on {training["pairs"]} ordered camera
+  pairs ({training["records"]} anchor records) read from `{training["shards"]}` through
+  vt4dcodec.data.archive_dataset; loss {training["first_loss"]} -> {training["final_loss"]}
+  in {training["seconds"]} s (CPU).
+* Data: procedurally generated synthetic multi-camera scenes (vt4dcodec.synth, train split); evaluate on
+  split="test" (disjoint assets) with bench/bench_prior.py.
+* Limits: a CPU-size model trained for minutes; samples are coarse.  Only valid with the tokenizer above
+  (load_prior + check_tokenizer refuse others).
+"""
+
+
 def _prior_step(module: torch.nn.Module, batch: PriorBatch) -> tuple[torch.Tensor, dict[str, float]]:
     return module(batch.z_s, batch.z_d, batch.cond)
 
@@ -174,8 +204,9 @@ def main(argv: list[str] | None = None) -> int:
                     "first_loss": records[0]["loss"] if records else None,
                     "final_loss": records[-1]["loss"] if records else None,
                     "seconds": records[-1].get("elapsed_s") if records else None}
+        card = model_card(args.model_id, args.model_version, cfg, tokenizer, training)
         directory = save_prior(prior, args.out / "prior", model_id=args.model_id, model_version=args.model_version,
-                               tokenizer=tokenizer, extra={"training": training})
+                               tokenizer=tokenizer, card=card, extra={"training": training})
         (args.out / "summary.json").write_text(json.dumps({"config": cfg.to_dict(), **training}, indent=2) + "\n")
         print(f"prior: loss {training['first_loss']} -> {training['final_loss']} over {args.steps} steps on "
               f"{len(dataset)} pairs; prior -> {directory}")

@@ -71,6 +71,8 @@ def test_training_reads_the_shards_and_binds_the_prior_to_their_tokenizer(traine
     log = [json.loads(line) for line in (trained_prior / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [2, 4, 6] and all(np.isfinite(r["loss"]) for r in log)
     assert (trained_prior / "loss.png").stat().st_size > 1000
+    card = (trained_prior / "prior" / "MODEL_CARD.md").read_text()
+    assert fp.weights_sha256 in card and "6 steps" in card
     assert not torch.equal(prior.static_std, torch.ones_like(prior.static_std))  # data statistics were set
 
 
