@@ -1,0 +1,180 @@
+"""Baselines for dynamic novel-view synthesis (issue #6 item 3), against which the tokens are measured.
+
+Both baselines see exactly what the encoder sees, one source camera's clip, and predict the frames of
+a target trajectory with the same number of frames:
+
+* :func:`nearest_source_frame` -- view-bound: for every target frame, copy the source frame whose
+  camera is closest in pose (camera-centre distance in metres plus rotation angle in radians, i.e. one
+  radian counts as one metre; ties, as with a static camera, go to the frame nearest in time).  The representation is the whole source video, ``T * H * W * 3`` floats.
+* :func:`forward_warp` -- an explicit RGB-D representation: source frame ``t`` with its metric depth
+  is unprojected, moved into target camera ``t`` and splatted to the nearest pixel with a z-buffer (the
+  nearest surface wins).  Target pixels no source pixel lands on are holes; they are counted and then
+  filled by OpenCV inpainting (Telea) so the baseline is not punished for black holes.  The
+  representation is ``T * H * W * (3 + 1)`` floats.
+
+Sizes use the same unit as tokens (``N_s * d + N_d * d`` floats).  Everything here is numpy (plus
+cv2 for inpainting); cameras follow :class:`vt4dcodec.cameras.Trajectory` (OpenCV convention, pixel
+centres at integer coordinates).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vt4dcodec.cameras import Trajectory
+from vt4dcodec.errors import Vt4dError
+
+__all__ = [
+    "BaselineError", "WarpResult", "pose_distance", "nearest_source_frame", "forward_warp",
+    "nearest_frame_floats", "rgbd_floats", "token_floats",
+]
+
+INPAINT_RADIUS_PX = 3
+POSE_TIE_TOLERANCE = 1e-6  # pose distances this close (m + rad) count as equal
+
+
+class BaselineError(Vt4dError, ValueError):
+    """Bad input to a baseline (shapes, sizes or cameras that do not match)."""
+
+
+@dataclass(frozen=True)
+class WarpResult:
+    """A forward-warped video.
+
+    Attributes:
+        frames: (T, H, W, 3) uint8, holes inpainted.
+        holes: (T, H, W) bool, target pixels no source pixel landed on (before inpainting).
+    """
+
+    frames: np.ndarray
+    holes: np.ndarray
+
+    @property
+    def hole_fraction(self) -> float:
+        return float(self.holes.mean())
+
+
+def _check_video(frames: np.ndarray, traj: Trajectory, what: str) -> None:
+    if not isinstance(frames, np.ndarray) or frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
+        raise BaselineError(f"{what} frames must be a (T, H, W, 3) uint8 array")
+    if frames.shape[:3] != (traj.num_frames, traj.height, traj.width):
+        raise BaselineError(f"{what} frames are {frames.shape[:3]}, the trajectory is "
+                            f"{(traj.num_frames, traj.height, traj.width)} (T, H, W)")
+
+
+def _camera_centres(w2c: np.ndarray) -> np.ndarray:
+    """(T, 4, 4) world-to-camera -> (T, 3) camera centres in world metres: C = -R^T t."""
+    R, t = w2c[:, :3, :3], w2c[:, :3, 3]
+    return -np.einsum("tji,tj->ti", R, t)
+
+
+def pose_distance(w2c_a: np.ndarray, w2c_b: np.ndarray) -> np.ndarray:
+    """Pairwise pose distance (Ta, Tb): centre distance (m) + relative rotation angle (rad)."""
+    a = np.asarray(w2c_a, np.float64)
+    b = np.asarray(w2c_b, np.float64)
+    ca, cb = _camera_centres(a), _camera_centres(b)
+    dist = np.linalg.norm(ca[:, None] - cb[None], axis=-1)
+    # trace(R_a R_b^T) = sum of elementwise products of R_a and R_b
+    trace = np.einsum("aij,bij->ab", a[:, :3, :3], b[:, :3, :3])
+    angle = np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
+    return dist + angle
+
+
+def nearest_source_frame(source_frames: np.ndarray, source: Trajectory, target: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Copy, for each target frame, the source frame closest in pose (view-bound baseline).
+
+    Args:
+        source_frames: (T_s, H, W, 3) uint8 frames of ``source``.
+        source, target: trajectories with the same image size.
+    Returns:
+        ((T_t, H, W, 3) uint8 prediction, (T_t,) int index of the source frame used per target frame).
+    """
+    _check_video(source_frames, source, "source")
+    if (source.width, source.height) != (target.width, target.height):
+        raise BaselineError("source and target trajectories must have the same image size")
+    dist = pose_distance(target.w2c, source.w2c)                                 # (T_t, T_s)
+    # ties (e.g. a static source camera) go to the source frame nearest in time
+    tied = dist <= dist.min(axis=1, keepdims=True) + POSE_TIE_TOLERANCE
+    time_gap = np.abs(np.arange(target.num_frames)[:, None] - np.arange(source.num_frames)[None])
+    idx = np.argmin(np.where(tied, time_gap, np.iinfo(np.int64).max), axis=1)
+    return source_frames[idx].copy(), idx
+
+
+def _splat_one(rgb: np.ndarray, depth: np.ndarray, K_s: np.ndarray, w2c_s: np.ndarray, K_t: np.ndarray,
+               w2c_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Z-buffered nearest-pixel splat of one RGB-D frame into one target camera: (image, hole mask)."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = depth.astype(np.float64)
+    ok = np.isfinite(z) & (z > 0)
+    pix = np.stack([u[ok], v[ok], np.ones(ok.sum())], axis=0)                      # (3, M)
+    cam_s = np.linalg.solve(K_s, pix) * z[ok]                                      # (3, M) source camera
+    world = np.linalg.solve(w2c_s, np.vstack([cam_s, np.ones((1, cam_s.shape[1]))]))  # (4, M)
+    cam_t = (w2c_t @ world)[:3]
+    front = cam_t[2] > 1e-6
+    proj = K_t @ cam_t[:, front]
+    ut = np.rint(proj[0] / proj[2]).astype(np.int64)
+    vt = np.rint(proj[1] / proj[2]).astype(np.int64)
+    inside = (ut >= 0) & (ut < W) & (vt >= 0) & (vt < H)
+    flat = (vt * W + ut)[inside]
+    zt = cam_t[2, front][inside]
+    colours = rgb[ok][front][inside]
+    order = np.lexsort((zt, flat))                      # by target pixel, then nearest depth first
+    flat, colours = flat[order], colours[order]
+    first = np.unique(flat, return_index=True)[1]       # the nearest surface of every hit pixel
+    out = np.zeros((H * W, 3), np.uint8)
+    hit = np.zeros(H * W, bool)
+    out[flat[first]] = colours[first]
+    hit[flat[first]] = True
+    return out.reshape(H, W, 3), ~hit.reshape(H, W)
+
+
+def forward_warp(source_frames: np.ndarray, source_depth: np.ndarray, source: Trajectory,
+                 target: Trajectory, *, inpaint: bool = True) -> WarpResult:
+    """Forward-warp source frame t (with its depth) into target camera t, for every frame t.
+
+    Args:
+        source_frames: (T, H, W, 3) uint8 frames of ``source``.
+        source_depth: (T, H, W) float metric z-depth; <= 0 or non-finite = unknown (not splatted).
+        source, target: pinhole trajectories of T frames and the same image size.
+        inpaint: fill holes by Telea inpainting (radius 3 px); False leaves them black.
+    Returns:
+        :class:`WarpResult` (frames and the hole mask before inpainting).
+    """
+    _check_video(source_frames, source, "source")
+    depth = np.asarray(source_depth)
+    if depth.shape != source_frames.shape[:3]:
+        raise BaselineError(f"depth must be {source_frames.shape[:3]}, got {depth.shape}")
+    if target.num_frames != source.num_frames or (target.width, target.height) != (source.width, source.height):
+        raise BaselineError("the target trajectory must have the source's frame count and image size")
+    for traj in (source, target):
+        if traj.distortion is not None and np.any(traj.distortion):
+            raise BaselineError("forward_warp needs pinhole (undistorted) trajectories")
+    frames = np.empty_like(source_frames)
+    holes = np.empty(source_frames.shape[:3], bool)
+    for t in range(source.num_frames):
+        img, hole = _splat_one(source_frames[t], depth[t], source.K[t].astype(np.float64),
+                               source.w2c[t].astype(np.float64), target.K[t].astype(np.float64),
+                               target.w2c[t].astype(np.float64))
+        if inpaint and hole.any():
+            img = img if hole.all() else cv2.inpaint(img, hole.astype(np.uint8), INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
+        frames[t], holes[t] = img, hole
+    return WarpResult(frames=frames, holes=holes)
+
+
+def nearest_frame_floats(num_frames: int, height: int, width: int) -> int:
+    """Size of the view-bound representation (the source video): T * H * W * 3 floats."""
+    return int(num_frames) * int(height) * int(width) * 3
+
+
+def rgbd_floats(num_frames: int, height: int, width: int) -> int:
+    """Size of the explicit RGB-D representation: T * H * W * (3 + 1) floats."""
+    return int(num_frames) * int(height) * int(width) * 4
+
+
+def token_floats(n_static: int, n_dynamic: int, token_dim: int) -> int:
+    """Size of a token state: N_s * d + N_d * d floats."""
+    return (int(n_static) + int(n_dynamic)) * int(token_dim)

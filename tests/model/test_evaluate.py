@@ -1,0 +1,114 @@
+"""The evaluation command end to end on random tiny models (2 scenes), metrics and the summary maths."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+from vt4dcodec.model.evaluate import EvalSettings, format_tables, main, summarize, video_metrics
+
+
+def _random_model(path, seed: int, **overrides) -> str:
+    torch.manual_seed(seed)
+    net = VideoTok4D(get_config("tiny", patch_size=4, **overrides)).eval()
+    with torch.no_grad():  # the renderer's zero-initialised output would ignore the tokens
+        for p in net.renderer.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    save_pretrained(net, path, model_id=f"test-eval-{seed}", model_version="0")
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval_models")
+    return _random_model(root / "main", 0), _random_model(root / "unified", 1, unified_tokens=True)
+
+
+@pytest.fixture(scope="module")
+def evaluated(models, tmp_path_factory):
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("eval_out")
+    args = ["--model", models[0], "--unified", models[1], "--scenes", "2", "--views", "2", "--steps", "2",
+            "--out", str(out / "eval.json"), "--figure", str(out / "eval.png"), "--figure-scenes", "1",
+            "--no-progress"]
+    assert main(args) == 0
+    return json.loads((out / "eval.json").read_text()), out
+
+
+def test_every_method_scores_every_view(evaluated):
+    results, out = evaluated
+    methods = ["ours", "ours_no_static", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp"]
+    assert list(results["summary"]) == methods
+    assert len(results["rows"]) == 2 * 2 * len(methods)
+    assert {(r["seed"], r["view"]) for r in results["rows"]} == {(s, v) for s in (0, 1) for v in ("cam01", "cam02")}
+    for r in results["rows"]:
+        assert 0.0 < r["psnr"] < 60.0 and -1.0 <= r["ssim"] <= 1.0
+    assert results["settings"] == {**EvalSettings(scenes=2, views=2, steps=2).__dict__}
+    assert (out / "eval.png").stat().st_size > 1000
+
+
+def test_sizes_are_counted_like_tokens(evaluated):
+    s = evaluated[0]["summary"]
+    assert s["ours"]["floats"] == s["unified"]["floats"] == (64 + 32) * 32
+    assert s["nearest_frame"]["floats"] == 8 * 64 * 64 * 3
+    assert s["depth_warp"]["floats"] == 8 * 64 * 64 * 4
+    # int8 tokens plus header: more than one byte per float, far less than float32
+    assert 3072 < s["ours"]["bytes_int8_vt4d"] < 4 * 3072
+    assert s["nearest_frame"]["bytes_int8_vt4d"] is None
+    assert 0.0 < s["depth_warp"]["hole_fraction"] < 1.0
+
+
+def test_token_masking_changes_the_render(evaluated):
+    rows = evaluated[0]["rows"]
+    psnr = {(r["method"], r["seed"], r["view"]): r["psnr"] for r in rows}
+    for masked in ("ours_no_static", "ours_no_dynamic"):
+        assert any(psnr[(masked, s, v)] != psnr[("ours", s, v)] for s in (0, 1) for v in ("cam01", "cam02"))
+
+
+def test_merge_replaces_only_the_given_methods(evaluated, models, tmp_path):
+    results, out = evaluated
+    path = tmp_path / "eval.json"
+    path.write_text(json.dumps(results))
+    args = ["--model", models[0], "--scenes", "2", "--views", "2", "--steps", "2", "--out", str(path),
+            "--methods", "nearest_frame", "--merge", "--no-progress"]
+    assert main(args) == 0
+    merged = json.loads(path.read_text())
+    assert merged["summary"]["ours"] == results["summary"]["ours"]
+    assert merged["summary"]["nearest_frame"]["psnr"] == results["summary"]["nearest_frame"]["psnr"]
+    assert len(merged["rows"]) == len(results["rows"])
+    # a different protocol is refused (exit code 1, file untouched)
+    assert main(args[:4] + ["--views", "1"] + args[6:]) == 1
+    assert json.loads(path.read_text()) == merged
+    assert "| Unified tokens (ablation) |" in format_tables(merged)
+
+
+def test_video_metrics_of_identical_and_masked_videos():
+    rng = np.random.default_rng(0)
+    video = rng.integers(0, 256, (2, 16, 16, 3), dtype=np.uint8)
+    empty = np.zeros((2, 16, 16), bool)
+    m = video_metrics(video, video, empty)
+    assert math.isinf(m["psnr"]) and m["ssim"] == pytest.approx(1.0, abs=1e-4)
+    assert math.isnan(m["psnr_dynamic"]) and math.isinf(m["psnr_static"])
+    noisy = np.clip(video.astype(int) + 10, 0, 255).astype(np.uint8)
+    mask = empty.copy()
+    mask[:, :4] = True
+    m = video_metrics(noisy, video, mask)
+    assert 20 < m["psnr"] < 40 and m["psnr_dynamic"] == pytest.approx(m["psnr_dynamic"])
+
+
+def test_summary_pairs_views_with_ours():
+    def row(method, seed, value):
+        return {"method": method, "seed": seed, "view": "cam01", "psnr": value, "ssim": 0.5,
+                "psnr_dynamic": value - 1, "psnr_static": value + 1, "bytes": None}
+
+    rows = [row("ours", 0, 20.0), row("ours", 1, 22.0), row("nearest_frame", 0, 18.0), row("nearest_frame", 1, 23.0)]
+    s = summarize(rows, {"ours": 3072, "nearest_frame": 98304})
+    assert s["ours"]["psnr"]["mean"] == 21.0 and s["ours"]["psnr"]["n"] == 2
+    assert s["ours"]["psnr"]["se"] == pytest.approx(1.0)
+    paired = s["nearest_frame"]["ours_minus_this_psnr"]
+    assert paired["mean"] == pytest.approx(0.5) and paired["ours_wins"] == 0.5 and paired["n"] == 2
