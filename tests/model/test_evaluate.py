@@ -112,3 +112,22 @@ def test_summary_pairs_views_with_ours():
     assert s["ours"]["psnr"]["se"] == pytest.approx(1.0)
     paired = s["nearest_frame"]["ours_minus_this_psnr"]
     assert paired["mean"] == pytest.approx(0.5) and paired["ours_wins"] == 0.5 and paired["n"] == 2
+
+
+def test_real_footage_path_on_a_capture_without_depth(models):
+    from vt4dcodec.capture.capture import Capture
+    from vt4dcodec.model import from_pretrained
+    from vt4dcodec.model.real_footage import best_overlap_pair, evaluate_real
+    from vt4dcodec.synth import SynthConfig, generate_scene
+
+    cap = generate_scene(5, split="test", config=SynthConfig(num_cameras=3)).capture
+    cap = Capture(cameras=cap.cameras, frames=cap.frames, fps=cap.fps, capture_id=cap.capture_id)  # no depth
+    source, target, angle = best_overlap_pair(cap)
+    axes = {n: cap.cameras[n].w2c[0, 2, :3] for n in cap.camera_names}
+    others = [np.degrees(np.arccos(np.clip(axes[a] @ axes[b], -1, 1))) for a, b in
+              (("cam00", "cam01"), ("cam00", "cam02"), ("cam01", "cam02"))]
+    assert source != target and angle == pytest.approx(min(others), abs=1e-6)
+    rows, clips = evaluate_real(cap, from_pretrained(models[0]), source, target, steps=1)
+    assert [r["method"] for r in rows] == ["ours", "nearest_frame", "depth_warp"] and len(clips) == 1
+    assert rows[0]["bytes"] > 3072 and all(0 < r["psnr"] < 60 for r in rows)
+    assert clips[0]["ours"].shape == clips[0]["truth"].shape == (8, 64, 64, 3)
