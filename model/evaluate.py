@@ -39,9 +39,9 @@ import math
 import platform
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -442,61 +442,77 @@ def _load_models(args: argparse.Namespace) -> dict[str, VideoTok4D]:
     return models
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+def run_command(body: Callable[[], int]) -> int:
+    """Run a command body with the project's exit codes: 1 for a Vt4dError, 3 for an OSError."""
     try:
-        if args.tables:
-            sys.stdout.write(format_tables(json.loads(Path(args.tables).read_text())))
-            return 0
-        torch.set_num_threads(max(1, args.threads))
-        models = _load_models(args)
-        cfg = models["main"].config
-        settings = EvalSettings(scenes=args.scenes, first_seed=args.first_seed, views=args.views, steps=args.steps,
-                                seed=args.seed, num_cameras=args.cameras or max(4, args.views + 1),
-                                frames=cfg.frames, image_size=cfg.image_size)
-        available = [m for m in METHODS if m not in TOKEN_METHODS or TOKEN_METHODS[m][1][0] in models]
-        methods = args.methods.split(",") if args.methods else available
-        out = Path(args.out)
-        previous = json.loads(out.read_text()) if args.merge and out.is_file() else None
-        if previous is not None and previous["settings"] != asdict(settings):
-            raise EvaluationError(f"{out} was made with settings {previous['settings']}, not {asdict(settings)}")
-        figure_seeds = settings.seeds[:args.figure_scenes] if args.figure else []
-        t0 = time.perf_counter()
-        rows, kept, seconds = run_evaluation(settings, models, methods, figure_seeds=figure_seeds,
-                                             progress=not args.no_progress)
-        wall = time.perf_counter() - t0
-        if args.figure and set(methods) != set(available):   # the figure shows every available method
-            _, kept, _ = run_evaluation(settings.__class__(**{**asdict(settings), "scenes": len(figure_seeds)}),
-                                        models, available, figure_seeds=figure_seeds)
-        model_info = {k: _model_info(v) for k, v in models.items()}
-        timing = {"wall_s": round(wall, 1), "per_method_s": seconds, "threads": args.threads}
-        if previous is not None:
-            rows = [r for r in previous["rows"] if r["method"] not in methods] + rows
-            model_info = {**previous["models"], **model_info}
-            timing = {**previous["timing"], f"merge_{'+'.join(methods)}": timing}
-        token_floats = {k: baselines.token_floats(v["n_static"], v["n_dynamic"], v["token_dim"]) for k, v in model_info.items()}
-        present = sorted({r["method"] for r in rows}, key=list(METHODS).index)
-        floats = {m: representation_floats(m, settings, token_floats=token_floats.get(TOKEN_METHODS[m][1][0])
-                                           if m in TOKEN_METHODS else None) for m in present}
-        results = {
-            "command": "python -m vt4dcodec.model.evaluate " + " ".join(sys.argv[1:] if argv is None else argv),
-            "settings": asdict(settings), "encoding": ENCODING, "models": model_info,
-            "machine": {"python": platform.python_version(), "torch": torch.__version__},
-            "timing": timing, "summary": summarize(rows, floats), "rows": rows,
-        }
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(results, indent=1) + "\n")
-        if args.figure:
-            save_figure(args.figure, kept)
-        sys.stdout.write(format_tables(results))
-        sys.stdout.write(f"wall {wall:.1f} s; results -> {out}\n")
-        return 0
+        return body()
     except Vt4dError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 3
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    return run_command(lambda: _run(args, argv))
+
+
+def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    if args.tables:
+        sys.stdout.write(format_tables(json.loads(Path(args.tables).read_text())))
+        return 0
+    torch.set_num_threads(max(1, args.threads))
+    models = _load_models(args)
+    cfg = models["main"].config
+    settings = EvalSettings(scenes=args.scenes, first_seed=args.first_seed, views=args.views, steps=args.steps,
+                            seed=args.seed, num_cameras=args.cameras or max(4, args.views + 1),
+                            frames=cfg.frames, image_size=cfg.image_size)
+    available = [m for m in METHODS if m not in TOKEN_METHODS or TOKEN_METHODS[m][1][0] in models]
+    methods = args.methods.split(",") if args.methods else available
+    out = Path(args.out)
+    previous = json.loads(out.read_text()) if args.merge and out.is_file() else None
+    if previous is not None and previous["settings"] != asdict(settings):
+        raise EvaluationError(f"{out} was made with settings {previous['settings']}, not {asdict(settings)}")
+    figure_seeds = settings.seeds[:args.figure_scenes] if args.figure else []
+    t0 = time.perf_counter()
+    rows, kept, seconds = run_evaluation(settings, models, methods, figure_seeds=figure_seeds,
+                                         progress=not args.no_progress)
+    wall = time.perf_counter() - t0
+    if args.figure and set(methods) != set(available):   # the figure shows every available method
+        _, kept, _ = run_evaluation(replace(settings, scenes=len(figure_seeds)),
+                                    models, available, figure_seeds=figure_seeds)
+    model_info = {k: _model_info(v) for k, v in models.items()}
+    timing = {"wall_s": round(wall, 1), "per_method_s": seconds, "threads": args.threads}
+    if previous is not None:
+        rows = [r for r in previous["rows"] if r["method"] not in methods] + rows
+        model_info = {**previous["models"], **model_info}
+        timing = {**previous["timing"], f"merge_{'+'.join(methods)}": timing}
+    command = "python -m vt4dcodec.model.evaluate " + " ".join(sys.argv[1:] if argv is None else argv)
+    token_floats = {k: baselines.token_floats(v["n_static"], v["n_dynamic"], v["token_dim"]) for k, v in model_info.items()}
+    present = sorted({r["method"] for r in rows}, key=list(METHODS).index)
+    floats = {m: representation_floats(m, settings, token_floats=token_floats.get(TOKEN_METHODS[m][1][0])
+                                       if m in TOKEN_METHODS else None) for m in present}
+    results = {
+        "commands": (previous["commands"] if previous is not None else []) + [command],
+        "settings": asdict(settings), "encoding": ENCODING, "models": model_info,
+        "machine": {"python": platform.python_version(), "torch": torch.__version__},
+        "timing": timing, "summary": summarize(rows, floats), "rows": rows,
+    }
+    write_json(out, results)
+    if args.figure:
+        save_figure(args.figure, kept)
+    sys.stdout.write(format_tables(results))
+    sys.stdout.write(f"wall {wall:.1f} s; results -> {out}\n")
+    return 0
 
 
 if __name__ == "__main__":

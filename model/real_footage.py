@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,7 +35,7 @@ from vt4dcodec.format import dumps
 
 from . import baselines
 from .depth import estimate_depth
-from .evaluate import ENCODING, video_metrics
+from .evaluate import ENCODING, run_command, video_metrics, write_json
 from .motion import DEFAULT_DEPTH_RANGE
 
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
@@ -45,20 +44,22 @@ DEFAULT_CAPTURE = "/work/shared/data/caliscope_4cam"
 METHODS = ("ours", "nearest_frame", "depth_warp")
 
 
+def axis_angle(capture: Capture, a: str, b: str) -> float:
+    """Angle in degrees between the first-frame optical axes (camera z in world) of cameras a and b."""
+    za, zb = capture.cameras[a].w2c[0, 2, :3], capture.cameras[b].w2c[0, 2, :3]
+    return float(np.degrees(np.arccos(np.clip(np.dot(za, zb), -1.0, 1.0))))
+
+
 def best_overlap_pair(capture: Capture) -> tuple[str, str, float]:
     """(source, target, angle in degrees) of the two cameras whose first-frame optical axes are closest."""
-    axes = {n: capture.cameras[n].w2c[0, 2, :3] for n in capture.camera_names}  # camera z axis in world
-    best = min(itertools.combinations(capture.camera_names, 2),
-               key=lambda p: -float(np.dot(axes[p[0]], axes[p[1]])))
-    angle = float(np.degrees(np.arccos(np.clip(np.dot(axes[best[0]], axes[best[1]]), -1.0, 1.0))))
-    return best[0], best[1], angle
+    best = min(itertools.combinations(capture.camera_names, 2), key=lambda p: axis_angle(capture, *p))
+    return best[0], best[1], axis_angle(capture, *best)
 
 
 def evaluate_real(capture: Capture, net: Any, source: str, target: str, *, steps: int = 8, seed: int = 0
                   ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Encode every clip of ``source``, render ``target``; returns (rows, per-clip videos for the figure)."""
     T = net.config.frames
-    no_dynamic = None
     rows, clips = [], []
     for start in range(0, capture.num_frames - T + 1, T):
         t0 = time.perf_counter()
@@ -71,8 +72,7 @@ def evaluate_real(capture: Capture, net: Any, source: str, target: str, *, steps
         truth = capture.frames[target][start:start + T]
         src_frames, src_traj = capture.frames[source][start:start + T], capture.cameras[source][start:start + T]
         resolved = decoder.trajectory(target_traj)
-        if no_dynamic is None:
-            no_dynamic = np.zeros(truth.shape[:3], bool)
+        no_dynamic = np.zeros(truth.shape[:3], bool)  # no ground-truth object masks for real footage
         nearest, _ = baselines.nearest_source_frame(src_frames, src_traj, resolved)
         depth = estimate_depth(src_frames, src_traj.K, src_traj.w2c, near=DEFAULT_DEPTH_RANGE[0],
                                far=DEFAULT_DEPTH_RANGE[1])
@@ -140,43 +140,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", default="docs/results/real_caliscope.json")
     p.add_argument("--figure", default=None)
     args = p.parse_args(argv)
-    try:
-        from vt4dcodec.capture.caliscope import import_caliscope
+    return run_command(lambda: _run(args, argv))
 
-        torch.set_num_threads(max(1, args.threads))
-        net = codec.load_model(args.model).eval()
-        size = net.config.image_size
-        t0 = time.perf_counter()
-        capture = import_caliscope(args.capture, height=size, width=size, frame_step=args.frame_step)
-        source, target, angle = best_overlap_pair(capture)
-        source, target = args.source or source, args.target or target
-        if source == target or not {source, target} <= set(capture.camera_names):
-            raise Vt4dError(f"need two different cameras of {capture.camera_names}, got {source!r} and {target!r}")
-        rows, clips = evaluate_real(capture, net, source, target, steps=args.steps, seed=args.seed)
-        wall = time.perf_counter() - t0
-        results = {
-            "command": "python -m vt4dcodec.model.real_footage " + " ".join(sys.argv[1:] if argv is None else argv),
-            "capture": str(args.capture), "source": source, "target": target,
-            "axis_angle_deg_best_pair": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
-            "image_size": size, "clip_frames": net.config.frames, "steps": args.steps, "seed": args.seed,
-            "model": codec.model_fingerprint(net).short(), "wall_s": round(wall, 1),
-            "summary": _summary(rows), "rows": rows,
-        }
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(results, indent=1) + "\n")
-        if args.figure:
-            save_real_figure(args.figure, clips, source, target)
-        for method, s in results["summary"].items():
-            print(f"{method:14s} PSNR {s['psnr_mean']:.2f} dB  SSIM {s['ssim_mean']:.3f}  ({s['clips']} clips)")
-        print(f"{source} -> {target}; wall {wall:.1f} s; results -> {out}")
-        return 0
-    except Vt4dError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 3
+
+def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    from vt4dcodec.capture.caliscope import import_caliscope
+
+    torch.set_num_threads(max(1, args.threads))
+    net = codec.load_model(args.model).eval()
+    size = net.config.image_size
+    t0 = time.perf_counter()
+    capture = import_caliscope(args.capture, height=size, width=size, frame_step=args.frame_step)
+    source, target, _ = best_overlap_pair(capture)
+    source, target = args.source or source, args.target or target
+    if source == target or not {source, target} <= set(capture.camera_names):
+        raise Vt4dError(f"need two different cameras of {capture.camera_names}, got {source!r} and {target!r}")
+    angle = axis_angle(capture, source, target)
+    rows, clips = evaluate_real(capture, net, source, target, steps=args.steps, seed=args.seed)
+    wall = time.perf_counter() - t0
+    results = {
+        "command": "python -m vt4dcodec.model.real_footage " + " ".join(sys.argv[1:] if argv is None else argv),
+        "capture": str(args.capture), "source": source, "target": target,
+        "axis_angle_deg": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
+        "image_size": size, "clip_frames": net.config.frames, "steps": args.steps, "seed": args.seed,
+        "model": codec.model_fingerprint(net).short(), "wall_s": round(wall, 1),
+        "summary": _summary(rows), "rows": rows,
+    }
+    out = write_json(args.out, results)
+    if args.figure:
+        save_real_figure(args.figure, clips, source, target)
+    for method, s in results["summary"].items():
+        print(f"{method:14s} PSNR {s['psnr_mean']:.2f} dB  SSIM {s['ssim_mean']:.3f}  ({s['clips']} clips)")
+    print(f"{source} -> {target}; wall {wall:.1f} s; results -> {out}")
+    return 0
 
 
 if __name__ == "__main__":
