@@ -4,13 +4,16 @@ A model directory holds
 
 * ``config.json``: ``{"format": "vt4d-model/1", "model_id", "model_version", "config": {...},
   "config_sha256", "weights_sha256"}``;
-* ``model.safetensors``: the full state dict (float32), no pickle anywhere;
+* ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
+  float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
+  float16 values first, so what is saved, loaded and fingerprinted is the same model);
 * optionally ``MODEL_CARD.md``.
 
 The fingerprint a container stores is SHA-256 over the canonical config JSON (sorted keys, no
 whitespace) and SHA-256 over the weights in canonical order: for every tensor name in sorted order,
-the UTF-8 name, its dtype and shape, then its little-endian bytes. Loading recomputes the weights
-hash and refuses files whose hash disagrees with config.json.
+the UTF-8 name, its dtype and shape, then its little-endian bytes, taken from the model's own float32
+state (independent of the storage dtype). Loading recomputes the weights hash and refuses files whose
+hash disagrees with config.json.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ MODEL_FORMAT = "vt4d-model/1"
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
 MAX_CONFIG_BYTES = 1 << 20
+STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
 
 
 def weights_sha256(state: dict[str, torch.Tensor]) -> str:
@@ -67,15 +71,29 @@ def model_fingerprint(model: VideoTok4D, model_id: str, model_version: str) -> A
 
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
-                    card: str | None = None) -> Path:
-    """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it."""
+                    card: str | None = None, storage_dtype: str = "float32") -> Path:
+    """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it.
+
+    ``storage_dtype="float16"`` rounds ``model``'s floating weights to float16 values in place (they stay
+    float32 tensors) and stores them as float16, so the saved file, the loaded model and the
+    fingerprint all describe the same weights.
+    """
+    if storage_dtype not in STORAGE_DTYPES:
+        raise ModelError(f"storage_dtype must be one of {sorted(STORAGE_DTYPES)}, got {storage_dtype!r}")
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
+    store = STORAGE_DTYPES[storage_dtype]
+    if store != torch.float32:
+        with torch.no_grad():
+            for tensor in model.state_dict().values():
+                if tensor.dtype == torch.float32:
+                    tensor.copy_(tensor.to(store).to(torch.float32))
     state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
     digest = weights_sha256(state)
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
-    save_file(state, str(out / WEIGHTS_FILE), metadata={"format": MODEL_FORMAT, "weights_sha256": digest})
+    stored = {k: v.to(store) if v.dtype == torch.float32 else v for k, v in state.items()}
+    save_file(stored, str(out / WEIGHTS_FILE), metadata={"format": MODEL_FORMAT, "weights_sha256": digest})
     (out / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     if card is not None:
         (out / CARD_FILE).write_text(card, encoding="utf-8")
@@ -131,16 +149,19 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
         state = load_file(str(directory / WEIGHTS_FILE), device="cpu")
     except (SafetensorError, ValueError, RuntimeError) as exc:
         raise ModelError(f"{directory / WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
-    if weights_sha256(state) != meta["weights_sha256"]:
-        raise ModelError(f"{directory / WEIGHTS_FILE}: weights do not match weights_sha256 in {CONFIG_FILE}")
     model = VideoTok4D(meta["config"])
     expected = model.state_dict()
     if set(state) != set(expected):
         missing, extra = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
         raise ModelError(f"weights do not fit the config: missing {missing[:5]}, unexpected {extra[:5]}")
+    # float16 storage is widened to the model's float32; any other dtype difference is an error
+    state = {k: v.to(expected[k].dtype) if v.dtype == torch.float16 and expected[k].dtype == torch.float32 else v
+             for k, v in state.items()}
     bad = [k for k in state if state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype]
     if bad:
         raise ModelError(f"weights do not fit the config: wrong shape/dtype for {bad[:5]}")
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / WEIGHTS_FILE}: weights do not match weights_sha256 in {CONFIG_FILE}")
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
     model.model_id, model.model_version = meta["model_id"], meta["model_version"]

@@ -98,3 +98,21 @@ def test_damaged_files_raise_model_error(saved, tmp_path, damage):
         config.write_text(json.dumps(meta))
     with pytest.raises(ModelError):
         from_pretrained(out)
+
+
+def test_float16_storage_halves_the_file_and_loads_the_same_model(tmp_path):
+    torch.manual_seed(1)
+    model = VideoTok4D(CFG).eval()
+    full = save_pretrained(model, tmp_path / "fp32", model_id="m", model_version="1")
+    half = save_pretrained(model, tmp_path / "fp16", model_id="m", model_version="1", storage_dtype="float16")
+    size = lambda d: (d / "model.safetensors").stat().st_size  # noqa: E731
+    assert size(half) < 0.6 * size(full)
+    loaded = from_pretrained(half)
+    assert all(p.dtype == torch.float32 for p in loaded.parameters())
+    # the in-memory model was rounded to float16 values, so it and the loaded one are identical
+    assert weights_sha256(loaded.state_dict()) == weights_sha256(model.state_dict())
+    assert loaded.fingerprint("m", "1").matches(model.fingerprint("m", "1"))
+    batch = random_batch(CFG, B=1)
+    assert torch.equal(model.encode(batch)[0], loaded.encode(batch)[0])
+    with pytest.raises(ModelError, match="storage_dtype"):
+        save_pretrained(model, tmp_path / "x", model_id="m", model_version="1", storage_dtype="int8")
