@@ -138,3 +138,27 @@ def test_bad_inputs_raise_the_project_error(bad):
     if bad in ("dtype", "shape"):
         with pytest.raises(BaselineError):
             nearest_source_frame(frames, cam, target)
+
+
+def test_surfel_footprint_closes_the_cracks_of_a_magnified_plane():
+    # the target camera is twice as close to the plane: single-pixel splats leave every other row and
+    # column empty, surfels of the projected size cover the whole view
+    frames, depth = _textured(), np.full((T, S, S), 2.0, np.float32)
+    near = _traj(np.zeros(T))
+    w2c = np.tile(np.eye(4), (T, 1, 1))
+    w2c[:, 2, 3] = -1.0  # camera centre at z = +1
+    closer = Trajectory(K=_K(), w2c=w2c, width=S, height=S)
+    single = forward_warp(frames, depth, near, closer, inpaint=False)
+    surfels = forward_warp(frames, depth, near, closer, inpaint=False, footprint=True)
+    assert single.hole_fraction > 0.5
+    assert surfels.hole_fraction == 0.0
+    # every target pixel shows one of the source pixels around its back-projection (x_s = (x_t + c) / 2)
+    c = (S - 1) / 2
+    back = (np.arange(S) + c) / 2
+    for t in range(T):
+        ok = np.zeros((S, S), bool)
+        for ys in (np.floor(back), np.ceil(back)):
+            for xs in (np.floor(back), np.ceil(back)):
+                src = frames[t][ys.astype(int)[:, None], xs.astype(int)[None, :]]
+                ok |= (surfels.frames[t] == src).all(-1)
+        assert ok.all()
