@@ -59,7 +59,7 @@ from . import baselines
 from .videotok4d import VideoTok4D
 
 __all__ = [
-    "EvalSettings", "METHODS", "TOKEN_METHODS", "video_metrics", "predict_scene", "score_scene", "summarize",
+    "EvalSettings", "METHODS", "TOKEN_METHODS", "load_run_checkpoint", "resolve_model", "video_metrics", "predict_scene", "score_scene", "summarize",
     "run_evaluation", "format_tables", "save_figure", "main",
 ]
 
@@ -278,7 +278,7 @@ def _check_models(models: dict[str, VideoTok4D], settings: EvalSettings) -> None
 def _model_info(net: VideoTok4D) -> dict[str, Any]:
     fp = codec.model_fingerprint(net)
     cfg = net.config
-    return {"fingerprint": fp.short(), "config": cfg.name, "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic,
+    return {"fingerprint": fp.short(), "training_step": getattr(net, "training_step", None), "config": cfg.name, "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic,
             "token_dim": cfg.token_dim, "unified_tokens": cfg.unified_tokens,
             "motion_isolation": cfg.motion_isolation, "track_attention": cfg.track_attention}
 
@@ -420,8 +420,9 @@ def format_tables(results: dict[str, Any]) -> str:
 # --- command ----------------------------------------------------------------------------------------
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m vt4dcodec.model.evaluate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--model", default="vt4d-tiny", help="main model: shipped id or model directory")
-    p.add_argument("--unified", default=None, help="unified-token ablation model directory (optional)")
+    p.add_argument("--model", default="vt4d-tiny", help="main model: shipped id, model directory, or a training "
+                   "run directory (its latest checkpoint)")
+    p.add_argument("--unified", default=None, help="unified-token ablation: model or training run directory")
     p.add_argument("--scenes", type=int, default=50)
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--views", type=int, default=3, help="target cameras per scene (cameras 1..views)")
@@ -441,10 +442,38 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
+    """The model of a training run's latest checkpoint (``<run>/checkpoint/``, written by the training
+    commands), for evaluating a run in progress.  Its fingerprint version is ``<version>+step<N>``."""
+    from .configs import ModelConfig
+    from .train.common import load_checkpoint
+
+    ckpt = Path(run_dir) / "checkpoint"
+    try:
+        state = json.loads((ckpt / "state.json").read_text())
+        net = VideoTok4D(ModelConfig.from_dict(state["config"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise EvaluationError(f"{ckpt} holds no complete training checkpoint: {exc}") from None
+    load_checkpoint(ckpt, net, None)
+    train_args = state.get("args", {})
+    net.model_id = str(train_args.get("model_id", "unnamed"))
+    net.model_version = f"{train_args.get('model_version', '0')}+step{int(state['step'])}"
+    net.training_step = int(state["step"])
+    return net.eval()
+
+
+def resolve_model(spec: str) -> VideoTok4D:
+    """A shipped id, a model directory, or a training run directory (its latest checkpoint)."""
+    path = Path(spec)
+    if path.is_dir() and not (path / "config.json").is_file() and (path / "checkpoint" / "state.json").is_file():
+        return load_run_checkpoint(path)
+    return codec.load_model(spec)
+
+
 def _load_models(args: argparse.Namespace) -> dict[str, VideoTok4D]:
-    models = {"main": codec.load_model(args.model)}
+    models = {"main": resolve_model(args.model)}
     if args.unified:
-        models["unified"] = codec.load_model(args.unified)
+        models["unified"] = resolve_model(args.unified)
         if not models["unified"].config.unified_tokens:
             raise EvaluationError(f"{args.unified} is not a unified-token model (config unified_tokens is false)")
     for net in models.values():

@@ -35,7 +35,7 @@ from vt4dcodec.format import dumps
 
 from . import baselines
 from .depth import estimate_depth
-from .evaluate import ENCODING, run_command, video_metrics, write_json
+from .evaluate import ENCODING, resolve_model, run_command, video_metrics, write_json
 from .motion import DEFAULT_DEPTH_RANGE
 
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
@@ -129,7 +129,7 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m vt4dcodec.model.real_footage", description=__doc__.split("\n\n")[0])
-    p.add_argument("--model", default="vt4d-tiny")
+    p.add_argument("--model", default="vt4d-tiny", help="shipped id, model directory or training run directory")
     p.add_argument("--capture", default=DEFAULT_CAPTURE, help="caliscope recording directory")
     p.add_argument("--source", default=None, help="source camera (default: best-overlapping pair)")
     p.add_argument("--target", default=None, help="target camera (default: best-overlapping pair)")
@@ -147,7 +147,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     from vt4dcodec.capture.caliscope import import_caliscope
 
     torch.set_num_threads(max(1, args.threads))
-    net = codec.load_model(args.model).eval()
+    net = resolve_model(args.model).eval()
     size = net.config.image_size
     t0 = time.perf_counter()
     capture = import_caliscope(args.capture, height=size, width=size, frame_step=args.frame_step)
@@ -163,7 +163,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "capture": str(args.capture), "source": source, "target": target,
         "axis_angle_deg": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
         "image_size": size, "clip_frames": net.config.frames, "steps": args.steps, "seed": args.seed,
-        "model": codec.model_fingerprint(net).short(), "wall_s": round(wall, 1),
+        "model": codec.model_fingerprint(net).short(), "training_step": getattr(net, "training_step", None), "wall_s": round(wall, 1),
         "summary": _summary(rows), "rows": rows,
     }
     out = write_json(args.out, results)

@@ -131,3 +131,22 @@ def test_real_footage_path_on_a_capture_without_depth(models):
     assert [r["method"] for r in rows] == ["ours", "nearest_frame", "depth_warp"] and len(clips) == 1
     assert rows[0]["bytes"] > 3072 and all(0 < r["psnr"] < 60 for r in rows)
     assert clips[0]["ours"].shape == clips[0]["truth"].shape == (8, 64, 64, 3)
+
+
+def test_a_training_run_directory_evaluates_its_latest_checkpoint(tmp_path):
+    from vt4dcodec import codec
+    from vt4dcodec.model.evaluate import EvaluationError, load_run_checkpoint, resolve_model
+    from vt4dcodec.model.train.common import save_checkpoint
+
+    torch.manual_seed(3)
+    cfg = get_config("tiny", patch_size=4)
+    net = VideoTok4D(cfg)
+    opt = torch.optim.SGD(net.parameters(), lr=0.1)
+    with pytest.raises(EvaluationError):  # no complete checkpoint yet
+        load_run_checkpoint(tmp_path)
+    save_checkpoint(tmp_path / "checkpoint", net, opt, 40, {"config": cfg.to_dict(),
+                                                           "args": {"model_id": "m", "model_version": "1"}})
+    loaded = resolve_model(str(tmp_path))
+    assert loaded.training_step == 40 and codec.model_fingerprint(loaded).model_version == "1+step40"
+    for (k, a), b in zip(net.state_dict().items(), loaded.state_dict().values()):
+        assert torch.equal(a, b), k
