@@ -494,9 +494,15 @@ def run_command(body: Callable[[], int]) -> int:
 
 
 def write_json(path: str | Path, data: dict[str, Any]) -> Path:
+    """Indented JSON, except that every element of a top-level ``rows`` list takes one line."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1) + "\n")
+    text = json.dumps({k: v for k, v in data.items() if k != "rows"}, indent=1)
+    if "rows" in data:
+        inner = text[1:-1].rstrip()
+        rows = ",\n".join("  " + json.dumps(r, separators=(",", ":")) for r in data["rows"])
+        text = "{" + inner + (",\n" if inner else "\n") + ' "rows": [\n' + rows + "\n ]\n}"
+    path.write_text(text + "\n")
     return path
 
 

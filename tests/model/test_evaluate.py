@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 import torch
 
 from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
@@ -150,3 +152,19 @@ def test_a_training_run_directory_evaluates_its_latest_checkpoint(tmp_path):
     assert loaded.training_step == 40 and codec.model_fingerprint(loaded).model_version == "1+step40"
     for (k, a), b in zip(net.state_dict().items(), loaded.state_dict().values()):
         assert torch.equal(a, b), k
+
+
+_json_scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=False) | st.text(max_size=8)
+
+
+@given(st.dictionaries(st.text(max_size=6).filter(lambda k: k != "rows"), _json_scalars, max_size=4),
+       st.none() | st.lists(st.dictionaries(st.text(max_size=4), _json_scalars, max_size=3), max_size=4))
+def test_results_json_round_trips(head, rows):
+    import tempfile
+
+    from vt4dcodec.model.evaluate import write_json
+
+    data = dict(head) if rows is None else {**head, "rows": rows}
+    with tempfile.TemporaryDirectory() as d:
+        path = write_json(f"{d}/r.json", data)
+        assert json.loads(path.read_text()) == data
