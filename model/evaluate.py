@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -289,7 +290,8 @@ def run_evaluation(settings: EvalSettings, models: dict[str, VideoTok4D], method
     """Predict and score every scene.
 
     Returns (rows, predictions of the ``figure_seeds`` scenes (seed -> method -> prediction, plus the
-    scene under key "scene"), seconds per method summed over scenes).
+    scene under key "scene"), wall seconds per method summed over scenes; a token model's encode and
+    renders are split evenly over the variants rendered from it).
     """
     _check_models(models, settings)
     unknown = [m for m in methods if m not in METHODS]
@@ -360,10 +362,23 @@ def save_figure(path: str | Path, kept: dict[int, dict[str, dict[str, Any]]], *,
             if c == 0:
                 ax.set_ylabel(f"seed {seed}\n{target} t={t}", fontsize=6)
     fig.tight_layout(pad=0.2)
+    return save_png_small(fig, path, dpi=dpi)
+
+
+def save_png_small(fig: Any, path: str | Path, *, dpi: int = 100) -> Path:
+    """Save a matplotlib figure as a 256-colour PNG (docs figures stay well under 300 KB), then close it."""
+    import io
+
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    plt.close(fig)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    image = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    image.save(path, optimize=True)
     return path
 
 
@@ -528,15 +543,16 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     if previous is not None and previous["settings"] != asdict(settings):
         raise EvaluationError(f"{out} was made with settings {previous['settings']}, not {asdict(settings)}")
     figure_seeds = settings.seeds[:args.figure_scenes] if args.figure else []
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     rows, kept, seconds = run_evaluation(settings, models, methods, figure_seeds=figure_seeds,
                                          progress=not args.no_progress)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     if args.figure and set(methods) != set(available):   # the figure shows every available method
         _, kept, _ = run_evaluation(replace(settings, scenes=len(figure_seeds)),
                                     models, available, figure_seeds=figure_seeds)
     model_info = {k: _model_info(v) for k, v in models.items()}
-    timing = {"wall_s": round(wall, 1), "per_method_s": seconds, "threads": args.threads}
+    timing = {"wall_s": round(wall, 1), "process_cpu_s": round(cpu, 1), "per_method_wall_s": seconds,
+              "threads": args.threads, "load_average_at_end": [round(x, 2) for x in os.getloadavg()]}
     if previous is not None:
         rows = [r for r in previous["rows"] if r["method"] not in methods] + rows
         model_info = {**previous["models"], **model_info}
@@ -556,7 +572,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     if args.figure:
         save_figure(args.figure, kept)
     sys.stdout.write(format_tables(results))
-    sys.stdout.write(f"wall {wall:.1f} s; results -> {out}\n")
+    sys.stdout.write(f"wall {wall:.1f} s, process CPU {cpu:.1f} s; results -> {out}\n")
     return 0
 
 

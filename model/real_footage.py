@@ -35,7 +35,7 @@ from vt4dcodec.format import dumps
 
 from . import baselines
 from .depth import estimate_depth
-from .evaluate import ENCODING, resolve_model, run_command, video_metrics, write_json
+from .evaluate import ENCODING, resolve_model, run_command, save_png_small, video_metrics, write_json
 from .motion import DEFAULT_DEPTH_RANGE
 
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
@@ -111,11 +111,7 @@ def save_real_figure(path: str | Path, clips: list[dict[str, Any]], source: str,
             if c == 0:
                 ax.set_ylabel(f"frame {clip['start'] + t}", fontsize=6)
     fig.tight_layout(pad=0.2)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png_small(fig, path)
 
 
 def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
