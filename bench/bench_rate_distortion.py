@@ -156,7 +156,7 @@ def summarize(args, cfg, labels, per_scene, wall: float, cpu: float) -> dict:
     default = min(ok, key=lambda t: t["file_bytes"]) if ok else None
     return {
         "command": "python bench/bench_rate_distortion.py " + " ".join(sys.argv[1:]),
-        "model": str(args.model), "model_config": cfg.name, "scenes": args.scenes, "views": args.views,
+        "model": str(args.model), "model_label": args.label or str(args.model), "model_config": cfg.name, "scenes": args.scenes, "views": args.views,
         "steps": args.steps, "split": "test", "first_seed": args.first_seed,
         "fp32_token_bytes": fp32_token_bytes, "max_loss_db": MAX_LOSS_DB,
         "mp4_bytes_mean": float(np.mean([s["mp4_bytes"] for s in per_scene])),
@@ -210,7 +210,7 @@ def plot(result: dict, path: Path) -> None:
     ax2.axvline(result["mp4_bytes_mean"], color="C2", lw=0.8)
     ax2.annotate("MPEG-4 source clip", (result["mp4_bytes_mean"], MAX_LOSS_DB * 0.9), fontsize=7, color="C2")
     ax1.legend(fontsize=7, ncol=2, loc="upper right")
-    fig.suptitle(f"{result['model']}: {result['scenes']} test scenes x {result['views']} novel views, "
+    fig.suptitle(f"{result.get('model_label', result['model'])}: {result['scenes']} test scenes x {result['views']} novel views, "
                  f"{result['steps']} steps (dashed: {MAX_LOSS_DB} dB budget; dotted: 1/16 of fp32 token bytes)",
                  fontsize=9)
     fig.tight_layout()
@@ -221,6 +221,7 @@ def plot(result: dict, path: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", default="vt4d-tiny", help="shipped model id or model directory")
+    parser.add_argument("--label", default=None, help="model name for the plot and JSON (default: --model)")
     parser.add_argument("--scenes", type=int, default=20)
     parser.add_argument("--views", type=int, default=3, help="novel cameras per scene (cameras 1..V)")
     parser.add_argument("--steps", type=int, default=8)
