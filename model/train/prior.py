@@ -140,7 +140,7 @@ tokenizer's renderer along any trajectory: `vt4d generate CAPTURE --anchor PRESE
 * Training: {training["steps"]} steps, batch {training["batch_size"]}, on {training["pairs"]} ordered camera
   pairs ({training["records"]} anchor records) read from `{training["shards"]}` through
   vt4dcodec.data.archive_dataset; loss {training["first_loss"]} -> {training["final_loss"]}
-  in {training["seconds"]} s (CPU).
+  in {training["seconds"]} s wall time on a shared CPU.
 * Data: procedurally generated synthetic multi-camera scenes (vt4dcodec.synth, train split); evaluate on
   split="test" (disjoint assets) with bench/bench_prior.py.
 * Limits: a CPU-size model trained for minutes; samples are coarse.  Only valid with the tokenizer above
