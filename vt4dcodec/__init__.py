@@ -14,10 +14,10 @@ from .format import (  # noqa: F401,E402  (the single-scene container: numpy + m
     ModelFingerprint, Provenance, Scene, dumps, load, loads, open_scene, save, verify,
 )
 from .archive import ArchiveWriter, open_archive, verify_archive  # noqa: F401,E402  (torch-free too)
+from .generate import generate  # noqa: F401,E402  (eager: the submodule shares the name; torch loads on call)
 
 # The codec needs torch; it is imported on first use so that `import vt4dcodec` stays light.
-_LAZY = {"encode": "codec", "encode_clips": "codec", "decode": "codec", "SceneDecoder": "codec",
-         "generate": "generate"}
+_LAZY = {"encode": "codec", "encode_clips": "codec", "decode": "codec", "SceneDecoder": "codec"}
 
 
 def __getattr__(name: str):
