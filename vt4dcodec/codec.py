@@ -32,12 +32,17 @@ if TYPE_CHECKING:  # pragma: no cover
     from .model import VideoTok4D
 
 __all__ = [
-    "DEFAULT_MODEL", "DEFAULT_STEPS", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
+    "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
 DEFAULT_STEPS = 8
+# The smallest encoding whose novel-view PSNR stays within 0.1 dB of float32 tokens on every held-out
+# view of vt4d-tiny (docs/benchmarks/rate_distortion.md: int4-rans, worst view +0.06 dB, 1/93 of the
+# float32 token bytes). int2-rans is 43 bytes smaller and within 0.1 dB on average but loses up to
+# 0.29 dB on single views. Re-measure with bench/bench_rate_distortion.py when the model changes.
+DEFAULT_ENCODING = "int4-rans"
 MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model directories
 
 
@@ -116,7 +121,7 @@ def _pick_camera(capture: Capture, camera: str | None) -> str:
 def encode(
     capture: "Capture | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
-    encoding: str = "int8",
+    encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
     start: int = 0,
@@ -128,7 +133,8 @@ def encode(
     Args:
         capture: a :class:`Capture` or a capture directory.
         model: shipped model id, model directory, or a loaded model.
-        encoding: token encoding used when the scene is saved ("float32", "float16", "int8", "int4").
+        encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``;
+            default :data:`DEFAULT_ENCODING`).
         camera: the source camera (default: the capture's first camera).
         start: first frame of the clip; the clip is ``model.config.frames`` frames long.
         seed: seeds track sampling, so the same capture and seed give the same tokens.
@@ -143,7 +149,7 @@ def encode(
 def encode_clips(
     capture: "Capture | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
-    encoding: str = "int8",
+    encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
     seed: int = 0,

@@ -43,7 +43,7 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
         f"-> {out / 'capture'}")
 
     t0 = time.perf_counter()
-    scene = codec.encode(cap, net, "int8", camera=source, seed=seed)
+    scene = codec.encode(cap, net, codec.DEFAULT_ENCODING, camera=source, seed=seed)
     scene_path = out / "scene.vt4d"
     nbytes = save(scene, scene_path)
     encode_s = time.perf_counter() - t0

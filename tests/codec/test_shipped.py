@@ -36,7 +36,8 @@ def test_encode_save_load_decode_with_shipped_weights(tmp_path, scene):
     encoded = vt4dcodec.encode(cap, camera=cap.camera_names[0])
     path = tmp_path / "scene.vt4d"
     nbytes = vt4dcodec.save(encoded, path)
-    assert nbytes < 8192  # 96 x 32 int8 tokens + cameras + fingerprint
+    assert vt4dcodec.load(path).encoding == codec.DEFAULT_ENCODING
+    assert nbytes < 4096  # entropy-coded tokens + cameras + fingerprint (about 1.8 KB)
     frames = vt4dcodec.decode(path, "source", steps=4, seed=0)
     assert frames.shape == cap.frames[cap.camera_names[0]].shape
     # a trained model reproduces the source view far better than a constant grey image does

@@ -212,7 +212,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    from ..codec import DEFAULT_STEPS
+    from ..codec import DEFAULT_ENCODING, DEFAULT_STEPS
     from ..format import ENCODINGS
     from ..media import VIDEO_FORMATS
 
@@ -234,7 +234,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
     p.add_argument("--start", type=nonneg_int, default=0, help="first frame of the clip (default 0)")
     p.add_argument("--split", action="store_true", help="encode every consecutive clip of a long capture")
-    p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding (default int8)")
+    p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
+                   help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
+                        "tokens on held-out views, see docs/BENCHMARKS.md)")
     p.set_defaults(func=cmd_encode)
 
     p = subparsers.add_parser(
