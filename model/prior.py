@@ -29,7 +29,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import nn
 
 from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
@@ -37,7 +37,7 @@ from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
 from .configs import ModelConfig
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
-from .weights_io import SHIPPED_DIR, weights_sha256
+from .weights_io import SHIPPED_DIR, weights_sha256, write_weights_directory
 
 __all__ = [
     "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "save_prior",
@@ -326,11 +326,8 @@ def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_ve
     meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
             "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
-    save_file(state, str(out / PRIOR_WEIGHTS_FILE), metadata={"format": PRIOR_FORMAT, "weights_sha256": digest})
-    (out / PRIOR_META_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    if card is not None:
-        (out / CARD_FILE).write_text(card, encoding="utf-8")
-    return out
+    return write_weights_directory(out, state, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
+                                   card=card)
 
 
 def shipped_prior_ids() -> list[str]:

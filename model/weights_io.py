@@ -34,7 +34,7 @@ from .videotok4d import VideoTok4D
 
 __all__ = [
     "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
-    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT",
+    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory",
 ]
 
 MODEL_FORMAT = "vt4d-model/1"
@@ -93,8 +93,16 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
     stored = {k: v.to(store) if v.dtype == torch.float32 else v for k, v in state.items()}
-    save_file(stored, str(out / WEIGHTS_FILE), metadata={"format": MODEL_FORMAT, "weights_sha256": digest})
-    (out / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
+
+
+def write_weights_directory(out: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any], *,
+                            weights_file: str, meta_file: str, card: str | None) -> Path:
+    """Write ``tensors`` (safetensors, tagged with ``meta``'s format and weights hash), ``meta`` (sorted
+    JSON) and an optional model card into ``out``: the layout shared by tokenizers and priors."""
+    save_file(tensors, str(out / weights_file),
+              metadata={"format": meta["format"], "weights_sha256": meta["weights_sha256"]})
+    (out / meta_file).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     if card is not None:
         (out / CARD_FILE).write_text(card, encoding="utf-8")
     return out
