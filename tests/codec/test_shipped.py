@@ -95,3 +95,28 @@ def test_demo_writes_videos_picture_and_reports(tmp_path):
     assert len(report["views"]) == 3 and all(v["psnr_db"] > 8 for v in report["views"].values())
     assert sorted(p.suffix for p in (tmp_path / "demo").glob("*.mp4")) == [".mp4"] * 6
     assert report["scene_bytes"] == (tmp_path / "demo" / "scene.vt4d").stat().st_size
+
+
+def test_cluster_ranks_encode_disjoint_shares_into_their_own_shards(tmp_path):
+    """The torchrun path: each rank (RANK/WORLD_SIZE set by torchrun) encodes its share into its shard."""
+    import os
+
+    from vt4dcodec.archive import open_archive
+    from vt4dcodec.capture.io import write_capture
+
+    root = tmp_path / "captures"
+    for seed in (21, 22, 23):
+        write_capture(generate_scene(seed, split="test", config=SynthConfig(num_cameras=2)).capture,
+                      root / f"c{seed}")
+    keys = []
+    for rank in (0, 1):
+        env = {**os.environ, "RANK": str(rank), "WORLD_SIZE": "2"}
+        r = subprocess.run([sys.executable, "-m", "vt4dcodec", "encode", str(root), "--archive",
+                            str(tmp_path / "shards" / "train.vt4da"), "--quiet", "--json"],
+                           capture_output=True, text=True, env=env, timeout=600)
+        assert r.returncode == 0, r.stderr
+        shard = tmp_path / "shards" / f"train-rank{rank:05d}-of-00002.vt4da"
+        assert json.loads(r.stdout)["archive"] == str(shard)
+        with open_archive(shard) as ar:
+            keys += ar.keys()
+    assert len(keys) == 3 and len(set(keys)) == 3  # every capture encoded exactly once across ranks

@@ -110,7 +110,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.archive is not None:
         from ..archive import ArchiveWriter
 
-        writer = ArchiveWriter(_shard_path(args.archive, rank, world))
+        shard = Path(_shard_path(args.archive, rank, world))
+        shard.parent.mkdir(parents=True, exist_ok=True)  # e.g. shards/ on a fresh cluster job
+        writer = ArchiveWriter(shard)
     try:
         for cap_dir in _progress(mine, len(mine), "encode", args.quiet):
             cap = read_capture(cap_dir)
