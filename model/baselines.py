@@ -32,7 +32,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import Vt4dError
 
 __all__ = [
-    "BaselineError", "WarpResult", "pose_distance", "nearest_source_frame", "forward_warp",
+    "BaselineError", "WarpResult", "pose_distance", "nearest_source_frame", "forward_warp", "mean_colour",
     "nearest_frame_floats", "rgbd_floats", "token_floats",
 ]
 
@@ -213,6 +213,15 @@ def forward_warp(source_frames: np.ndarray, source_depth: np.ndarray, source: Tr
             img = img if hole.all() else cv2.inpaint(img, hole.astype(np.uint8), INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
         frames[t], holes[t] = img, hole
     return WarpResult(frames=frames, holes=holes)
+
+
+def mean_colour(source_frames: np.ndarray) -> np.ndarray:
+    """A flat video (same shape) of the source video's mean colour: the structure-free reference."""
+    frames = np.asarray(source_frames)
+    if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
+        raise BaselineError("source frames must be a (T, H, W, 3) uint8 array")
+    colour = frames.reshape(-1, 3).mean(axis=0).round().astype(np.uint8)
+    return np.broadcast_to(colour, frames.shape).copy()
 
 
 def nearest_frame_floats(num_frames: int, height: int, width: int) -> int:

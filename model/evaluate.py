@@ -16,6 +16,8 @@ source clip and predicts the videos of cameras 1..views along their trajectories
 * ``unified``: the unified-token ablation (one token set of the same size, no Temporal Branch), encoded
   and rendered the same way (Table 1/5), if its model is given;
 * ``nearest_frame``: the source frame closest in pose, copied (view-bound);
+* ``mean_colour``: every pixel of every frame is the source video's mean colour (3 floats): a
+  reference that shows how much PSNR a method earns without any structure;
 * ``depth_warp``: source frame t forward-warped into target camera t with its exact depth (z-buffered
   splatting, holes inpainted): an explicit RGB-D representation.  Reported with it: the fraction of
   target pixels without a splat, and the fraction a surfel splat leaves uncovered (what the source
@@ -71,7 +73,8 @@ TOKEN_METHODS: dict[str, tuple[str, tuple[str, bool, bool]]] = {
     "ours_no_dynamic": ("VideoTok4D w/o Z_d", ("main", False, True)),
     "unified": ("Unified tokens (ablation)", ("unified", False, False)),
 }
-BASELINE_METHODS = {"nearest_frame": "Nearest source frame (view-bound)", "depth_warp": "Depth forward-warp (RGB-D)"}
+BASELINE_METHODS = {"nearest_frame": "Nearest source frame (view-bound)", "depth_warp": "Depth forward-warp (RGB-D)",
+                    "mean_colour": "Flat source mean colour (reference)"}
 METHODS: dict[str, str] = {**{k: v[0] for k, v in TOKEN_METHODS.items()}, **BASELINE_METHODS}
 METRICS = ("psnr", "ssim", "psnr_dynamic", "psnr_static")
 ENCODING = "int8"
@@ -173,6 +176,11 @@ def predict_scene(sc: SynthScene, settings: EvalSettings, methods: Sequence[str]
         out["nearest_frame"] = {"videos": [p[0] for p in preds],
                                 "extra": [{"source_frames": p[1].tolist()} for p in preds],
                                 "bytes": None, "seconds": time.perf_counter() - t0}
+    if "mean_colour" in methods:
+        t0 = time.perf_counter()
+        flat = baselines.mean_colour(src_frames)
+        out["mean_colour"] = {"videos": [flat] * len(targets), "extra": [{} for _ in targets], "bytes": None,
+                              "seconds": time.perf_counter() - t0}
     if "depth_warp" in methods:
         t0 = time.perf_counter()
         depth = sc.capture.depth[source]
@@ -216,6 +224,8 @@ def representation_floats(method: str, settings: EvalSettings, models: dict[str,
         return baselines.nearest_frame_floats(T, S, S)
     if method == "depth_warp":
         return baselines.rgbd_floats(T, S, S)
+    if method == "mean_colour":
+        return 3
     if token_floats is not None:
         return token_floats
     cfg = models[TOKEN_METHODS[method][1][0]].config
@@ -404,7 +414,7 @@ def format_tables(results: dict[str, Any]) -> str:
         se = f" ± {p['se']:.2f}" if p.get("se") is not None else ""
         return f"{p['mean']:+.2f}{se} ({100 * p['ours_wins']:.0f}%)"
 
-    for m in ("ours", "unified", "nearest_frame", "depth_warp"):
+    for m in ("ours", "unified", "nearest_frame", "depth_warp", "mean_colour"):
         if m not in s:
             continue
         e = s[m]

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.model.baselines import (
-    BaselineError, forward_warp, nearest_frame_floats, nearest_source_frame, pose_distance, rgbd_floats, token_floats,
+    BaselineError, forward_warp, mean_colour, nearest_frame_floats, nearest_source_frame, pose_distance, rgbd_floats,
+    token_floats,
 )
 
 F, S, T = 32.0, 24, 3  # focal length px, image side px, frames
@@ -162,3 +163,13 @@ def test_surfel_footprint_closes_the_cracks_of_a_magnified_plane():
                 src = frames[t][ys.astype(int)[:, None], xs.astype(int)[None, :]]
                 ok |= (surfels.frames[t] == src).all(-1)
         assert ok.all()
+
+
+def test_mean_colour_is_a_flat_video_of_the_source_mean():
+    frames = _textured()
+    flat = mean_colour(frames)
+    assert flat.shape == frames.shape and flat.dtype == np.uint8
+    np.testing.assert_array_equal(flat[1, 5, 7], np.round(frames.reshape(-1, 3).mean(0)).astype(np.uint8))
+    assert (flat == flat[0, 0, 0]).all()
+    with pytest.raises(BaselineError):
+        mean_colour(frames[..., :2])

@@ -44,7 +44,7 @@ def evaluated(models, tmp_path_factory):
 
 def test_every_method_scores_every_view(evaluated):
     results, out = evaluated
-    methods = ["ours", "ours_no_static", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp"]
+    methods = ["ours", "ours_no_static", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp", "mean_colour"]
     assert list(results["summary"]) == methods
     assert len(results["rows"]) == 2 * 2 * len(methods)
     assert {(r["seed"], r["view"]) for r in results["rows"]} == {(s, v) for s in (0, 1) for v in ("cam01", "cam02")}
@@ -59,6 +59,7 @@ def test_sizes_are_counted_like_tokens(evaluated):
     assert s["ours"]["floats"] == s["unified"]["floats"] == (64 + 32) * 32
     assert s["nearest_frame"]["floats"] == 8 * 64 * 64 * 3
     assert s["depth_warp"]["floats"] == 8 * 64 * 64 * 4
+    assert s["mean_colour"]["floats"] == 3
     # int8 tokens plus header: more than one byte per float, far less than float32
     assert 3072 < s["ours"]["bytes_int8_vt4d"] < 4 * 3072
     assert s["nearest_frame"]["bytes_int8_vt4d"] is None
