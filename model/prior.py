@@ -37,7 +37,7 @@ from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
 from .configs import ModelConfig
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
-from .weights_io import SHIPPED_DIR, weights_sha256, write_weights_directory
+from .weights_io import SHIPPED_DIR, storage_state, weights_sha256, widen_stored, write_weights_directory
 
 __all__ = [
     "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "save_prior",
@@ -316,17 +316,19 @@ class Co4DGen(nn.Module):
 
 # --- weights I/O ------------------------------------------------------------------------------------
 def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_version: str,
-               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None) -> Path:
+               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None,
+               storage_dtype: str = "float32") -> Path:
     """Write prior.json + prior.safetensors (+ MODEL_CARD.md); ``tokenizer`` is the
-    :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models."""
+    :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models.
+    ``storage_dtype="float16"`` halves the file (see ``weights_io.storage_state``)."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in prior.state_dict().items()}
+    state, stored = storage_state(prior, storage_dtype)
     digest = weights_sha256(state)
     meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
             "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
-    return write_weights_directory(out, state, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
+    return write_weights_directory(out, stored, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
                                    card=card)
 
 
@@ -383,10 +385,11 @@ def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") 
         state = load_file(str(directory / PRIOR_WEIGHTS_FILE), device="cpu")
     except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
         raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
-    if weights_sha256(state) != meta["weights_sha256"]:
-        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
     prior = Co4DGen(meta["config"])
     expected = prior.state_dict()
+    state = widen_stored(state, expected)
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
     if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
                                           for k in state):
         raise ModelError(f"{directory}: weights do not fit the prior config")

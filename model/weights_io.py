@@ -34,7 +34,7 @@ from .videotok4d import VideoTok4D
 
 __all__ = [
     "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
-    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory",
+    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory", "storage_state", "widen_stored",
 ]
 
 MODEL_FORMAT = "vt4d-model/1"
@@ -54,6 +54,31 @@ def weights_sha256(state: dict[str, torch.Tensor]) -> str:
         digest.update(header.encode("utf-8"))
         digest.update(tensor.view(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
     return digest.hexdigest()
+
+
+def storage_state(module: torch.nn.Module, storage_dtype: str = "float32"
+                  ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """(float32 state to fingerprint, tensors to store) for ``storage_dtype``.
+
+    For "float16" the module's floating weights are first rounded to float16 values in place (they stay
+    float32), so the stored file, the module and a reloaded module are the same weights.
+    """
+    if storage_dtype not in STORAGE_DTYPES:
+        raise ModelError(f"storage_dtype must be one of {sorted(STORAGE_DTYPES)}, got {storage_dtype!r}")
+    store = STORAGE_DTYPES[storage_dtype]
+    if store != torch.float32:
+        with torch.no_grad():
+            for tensor in module.state_dict().values():
+                if tensor.dtype == torch.float32:
+                    tensor.copy_(tensor.to(store).to(torch.float32))
+    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in module.state_dict().items()}
+    return state, {k: v.to(store) if v.dtype == torch.float32 else v for k, v in state.items()}
+
+
+def widen_stored(state: dict[str, torch.Tensor], expected: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Stored float16 tensors widened to the module's float32; every other tensor unchanged."""
+    return {k: v.to(torch.float32) if v.dtype == torch.float16 and k in expected
+            and expected[k].dtype == torch.float32 else v for k, v in state.items()}
 
 
 def fingerprint_fields(model: VideoTok4D, model_id: str, model_version: str) -> dict[str, Any]:
@@ -78,21 +103,12 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     float32 tensors) and stores them as float16, so the saved file, the loaded model and the
     fingerprint all describe the same weights.
     """
-    if storage_dtype not in STORAGE_DTYPES:
-        raise ModelError(f"storage_dtype must be one of {sorted(STORAGE_DTYPES)}, got {storage_dtype!r}")
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    store = STORAGE_DTYPES[storage_dtype]
-    if store != torch.float32:
-        with torch.no_grad():
-            for tensor in model.state_dict().values():
-                if tensor.dtype == torch.float32:
-                    tensor.copy_(tensor.to(store).to(torch.float32))
-    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
+    state, stored = storage_state(model, storage_dtype)
     digest = weights_sha256(state)
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
-    stored = {k: v.to(store) if v.dtype == torch.float32 else v for k, v in state.items()}
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
 
 
@@ -163,8 +179,7 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
         missing, extra = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
         raise ModelError(f"weights do not fit the config: missing {missing[:5]}, unexpected {extra[:5]}")
     # float16 storage is widened to the model's float32; any other dtype difference is an error
-    state = {k: v.to(expected[k].dtype) if v.dtype == torch.float16 and expected[k].dtype == torch.float32 else v
-             for k, v in state.items()}
+    state = widen_stored(state, expected)
     bad = [k for k in state if state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype]
     if bad:
         raise ModelError(f"weights do not fit the config: wrong shape/dtype for {bad[:5]}")

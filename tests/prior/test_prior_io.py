@@ -67,3 +67,15 @@ def test_a_prior_is_only_used_with_its_tokenizer(tmp_path):
         check_tokenizer(prior, wrong_shape, force=True)
     with pytest.raises(ModelMismatchError):
         check_tokenizer(small_prior(), FP)  # never loaded: no recorded tokenizer
+
+
+def test_float16_storage_round_trips_the_same_prior(tmp_path):
+    prior = small_prior(scramble=True)
+    save_prior(prior, tmp_path / "full", model_id="p", model_version="1", tokenizer=FP)
+    save_prior(prior, tmp_path / "half", model_id="p", model_version="1", tokenizer=FP, storage_dtype="float16")
+    sizes = [(tmp_path / d / "prior.safetensors").stat().st_size for d in ("full", "half")]
+    assert sizes[1] < 0.6 * sizes[0]
+    loaded = load_prior(tmp_path / "half")
+    cond = random_condition()
+    a, b = prior.sample(cond, steps=2, seed=1), loaded.sample(cond, steps=2, seed=1)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
