@@ -13,7 +13,8 @@ falls back to one constant depth), the bytes are decoded and the target camera's
 frames is rendered (resolved against the scene as the codec does), then compared with the target
 camera's real frames (PSNR, SSIM).  The two baselines of :mod:`model.evaluate` run on the same clips:
 the nearest source frame (static cameras: the source frame at the same time) and the forward warp with
-the same plane-sweep depth.
+the same plane-sweep depth, plus a flat image of the source clip's mean colour as the structure-free
+reference.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from .motion import DEFAULT_DEPTH_RANGE
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
 
 DEFAULT_CAPTURE = "/work/shared/data/caliscope_4cam"
-METHODS = ("ours", "nearest_frame", "depth_warp")
+METHODS = ("ours", "nearest_frame", "depth_warp", "mean_colour")
 
 
 def axis_angle(capture: Capture, a: str, b: str) -> float:
@@ -77,7 +78,8 @@ def evaluate_real(capture: Capture, net: Any, source: str, target: str, *, steps
         depth = estimate_depth(src_frames, src_traj.K, src_traj.w2c, near=DEFAULT_DEPTH_RANGE[0],
                                far=DEFAULT_DEPTH_RANGE[1])
         warp = baselines.forward_warp(src_frames, depth, src_traj, resolved)
-        videos = {"ours": ours, "nearest_frame": nearest, "depth_warp": warp.frames}
+        videos = {"ours": ours, "nearest_frame": nearest, "depth_warp": warp.frames,
+                  "mean_colour": baselines.mean_colour(src_frames)}
         for method, video in videos.items():
             m = video_metrics(video, truth, no_dynamic)
             rows.append({"method": method, "clip_start": start, "psnr": round(m["psnr"], 4), "ssim": round(m["ssim"], 4),
