@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from vt4dcodec.capture import read_capture, write_capture
-from vt4dcodec.capture.caliscope import import_caliscope
+from vt4dcodec.capture.caliscope import find_sample_capture, import_caliscope
 from vt4dcodec.capture.reprojection import caliscope_reprojection
 
 RESOLUTIONS = [(64, 64), (256, 256), (720, 1280)]
@@ -26,7 +26,7 @@ RESOLUTIONS = [(64, 64), (256, 256), (720, 1280)]
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data/caliscope_4cam")
+    ap.add_argument("--data", default=str(find_sample_capture() or "caliscope_4cam"))
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "capture.json"))
     args = ap.parse_args()
     results: dict = {"data": args.data, "raw_lens_model": caliscope_reprojection(args.data).as_dict(), "imports": []}

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from vt4dcodec import codec
+from vt4dcodec.capture.caliscope import find_sample_capture
 from vt4dcodec.capture.capture import Capture
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.format import dumps
@@ -41,7 +42,7 @@ from .motion import DEFAULT_DEPTH_RANGE
 
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
 
-DEFAULT_CAPTURE = "/work/shared/data/caliscope_4cam"
+DEFAULT_CAPTURE = str(find_sample_capture() or "caliscope_4cam")  # $VT4D_CALISCOPE or shared/data beside the repo
 METHODS = ("ours", "nearest_frame", "depth_warp", "mean_colour")
 
 

@@ -29,7 +29,21 @@ from ..errors import CameraError, CaptureError
 from .capture import Capture
 from .resample import FitPlan, FrameFitter, fit_trajectory, plan_fit
 
-__all__ = ["read_caliscope_cameras", "read_caliscope_timestamps", "import_caliscope"]
+__all__ = ["read_caliscope_cameras", "read_caliscope_timestamps", "import_caliscope", "find_sample_capture"]
+
+SAMPLE_ENV = "VT4D_CALISCOPE"  # where the caliscope_4cam sample recording lives, if not beside the repo
+
+
+def find_sample_capture() -> Path | None:
+    """The caliscope_4cam sample recording: ``$VT4D_CALISCOPE``, else ``shared/data/caliscope_4cam`` beside
+    the repository (where CI and the development machines keep it), else None."""
+    repo = Path(__file__).resolve().parents[2]
+    candidates = [os.environ.get(SAMPLE_ENV), repo.parent / "shared" / "data" / "caliscope_4cam",
+                  Path("/work/shared/data/caliscope_4cam")]
+    for c in candidates:
+        if c and (Path(c) / "camera_array.toml").is_file():
+            return Path(c)
+    return None
 
 MAX_CSV_BYTES = 256 * 1024 * 1024
 
