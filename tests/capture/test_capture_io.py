@@ -143,7 +143,7 @@ def test_wrong_depth_shape(written):
 
 
 def test_pickled_depth_is_refused(written):
-    np.save(written / "cam_a" / "depth.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    np.save(written / "cam_a" / "depth.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)  # pickle-check: writes a hostile file the reader must refuse
     with pytest.raises(CaptureError):
         read_capture(written)
 
