@@ -37,7 +37,7 @@ from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
 from .configs import ModelConfig
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
-from .weights_io import SHIPPED_DIR, storage_state, weights_sha256, widen_stored, write_weights_directory
+from .weights_io import SHIPPED_DIR, read_weights_meta, storage_state, weights_sha256, widen_stored, write_weights_directory
 
 __all__ = [
     "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "save_prior",
@@ -46,7 +46,6 @@ __all__ = [
 
 PRIOR_FORMAT = "co4dgen-prior/1"
 PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, CARD_FILE = "prior.json", "prior.safetensors", "MODEL_CARD.md"
-MAX_META_BYTES = 1 << 20
 SAMPLERS = ("euler", "heun")
 TOKEN_LIMIT = 1.0 - 1e-4  # sampled tokens are clipped to the tokenizer's bounded range (-1, 1)
 
@@ -351,22 +350,8 @@ def _read_prior_meta(directory: Path) -> dict[str, Any]:
     from vt4dcodec.format import ModelFingerprint
 
     path = directory / PRIOR_META_FILE
-    if not (directory / PRIOR_WEIGHTS_FILE).is_file():
-        raise ModelNotFoundError(f"{directory} lacks {PRIOR_WEIGHTS_FILE}")
-    if path.stat().st_size > MAX_META_BYTES:
-        raise ModelError(f"{path} is larger than {MAX_META_BYTES} bytes")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{path} is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict) or meta.get("format") != PRIOR_FORMAT:
-        raise ModelError(f"{path}: format must be {PRIOR_FORMAT!r}")
-    for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
-        if not isinstance(meta.get(key), str):
-            raise ModelError(f"{path}: {key} must be a string")
-    meta["config"] = PriorConfig.from_dict(meta.get("config"))
-    if meta["config"].sha256() != meta["config_sha256"]:
-        raise ModelError(f"{path}: config_sha256 does not match the config")
+    meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
+                             fmt=PRIOR_FORMAT, config_type=PriorConfig)
     try:
         meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
     except ValueError as exc:

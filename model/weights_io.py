@@ -34,7 +34,7 @@ from .videotok4d import VideoTok4D
 
 __all__ = [
     "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
-    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory", "storage_state", "widen_stored",
+    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory", "read_weights_meta", "storage_state", "widen_stored",
 ]
 
 MODEL_FORMAT = "vt4d-model/1"
@@ -139,27 +139,36 @@ def _resolve(name_or_path: str | Path) -> Path:
                              f"(shipped: {shipped_model_ids() or 'none'})")
 
 
-def read_model_meta(directory: Path) -> dict[str, Any]:
-    """Parse and validate config.json of a model directory."""
-    cfg_path = directory / CONFIG_FILE
-    if not cfg_path.is_file() or not (directory / WEIGHTS_FILE).is_file():
-        raise ModelNotFoundError(f"{directory} lacks {CONFIG_FILE} or {WEIGHTS_FILE}")
-    if cfg_path.stat().st_size > MAX_CONFIG_BYTES:
-        raise ModelError(f"{cfg_path} is larger than {MAX_CONFIG_BYTES} bytes")
+def read_weights_meta(directory: Path, *, meta_file: str, weights_file: str, fmt: str,
+                      config_type: Any) -> dict[str, Any]:
+    """Parse and validate a model directory's JSON meta (tokenizer ``config.json`` or prior ``prior.json``):
+    bounded size, format tag, string identity fields, and a config whose canonical hash matches.
+    ``meta["config"]`` is returned as a ``config_type`` instance."""
+    path = directory / meta_file
+    if not path.is_file() or not (directory / weights_file).is_file():
+        raise ModelNotFoundError(f"{directory} lacks {meta_file} or {weights_file}")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ModelError(f"{path} is larger than {MAX_CONFIG_BYTES} bytes")
     try:
-        meta = json.loads(cfg_path.read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{cfg_path} is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
-        raise ModelError(f"{cfg_path}: format must be {MODEL_FORMAT!r}")
+        raise ModelError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise ModelError(f"{path}: format must be {fmt!r}")
     for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
         if not isinstance(meta.get(key), str):
-            raise ModelError(f"{cfg_path}: {key} must be a string")
-    config = ModelConfig.from_dict(meta.get("config"))
+            raise ModelError(f"{path}: {key} must be a string")
+    config = config_type.from_dict(meta.get("config"))
     if config.sha256() != meta["config_sha256"]:
-        raise ModelError(f"{cfg_path}: config_sha256 does not match the config")
+        raise ModelError(f"{path}: config_sha256 does not match the config")
     meta["config"] = config
     return meta
+
+
+def read_model_meta(directory: Path) -> dict[str, Any]:
+    """Parse and validate config.json of a model directory."""
+    return read_weights_meta(directory, meta_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=MODEL_FORMAT,
+                             config_type=ModelConfig)
 
 
 def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> VideoTok4D:

@@ -20,12 +20,28 @@ import numpy as np
 
 from .errors import CameraError
 
-__all__ = ["Trajectory", "validate_intrinsics", "validate_w2c", "DISTORTION_LENGTHS"]
+__all__ = ["Trajectory", "validate_intrinsics", "validate_w2c", "parse_numbers", "DISTORTION_LENGTHS"]
 
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| entry accepted as orthonormal
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE3 = np.eye(3)
+
+
+def parse_numbers(value: Any, shape: tuple[int, ...] | None, where: str,
+                  error: type[CameraError] = CameraError) -> np.ndarray:
+    """A (nested) JSON list of numbers as float64, optionally of exactly ``shape``; strings, booleans,
+    objects and ragged lists raise ``error`` naming ``where``."""
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":
+            raise TypeError
+        arr = raw.astype(np.float64)
+    except (ValueError, TypeError, OverflowError):
+        raise error(f"{where} must be a (nested) list of numbers") from None
+    if shape is not None and arr.shape != shape:
+        raise error(f"{where} has shape {arr.shape}, expected {shape}")
+    return arr
 
 
 def validate_intrinsics(K: np.ndarray, *, what: str = "K") -> np.ndarray:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import Trajectory
+from ..cameras import Trajectory, parse_numbers
 from ..errors import CameraError, CaptureError
 from .capture import Capture
 
@@ -117,15 +117,7 @@ def _safe_relpath(directory: Path, rel: Any, where: str) -> Path:
 
 
 def _numbers(value: Any, shape: tuple[int, ...] | None, where: str) -> np.ndarray:
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind not in "iuf":  # no strings, booleans, objects or ragged lists
-            raise TypeError
-        arr = raw.astype(np.float64)
-    except (ValueError, TypeError, OverflowError):
-        raise CameraError(f"{where} must be a (nested) list of numbers") from None
-    if shape is not None and arr.shape != shape:
-        raise CameraError(f"{where} has shape {arr.shape}, expected {shape}")
+    arr = parse_numbers(value, shape, where)
     if not np.all(np.isfinite(arr)):
         raise CameraError(f"{where} holds non-finite numbers")
     return arr

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import Trajectory
+from ..cameras import Trajectory, parse_numbers
 from ..errors import CameraError, TrajectoryError
 
 __all__ = [
@@ -234,7 +234,7 @@ def make_trajectory(
 
     w2c0, K0 = reference.w2c[0], reference.K[0]
     c2w0 = np.linalg.inv(w2c0)
-    right, down, forward = c2w0[:3, 0], c2w0[:3, 1], c2w0[:3, 2]
+    down, forward = c2w0[:3, 1], c2w0[:3, 2]
     center0 = c2w0[:3, 3]
     fractions = np.linspace(0.0, 1.0, T) if T > 1 else np.zeros(1)
     K = np.broadcast_to(K0, (T, 3, 3)).copy()
@@ -349,16 +349,7 @@ def _array(doc: dict, key: str, shape: tuple[int, ...], *, optional: bool = Fals
         if optional:
             return None
         raise TrajectoryError(f"trajectory: missing {key!r}")
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind not in "iuf":  # no strings, booleans, objects or ragged lists
-            raise TypeError
-        arr = raw.astype(np.float64)
-    except (ValueError, TypeError, OverflowError):
-        raise TrajectoryError(f"trajectory: {key!r} must be a nested list of numbers") from None
-    if shape and arr.shape != shape:
-        raise TrajectoryError(f"trajectory: {key!r} has shape {arr.shape}, expected {shape}")
-    return arr
+    return parse_numbers(value, shape or None, f"trajectory: {key!r}", TrajectoryError)
 
 
 def trajectory_from_json(doc: Any) -> Trajectory:
