@@ -48,11 +48,16 @@ def test_memory_filesystem_reads_only_needed_ranges(archive_bytes):
 
 
 class _RangeHandler(BaseHTTPRequestHandler):
-    """Serves one in-memory file with single byte ranges (RFC 9110), counting bytes sent."""
+    """Serves one in-memory file with single byte ranges (RFC 9110), counting bytes sent.
+
+    The counters are updated under a lock *before* the body is written: once the client holds the
+    bytes, the count already includes them (counting after the write raced with the test's assert).
+    """
 
     data = b""
     sent = 0
     requests = 0
+    lock = threading.Lock()
 
     def log_message(self, *args):
         pass
@@ -76,7 +81,6 @@ class _RangeHandler(BaseHTTPRequestHandler):
     def do_GET(self):
         span = self._span()
         cls = type(self)
-        cls.requests += 1
         if span is None:
             body, code = self.data, 200
         else:
@@ -87,8 +91,10 @@ class _RangeHandler(BaseHTTPRequestHandler):
         self.send_header("Content-Length", str(len(body)))
         self.send_header("Accept-Ranges", "bytes")
         self.end_headers()
+        with cls.lock:
+            cls.requests += 1
+            cls.sent += len(body)
         self.wfile.write(body)
-        cls.sent += len(body)
 
 
 @pytest.fixture()
