@@ -2,7 +2,7 @@
 
 Optical flow F_t comes from OpenCV DIS (the stand-in for RAFT, tuned for 64x64 frames), depth D_t from
 the capture or from :func:`model.depth.estimate_depth`, and the flow the cameras alone would cause on a
-static scene, F_pose (Eq. 3), from :func:`vt4dcodec.geometry.camera_flow`.  The residual
+static scene, F_pose (Eq. 3), as :func:`vt4dcodec.geometry.camera_flow` defines it.  The residual
 ``r_t(p) = || F_t(p) - F_pose_t(p) ||`` isolates independently moving content and
 ``M_t(p) = 1{ r_t(p) > tau_t }`` (Eq. 4).
 
@@ -10,8 +10,8 @@ What it takes to make Eq. 4 work on small, slow, synthetic objects (measured, do
 in the 64x64 synthetic scenes move 0.4-0.9 px per frame while DIS errs by 0.1-0.2 px on average and
 0.3-0.6 px at its 95th percentile (much more inside textureless walls, where the aperture problem leaves
 the flow undetermined).  A plain per-pixel threshold on adjacent-frame residuals therefore reaches only
-IoU ~0.2-0.3 with the true object masks and marks up to 15 % of a static scene.  Three classical steps,
-all on the same residual, fix most of that:
+IoU ~0.2-0.3 with the true object masks and marks up to 15 % of a static scene.  Classical steps fix
+most of that (steps 1-4 work on the flow residual; 5-6 on the capture depth alone):
 
 1. Longer baselines.  Besides the adjacent pairs (t, t+1) and (t, t-1) every frame is also compared with
    a partner ``LONG_GAP`` frames away (t + g, or t - g near the end).  Object displacement grows with the
@@ -34,6 +34,22 @@ all on the same residual, fix most of that:
    the mask when at least ``VOTE_FRACTION`` of its pixels are evidence, filling in only within
    ``VOTE_REACH`` px of evidence (a segment can straddle an object edge).  The result is cleaned by a
    3x3 opening (drops isolated pixels) and closing (fills pinholes).
+5. Pose consistency over the whole clip (capture depth only).  Every frame t is warped to every other
+   frame s of the clip by F_pose alone (no flow: with exact depth this is exact for static content, and
+   over 3-7 frames a moving object has moved several px, far above DIS noise).  A pixel *breaks free
+   space* in a pair when the partner sees, all around the landing point (its 2x2 pixel block), something
+   more than FREE_SPACE_RATIO farther than the point should be: a static point cannot be seen through, so
+   the point has moved away (a nearer partner depth is only an occlusion and says nothing).  Mixed depth
+   pixels (anti-aliased or flying pixels on a depth edge, MIXED_DEPTH_RATIO) are not tested.  The same
+   warps, over pairs at least PHOTO_GAP frames apart where the pixel is visible, count colour matches:
+   mean |RGB| of frame t outside the 3x3 min/max envelope of the warped partner <= PHOTO_TOLERANCE.
+6. Evidence = any free-space violation, or DIS evidence (steps 1-3) unless the pixel is on a depth edge
+   (DEPTH_EDGE_RATIO) where the pose warp explains its colour in >= VETO_MATCH_SHARE of at least two
+   long-gap pairs and no pair breaks free space.  DIS smooths the flow across depth edges, so the flow
+   residual of a static edge is large exactly where the pose warp shows nothing moved.  With plane-sweep
+   depth (static-scene assumption: wrong on moving objects by construction) steps 5-6 are skipped.
+
+Steps 5-6 run before the segment voting of step 4, which fills the object interiors from this evidence.
 
 A pixel is *usable* in a pair when F_pose is valid (known depth, in front of the partner camera), it
 lands inside the partner frame, and it is not occluded there (its predicted depth exceeds the partner's
@@ -54,7 +70,7 @@ import numpy as np
 import torch
 
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.geometry import camera_flow, relative_pose, unproject
+from vt4dcodec.geometry import MIN_DEPTH, pixel_grid, project, relative_pose, unproject
 
 from .depth import estimate_depth
 
@@ -66,9 +82,13 @@ __all__ = [
     "isolate_motion",
     "residual_threshold",
     "mask_to_latent",
+    "long_gap_partners",
+    "all_pairs",
+    "depth_edges",
     "TAU_MIN",
     "TAU_K",
     "LONG_GAP",
+    "FREE_SPACE_RATIO",
     "DEFAULT_DEPTH_RANGE",
 ]
 
@@ -82,6 +102,13 @@ VOTE_REACH = 2  # px: a voted segment fills in at most this far (Chebyshev) from
 SEGMENT_SIGMA, SEGMENT_K, SEGMENT_MIN_SIZE = 0.5, 200.0, 8  # Felzenszwalb parameters (RGB in 0..255)
 INV_DEPTH_WEIGHT = 500.0  # inverse-depth channel scale for segmentation (1/m -> "intensity" units)
 OCCLUSION_RATIO = 0.05  # predicted depth > (1 + this) * depth at the landing point => occluded
+POSE_MAX_GAP = 7  # step 5 warps every frame to every other frame at most this many frames away
+FREE_SPACE_RATIO = 0.02  # partner depth > (1 + this) * predicted depth around the landing point => seen through
+MIXED_DEPTH_RATIO = 0.1  # a pixel this much farther than its nearest and nearer than its farthest 3x3 neighbour
+PHOTO_GAP = 3  # step 5 compares colours only over pairs at least this many frames apart
+PHOTO_TOLERANCE = 0.05  # mean |RGB| outside the 3x3 envelope of the pose-warped partner still counted a match
+DEPTH_EDGE_RATIO = 0.03  # |log depth| jump to a 4-neighbour that marks a depth edge
+VETO_MATCH_SHARE = 0.8  # on a depth edge, DIS evidence is dropped if the pose warp matches this share of pairs
 DEFAULT_DEPTH_RANGE = (0.3, 30.0)  # metres, plane-sweep range when the capture has no depth
 MIN_SIZE = 8  # px, smallest frame side DIS is run on
 
@@ -218,33 +245,53 @@ class _Pairs:
     evidence: np.ndarray
 
 
+def _grid(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    return tuple(np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)))
+
+
 def _warp(image: np.ndarray, flow: np.ndarray, grid: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """``image`` sampled at p + flow(p) (bilinear, border replicated): the partner frame brought back to p."""
     return cv2.remap(image, grid[0] + flow[..., 0], grid[1] + flow[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)
 
 
+def _pair_geometry(
+    depth: np.ndarray, K: np.ndarray, w2c: np.ndarray, src: np.ndarray, dst: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """F_pose (P, H, W, 2) of pairs src[i] -> dst[i] (Eq. 3, as :func:`vt4dcodec.geometry.camera_flow`), its
+    validity (P, H, W) and the depth z_pred (P, H, W) each source pixel would have in the partner camera
+    if it were static (for the occlusion and free-space tests).  ``depth`` (T, H, W) metres, 0 = unknown.
+
+    Each frame is unprojected once and moved by one batched matmul per pair (camera_flow would unproject
+    the source frame again for every pair, ~4x slower for the 56 pairs of an 8-frame clip).
+    """
+    T, H, W = depth.shape
+    D = torch.from_numpy(depth)
+    known = D > 0
+    Kt, Pt = torch.from_numpy(K.astype(np.float32)), torch.from_numpy(w2c.astype(np.float32))
+    points = unproject(torch.where(known, D, torch.ones_like(D)), Kt).reshape(T, H * W, 3)
+    rel = relative_pose(Pt[src], Pt[dst])
+    moved = torch.bmm(points[src], rel[:, :3, :3].transpose(1, 2)) + rel[:, None, :3, 3]
+    uv, z = project(moved.reshape(len(src), H, W, 3), Kt[dst])
+    valid = known[src] & (z > MIN_DEPTH)
+    fpose = torch.where(valid[..., None], uv - pixel_grid(H, W, dtype=uv.dtype), torch.zeros_like(uv))
+    return fpose.numpy().astype(np.float32), valid.numpy(), z.numpy()
+
+
 def _analyse_pairs(
-    rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-    src: np.ndarray, dst: np.ndarray, flow: np.ndarray,
+    rgb: np.ndarray, depth: np.ndarray, src: np.ndarray, dst: np.ndarray, flow: np.ndarray,
+    geometry: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> _Pairs:
-    """F_pose, usable pixels, residuals, per-pair tau and photometrically confirmed evidence.
+    """Usable pixels, residuals, per-pair tau and photometrically confirmed DIS evidence (steps 1-3).
 
     ``rgb`` (T, H, W, 3) float32 in [0, 1]; ``depth`` (T, H, W) metres (0 = unknown); ``flow`` (P, H, W, 2)
-    DIS flow of each pair.
+    DIS flow of each pair; ``geometry`` the pairs' :func:`_pair_geometry` (F_pose is copied, not modified).
     """
     P = len(src)
     H, W = depth.shape[1:]
-    D = torch.from_numpy(depth)
-    Kt, Pt = torch.from_numpy(K.astype(np.float32)), torch.from_numpy(w2c.astype(np.float32))
-    fpose_t, valid_t = camera_flow(D[src], Kt[src], Kt[dst], Pt[src], Pt[dst])
-    # depth of each source point in the partner camera (z row of T_{src->dst}) for the occlusion test;
-    # an einsum, as a batched 3x3 matmul per pixel is slow on CPU
-    rel = relative_pose(Pt[src], Pt[dst])
-    z_pred = (torch.einsum("phwc,pc->phw", unproject(D[src], Kt[src]), rel[:, 2, :3]) + rel[:, 2, 3, None, None]).numpy()
-    fpose = fpose_t.numpy().astype(np.float32)
-    valid = valid_t.numpy()
-    grid = tuple(np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)))
+    fpose, valid, z_pred = geometry
+    fpose = fpose.copy()
+    grid = _grid(H, W)
     usable = np.zeros((P, H, W), dtype=bool)
     evidence = np.zeros((P, H, W), dtype=bool)
     tau = np.zeros(P, np.float32)
@@ -263,6 +310,85 @@ def _analyse_pairs(
     residual[~usable] = 0.0
     fpose[~usable] = 0.0
     return _Pairs(src=src, dst=dst, camera_flow=fpose, usable=usable, residual=residual, tau=tau, evidence=evidence)
+
+
+@dataclass
+class _PoseConsistency:
+    """Per-frame counts (T, H, W) over the all-pairs pose warps of step 5."""
+
+    violations: np.ndarray  # pairs in which the pixel breaks free space (seen through in the partner)
+    matches: np.ndarray  # long-gap pairs, pixel visible, colour explained by the pose warp
+    visible: np.ndarray  # long-gap pairs in which the pixel is visible
+
+
+def all_pairs(T: int, max_gap: int = POSE_MAX_GAP) -> tuple[np.ndarray, np.ndarray]:
+    """(src, dst) of every ordered frame pair 1 <= |src - dst| <= max_gap, as int64 arrays."""
+    t = np.arange(T)
+    src, dst = np.meshgrid(t, t, indexing="ij")
+    keep = (src != dst) & (np.abs(src - dst) <= max_gap)
+    return src[keep].astype(np.int64), dst[keep].astype(np.int64)
+
+
+def _pose_consistency(
+    rgb: np.ndarray, depth: np.ndarray, src: np.ndarray, dst: np.ndarray,
+    geometry: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> _PoseConsistency:
+    """Step 5: warp every frame to every other frame by F_pose alone (capture depth, no flow) and count,
+    per pixel of the source frame, free-space violations and long-gap colour matches."""
+    T, H, W = depth.shape
+    fpose, valid, z_pred = geometry
+    grid = _grid(H, W)
+    # min and max depth of each 2x2 block [y, y+1] x [x, x+1] (edge replicated): the partner depth around a
+    # landing point (floor(x), floor(y)).  Nearest/bilinear sampling would mix the two sides of a depth edge.
+    padded = np.pad(depth, ((0, 0), (0, 1), (0, 1)), mode="edge")
+    blocks = np.stack([padded[:, :-1, :-1], padded[:, :-1, 1:], padded[:, 1:, :-1], padded[:, 1:, 1:]])
+    low, high = blocks.min(0), blocks.max(0)
+    out = _PoseConsistency(*(np.zeros((T, H, W), np.int16) for _ in range(3)))
+    mx, my = grid[0] + fpose[..., 0], grid[1] + fpose[..., 1]
+    inside = valid & (mx >= -0.5) & (mx <= W - 0.5) & (my >= -0.5) & (my <= H - 0.5)
+    at = (dst[:, None, None], np.clip(np.floor(my), 0, H - 1).astype(np.intp),
+          np.clip(np.floor(mx), 0, W - 1).astype(np.intp))
+    # low > 0: all four known.  Mixed pixels (depth between a clearly nearer and a clearly farther
+    # neighbour: anti-aliased or "flying" pixels on a depth edge) belong to no surface and are not tested.
+    k3 = np.ones((3, 3), np.uint8)
+    nearest = np.stack([cv2.erode(d, k3) for d in depth])
+    farthest = np.stack([cv2.dilate(d, k3) for d in depth])
+    mixed = (nearest * (1.0 + MIXED_DEPTH_RATIO) < depth) & (farthest > depth * (1.0 + MIXED_DEPTH_RATIO))
+    violation = inside & ~mixed[src] & (low[at] > (1.0 + FREE_SPACE_RATIO) * z_pred)
+    visible = inside & ~violation & (high[at] * (1.0 + OCCLUSION_RATIO) >= z_pred)
+    np.add.at(out.violations, src, violation.astype(np.int16))
+    for i in np.flatnonzero(np.abs(src - dst) >= PHOTO_GAP):
+        s, d = src[i], dst[i]
+        warped = _warp(rgb[d], fpose[i], grid)
+        # colour error against the 3x3 min/max envelope of the warped partner: sub-pixel misregistration
+        # of edges (pose, depth sampling, resampling) costs nothing, a displacement of several px does
+        err = np.maximum(np.maximum(rgb[s] - cv2.dilate(warped, k3), cv2.erode(warped, k3) - rgb[s]), 0.0).mean(-1)
+        out.matches[s] += visible[i] & (err <= PHOTO_TOLERANCE)
+        out.visible[s] += visible[i]
+    return out
+
+
+def depth_edges(depth: np.ndarray, ratio: float = DEPTH_EDGE_RATIO) -> np.ndarray:
+    """(T, H, W) bool: pixels whose depth differs from a 4-neighbour's by more than ``ratio`` in log depth
+    (both sides of the edge are marked; unknown depth never makes an edge)."""
+    log_d = np.log(np.where(depth > 0, depth, 1.0))
+    known = depth > 0
+    edge = np.zeros(depth.shape, dtype=bool)
+    for axis in (1, 2):
+        n = depth.shape[axis] - 1
+        a, b = (slice(None),) * axis + (slice(0, n),), (slice(None),) * axis + (slice(1, n + 1),)
+        jump = (np.abs(log_d[b] - log_d[a]) > ratio) & known[a] & known[b]
+        edge[a] |= jump
+        edge[b] |= jump
+    return edge
+
+
+def _combine_evidence(dis_evidence: np.ndarray, pose: _PoseConsistency, edges: np.ndarray) -> np.ndarray:
+    """Step 6, per pixel: any free-space violation, or DIS evidence (steps 1-3) unless it sits on a depth
+    edge where the pose warp explains the colour in >= VETO_MATCH_SHARE of the (>= 2) long-gap pairs the
+    pixel is visible in and no pair breaks free space."""
+    explained = (pose.visible >= 2) & (pose.matches >= VETO_MATCH_SHARE * pose.visible) & (pose.violations == 0)
+    return (pose.violations > 0) | (dis_evidence & ~(edges & explained))
 
 
 _OPEN_CLOSE_KERNEL = np.ones((3, 3), np.uint8)
@@ -382,13 +508,24 @@ def isolate_motion(
         np.zeros((0, H, W, 2), np.float32))
     src = np.concatenate([np.arange(T - 1), np.arange(1, T), has_long]).astype(np.int64)
     dst = np.concatenate([np.arange(1, T), np.arange(T - 1), partner[has_long]]).astype(np.int64)
+    # F_pose once for every ordered pair; the DIS pairs above are a subset of them
+    all_src, all_dst = all_pairs(T)
+    geometry = _pair_geometry(depth, K, w2c, all_src, all_dst)
+    index = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(all_src, all_dst))}
+    take = np.array([index[(int(a), int(b))] for a, b in zip(src, dst)], dtype=np.int64)
+    rgb = frames.astype(np.float32) / 255.0
     pairs = _analyse_pairs(
-        frames.astype(np.float32) / 255.0, depth, K, w2c, src, dst,
-        np.concatenate([flow_fwd, flow_bwd, long_flow]).astype(np.float32),
+        rgb, depth, src, dst, np.concatenate([flow_fwd, flow_bwd, long_flow]).astype(np.float32),
+        tuple(g[take] for g in geometry),
     )
-    evidence = np.zeros((T, H, W), dtype=bool)
+    dis_evidence = np.zeros((T, H, W), dtype=bool)
     for i, s in enumerate(src):
-        evidence[s] |= pairs.evidence[i]
+        dis_evidence[s] |= pairs.evidence[i]
+    if depth_source == "capture":
+        evidence = _combine_evidence(dis_evidence, _pose_consistency(rgb, depth, all_src, all_dst, geometry),
+                                    depth_edges(depth))
+    else:  # plane-sweep depth is wrong on moving objects by construction (static-scene assumption)
+        evidence = dis_evidence
     mask = np.stack([_clean(_vote(frames[t], depth[t], evidence[t])) for t in range(T)])
     n = T - 1
     return MotionIsolation(

@@ -1,8 +1,9 @@
 """Pose-compensated motion isolation (model.motion) with DIS flow, on hand-made and synthetic scenes.
 
 Issue #5 item 9: a static scene seen by moving cameras gives a motion mask under 2 % of the pixels;
-scenes with moving objects give masks that overlap the true object masks (IoU); the same with depth
-estimated by plane sweep.  Measured figures are in docs/motion.md (bench/bench_motion.py).
+on scenes with moving objects the mask's IoU with the true object masks is at least 0.7 (DIS flow,
+capture depth); a realistic floor with depth estimated by plane sweep.  Measured figures are in
+docs/motion.md (bench/bench_motion.py).
 """
 
 from __future__ import annotations
@@ -15,10 +16,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from vt4dcodec.geometry import camera_flow
 from vt4dcodec.model.motion import (
     TAU_K,
     TAU_MIN,
     MotionInputError,
+    _pair_geometry,
+    _pose_consistency,
+    all_pairs,
+    depth_edges,
     dis_flow,
     estimate_flows,
     isolate_motion,
@@ -175,8 +181,8 @@ def test_hand_made_moving_card_is_isolated_in_every_frame(seed):
     iso = isolate_motion(s["frames"], s["K"], s["w2c"], s["depth"], latent_hw=(16, 16))
     assert iso.mask.shape == (T, H, W) and iso.mask_latent.shape == (T, 16, 16)
     assert iso.residual.shape == (T - 1, H, W) and iso.tau.shape == (T - 1,) and iso.camera_flow.shape == (T - 1, H, W, 2)
-    # measured 0.75 mean over seeds 0-2 (0.67 worst): segment voting, tuned for the low-texture synthetic
-    # rooms, spills up to VOTE_REACH px past the card into this high-frequency wall (docs/motion.md)
+    # measured 0.84 / 0.68 / 0.76 on seeds 0-2: segment voting, tuned for the low-texture synthetic rooms,
+    # spills up to VOTE_REACH px past the card into this high-frequency wall (docs/motion.md)
     assert iou(iso.mask, s["dyn"]) >= 0.6
     assert iou(iso.mask[-1], s["dyn"][-1]) >= 0.5  # the last frame has a mask too (backward pairs)
     # the static wall's residual is explained by the camera; the card's is not
@@ -194,14 +200,55 @@ def test_hand_made_scene_with_estimated_depth():
 
 # --- masks on the synthetic scenes (issue #5 item 9) --------------------------------------------------
 def test_static_synthetic_scenes_have_masks_under_two_percent():
-    fractions = [isolate_motion(f, K, P, D).mask.mean() for f, K, P, D, _ in clips([0, 1], static=True, cameras=2)]
+    # seed 6 cameras 0-1 used to mark 9-10 % (DIS smoothing across depth edges; the step 6 veto); measured
+    # max 0.85 % over seeds 0-17 (seed 3), 0.07 % on seed 6
+    fractions = [isolate_motion(f, K, P, D).mask.mean() for f, K, P, D, _ in clips([0, 1, 6], static=True, cameras=2)]
     assert max(fractions) < 0.02, fractions
 
 
 def test_moving_objects_are_isolated_on_synthetic_scenes():
-    ious = [iou(isolate_motion(f, K, P, D).mask, gt) for f, K, P, D, gt in clips([0, 1, 2], static=False)]
-    # measured mean 0.71 on these 9 clips (distribution over 18 clips in docs/motion.md)
-    assert np.mean(ious) >= 0.65, ious
+    # the issue's criterion on the 18 clips of seeds 0-5 (the hardest seeds: 4 and 5 hold the slowest,
+    # smallest objects); measured mean 0.81, worst clip 0.54 (per clip in bench/results/motion.json)
+    ious = [iou(isolate_motion(f, K, P, D).mask, gt) for f, K, P, D, gt in clips(range(6), static=False)]
+    assert np.mean(ious) >= 0.7 and min(ious) >= 0.4, ious
+
+
+def test_pair_geometry_is_camera_flow():
+    """F_pose of the all-pairs warp (frames unprojected once) equals vt4dcodec.geometry.camera_flow."""
+    s = plane_scene(0, False)
+    depth = s["depth"].copy()
+    depth[2, :6] = 0.0  # unknown depth is invalid in both
+    src, dst = all_pairs(T)
+    assert len(src) == T * (T - 1)
+    flow, valid, z_pred = _pair_geometry(depth, s["K"], s["w2c"], src, dst)
+    ref, ref_valid = camera_flow(depth[src], s["K"][src], s["K"][dst], s["w2c"][src], s["w2c"][dst])
+    np.testing.assert_array_equal(valid, ref_valid.numpy())
+    np.testing.assert_allclose(flow, ref.numpy(), atol=1e-3)
+    same = src == 0
+    assert np.all(z_pred[same][valid[same]] > 0)
+
+
+def test_free_space_violations_mark_only_moving_points():
+    """Step 5 with exact depth: no static pixel breaks free space; most of the moving card does."""
+    for static in (True, False):
+        s = plane_scene(1, static)
+        src, dst = all_pairs(T)
+        geometry = _pair_geometry(s["depth"], s["K"], s["w2c"], src, dst)
+        pose = _pose_consistency(s["frames"].astype(np.float32) / 255.0, s["depth"], src, dst, geometry)
+        broken = pose.violations > 0
+        assert not (broken & ~s["dyn"]).any()  # measured: none
+        if not static:
+            assert broken[s["dyn"]].mean() > 0.7  # measured 0.90
+        assert np.all(pose.matches <= pose.visible)
+
+
+def test_depth_edges():
+    depth = np.full((1, 8, 8), 4.0, np.float32)
+    depth[0, :, 5:] = 4.2  # a 5 % step between columns 4 and 5
+    depth[0, 0, 0] = 0.0  # unknown: never an edge
+    edges = depth_edges(depth, ratio=0.03)
+    assert edges[0, :, 4:6].all() and not edges[0, :, :4].any() and not edges[0, :, 6:].any()
+    assert not depth_edges(depth, ratio=0.1).any()
 
 
 def test_synthetic_masks_with_estimated_depth():
