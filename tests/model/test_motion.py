@@ -201,7 +201,7 @@ def test_hand_made_scene_with_estimated_depth():
 # --- masks on the synthetic scenes (issue #5 item 9) --------------------------------------------------
 def test_static_synthetic_scenes_have_masks_under_two_percent():
     # seed 6 cameras 0-1 used to mark 9-10 % (DIS smoothing across depth edges; the step 6 veto); measured
-    # max 0.85 % over seeds 0-17 (seed 3), 0.07 % on seed 6
+    # max 0.85 % over seeds 0-17 (seed 0 cam01), 0.07 % on seed 6
     fractions = [isolate_motion(f, K, P, D).mask.mean() for f, K, P, D, _ in clips([0, 1, 6], static=True, cameras=2)]
     assert max(fractions) < 0.02, fractions
 
