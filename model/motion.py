@@ -70,7 +70,7 @@ import numpy as np
 import torch
 
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.geometry import MIN_DEPTH, pixel_grid, project, relative_pose, unproject
+from vt4dcodec.geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
 
 from .depth import estimate_depth
 
@@ -270,10 +270,12 @@ def _pair_geometry(
     known = D > 0
     Kt, Pt = torch.from_numpy(K.astype(np.float32)), torch.from_numpy(w2c.astype(np.float32))
     points = unproject(torch.where(known, D, torch.ones_like(D)), Kt).reshape(T, H * W, 3)
-    rel = relative_pose(Pt[src], Pt[dst])
-    moved = torch.bmm(points[src], rel[:, :3, :3].transpose(1, 2)) + rel[:, None, :3, 3]
-    uv, z = project(moved.reshape(len(src), H, W, 3), Kt[dst])
+    # K_dst @ [R | t] of T_{src->dst}: one matmul gives (z u, z v, z) per pixel (pinhole K, last row 0 0 1)
+    to_pixels = Kt[dst] @ relative_pose(Pt[src], Pt[dst])[:, :3, :]
+    uvz = (torch.bmm(points[src], to_pixels[:, :, :3].transpose(1, 2)) + to_pixels[:, None, :, 3]).reshape(-1, H, W, 3)
+    z = uvz[..., 2]
     valid = known[src] & (z > MIN_DEPTH)
+    uv = uvz[..., :2] / torch.where(valid, z, torch.ones_like(z))[..., None]
     fpose = torch.where(valid[..., None], uv - pixel_grid(H, W, dtype=uv.dtype), torch.zeros_like(uv))
     return fpose.numpy().astype(np.float32), valid.numpy(), z.numpy()
 
@@ -356,7 +358,8 @@ def _pose_consistency(
     mixed = (nearest * (1.0 + MIXED_DEPTH_RATIO) < depth) & (farthest > depth * (1.0 + MIXED_DEPTH_RATIO))
     violation = inside & ~mixed[src] & (low[at] > (1.0 + FREE_SPACE_RATIO) * z_pred)
     visible = inside & ~violation & (high[at] * (1.0 + OCCLUSION_RATIO) >= z_pred)
-    np.add.at(out.violations, src, violation.astype(np.int16))
+    for t in range(T):
+        out.violations[t] = violation[src == t].sum(0)
     for i in np.flatnonzero(np.abs(src - dst) >= PHOTO_GAP):
         s, d = src[i], dst[i]
         warped = _warp(rgb[d], fpose[i], grid)
