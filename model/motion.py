@@ -92,6 +92,7 @@ __all__ = [
     "DEFAULT_DEPTH_RANGE",
 ]
 
+MASK_RULE_VERSION = 2  # bump whenever isolate_motion's output changes: caches of prepared inputs are keyed by it
 TAU_MIN = 0.2  # px per frame, floor of the per-pair threshold (2x the mean DIS error at 64x64)
 TAU_K = 3.0  # robust sigmas above the static median
 MAD_TO_SIGMA = 1.4826

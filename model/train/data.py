@@ -30,6 +30,7 @@ from vt4dcodec.errors import CaptureError
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 from ..configs import ModelConfig
+from ..motion import MASK_RULE_VERSION
 from ..preprocess import prepare_source
 from ..source_inputs import SourceBatch, SourceInputs
 
@@ -127,9 +128,14 @@ class ScenePool:
         return {"frames": np.ascontiguousarray(frames), "K": stack("source_K").astype(np.float64),
                 "w2c": stack("source_w2c").astype(np.float64), "depth": stack("source_depth").astype(np.float32)}
 
+    def prepared_path(self, seed: int) -> Path:
+        """Cache file of one scene's prepared inputs; keyed by the mask rule's version, so masks made
+        by an older ``isolate_motion`` are never mixed with new ones."""
+        iso = f"iso{MASK_RULE_VERSION}" if self.motion_isolation else "noiso"
+        return self.cache / f"prep-{self._stem(seed)}-l{self.latent_size}-n{self.n_tracks}-{iso}.npz"
+
     def build_prepared(self, seed: int) -> dict[str, np.ndarray]:
-        iso = "iso" if self.motion_isolation else "noiso"
-        path = self.cache / f"prep-{self._stem(seed)}-l{self.latent_size}-n{self.n_tracks}-{iso}.npz"
+        path = self.prepared_path(seed)
         if path.is_file():
             return _load_npz(path)
         scene = self.scene(seed)

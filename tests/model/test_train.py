@@ -137,3 +137,16 @@ def test_training_from_capture_directories_on_disk(runs, tmp_path):
     with np.load(disk) as a, np.load(generated) as b:
         assert np.array_equal(a["frames"], b["frames"])  # PNG frames are lossless
         assert np.allclose(a["w2c"], b["w2c"], atol=1e-5) and np.allclose(a["K"], b["K"], atol=1e-4)
+
+
+def test_prepared_cache_is_keyed_by_the_mask_rule_version(tmp_path, monkeypatch):
+    """Regression: prepared inputs were cached without the mask rule's version, so a changed
+    isolate_motion silently reused masks from the old rule."""
+    from vt4dcodec.model.train import data
+
+    pool = data.ScenePool(tmp_path, cameras=2, frames=8, image_size=64, latent_size=16, n_tracks=8)
+    before = pool.prepared_path(3)
+    monkeypatch.setattr(data, "MASK_RULE_VERSION", data.MASK_RULE_VERSION + 1)
+    assert pool.prepared_path(3) != before
+    no_iso = data.ScenePool(tmp_path, 2, 8, 64, 16, 8, motion_isolation=False)
+    assert no_iso.prepared_path(3).name.endswith("-noiso.npz")  # the mask rule is not used at all
