@@ -3,6 +3,9 @@
     python -m vt4dcodec.model.train.autoencoder --out runs/ae --steps 2000
     torchrun --nproc_per_node=2 -m vt4dcodec.model.train.autoencoder --out runs/ae --steps 2000
 
+Data: every frame of every camera of the training scenes, plus (``--photo-share``) random crops of
+the training-split photos at full resolution, so real footage is not decoded by an autoencoder that
+has only seen rendered textures. ``--init`` warm-starts from earlier weights where shapes match.
 Loss: L1 + MSE between frames and their reconstructions. At the end the per-channel latent
 statistics are measured on training frames (so stage 2 sees unit-variance latents) and the frozen
 autoencoder is written to ``<out>/autoencoder.safetensors`` with ``<out>/autoencoder.json``
@@ -14,17 +17,21 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from safetensors.torch import save_file
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
 from torch.nn.parallel import DistributedDataParallel
+
+from vt4dcodec.errors import ModelError
 
 from ..autoencoder import LatentAutoencoder
 from ..configs import get_config
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
                      scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
-from .data import FrameDataset
+from .data import FrameDataset, MixedFrames
 
 __all__ = ["main", "AE_WEIGHTS", "AE_CONFIG"]
 
@@ -38,11 +45,31 @@ def reconstruction_step(module: torch.nn.Module, images: torch.Tensor) -> tuple[
     return l1 + mse, {"l1": float(l1.detach()), "mse": float(mse.detach()), "psnr": psnr}
 
 
+def warm_start(ae: LatentAutoencoder, path: Path) -> int:
+    """Copy the tensors of ``path`` that fit ``ae`` (names with or without an ``autoencoder.`` prefix,
+    equal shapes); the latent statistics are re-measured at the end anyway. Returns how many."""
+    try:
+        state = load_file(str(path))
+    except (OSError, SafetensorError, ValueError) as exc:
+        raise ModelError(f"cannot read {path}: {exc}") from None
+    state = {k.removeprefix("autoencoder."): v for k, v in state.items()}
+    own = ae.state_dict()
+    fits = {k: v.to(own[k].dtype) for k, v in state.items() if k in own and v.shape == own[k].shape}
+    ae.load_state_dict(fits, strict=False)
+    return len(fits)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.autoencoder", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     common_arguments(parser)
     parser.set_defaults(batch_size=32, lr=1e-3, scenes=32)
+    parser.add_argument("--photo-share", type=float, default=0.25,
+                        help="share of each epoch that is random crops of the training-split photos "
+                             "(natural-image statistics for real captures); 0 = rendered frames only")
+    parser.add_argument("--init", type=Path, default=None,
+                        help="warm start: copy every autoencoder tensor of this safetensors file (stage-1 "
+                             "output or a model directory's model.safetensors) whose name and shape match")
     args = parser.parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)
@@ -51,15 +78,21 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
 
     ae = LatentAutoencoder(cfg)
+    if args.init is not None:
+        copied = warm_start(ae, args.init)
+        if info.is_main:
+            print(f"warm start from {args.init}: {copied} of {len(ae.state_dict())} tensors copied")
     optimizer = torch.optim.AdamW(ae.parameters(), lr=args.lr, weight_decay=0.0)
     module = DistributedDataParallel(ae) if info.distributed else ae
-    dataset = FrameDataset(*scene_pool_and_seeds(args, cfg, info))
+    frames = FrameDataset(*scene_pool_and_seeds(args, cfg, info))
+    dataset = MixedFrames(frames, args.photo_share, seed=args.seed + info.rank) if args.photo_share > 0 else frames
     records = train_loop(args, info, module, ae, optimizer, cycle(make_loader(dataset, args, info)),
                          reconstruction_step, title="stage 1: autoencoder",
                          extra_state={"config": cfg.to_dict()})
     if info.is_main:
         ae.eval()
-        sample = torch.stack([dataset[i] for i in torch.randperm(len(dataset))[:256].tolist()])
+        # the statistics the tokenizer will see: rendered frames only
+        sample = torch.stack([frames[i] for i in torch.randperm(len(frames))[:256].tolist()])
         ae.set_latent_statistics(sample)
         with torch.no_grad():
             _, logs = reconstruction_step(ae, sample)

@@ -34,7 +34,7 @@ from ..motion import MASK_RULE_VERSION
 from ..preprocess import prepare_source
 from ..source_inputs import SourceBatch, SourceInputs
 
-__all__ = ["ScenePool", "FrameDataset", "PairDataset", "collate_pairs", "PairBatch", "rank_seeds"]
+__all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "collate_pairs", "PairBatch", "rank_seeds"]
 
 
 def rank_seeds(first: int, count: int, rank: int, world_size: int) -> list[int]:
@@ -179,6 +179,61 @@ class FrameDataset(Dataset):
         scene = self.pool.scene(self.seeds[index // self.per_scene])
         c, t = divmod(index % self.per_scene, self.pool.frames)
         return torch.from_numpy(scene["frames"][c, t]).permute(2, 0, 1).float().div_(255.0)
+
+
+class PhotoCrops(Dataset):
+    """Random square crops of the training-split photos (full resolution), resized to ``size``.
+
+    Natural-image statistics for stage 1, so the frozen autoencoder is not fitted to rendered
+    textures only (real captures look like photos). Crop ``i`` is a deterministic function of ``i``
+    and ``seed``: side 1/8 .. 1 of the photo's shorter side, random position, horizontal flip, area
+    resampling. Only ``split="train"`` photos are used (the test photos stay unseen).
+    """
+
+    def __init__(self, size: int, count: int, seed: int = 0) -> None:
+        from vt4dcodec.synth.assets import PHOTO_TEXTURES
+
+        self.size, self.count, self.seed = size, int(count), int(seed)
+        self.names = sorted(n for n, split in PHOTO_TEXTURES.items() if split == "train")
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        import cv2
+
+        from vt4dcodec.synth.assets import photo_image
+
+        rng = np.random.default_rng([self.seed, int(index)])
+        img = photo_image(self.names[int(rng.integers(len(self.names)))])
+        H, W = img.shape[:2]
+        side = int(round(min(H, W) * rng.uniform(0.125, 1.0)))
+        side = max(self.size // 2, min(side, H, W))
+        y0, x0 = int(rng.integers(H - side + 1)), int(rng.integers(W - side + 1))
+        crop = np.ascontiguousarray(img[y0:y0 + side, x0:x0 + side])
+        if rng.random() < 0.5:
+            crop = crop[:, ::-1]
+        interp = cv2.INTER_AREA if side >= self.size else cv2.INTER_CUBIC
+        out = np.clip(cv2.resize(np.ascontiguousarray(crop), (self.size, self.size), interpolation=interp), 0, 1)
+        return torch.from_numpy(out.reshape(self.size, self.size, 3)).permute(2, 0, 1).float()
+
+
+class MixedFrames(Dataset):
+    """Stage-1 data: rendered frames plus a share ``photo_share`` of :class:`PhotoCrops`."""
+
+    def __init__(self, frames: FrameDataset, photo_share: float, seed: int = 0) -> None:
+        if not 0.0 <= photo_share < 1.0:
+            raise ValueError("photo_share must be in [0, 1)")
+        self.frames = frames
+        n_photos = int(round(len(frames) * photo_share / (1.0 - photo_share)))
+        self.photos = PhotoCrops(frames.pool.image_size, n_photos, seed)
+
+    def __len__(self) -> int:
+        return len(self.frames) + len(self.photos)
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        n = len(self.frames)
+        return self.frames[index] if index < n else self.photos[index - n]
 
 
 @dataclass

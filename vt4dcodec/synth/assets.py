@@ -22,7 +22,7 @@ from ..errors import Vt4dError
 
 __all__ = [
     "TEXTURE_SIZE", "MIP_LEVELS", "SPLITS", "PHOTO_TEXTURES", "PROCEDURAL_KINDS",
-    "texture_names", "texture_split", "check_split", "load_texture", "TextureBank", "texture_bank",
+    "texture_names", "texture_split", "photo_image", "check_split", "load_texture", "TextureBank", "texture_bank",
     "SynthError",
 ]
 
@@ -94,7 +94,12 @@ def _resize_square(img: np.ndarray, size: int) -> np.ndarray:
     return cv2.resize(sq, (size, size), interpolation=cv2.INTER_AREA).reshape(size, size, -1)
 
 
-def _photo_texture(name: str) -> np.ndarray:
+@functools.lru_cache(maxsize=None)
+def photo_image(name: str) -> np.ndarray:
+    """Photo texture ``name`` at the resolution scikit-image ships it: (H, W, 3) float32 in [0, 1],
+    RGBA composited over light gray, grayscale tinted as in the textures. Read-only (cached)."""
+    if name not in PHOTO_TEXTURES:
+        raise SynthError(f"unknown photo {name!r}; choose one of {sorted(PHOTO_TEXTURES)}")
     img = np.asarray(_photo_array(name))
     if img.dtype == bool:
         img = img.astype(np.float32)
@@ -104,7 +109,13 @@ def _photo_texture(name: str) -> np.ndarray:
         img = img[..., :3] * img[..., 3:] + 0.8 * (1.0 - img[..., 3:])
     if img.ndim == 2:
         img = _tint(img, name)
-    return np.clip(_resize_square(img, TEXTURE_SIZE), 0.0, 1.0)
+    img = np.ascontiguousarray(np.clip(img, 0.0, 1.0), dtype=np.float32)
+    img.setflags(write=False)
+    return img
+
+
+def _photo_texture(name: str) -> np.ndarray:
+    return np.clip(_resize_square(photo_image(name), TEXTURE_SIZE), 0.0, 1.0)
 
 
 # --- procedural patterns -------------------------------------------------------------------------
