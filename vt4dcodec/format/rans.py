@@ -22,6 +22,10 @@ Frequency table bytes: ``u16 first_symbol``, ``u16 count`` (little-endian), then
 the frequencies of symbols ``first_symbol .. first_symbol + count - 1`` (every other symbol has frequency
 0).  Each varint is 1..3 bytes with no redundant trailing zero group, each frequency is at most ``M``, and
 they sum to exactly ``M``.
+
+Two implementations of the same coder: ``_rans_native.c`` (built by ``pip install``; ~5 ns a symbol) and
+the pure-Python loops below (the fallback where no C compiler was found, and the reference the tests hold
+the C code to, byte for byte).  :data:`NATIVE` says which one :func:`rans_encode` / :func:`rans_decode` use.
 """
 
 from __future__ import annotations
@@ -30,8 +34,15 @@ import numpy as np
 
 from ..errors import MalformedSectionError, TruncatedError
 
-__all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "normalize_counts", "pack_table", "parse_table",
+try:
+    from . import _rans_native
+except ImportError:  # built without a C compiler: the pure-Python coder below does the work
+    _rans_native = None
+
+__all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "NATIVE", "normalize_counts", "pack_table", "parse_table",
            "rans_encode", "rans_decode"]
+
+NATIVE = _rans_native is not None
 
 PROB_BITS = 14
 PROB_SCALE = 1 << PROB_BITS          # M: frequencies sum to this
@@ -122,6 +133,20 @@ def _cumulative(freqs: list[int]) -> list[int]:
 
 def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
     """The rANS stream of ``symbols`` (1-D ints, each with a non-zero frequency) under ``freqs``."""
+    if _rans_native is None:
+        return _encode_py(symbols, freqs)
+    table = np.asarray(freqs, dtype=np.uint32)
+    syms = np.asarray(symbols)
+    if syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
+        raise ValueError("symbols outside the frequency table")
+    out = _rans_native.encode(np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1), table)
+    if out is None:
+        raise ValueError("a symbol to encode has frequency 0")
+    return out
+
+
+def _encode_py(symbols: np.ndarray, freqs: list[int]) -> bytes:
+    """Pure-Python :func:`rans_encode` (the reference)."""
     cum = _cumulative(freqs)
     x, out = STATE_LOWER, bytearray()
     for s in reversed(symbols.tolist()):
@@ -139,7 +164,8 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     """Decode ``count`` symbols (uint16 array) from ``stream`` under ``freqs`` (validated by parse_table).
 
     Raises TruncatedError if the stream ends early, MalformedSectionError if bytes are left over or the
-    final state is not ``L`` (a damaged or forged stream).
+    final state is not ``L`` (a damaged or forged stream).  Allocates ``2 * count`` bytes, which callers
+    bound (MAX_RANS_VALUES).
     """
     data = bytes(stream)
     if len(data) < 4:
@@ -149,25 +175,39 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
         raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
     nonzero = [s for s, f in enumerate(freqs) if f]
     if len(nonzero) == 1:  # one symbol of probability 1: the stream carries no information
-        out = np.full(count, nonzero[0], np.uint16)
-        pos = 4
-    else:
-        slot_symbol = np.repeat(np.arange(len(freqs), dtype=np.uint16), freqs).tolist()
-        cum, mask, end = _cumulative(freqs), PROB_SCALE - 1, len(data)
-        syms, pos = [0] * count, 4
-        for i in range(count):
-            slot = x & mask
-            s = slot_symbol[slot]
-            x = freqs[s] * (x >> PROB_BITS) + slot - cum[s]
-            while x < STATE_LOWER:
-                if pos >= end:
-                    raise TruncatedError(f"rANS stream ends after {i} of {count} symbols")
-                x = (x << 8) | data[pos]
-                pos += 1
-            syms[i] = s
-        out = np.array(syms, dtype=np.uint16)
+        _check_end(data, 4, x)
+        return np.full(count, nonzero[0], np.uint16)
+    if _rans_native is None:
+        return _decode_py(data, x, freqs, count)
+    out = np.empty(count, np.uint16)
+    done, pos, x = _rans_native.decode(data, np.asarray(freqs, dtype=np.uint32), out)
+    if done < count:
+        raise TruncatedError(f"rANS stream ends after {done} of {count} symbols")
+    _check_end(data, pos, x)
+    return out
+
+
+def _check_end(data: bytes, pos: int, x: int) -> None:
     if pos != len(data):
         raise MalformedSectionError(f"rANS stream has {len(data) - pos} bytes left after its last symbol")
     if x != STATE_LOWER:
         raise MalformedSectionError(f"rANS stream ends in state {x}, not {STATE_LOWER}: damaged or forged bytes")
-    return out
+
+
+def _decode_py(data: bytes, x: int, freqs: list[int], count: int) -> np.ndarray:
+    """Pure-Python :func:`rans_decode` after the initial-state and one-symbol checks (the reference)."""
+    slot_symbol = np.repeat(np.arange(len(freqs), dtype=np.uint16), freqs).tolist()
+    cum, mask, end = _cumulative(freqs), PROB_SCALE - 1, len(data)
+    syms, pos = [0] * count, 4
+    for i in range(count):
+        slot = x & mask
+        s = slot_symbol[slot]
+        x = freqs[s] * (x >> PROB_BITS) + slot - cum[s]
+        while x < STATE_LOWER:
+            if pos >= end:
+                raise TruncatedError(f"rANS stream ends after {i} of {count} symbols")
+            x = (x << 8) | data[pos]
+            pos += 1
+        syms[i] = s
+    _check_end(data, pos, x)
+    return np.array(syms, dtype=np.uint16)
