@@ -257,3 +257,26 @@ def test_compiled_encoder_refuses_symbols_without_a_frequency():
         rans_encode(np.array([0, 1, 2]), [PROB_SCALE, 0, 0])
     with pytest.raises(ValueError):
         rans_encode(np.array([0, 3]), [PROB_SCALE // 2, PROB_SCALE // 2])
+
+
+@given(st.integers(2, 8), st.integers(1, 60), st.integers(1, 8), st.integers(0, 2**32 - 1), st.booleans())
+def test_histogram_median_is_the_sorted_columns_lower_median(bits, rows, cols, seed, repeated):
+    from vt4dcodec.format.rans_tokens import lower_median_codes
+    codes = np.random.default_rng(seed).integers(0, 1 << bits, (rows, cols)).astype(np.uint8)
+    if repeated:
+        codes[: rows // 2 + 1] = codes[0]
+    assert np.array_equal(lower_median_codes(codes, bits), np.sort(codes, axis=0)[(rows - 1) // 2])
+
+
+@needs_native
+@given(st.integers(2, 8), st.integers(1, 60), st.integers(1, 8), st.integers(0, 2**32 - 1))
+def test_compiled_column_histograms_count_like_bincount(bits, rows, cols, seed):
+    from vt4dcodec.format.rans_tokens import column_histograms
+    codes = np.random.default_rng(seed).integers(0, 1 << bits, (rows, cols)).astype(np.uint8)
+    keyed = codes.astype(np.intp) + np.arange(cols) * (1 << bits)
+    expect = np.bincount(keyed.reshape(-1), minlength=cols << bits).reshape(cols, 1 << bits)
+    assert np.array_equal(column_histograms(codes, bits), expect)
+    if bits < 8:
+        codes[-1, -1] = 1 << bits
+        with pytest.raises(ValueError):
+            column_histograms(codes, bits)

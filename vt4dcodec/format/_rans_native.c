@@ -9,6 +9,8 @@
  *
  *   decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)
  *   encode(symbols_u16, freqs_u32) -> bytes, or None if a symbol has frequency 0 or lies outside the table
+ *   column_histograms(codes_u8, cols, size, out_i64) -> None: out[(k % cols) * size + codes[k]] += 1, or
+ *       ValueError if a code is >= size (the writer's one counting pass, for its median and both tables)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -172,11 +174,49 @@ done:
     return result;
 }
 
+static PyObject *column_histograms(PyObject *self, PyObject *args) {
+    Py_buffer cb, ob;
+    Py_ssize_t cols, size;
+    if (!PyArg_ParseTuple(args, "y*nnw*", &cb, &cols, &size, &ob)) return NULL;
+    PyObject *result = NULL;
+    if (cols < 1 || size < 1 || size > 256 || cb.len % cols || ob.len != (Py_ssize_t)sizeof(int64_t) * cols * size) {
+        PyErr_SetString(PyExc_ValueError, "column_histograms: shapes do not match");
+        goto done;
+    }
+    const uint8_t *codes = (const uint8_t *)cb.buf;
+    int64_t *hist = (int64_t *)ob.buf;
+    const Py_ssize_t rows = cb.len / cols;
+    int bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < rows && !bad; r++) {
+        const uint8_t *row = codes + r * cols;
+        for (Py_ssize_t c = 0; c < cols; c++) {
+            if (row[c] >= size) {
+                bad = 1;
+                break;
+            }
+            hist[c * size + row[c]]++;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "column_histograms: a code is outside 0 .. size - 1");
+        goto done;
+    }
+    result = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"decode", rans_decode, METH_VARARGS,
      "decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
     {"encode", rans_encode, METH_VARARGS,
      "encode(symbols_u16, freqs_u32) -> stream bytes, or None if a symbol has frequency 0"},
+    {"column_histograms", column_histograms, METH_VARARGS,
+     "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
     {NULL, NULL, 0, NULL},
 };
 

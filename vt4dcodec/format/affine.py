@@ -27,6 +27,11 @@ def affine_codes(x: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: int
     per channel (d,) and broadcast over rows; a zero scale gives code 0."""
     s64 = scale.astype(np.float64)
     safe = np.where(s64 > 0, s64, 1.0)
-    q = np.rint((x.astype(np.float64) - offset.astype(np.float64)) / safe)  # rint: half to even
-    q = np.where(s64 > 0, q, 0.0)
-    return np.clip(q, 0, (1 << bits) - 1).astype(np.uint8)
+    q = x.astype(np.float64)  # one float64 buffer, every step in place (same values, fewer passes)
+    q -= offset.astype(np.float64)
+    q /= safe
+    np.rint(q, out=q)  # rint: half to even
+    if not np.all(s64 > 0):
+        q *= s64 > 0  # zero-scale channels: code 0 (q is finite there: (x - offset) / 1)
+    np.clip(q, 0, (1 << bits) - 1, out=q)
+    return q.astype(np.uint8)

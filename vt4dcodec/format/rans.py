@@ -135,11 +135,11 @@ def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
     """The rANS stream of ``symbols`` (1-D ints, each with a non-zero frequency) under ``freqs``."""
     if _rans_native is None:
         return _encode_py(symbols, freqs)
-    table = np.asarray(freqs, dtype=np.uint32)
     syms = np.asarray(symbols)
-    if syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
-        raise ValueError("symbols outside the frequency table")
-    out = _rans_native.encode(np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1), table)
+    if syms.dtype != np.uint16 and syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
+        raise ValueError("symbols outside the frequency table")  # (the C code checks every uint16 symbol)
+    out = _rans_native.encode(np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1),
+                              np.asarray(freqs, dtype=np.uint32))
     if out is None:
         raise ValueError("a symbol to encode has frequency 0")
     return out

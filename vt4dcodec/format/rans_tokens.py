@@ -45,9 +45,28 @@ def check_groups(groups: int, cols: int) -> None:
         raise FormatError(f"quantization groups must divide d = {cols} (1 <= groups <= d), got {groups!r}")
 
 
-def _entropy_part(symbols: np.ndarray, alphabet: int) -> bytes:
-    freqs = rans.normalize_counts(np.bincount(symbols, minlength=alphabet))
+def _entropy_part(symbols: np.ndarray, counts: np.ndarray) -> bytes:
+    """Frequency table + rANS stream of ``symbols`` (1-D uint16) whose histogram is ``counts``."""
+    freqs = rans.normalize_counts(counts)
     return rans.pack_table(freqs) + rans.rans_encode(symbols, freqs)
+
+
+def column_histograms(codes: np.ndarray, bits: int) -> np.ndarray:
+    """int64 (d, 2^b): ``hist[c, v]`` = how many rows of ``codes`` (N, d) hold code ``v`` in column ``c``."""
+    d, size = codes.shape[1], 1 << bits
+    if rans.NATIVE:
+        hist = np.zeros((d, size), np.int64)
+        rans._rans_native.column_histograms(np.ascontiguousarray(codes, dtype=np.uint8), d, size, hist)
+        return hist
+    keyed = codes.astype(np.intp) + np.arange(d, dtype=np.intp) * size
+    return np.bincount(keyed.reshape(-1), minlength=d * size).reshape(d, size)
+
+
+def lower_median_codes(codes: np.ndarray, bits: int, hist: np.ndarray | None = None) -> np.ndarray:
+    """uint8 (d,): element ``(N - 1) // 2`` of each sorted column of ``codes`` (N, d), in O(N d) from the
+    column histograms (the smallest ``v`` with more than ``(N - 1) // 2`` codes ``<= v``)."""
+    hist = column_histograms(codes, bits) if hist is None else hist
+    return (np.cumsum(hist, axis=1) <= (codes.shape[0] - 1) // 2).sum(axis=1).astype(np.uint8)
 
 
 def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
@@ -60,13 +79,18 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
         raise LimitExceededError(f"{n}x{d} tokens exceed the {MAX_RANS_VALUES} values an entropy-coded "
                                  "matrix may hold; use int8 or int4")
     scale, offset = group_params(x, bits, groups)
-    width = d // groups
+    width, top = d // groups, (1 << bits) - 1
     codes = affine_codes(x, np.repeat(scale, width), np.repeat(offset, width), bits)
     head = struct.pack("<H", groups) + np.concatenate([scale, offset]).astype("<f4").tobytes()
-    plain = bytes([PREDICT_NONE]) + _entropy_part(codes.reshape(-1).astype(np.int64), 1 << bits)
-    centre = np.sort(codes, axis=0)[(n - 1) // 2]  # lower median per channel
-    residual = codes.astype(np.int64) - centre.astype(np.int64) + ((1 << bits) - 1)
-    predicted = bytes([PREDICT_CENTRE]) + centre.tobytes() + _entropy_part(residual.reshape(-1), (2 << bits) - 1)
+    # One pass of counting serves the median and both predictions' frequency tables.
+    hist = column_histograms(codes, bits)
+    symbols = codes.reshape(-1).astype(np.uint16)
+    plain = bytes([PREDICT_NONE]) + _entropy_part(symbols, hist.sum(axis=0))
+    centre = lower_median_codes(codes, bits, hist)
+    shifted = np.arange(top + 1)[None, :] + top - centre[:, None].astype(np.intp)  # residual of code v in column c
+    res_counts = np.bincount(shifted.reshape(-1), weights=hist.reshape(-1), minlength=2 * top + 1).astype(np.int64)
+    residual = (codes.astype(np.uint16) + np.uint16(top) - centre).reshape(-1)  # in 0 .. 2^(b+1) - 2
+    predicted = bytes([PREDICT_CENTRE]) + centre.tobytes() + _entropy_part(residual, res_counts)
     return head + (predicted if len(predicted) < len(plain) else plain)
 
 
