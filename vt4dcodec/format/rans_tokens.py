@@ -131,8 +131,9 @@ def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.
     alphabet = (1 << bits) if mode == PREDICT_NONE else (2 << bits) - 1
     freqs, used = rans.parse_table(memoryview(data)[table_at:], alphabet)
     symbols = rans.rans_decode(memoryview(data)[table_at + used:], freqs, rows * cols).reshape(rows, cols)
-    if mode == PREDICT_CENTRE:
-        codes = symbols.astype(np.int64) - top + centre
+    if mode == PREDICT_CENTRE:  # int16 in place: no large temporaries (their fresh pages cost more than the sums)
+        codes = symbols.astype(np.int16)
+        codes += (centre - top).astype(np.int16)
         if codes.min() < 0 or codes.max() > top:
             raise MalformedSectionError(f"{encoding} residuals decode to codes outside 0..{top}")
         symbols = codes

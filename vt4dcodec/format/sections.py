@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import io
+import threading
 
 import numpy as np
 import zstandard
@@ -54,6 +55,14 @@ def section_payload(container, entry: SectionEntry, *, check_crc: bool = True):
     return _bounded_zstd(stored, entry)
 
 
+_local = threading.local()
+
+
+def _new_dctx() -> zstandard.ZstdDecompressor:
+    _local.dctx = zstandard.ZstdDecompressor()
+    return _local.dctx
+
+
 def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
     try:
         declared = zstandard.frame_content_size(stored)
@@ -63,6 +72,17 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
         raise MalformedSectionError(
             f"section {entry.type}: zstd frame declares {declared} bytes but the table declares {entry.raw_length}"
         )
+    if declared == entry.raw_length:
+        # The frame declares exactly the table's size, so a one-shot decompression allocates no more than
+        # that (libzstd refuses output that differs from the declared content size).  One decompression
+        # context per thread: creating one costs more than decompressing a small section.
+        dctx = getattr(_local, "dctx", None) or _new_dctx()
+        try:
+            out = dctx.decompress(stored, allow_extra_data=True)  # like the stream below: first frame only
+        except zstandard.ZstdError as exc:
+            raise MalformedSectionError(f"section {entry.type}: corrupt zstd data ({exc})") from None
+        if len(out) == entry.raw_length:
+            return out
     reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(stored), read_across_frames=False)
     chunks, total = [], 0
     try:
