@@ -14,6 +14,13 @@ full validation + tokens as float32 arrays
 sections (checksummed, but cameras and padding not checked).  Files go to a temporary directory (page cache warm, as in
 repeated access to an archive).  Tokens are i.i.d. Gaussian, the hardest case for compression; real encoder
 outputs are smoother.  Results: bench/results/format.json.
+
+Loader throughput (``--loader-scenes``, default 256; 0 skips it): the same paper-size scenes packed into one
+``.vt4da`` archive per encoding (``--loader-encodings``, default int8 and the codec's default int4-rans),
+then scenes/s through ``ArchiveDataset`` in this process (every index in order: dequantized float32 token
+tensors, K, w2c, metadata) and through a ``torch.utils.data.DataLoader`` with 2 worker processes
+(batches of 16, token/camera tensors stacked; persistent workers, one untimed warm-up epoch, then
+``--loader-epochs`` timed epochs).  Encodings take turns epoch by epoch, like the formats above.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, load, open_scene, save  # noqa: E402
+from vt4dcodec.format import rans  # noqa: E402
 from vt4dcodec.format.encodings import V1_0_ENCODINGS  # noqa: E402
 
 NS, ND, D, FRAMES = 1024, 512, 64, 32
@@ -147,12 +155,66 @@ class Tally:
         return res
 
 
+def _collate(batch: list[dict]) -> dict:
+    import torch
+    return {k: torch.stack([b[k] for b in batch]) for k in ("static_tokens", "dynamic_tokens", "K", "w2c")}
+
+
+def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, epochs: int, workdir: str) -> list[dict]:
+    """Scenes/s of ArchiveDataset (in process) and a 2-worker DataLoader, per encoding (module doc)."""
+    from torch.utils.data import DataLoader
+
+    from vt4dcodec.archive import ArchiveWriter
+    from vt4dcodec.data.archive_dataset import ArchiveDataset
+    from vt4dcodec.format import dumps
+
+    datasets, loaders, rows = {}, {}, {}
+    for enc in encodings:
+        path = os.path.join(workdir, f"loader-{enc}.vt4da")
+        records = [dumps(s, encoding=enc) for s in scenes]
+        with ArchiveWriter(path, "w", durable=False) as w:
+            for i in range(n):
+                w.append(f"scene-{i:06d}", records[i % POOL])
+        datasets[enc] = ArchiveDataset(path)
+        loaders[enc] = DataLoader(datasets[enc], batch_size=16, num_workers=2, collate_fn=_collate,
+                                  persistent_workers=True)
+        for _ in loaders[enc]:  # warm-up epoch: worker start-up and first page-cache touch, not timed
+            pass
+        rows[enc] = {"encoding": enc, "scenes": n, "archive_bytes": os.path.getsize(path),
+                     "dataset_s": 0.0, "dataloader_s": 0.0, "epochs": epochs}
+    for _ in range(epochs):
+        for enc in encodings:
+            ds, t0 = datasets[enc], time.perf_counter()
+            for i in range(len(ds)):
+                ds[i]
+            t1 = time.perf_counter()
+            got = sum(b["static_tokens"].shape[0] for b in loaders[enc])
+            t2 = time.perf_counter()
+            assert got == n
+            rows[enc]["dataset_s"] += t1 - t0
+            rows[enc]["dataloader_s"] += t2 - t1
+    out = []
+    for enc in encodings:
+        r = rows[enc]
+        r["dataset_scenes_per_s"] = n * epochs / r["dataset_s"]
+        r["dataloader_2w_scenes_per_s"] = n * epochs / r["dataloader_s"]
+        print(f"{'loader ' + enc:>24}: ArchiveDataset {r['dataset_scenes_per_s']:7.0f} scenes/s  "
+              f"DataLoader(2 workers) {r['dataloader_2w_scenes_per_s']:7.0f} scenes/s", flush=True)
+        out.append(r)
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=1000, help="scenes written and read per format")
     parser.add_argument("--round-size", type=int, default=100, help="scenes per format per turn")
     parser.add_argument("--encodings", default=",".join(V1_0_ENCODINGS),
                         help=f"comma-separated .vt4d encodings, or 'all' (default: the 1.0 ones; any of {ENCODINGS})")
+    parser.add_argument("--loader-scenes", type=int, default=256,
+                        help="scenes per archive for the loader benchmark (0: skip it)")
+    parser.add_argument("--loader-epochs", type=int, default=3, help="timed epochs of the loader benchmark")
+    parser.add_argument("--loader-encodings", default="int8,int4-rans",
+                        help="encodings of the loader benchmark (default: int8 and the codec's default)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
     args = parser.parse_args()
     encodings = ENCODINGS if args.encodings == "all" else tuple(args.encodings.split(","))
@@ -172,13 +234,16 @@ def main() -> int:
             for tally in tallies:
                 tally.round(scenes, r * args.round_size, count, workdir)
             print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
-    results = [t.result() for t in tallies]
-    report = {"command": f"python bench/bench_format.py --scenes {args.scenes} --encodings {','.join(encodings)}", "token_MB_per_scene": TOKEN_MB,
+        results = [t.result() for t in tallies]
+        loader = (loader_throughput(scenes, tuple(args.loader_encodings.split(",")), args.loader_scenes,
+                                    args.loader_epochs, workdir) if args.loader_scenes else [])
+    report = {"command": " ".join(["python bench/bench_format.py", *sys.argv[1:]]), "token_MB_per_scene": TOKEN_MB,
               "scene": {"static": [NS, D], "dynamic": [ND, D], "frames": FRAMES, "tokens": "iid N(0,1) float32"},
               "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "numpy": np.__version__,
                           "load_average_at_end": os.getloadavg(),
                           "zstd": ".".join(map(str, zstandard.ZSTD_VERSION))},
-              "results": results}
+              "rans_coder": "C (_rans_native)" if rans.NATIVE else "pure Python (no C compiler at install)",
+              "results": results, "loader": loader}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

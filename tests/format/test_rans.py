@@ -280,3 +280,42 @@ def test_compiled_column_histograms_count_like_bincount(bits, rows, cols, seed):
         codes[-1, -1] = 1 << bits
         with pytest.raises(ValueError):
             column_histograms(codes, bits)
+
+
+def _reference_tokens(payload, encoding, rows, cols):
+    """decode_rans_codes + dequantize: the step-by-step path that the one-pass compiled path must match."""
+    from vt4dcodec.format.encodings import dequantize
+    codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols)
+    return dequantize(codes, scale, offset, RANS_BITS[encoding], encoding)
+
+
+def _tokens_outcome(decode, payload, encoding, rows, cols):
+    try:
+        return decode(payload, encoding, rows, cols).tobytes()
+    except FormatError as exc:
+        return type(exc).__name__, str(exc)
+
+
+@needs_native
+@settings(max_examples=120, deadline=None)
+@given(st.sampled_from(RANS_ENCODINGS), st.integers(1, 30), st.sampled_from([1, 2, 4]), st.integers(0, 2**32 - 1),
+       st.booleans(), st.integers(-1, 10_000), st.integers(1, 255))
+def test_one_pass_compiled_decode_matches_the_step_by_step_path(encoding, rows, groups, seed, narrow, where, xor):
+    """Bit-identical float32 tokens, or the same typed error and message, for clean and damaged payloads
+    (where = -1: clean; else the byte at where mod length is XORed with xor)."""
+    from vt4dcodec.format.rans_tokens import _parse_payload, decode_rans_tokens
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((rows, 4)).astype(np.float32)
+    if narrow:  # favours centre prediction
+        x = (np.arange(4) * 10.0 + 0.01 * x).astype(np.float32)
+    payload = bytearray(encode_tokens(x, encoding, groups=groups).tokens)
+    if where >= 0:
+        payload[where % len(payload)] ^= xor
+    if where < 0 and sum(1 for f in _parse_payload(bytes(payload), encoding, rows, 4).freqs if f) > 1:
+        assert decode_rans_tokens(bytes(payload), encoding, rows, 4) is not None  # the one-pass path ran
+    assert (_tokens_outcome(decode_tokens_any, bytes(payload), encoding, rows, 4)
+            == _tokens_outcome(_reference_tokens, bytes(payload), encoding, rows, 4))
+
+
+def decode_tokens_any(payload, encoding, rows, cols):
+    return decode_tokens(payload, None, encoding, rows, cols)

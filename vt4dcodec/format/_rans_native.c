@@ -8,6 +8,7 @@
  * and each encoded symbol writes at most 2.  The GIL is released while coding.
  *
  *   decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)
+ *   decode_mapped(...): decode, symbols -> codes -> float32 by table in the same pass (see below)
  *   encode(symbols_u16, freqs_u32) -> bytes, or None if a symbol has frequency 0 or lies outside the table
  *   column_histograms(codes_u8, cols, size, out_i64) -> None: out[(k % cols) * size + codes[k]] += 1, or
  *       ValueError if a code is >= size (the writer's one counting pass, for its median and both tables)
@@ -43,54 +44,71 @@ static int table_arg(Py_buffer *fb, Py_ssize_t *alphabet) {
     return 1;
 }
 
+/* Decoder tables: cum[] and the slot -> symbol map (caller frees both with PyMem_Free). */
+static int decoder_tables(Py_buffer *fb, Py_buffer *sb, uint32_t **cum, uint16_t **slot_sym) {
+    Py_ssize_t alphabet;
+    *cum = NULL;
+    *slot_sym = NULL;
+    if (!table_arg(fb, &alphabet)) return 0;
+    if (sb->len < 4) {
+        PyErr_SetString(PyExc_ValueError, "stream shorter than its initial state");
+        return 0;
+    }
+    const uint32_t *freqs = (const uint32_t *)fb->buf;
+    *cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)alphabet);
+    *slot_sym = PyMem_Malloc(sizeof(uint16_t) * PROB_SCALE);
+    if (!*cum || !*slot_sym) {
+        PyErr_NoMemory();
+        return 0;
+    }
+    if (!build_cum(freqs, alphabet, *cum)) {
+        PyErr_SetString(PyExc_ValueError, "frequency table does not sum to 2^14");
+        return 0;
+    }
+    for (Py_ssize_t s = 0; s < alphabet; s++)
+        for (uint32_t k = 0; k < freqs[s]; k++) (*slot_sym)[(*cum)[s] + k] = (uint16_t)s;
+    return 1;
+}
+
+static uint32_t initial_state(const uint8_t *data) {
+    return (uint32_t)data[0] | (uint32_t)data[1] << 8 | (uint32_t)data[2] << 16 | (uint32_t)data[3] << 24;
+}
+
+/* One decoding step of FORMAT.md I.6.1: symbol s from state x, then renormalise from data[pos..end);
+ * `break`s out of the caller's loop (before storing symbol i) when the stream runs out. */
+#define DECODE_STEP(s)                                                  \
+    uint32_t slot = x & (PROB_SCALE - 1);                               \
+    uint16_t s = slot_sym[slot];                                        \
+    x = freqs[s] * (x >> PROB_BITS) + slot - cum[s];                    \
+    if (x < STATE_LOWER) {                                              \
+        if (pos >= end) break;                                          \
+        x = (x << 8) | data[pos++];                                     \
+        if (x < STATE_LOWER) {                                          \
+            if (pos >= end) break;                                      \
+            x = (x << 8) | data[pos++];                                 \
+        }                                                               \
+    }
+
 static PyObject *rans_decode(PyObject *self, PyObject *args) {
     Py_buffer sb, fb, ob;
     if (!PyArg_ParseTuple(args, "y*y*w*", &sb, &fb, &ob)) return NULL;
     PyObject *result = NULL;
     uint32_t *cum = NULL;
     uint16_t *slot_sym = NULL;
-    Py_ssize_t alphabet;
-    if (!table_arg(&fb, &alphabet)) goto done;
+    if (!decoder_tables(&fb, &sb, &cum, &slot_sym)) goto done;
     if (ob.len % 2) {
         PyErr_SetString(PyExc_ValueError, "out must be a uint16 buffer");
         goto done;
     }
-    if (sb.len < 4) {
-        PyErr_SetString(PyExc_ValueError, "stream shorter than its initial state");
-        goto done;
-    }
     const uint32_t *freqs = (const uint32_t *)fb.buf;
-    cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)alphabet);
-    slot_sym = PyMem_Malloc(sizeof(uint16_t) * PROB_SCALE);
-    if (!cum || !slot_sym) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    if (!build_cum(freqs, alphabet, cum)) {
-        PyErr_SetString(PyExc_ValueError, "frequency table does not sum to 2^14");
-        goto done;
-    }
-    for (Py_ssize_t s = 0; s < alphabet; s++)
-        for (uint32_t k = 0; k < freqs[s]; k++) slot_sym[cum[s] + k] = (uint16_t)s;
-
     const uint8_t *data = (const uint8_t *)sb.buf;
     const Py_ssize_t end = sb.len, count = ob.len / 2;
     uint16_t *out = (uint16_t *)ob.buf;
-    uint32_t x = (uint32_t)data[0] | (uint32_t)data[1] << 8 | (uint32_t)data[2] << 16 | (uint32_t)data[3] << 24;
+    uint32_t x = initial_state(data);
     Py_ssize_t pos = 4, i = 0;
     Py_BEGIN_ALLOW_THREADS
     for (; i < count; i++) {
-        uint32_t slot = x & (PROB_SCALE - 1);
-        uint16_t s = slot_sym[slot];
-        x = freqs[s] * (x >> PROB_BITS) + slot - cum[s];
-        if (x < STATE_LOWER) {
-            if (pos >= end) break;
-            x = (x << 8) | data[pos++];
-            if (x < STATE_LOWER) {
-                if (pos >= end) break;
-                x = (x << 8) | data[pos++];
-            }
-        }
+        DECODE_STEP(s)
         out[i] = s;
     }
     Py_END_ALLOW_THREADS
@@ -101,6 +119,67 @@ done:
     PyBuffer_Release(&sb);
     PyBuffer_Release(&fb);
     PyBuffer_Release(&ob);
+    return result;
+}
+
+/* decode + symbol -> code (prediction 0 or 1) + dequantization by table, in one pass:
+ *   code = s (no centre) or s + centre[c] - top (centre given), which must lie in 0..top, else `bad` is
+ *   set (decoding goes on, so stream errors are reported first, as by the Python reference);
+ *   out[k] = lut[colbase[c] + code] with c = k mod cols.
+ * Returns (symbols_decoded, stream_pos, final_state, bad). */
+static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
+    Py_buffer sb, fb, ob, cb, lb, zb;
+    Py_ssize_t cols;
+    int top;
+    if (!PyArg_ParseTuple(args, "y*y*w*ny*y*y*i", &sb, &fb, &ob, &cols, &cb, &lb, &zb, &top)) return NULL;
+    PyObject *result = NULL;
+    uint32_t *cum = NULL;
+    uint16_t *slot_sym = NULL;
+    if (!decoder_tables(&fb, &sb, &cum, &slot_sym)) goto done;
+    const Py_ssize_t lut_len = lb.len / 4;
+    if (ob.len % 4 || cols < 1 || (ob.len / 4) % cols || cb.len != 4 * cols || lb.len % 4 || top < 0 ||
+        top > 255 || (zb.len != 0 && zb.len != cols)) {
+        PyErr_SetString(PyExc_ValueError, "decode_mapped: shapes do not match");
+        goto done;
+    }
+    const uint32_t *colbase = (const uint32_t *)cb.buf;
+    for (Py_ssize_t c = 0; c < cols; c++) {
+        if ((Py_ssize_t)colbase[c] + top >= lut_len) {
+            PyErr_SetString(PyExc_ValueError, "decode_mapped: a column's table runs past the end");
+            goto done;
+        }
+    }
+    const uint32_t *freqs = (const uint32_t *)fb.buf;
+    const float *lut = (const float *)lb.buf;
+    const uint8_t *centre = zb.len ? (const uint8_t *)zb.buf : NULL;
+    const uint8_t *data = (const uint8_t *)sb.buf;
+    const Py_ssize_t end = sb.len, count = ob.len / 4;
+    float *out = (float *)ob.buf;
+    uint32_t x = initial_state(data);
+    Py_ssize_t pos = 4, i = 0, c = 0;
+    int bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (; i < count; i++) {
+        DECODE_STEP(s)
+        int code = centre ? (int)s + (int)centre[c] - top : (int)s;
+        if (code < 0 || code > top) {
+            bad = 1;
+            code = 0;
+        }
+        out[i] = lut[colbase[c] + (uint32_t)code];
+        if (++c == cols) c = 0;
+    }
+    Py_END_ALLOW_THREADS
+    result = Py_BuildValue("(nnki)", i, pos, (unsigned long)x, bad);
+done:
+    PyMem_Free(cum);
+    PyMem_Free(slot_sym);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&lb);
+    PyBuffer_Release(&zb);
     return result;
 }
 
@@ -213,6 +292,9 @@ done:
 static PyMethodDef methods[] = {
     {"decode", rans_decode, METH_VARARGS,
      "decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
+    {"decode_mapped", rans_decode_mapped, METH_VARARGS,
+     "decode_mapped(stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top)"
+     " -> (symbols_decoded, stream_pos, final_state, bad_code)"},
     {"encode", rans_encode, METH_VARARGS,
      "encode(symbols_u16, freqs_u32) -> stream bytes, or None if a symbol has frequency 0"},
     {"column_histograms", column_histograms, METH_VARARGS,

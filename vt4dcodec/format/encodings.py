@@ -30,7 +30,8 @@ import numpy as np
 
 from ..errors import FormatError, MalformedSectionError
 from .affine import affine_codes, group_params
-from .rans_tokens import RANS_BITS, RANS_ENCODINGS, check_groups, decode_rans_codes, encode_rans_tokens
+from .rans_tokens import (RANS_BITS, RANS_ENCODINGS, check_groups, decode_rans_codes, decode_rans_tokens,
+                          encode_rans_tokens)
 
 __all__ = ["ENCODINGS", "V1_0_ENCODINGS", "RANS_ENCODINGS", "EncodedTokens", "encode_tokens", "decode_tokens",
            "codes_from_payload", "dequantize", "payload_size", "is_affine", "is_entropy_coded", "FLOAT16_MAX", "max_abs_error"]
@@ -161,8 +162,11 @@ def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.nda
     otherwise MalformedSectionError (a reader never hands out NaN/inf tokens).
     """
     if encoding in RANS_BITS:
-        codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols)
-        return dequantize(codes, scale, offset, RANS_BITS[encoding], encoding)
+        out = decode_rans_tokens(payload, encoding, rows, cols)  # the compiled one-pass path
+        if out is None:
+            codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols)
+            out = dequantize(codes, scale, offset, RANS_BITS[encoding], encoding)
+        return out
     codes = codes_from_payload(payload, encoding, rows, cols)
     if encoding in _BITS:
         scale, offset = parse_quant(quant, cols)

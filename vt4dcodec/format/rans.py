@@ -40,7 +40,7 @@ except ImportError:  # built without a C compiler: the pure-Python coder below d
     _rans_native = None
 
 __all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "NATIVE", "normalize_counts", "pack_table", "parse_table",
-           "rans_encode", "rans_decode"]
+           "rans_encode", "rans_decode", "rans_decode_mapped"]
 
 NATIVE = _rans_native is not None
 
@@ -185,6 +185,34 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
         raise TruncatedError(f"rANS stream ends after {done} of {count} symbols")
     _check_end(data, pos, x)
     return out
+
+
+def rans_decode_mapped(stream, freqs: list[int], rows: int, cols: int, colbase: np.ndarray, lut: np.ndarray,
+                       centre: np.ndarray | None, top: int) -> tuple[np.ndarray, bool] | None:
+    """Decode ``rows * cols`` symbols and map each through ``lut`` in one pass (compiled coder only):
+    ``code = s`` (``centre`` None) or ``s + centre[c] - top``, ``out[i, c] = lut[colbase[c] + code]``.
+
+    Returns (float32 (rows, cols), whether some code fell outside ``0..top``), or None where the pure-Python
+    coder runs or the table has one symbol (callers then use :func:`rans_decode`).  Stream errors raise as
+    in :func:`rans_decode`, before any code-range problem is reported.
+    """
+    if _rans_native is None or sum(1 for f in freqs if f) == 1:
+        return None
+    data = bytes(stream)
+    if len(data) < 4:
+        raise TruncatedError("rANS stream is shorter than its 4-byte initial state")
+    x = int.from_bytes(data[:4], "little")
+    if x < STATE_LOWER:
+        raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
+    out = np.empty((rows, cols), np.float32)
+    done, pos, x, bad = _rans_native.decode_mapped(
+        data, np.asarray(freqs, dtype=np.uint32), out, cols, np.ascontiguousarray(colbase, dtype=np.uint32),
+        np.ascontiguousarray(lut, dtype=np.float32), b"" if centre is None else np.ascontiguousarray(centre, np.uint8),
+        top)
+    if done < rows * cols:
+        raise TruncatedError(f"rANS stream ends after {done} of {rows * cols} symbols")
+    _check_end(data, pos, x)
+    return out, bool(bad)
 
 
 def _check_end(data: bytes, pos: int, x: int) -> None:

@@ -24,6 +24,7 @@ the maximum error is the int8 formula with the group's scale and range.
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from . import rans
 from .affine import affine_codes, group_params
 
 __all__ = ["RANS_ENCODINGS", "RANS_BITS", "MAX_RANS_VALUES", "encode_rans_tokens", "decode_rans_codes",
+           "decode_rans_tokens",
            "check_groups"]
 
 RANS_BITS = {f"int{b}-rans": b for b in (2, 3, 4, 5, 6, 7, 8)}
@@ -94,13 +96,20 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
     return head + (predicted if len(predicted) < len(plain) else plain)
 
 
-def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(codes uint8 (rows, cols), scale float32 (cols,), offset float32 (cols,)) of a token payload.
+@dataclass(frozen=True)
+class _Payload:
+    """The checked fields of an int<b>-rans token payload, up to its rANS stream."""
 
-    Every field is checked before use: group count, parameters finite with scale >= 0, prediction mode and
-    centre codes, the frequency table, the stream length and its clean end, every code in range.  Raises
-    MalformedSectionError / TruncatedError / LimitExceededError.
-    """
+    top: int
+    groups: int
+    scale: np.ndarray      # float32 (groups,)
+    offset: np.ndarray     # float32 (groups,)
+    centre: np.ndarray | None  # uint8 (cols,) with prediction 1
+    freqs: list[int]
+    stream: memoryview
+
+
+def _parse_payload(payload, encoding: str, rows: int, cols: int) -> _Payload:
     bits = RANS_BITS[encoding]
     top = (1 << bits) - 1
     data = bytes(payload)
@@ -118,11 +127,11 @@ def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.
     scale, offset = both[:groups], both[groups:]
     if not (np.all(np.isfinite(both)) and np.all(scale >= 0)):
         raise MalformedSectionError("quantization parameters must be finite with scale >= 0")
-    mode, table_at = data[mode_at], mode_at + 1
+    mode, table_at, centre = data[mode_at], mode_at + 1, None
     if mode == PREDICT_CENTRE:
         if len(data) < table_at + cols:
             raise TruncatedError(f"{encoding} section ends inside its {cols} centre codes")
-        centre = np.frombuffer(data, dtype=np.uint8, count=cols, offset=table_at).astype(np.int64)
+        centre = np.frombuffer(data, dtype=np.uint8, count=cols, offset=table_at)
         if np.any(centre > top):
             raise MalformedSectionError(f"{encoding} centre code above {top}")
         table_at += cols
@@ -130,13 +139,48 @@ def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.
         raise MalformedSectionError(f"{encoding} section has unknown prediction mode {mode}")
     alphabet = (1 << bits) if mode == PREDICT_NONE else (2 << bits) - 1
     freqs, used = rans.parse_table(memoryview(data)[table_at:], alphabet)
-    symbols = rans.rans_decode(memoryview(data)[table_at + used:], freqs, rows * cols).reshape(rows, cols)
-    if mode == PREDICT_CENTRE:  # int16 in place: no large temporaries (their fresh pages cost more than the sums)
+    return _Payload(top, groups, scale, offset, centre, freqs, memoryview(data)[table_at + used:])
+
+
+def _residual_error(encoding: str, top: int) -> MalformedSectionError:
+    return MalformedSectionError(f"{encoding} residuals decode to codes outside 0..{top}")
+
+
+def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(codes uint8 (rows, cols), scale float32 (cols,), offset float32 (cols,)) of a token payload.
+
+    Every field is checked before use: group count, parameters finite with scale >= 0, prediction mode and
+    centre codes, the frequency table, the stream length and its clean end, every code in range.  Raises
+    MalformedSectionError / TruncatedError / LimitExceededError.
+    """
+    p = _parse_payload(payload, encoding, rows, cols)
+    symbols = rans.rans_decode(p.stream, p.freqs, rows * cols).reshape(rows, cols)
+    if p.centre is not None:  # int16 in place: no large temporaries (their fresh pages cost more than the sums)
         codes = symbols.astype(np.int16)
-        codes += (centre - top).astype(np.int16)
-        if codes.min() < 0 or codes.max() > top:
-            raise MalformedSectionError(f"{encoding} residuals decode to codes outside 0..{top}")
+        codes += p.centre.astype(np.int16) - p.top
+        if codes.min() < 0 or codes.max() > p.top:
+            raise _residual_error(encoding, p.top)
         symbols = codes
-    width = cols // groups
-    return (symbols.astype(np.uint8), np.repeat(scale, width).astype(np.float32),
-            np.repeat(offset, width).astype(np.float32))
+    width = cols // p.groups
+    return (symbols.astype(np.uint8), np.repeat(p.scale, width).astype(np.float32),
+            np.repeat(p.offset, width).astype(np.float32))
+
+
+def decode_rans_tokens(payload, encoding: str, rows: int, cols: int) -> np.ndarray | None:
+    """The float32 (rows, cols) tokens of a payload, decoded, mapped to codes and dequantized in one pass
+    by the compiled coder through a table ``lut[g, q] = f32(f64(offset_g) + f64(scale_g) * q)`` (the
+    decoding formula, evaluated once per group and code); non-finite values raise MalformedSectionError.
+    None where that path does not apply (pure-Python coder, one-symbol table): use decode_rans_codes."""
+    p = _parse_payload(payload, encoding, rows, cols)
+    q = np.arange(p.top + 1, dtype=np.float64)
+    lut = (q * p.scale.astype(np.float64)[:, None] + p.offset.astype(np.float64)[:, None]).astype(np.float32)
+    colbase = (np.arange(cols) // (cols // p.groups)) * (p.top + 1)
+    mapped = rans.rans_decode_mapped(p.stream, p.freqs, rows, cols, colbase, lut, p.centre, p.top)
+    if mapped is None:
+        return None
+    out, bad = mapped
+    if bad:
+        raise _residual_error(encoding, p.top)
+    if not np.all(np.isfinite(lut)) and not np.all(np.isfinite(out)):  # only used entries count
+        raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
+    return out

@@ -75,10 +75,13 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             parts.append((quant_name, enc.quant))
         parts.append((tok_name, enc.tokens))
     sections = []
+    entropy_coded = is_entropy_coded(encoding)
     for name, raw in parts:
-        compression, stored = compress_payload(raw, compression_level)
+        # rANS streams are incompressible: their sections are stored raw without trying zstd (FORMAT.md I.6.1)
+        level = None if entropy_coded and name in (SECTION_STATIC, SECTION_DYNAMIC) else compression_level
+        compression, stored = compress_payload(raw, level)
         sections.append((name, True, compression, stored, len(raw)))
-    if is_entropy_coded(encoding):
+    if entropy_coded:
         return build_container(header, sections, minor=1, required_flags=FLAG_ENTROPY_CODED_TOKENS)
     return build_container(header, sections, minor=0)
 
