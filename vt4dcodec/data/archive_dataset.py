@@ -69,8 +69,8 @@ def scene_sample(reader: ArchiveReader, key: str, *, dequantize: bool = True) ->
     """Decode one scene of ``reader`` into the sample dict described in the module docstring."""
     f = reader.open_scene(key)
     cams = f.cameras
-    static = np.array(f.static_tokens(dequantize=dequantize))  # own, writable memory for torch
-    dynamic = np.array(f.dynamic_tokens(dequantize=dequantize))
+    static, dynamic = f.tokens(dequantize=dequantize)  # int<b>-rans: both sections in one decoding pass
+    static, dynamic = np.array(static), np.array(dynamic)  # own, writable memory for torch
     prov = f.provenance
     return {
         "key": key,

@@ -122,64 +122,137 @@ done:
     return result;
 }
 
-/* decode + symbol -> code (prediction 0 or 1) + dequantization by table, in one pass:
+/* A stream to decode + map: symbol -> code (prediction 0 or 1) -> float32 by table, in one pass:
  *   code = s (no centre) or s + centre[c] - top (centre given), which must lie in 0..top, else `bad` is
  *   set (decoding goes on, so stream errors are reported first, as by the Python reference);
- *   out[k] = lut[colbase[c] + code] with c = k mod cols.
- * Returns (symbols_decoded, stream_pos, final_state, bad). */
-static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
+ *   out[k] = lut[colbase[c] + code] with c = k mod cols. */
+typedef struct {
     Py_buffer sb, fb, ob, cb, lb, zb;
-    Py_ssize_t cols;
-    int top;
-    if (!PyArg_ParseTuple(args, "y*y*w*ny*y*y*i", &sb, &fb, &ob, &cols, &cb, &lb, &zb, &top)) return NULL;
-    PyObject *result = NULL;
-    uint32_t *cum = NULL;
-    uint16_t *slot_sym = NULL;
-    if (!decoder_tables(&fb, &sb, &cum, &slot_sym)) goto done;
-    const Py_ssize_t lut_len = lb.len / 4;
-    if (ob.len % 4 || cols < 1 || (ob.len / 4) % cols || cb.len != 4 * cols || lb.len % 4 || top < 0 ||
-        top > 255 || (zb.len != 0 && zb.len != cols)) {
-        PyErr_SetString(PyExc_ValueError, "decode_mapped: shapes do not match");
-        goto done;
+    int nbuf; /* how many of the buffers above are held */
+    uint32_t *cum;
+    uint16_t *slot_sym;
+    const uint32_t *freqs, *colbase;
+    const float *lut;
+    const uint8_t *centre, *data;
+    float *out;
+    Py_ssize_t end, pos, count, i, cols, c;
+    uint32_t x;
+    int top, bad;
+} mapped_job;
+
+static void job_release(mapped_job *j) {
+    Py_buffer *bufs[6] = {&j->sb, &j->fb, &j->ob, &j->cb, &j->lb, &j->zb};
+    for (int k = 0; k < j->nbuf; k++) PyBuffer_Release(bufs[k]);
+    j->nbuf = 0;
+    PyMem_Free(j->cum);
+    PyMem_Free(j->slot_sym);
+    j->cum = NULL;
+    j->slot_sym = NULL;
+}
+
+/* Parse (stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top); 0 on error. */
+static int job_setup(mapped_job *j, PyObject *spec) {
+    memset(j, 0, sizeof(*j));
+    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*w*ny*y*y*i", &j->sb, &j->fb, &j->ob, &j->cols, &j->cb,
+                                                  &j->lb, &j->zb, &j->top)) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "decode_mapped: each job must be a tuple");
+        return 0;
     }
-    const uint32_t *colbase = (const uint32_t *)cb.buf;
-    for (Py_ssize_t c = 0; c < cols; c++) {
-        if ((Py_ssize_t)colbase[c] + top >= lut_len) {
+    j->nbuf = 6;
+    if (!decoder_tables(&j->fb, &j->sb, &j->cum, &j->slot_sym)) return 0;
+    const Py_ssize_t lut_len = j->lb.len / 4;
+    if (j->ob.len % 4 || j->cols < 1 || (j->ob.len / 4) % j->cols || j->cb.len != 4 * j->cols || j->lb.len % 4 ||
+        j->top < 0 || j->top > 255 || (j->zb.len != 0 && j->zb.len != j->cols)) {
+        PyErr_SetString(PyExc_ValueError, "decode_mapped: shapes do not match");
+        return 0;
+    }
+    j->colbase = (const uint32_t *)j->cb.buf;
+    for (Py_ssize_t c = 0; c < j->cols; c++) {
+        if ((Py_ssize_t)j->colbase[c] + j->top >= lut_len) {
             PyErr_SetString(PyExc_ValueError, "decode_mapped: a column's table runs past the end");
-            goto done;
+            return 0;
         }
     }
-    const uint32_t *freqs = (const uint32_t *)fb.buf;
-    const float *lut = (const float *)lb.buf;
-    const uint8_t *centre = zb.len ? (const uint8_t *)zb.buf : NULL;
-    const uint8_t *data = (const uint8_t *)sb.buf;
-    const Py_ssize_t end = sb.len, count = ob.len / 4;
-    float *out = (float *)ob.buf;
-    uint32_t x = initial_state(data);
-    Py_ssize_t pos = 4, i = 0, c = 0;
-    int bad = 0;
-    Py_BEGIN_ALLOW_THREADS
-    for (; i < count; i++) {
+    j->freqs = (const uint32_t *)j->fb.buf;
+    j->lut = (const float *)j->lb.buf;
+    j->centre = j->zb.len ? (const uint8_t *)j->zb.buf : NULL;
+    j->data = (const uint8_t *)j->sb.buf;
+    j->end = j->sb.len;
+    j->count = j->ob.len / 4;
+    j->out = (float *)j->ob.buf;
+    j->x = initial_state(j->data);
+    j->pos = 4;
+    return 1;
+}
+
+/* Decode and store symbol j->i; 0 (nothing stored) when the stream runs out. */
+#if defined(__GNUC__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
+
+static ALWAYS_INLINE int job_step(mapped_job *j) {
+    const uint16_t *slot_sym = j->slot_sym;
+    const uint32_t *freqs = j->freqs, *cum = j->cum;
+    const uint8_t *data = j->data;
+    const Py_ssize_t end = j->end;
+    uint32_t x = j->x;
+    Py_ssize_t pos = j->pos;
+    int ok = 0;
+    do {
         DECODE_STEP(s)
-        int code = centre ? (int)s + (int)centre[c] - top : (int)s;
-        if (code < 0 || code > top) {
-            bad = 1;
+        int code = j->centre ? (int)s + (int)j->centre[j->c] - j->top : (int)s;
+        if (code < 0 || code > j->top) {
+            j->bad = 1;
             code = 0;
         }
-        out[i] = lut[colbase[c] + (uint32_t)code];
-        if (++c == cols) c = 0;
+        j->out[j->i++] = j->lut[j->colbase[j->c] + (uint32_t)code];
+        if (++j->c == j->cols) j->c = 0;
+        ok = 1;
+    } while (0);
+    j->x = x;
+    j->pos = pos;
+    return ok;
+}
+
+/* decode_mapped(jobs) -> [(symbols_decoded, stream_pos, final_state, bad), ...] for 1 or 2 jobs.  Two
+ * independent streams (a scene's two token sections) are decoded in one loop, a symbol of each in turn:
+ * each stream is a chain of dependent steps, and two chains keep the core busy ~1.4x as well as one. */
+static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
+    PyObject *jobs, *result = NULL;
+    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &jobs)) return NULL;
+    const Py_ssize_t n = PyTuple_GET_SIZE(jobs);
+    if (n < 1 || n > 2) {
+        PyErr_SetString(PyExc_ValueError, "decode_mapped takes 1 or 2 jobs");
+        return NULL;
     }
-    Py_END_ALLOW_THREADS
-    result = Py_BuildValue("(nnki)", i, pos, (unsigned long)x, bad);
-done:
-    PyMem_Free(cum);
-    PyMem_Free(slot_sym);
-    PyBuffer_Release(&sb);
-    PyBuffer_Release(&fb);
-    PyBuffer_Release(&ob);
-    PyBuffer_Release(&cb);
-    PyBuffer_Release(&lb);
-    PyBuffer_Release(&zb);
+    mapped_job j[2];
+    memset(j, 0, sizeof(j));
+    int ready = 1;
+    for (Py_ssize_t k = 0; k < n && ready; k++) ready = job_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
+    if (ready) {
+        Py_BEGIN_ALLOW_THREADS
+        /* local copies whose address never escapes, so the compiler can keep their fields in registers */
+        mapped_job a = j[0], b = j[1];
+        int live0 = 1, live1 = n == 2;
+        while (live0 && live1) {
+            live0 = a.i < a.count && job_step(&a);
+            live1 = b.i < b.count && job_step(&b);
+        }
+        while (live0 && a.i < a.count && job_step(&a)) {}
+        while (live1 && b.i < b.count && job_step(&b)) {}
+        j[0].i = a.i, j[0].pos = a.pos, j[0].x = a.x, j[0].bad = a.bad;
+        j[1].i = b.i, j[1].pos = b.pos, j[1].x = b.x, j[1].bad = b.bad;
+        Py_END_ALLOW_THREADS
+        result = PyList_New(n);
+        for (Py_ssize_t k = 0; result && k < n; k++) {
+            PyObject *item = Py_BuildValue("(nnki)", j[k].i, j[k].pos, (unsigned long)j[k].x, j[k].bad);
+            if (!item) Py_CLEAR(result);
+            else PyList_SET_ITEM(result, k, item);
+        }
+    }
+    for (Py_ssize_t k = 0; k < n; k++) job_release(&j[k]);
     return result;
 }
 
@@ -293,8 +366,8 @@ static PyMethodDef methods[] = {
     {"decode", rans_decode, METH_VARARGS,
      "decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
     {"decode_mapped", rans_decode_mapped, METH_VARARGS,
-     "decode_mapped(stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top)"
-     " -> (symbols_decoded, stream_pos, final_state, bad_code)"},
+     "decode_mapped(((stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top), ...))"
+     " -> [(symbols_decoded, stream_pos, final_state, bad_code), ...] for 1 or 2 streams"},
     {"encode", rans_encode, METH_VARARGS,
      "encode(symbols_u16, freqs_u32) -> stream bytes, or None if a symbol has frequency 0"},
     {"column_histograms", column_histograms, METH_VARARGS,

