@@ -355,3 +355,16 @@ def test_tokens_pair_equals_static_then_dynamic_even_when_damaged(encoding, ns, 
         struct.pack_into("<I", raw, 60, layout.crc32(bytes(raw[:60])))
     f = open_scene(bytes(raw))
     assert _pair_outcome(lambda g: g.tokens(), f) == _pair_outcome(_sequential_tokens, f)
+
+
+@settings(max_examples=300)
+@given(st.lists(st.integers(0, 2**21), min_size=1, max_size=600).filter(lambda c: sum(c) > 0), st.booleans())
+def test_vectorised_normalisation_equals_the_plain_loop(counts, sparse):
+    if sparse:  # many rare symbols next to a dominant one: the lifting step runs
+        counts = [2**21] + [1 if c % 3 == 0 else 0 for c in counts]
+    assert normalize_counts(np.array(counts)) == rans._normalize_counts_py(counts)
+
+
+def test_normalisation_of_an_alphabet_larger_than_half_of_m_takes_the_plain_loop():
+    counts = [1] * 8193 + [9000]  # ~385 symbols floor to 0 and must be lifted
+    assert normalize_counts(np.array(counts)) == rans._normalize_counts_py(counts)

@@ -54,8 +54,30 @@ def normalize_counts(counts: np.ndarray) -> list[int]:
     """Integer frequencies summing to ``M`` from symbol counts (every symbol that occurs gets >= 1).
 
     Deterministic: floor of the proportional share, the remainder handed out by largest fractional part
-    (ties to the lower symbol), then any symbol pushed to 0 is lifted to 1 by taking from the largest.
+    (ties to the lower symbol), then any symbol pushed to 0 is lifted to 1 by taking from the largest
+    (ties to the lower symbol).  Vectorised (``_normalize_counts_py`` is the plain loop it must equal).
     """
+    c = np.asarray(counts, dtype=np.int64).reshape(-1)
+    total = int(c.sum())
+    if total <= 0:
+        raise ValueError("cannot build a frequency table from zero symbols")
+    scaled = c * PROB_SCALE  # counts are <= 2^21 per matrix, so this stays far inside int64
+    freqs = scaled // total
+    order = np.lexsort((np.arange(c.size), -(scaled % total)))  # largest remainder first, then lower symbol
+    freqs[order[: PROB_SCALE - int(freqs.sum())]] += 1
+    lift = np.flatnonzero((c > 0) & (freqs == 0))
+    if lift.size and c.size > PROB_SCALE // 2:
+        return _normalize_counts_py(counts)
+    # With at most M/2 symbols the largest frequency is >= 2 whenever it is taken from (the sum stays M),
+    # so no lift makes a new zero and the symbols to lift are known up front, in symbol order.
+    for i in lift.tolist():
+        freqs[i] = 1
+        freqs[int(np.argmax(freqs))] -= 1  # argmax: the first of the largest, i.e. ties to the lower symbol
+    return freqs.tolist()
+
+
+def _normalize_counts_py(counts) -> list[int]:
+    """The plain-loop :func:`normalize_counts` (the reference the tests compare it with)."""
     counts = [int(c) for c in counts]
     total = sum(counts)
     if total <= 0:
