@@ -368,3 +368,18 @@ def test_vectorised_normalisation_equals_the_plain_loop(counts, sparse):
 def test_normalisation_of_an_alphabet_larger_than_half_of_m_takes_the_plain_loop():
     counts = [1] * 8193 + [9000]  # ~385 symbols floor to 0 and must be lifted
     assert normalize_counts(np.array(counts)) == rans._normalize_counts_py(counts)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.sampled_from(RANS_ENCODINGS), st.integers(1, 40), st.integers(1, 6), st.sampled_from([1, 2]),
+       st.integers(0, 2**32 - 1), st.sampled_from(["iid", "same-centre", "narrow"]))
+def test_equal_centre_shortcut_writes_the_bytes_of_coding_both_predictions(encoding, rows, half_d, groups, seed, kind):
+    from vt4dcodec.format.rans_tokens import encode_rans_tokens
+    rng = np.random.default_rng(seed)
+    d = 2 * half_d
+    x = rng.standard_normal((rows, d)).astype(np.float32)
+    if kind == "same-centre":  # every channel the same values, permuted: equal medians, different columns
+        x = np.stack([rng.permutation(x[:, 0]) for _ in range(d)], axis=1)
+    elif kind == "narrow":
+        x = (np.arange(d) * 5.0 + 0.01 * x).astype(np.float32)
+    assert (encode_rans_tokens(x, encoding, groups) == encode_rans_tokens(x, encoding, groups, _shortcut=False))

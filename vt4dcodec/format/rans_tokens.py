@@ -71,9 +71,14 @@ def lower_median_codes(codes: np.ndarray, bits: int, hist: np.ndarray | None = N
     return (np.cumsum(hist, axis=1) <= (codes.shape[0] - 1) // 2).sum(axis=1).astype(np.uint8)
 
 
-def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
+def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1, *, _shortcut: bool = True) -> bytes:
     """The token section payload of finite float32 tokens ``x`` (N, d) in ``encoding`` (deterministic:
-    both predictions are coded and the shorter kept, prediction 0 on a tie)."""
+    both predictions are coded and the shorter kept, prediction 0 on a tie).
+
+    Shortcut (exact): when every channel has the same centre code, the residuals are the codes shifted
+    by one constant, so their counts, normalised frequencies (ties break by symbol order, which a shift
+    keeps), table length and stream bytes are those of prediction 0 shifted; prediction 1 is then longer by
+    its d centre bytes and is not coded.  (``_shortcut=False`` codes it anyway, for the tests.)"""
     bits = RANS_BITS[encoding]
     n, d = x.shape
     check_groups(groups, d)
@@ -89,6 +94,8 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1) -> bytes:
     symbols = codes.reshape(-1).astype(np.uint16)
     plain = bytes([PREDICT_NONE]) + _entropy_part(symbols, hist.sum(axis=0))
     centre = lower_median_codes(codes, bits, hist)
+    if _shortcut and np.all(centre == centre[0]):
+        return head + plain
     shifted = np.arange(top + 1)[None, :] + top - centre[:, None].astype(np.intp)  # residual of code v in column c
     res_counts = np.bincount(shifted.reshape(-1), weights=hist.reshape(-1), minlength=2 * top + 1).astype(np.int64)
     residual = (codes.astype(np.uint16) + np.uint16(top) - centre).reshape(-1)  # in 0 .. 2^(b+1) - 2
