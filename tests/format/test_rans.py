@@ -383,3 +383,18 @@ def test_equal_centre_shortcut_writes_the_bytes_of_coding_both_predictions(encod
     elif kind == "narrow":
         x = (np.arange(d) * 5.0 + 0.01 * x).astype(np.float32)
     assert (encode_rans_tokens(x, encoding, groups) == encode_rans_tokens(x, encoding, groups, _shortcut=False))
+
+
+@given(counts_lists)
+def test_vectorised_table_packing_equals_the_plain_loop(counts):
+    freqs = normalize_counts(np.array(counts))
+    assert pack_table(freqs) == rans._pack_table_py(freqs)
+
+
+@needs_native
+@settings(max_examples=100)
+@given(st.lists(st.integers(0, 9), min_size=1, max_size=300), st.lists(st.integers(0, 30), min_size=1, max_size=300))
+def test_two_streams_encoded_together_equal_each_encoded_alone(a, b):
+    a, b = np.array(a), np.array(b)
+    fa, fb = normalize_counts(np.bincount(a, minlength=10)), normalize_counts(np.bincount(b, minlength=31))
+    assert rans.rans_encode_many([(a, fa), (b, fb)]) == [rans._encode_py(a, fa), rans._encode_py(b, fb)]

@@ -9,7 +9,7 @@
  *
  *   decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)
  *   decode_mapped(...): decode, symbols -> codes -> float32 by table in the same pass (see below)
- *   encode(symbols_u16, freqs_u32) -> bytes, or None if a symbol has frequency 0 or lies outside the table
+ *   encode(jobs) -> [bytes, or None if a symbol has frequency 0 or lies outside the table] for 1-2 streams
  *   column_histograms(codes_u8, cols, size, out_i64) -> None: out[(k % cols) * size + codes[k]] += 1, or
  *       ValueError if a code is >= size (the writer's one counting pass, for its median and both tables)
  */
@@ -280,78 +280,143 @@ static void enc_symbol_init(enc_symbol *e, uint32_t f, uint32_t cum) {
     }
 }
 
-static PyObject *rans_encode(PyObject *self, PyObject *args) {
+/* One stream to encode: symbols, table, and the output being written backwards. */
+typedef struct {
     Py_buffer yb, fb;
-    if (!PyArg_ParseTuple(args, "y*y*", &yb, &fb)) return NULL;
-    PyObject *result = NULL;
-    uint32_t *cum = NULL;
-    enc_symbol *tab = NULL;
-    uint8_t *buf = NULL;
-    Py_ssize_t alphabet;
-    if (!table_arg(&fb, &alphabet)) goto done;
-    if (yb.len % 2) {
+    int nbuf;
+    uint32_t *cum;
+    enc_symbol *tab;
+    uint8_t *buf, *p;
+    const uint16_t *sym;
+    Py_ssize_t alphabet, i; /* i: symbols left to encode (encoding runs from the last to the first) */
+    size_t cap;
+    uint32_t x;
+    int bad;
+} enc_job;
+
+static void enc_release(enc_job *j) {
+    if (j->nbuf) {
+        PyBuffer_Release(&j->yb);
+        PyBuffer_Release(&j->fb);
+        j->nbuf = 0;
+    }
+    PyMem_Free(j->cum);
+    PyMem_Free(j->tab);
+    PyMem_Free(j->buf);
+    j->cum = NULL;
+    j->tab = NULL;
+    j->buf = NULL;
+}
+
+/* Parse (symbols_u16, freqs_u32) and prepare the tables and output; 0 on error. */
+static int enc_setup(enc_job *j, PyObject *spec) {
+    memset(j, 0, sizeof(*j));
+    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*", &j->yb, &j->fb)) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "encode: each job must be a tuple");
+        return 0;
+    }
+    j->nbuf = 1;
+    if (!table_arg(&j->fb, &j->alphabet)) return 0;
+    if (j->yb.len % 2) {
         PyErr_SetString(PyExc_ValueError, "symbols must be a uint16 buffer");
-        goto done;
+        return 0;
     }
-    const uint32_t *freqs = (const uint32_t *)fb.buf;
-    cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)alphabet);
-    tab = PyMem_Malloc(sizeof(enc_symbol) * (size_t)alphabet);
-    if (!cum || !tab) {
+    const uint32_t *freqs = (const uint32_t *)j->fb.buf;
+    j->cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)j->alphabet);
+    j->tab = PyMem_Malloc(sizeof(enc_symbol) * (size_t)j->alphabet);
+    if (!j->cum || !j->tab) {
         PyErr_NoMemory();
-        goto done;
+        return 0;
     }
-    if (!build_cum(freqs, alphabet, cum)) {
+    if (!build_cum(freqs, j->alphabet, j->cum)) {
         PyErr_SetString(PyExc_ValueError, "frequency table does not sum to 2^14");
-        goto done;
+        return 0;
     }
-    for (Py_ssize_t k = 0; k < alphabet; k++) enc_symbol_init(&tab[k], freqs[k], cum[k]);
-    const uint16_t *sym = (const uint16_t *)yb.buf;
-    const Py_ssize_t count = yb.len / 2;
-    if (count > (PY_SSIZE_T_MAX - 4) / 2) {
+    for (Py_ssize_t k = 0; k < j->alphabet; k++) enc_symbol_init(&j->tab[k], freqs[k], j->cum[k]);
+    j->sym = (const uint16_t *)j->yb.buf;
+    j->i = j->yb.len / 2;
+    if (j->i > (PY_SSIZE_T_MAX - 4) / 2) {
         PyErr_NoMemory();
-        goto done;
+        return 0;
     }
-    const size_t cap = 2 * (size_t)count + 4; /* each symbol emits at most 2 bytes, plus the final state */
-    buf = PyMem_Malloc(cap);
-    if (!buf) {
+    j->cap = 2 * (size_t)j->i + 4; /* each symbol emits at most 2 bytes, plus the final state */
+    j->buf = PyMem_Malloc(j->cap);
+    if (!j->buf) {
         PyErr_NoMemory();
-        goto done;
+        return 0;
     }
-    uint8_t *p = buf + cap; /* bytes are written backwards, so the stream reads forwards */
-    uint32_t x = STATE_LOWER;
-    int bad = 0;
-    Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = count - 1; i >= 0; i--) {
-        uint16_t s = sym[i];
-        if (s >= alphabet || freqs[s] == 0) {
-            bad = 1;
-            break;
+    j->p = j->buf + j->cap; /* bytes are written backwards, so the stream reads forwards */
+    j->x = STATE_LOWER;
+    return 1;
+}
+
+/* Encode symbol j->i - 1; 0 (and bad) if it has no frequency. */
+static ALWAYS_INLINE int enc_step(enc_job *j) {
+    uint16_t s = j->sym[j->i - 1];
+    if (s >= j->alphabet || j->tab[s].x_max == 0) {
+        j->bad = 1;
+        return 0;
+    }
+    const enc_symbol *e = &j->tab[s];
+    uint32_t x = j->x;
+    uint8_t *p = j->p;
+    while (x >= e->x_max) {
+        *--p = (uint8_t)(x & 0xFF);
+        x >>= 8;
+    }
+    uint32_t q = (uint32_t)(((uint64_t)x * e->rcp) >> 32) >> e->shift;
+    j->x = x + e->bias + q * e->cmpl;
+    j->p = p;
+    j->i--;
+    return 1;
+}
+
+/* encode(jobs) -> [stream bytes or None (a symbol without frequency), ...] for 1 or 2 (symbols_u16,
+ * freqs_u32) jobs; two streams are encoded in one loop, a symbol of each in turn (as decode_mapped). */
+static PyObject *rans_encode(PyObject *self, PyObject *args) {
+    PyObject *jobs, *result = NULL;
+    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &jobs)) return NULL;
+    const Py_ssize_t n = PyTuple_GET_SIZE(jobs);
+    if (n < 1 || n > 2) {
+        PyErr_SetString(PyExc_ValueError, "encode takes 1 or 2 jobs");
+        return NULL;
+    }
+    enc_job j[2];
+    memset(j, 0, sizeof(j));
+    int ready = 1;
+    for (Py_ssize_t k = 0; k < n && ready; k++) ready = enc_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
+    if (ready) {
+        Py_BEGIN_ALLOW_THREADS
+        enc_job a = j[0], b = j[1]; /* local copies whose address never escapes: fields stay in registers */
+        int live0 = 1, live1 = n == 2;
+        while (live0 && live1) {
+            live0 = a.i > 0 && enc_step(&a);
+            live1 = b.i > 0 && enc_step(&b);
         }
-        const enc_symbol *e = &tab[s];
-        while (x >= e->x_max) {
-            *--p = (uint8_t)(x & 0xFF);
-            x >>= 8;
+        while (live0 && a.i > 0 && enc_step(&a)) {}
+        while (live1 && b.i > 0 && enc_step(&b)) {}
+        j[0].p = a.p, j[0].x = a.x, j[0].bad = a.bad;
+        j[1].p = b.p, j[1].x = b.x, j[1].bad = b.bad;
+        Py_END_ALLOW_THREADS
+        result = PyList_New(n);
+        for (Py_ssize_t k = 0; result && k < n; k++) {
+            PyObject *item;
+            if (j[k].bad) {
+                item = Py_NewRef(Py_None);
+            } else {
+                uint8_t *p = j[k].p - 4;
+                const uint32_t x = j[k].x;
+                p[0] = (uint8_t)x;
+                p[1] = (uint8_t)(x >> 8);
+                p[2] = (uint8_t)(x >> 16);
+                p[3] = (uint8_t)(x >> 24);
+                item = PyBytes_FromStringAndSize((const char *)p, (Py_ssize_t)(j[k].buf + j[k].cap - p));
+            }
+            if (!item) Py_CLEAR(result);
+            else PyList_SET_ITEM(result, k, item);
         }
-        uint32_t q = (uint32_t)(((uint64_t)x * e->rcp) >> 32) >> e->shift;
-        x += e->bias + q * e->cmpl;
     }
-    Py_END_ALLOW_THREADS
-    if (bad) {
-        result = Py_NewRef(Py_None);
-        goto done;
-    }
-    p -= 4;
-    p[0] = (uint8_t)x;
-    p[1] = (uint8_t)(x >> 8);
-    p[2] = (uint8_t)(x >> 16);
-    p[3] = (uint8_t)(x >> 24);
-    result = PyBytes_FromStringAndSize((const char *)p, (Py_ssize_t)(buf + cap - p));
-done:
-    PyMem_Free(cum);
-    PyMem_Free(tab);
-    PyMem_Free(buf);
-    PyBuffer_Release(&yb);
-    PyBuffer_Release(&fb);
+    for (Py_ssize_t k = 0; k < n; k++) enc_release(&j[k]);
     return result;
 }
 
@@ -398,7 +463,8 @@ static PyMethodDef methods[] = {
      "decode_mapped(((stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top), ...))"
      " -> [(symbols_decoded, stream_pos, final_state, bad_code), ...] for 1 or 2 streams"},
     {"encode", rans_encode, METH_VARARGS,
-     "encode(symbols_u16, freqs_u32) -> stream bytes, or None if a symbol has frequency 0"},
+     "encode(((symbols_u16, freqs_u32), ...)) -> [stream bytes, or None if a symbol has frequency 0, ...]"
+     " for 1 or 2 streams"},
     {"column_histograms", column_histograms, METH_VARARGS,
      "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
     {NULL, NULL, 0, NULL},

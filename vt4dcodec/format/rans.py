@@ -40,7 +40,7 @@ except ImportError:  # built without a C compiler: the pure-Python coder below d
     _rans_native = None
 
 __all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "NATIVE", "normalize_counts", "pack_table", "parse_table",
-           "rans_encode", "rans_decode", "rans_decode_mapped"]
+           "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped"]
 
 NATIVE = _rans_native is not None
 
@@ -96,6 +96,21 @@ def _normalize_counts_py(counts) -> list[int]:
 
 def pack_table(freqs: list[int]) -> bytes:
     """Table bytes (see the module doc) covering the used symbol range of ``freqs``."""
+    f = np.asarray(freqs, dtype=np.int64)
+    used = np.flatnonzero(f)
+    first, last = int(used[0]), int(used[-1])
+    f = f[first:last + 1]
+    # LEB128, 1..3 bytes a value (each <= 2^14): 7-bit groups, low first, 0x80 on all but the last
+    groups = np.stack([f & 0x7F, (f >> 7) & 0x7F, f >> 14], axis=1)
+    size = 1 + (f >= 1 << 7) + (f >= 1 << 14)
+    groups[:, :2] |= (np.arange(1, 3)[None, :] < size[:, None]) * 0x80
+    keep = np.arange(3)[None, :] < size[:, None]
+    head = first.to_bytes(2, "little") + (last - first + 1).to_bytes(2, "little")
+    return head + groups[keep].astype(np.uint8).tobytes()
+
+
+def _pack_table_py(freqs: list[int]) -> bytes:
+    """The plain-loop :func:`pack_table` (the reference the tests compare it with)."""
     used = [i for i, f in enumerate(freqs) if f]
     first, last = used[0], used[-1]
     out = bytearray(first.to_bytes(2, "little")) + (last - first + 1).to_bytes(2, "little")
@@ -155,14 +170,22 @@ def _cumulative(freqs: list[int]) -> list[int]:
 
 def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
     """The rANS stream of ``symbols`` (1-D ints, each with a non-zero frequency) under ``freqs``."""
+    return rans_encode_many([(symbols, freqs)])[0]
+
+
+def rans_encode_many(jobs) -> list[bytes]:
+    """:func:`rans_encode` of 1 or 2 ``(symbols, freqs)``; the compiled coder encodes two streams in one
+    interleaved loop (each is a chain of dependent steps, so two keep the core busier than one)."""
     if _rans_native is None:
-        return _encode_py(symbols, freqs)
-    syms = np.asarray(symbols)
-    if syms.dtype != np.uint16 and syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
-        raise ValueError("symbols outside the frequency table")  # (the C code checks every uint16 symbol)
-    out = _rans_native.encode(np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1),
-                              np.asarray(freqs, dtype=np.uint32))
-    if out is None:
+        return [_encode_py(symbols, freqs) for symbols, freqs in jobs]
+    specs = []
+    for symbols, freqs in jobs:
+        syms = np.asarray(symbols)
+        if syms.dtype != np.uint16 and syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
+            raise ValueError("symbols outside the frequency table")  # (the C code checks every uint16 symbol)
+        specs.append((np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1), np.asarray(freqs, dtype=np.uint32)))
+    out = _rans_native.encode(tuple(specs))
+    if any(stream is None for stream in out):
         raise ValueError("a symbol to encode has frequency 0")
     return out
 

@@ -47,10 +47,12 @@ def check_groups(groups: int, cols: int) -> None:
         raise FormatError(f"quantization groups must divide d = {cols} (1 <= groups <= d), got {groups!r}")
 
 
-def _entropy_part(symbols: np.ndarray, counts: np.ndarray) -> bytes:
-    """Frequency table + rANS stream of ``symbols`` (1-D uint16) whose histogram is ``counts``."""
-    freqs = rans.normalize_counts(counts)
-    return rans.pack_table(freqs) + rans.rans_encode(symbols, freqs)
+def _entropy_parts(*parts: tuple[np.ndarray, np.ndarray]) -> list[bytes]:
+    """Frequency table + rANS stream of each ``(symbols (1-D uint16), their histogram)`` (1 or 2, coded
+    in one interleaved pass)."""
+    freqs = [rans.normalize_counts(counts) for _, counts in parts]
+    streams = rans.rans_encode_many([(symbols, f) for (symbols, _), f in zip(parts, freqs)])
+    return [rans.pack_table(f) + stream for f, stream in zip(freqs, streams)]
 
 
 def column_histograms(codes: np.ndarray, bits: int) -> np.ndarray:
@@ -91,15 +93,16 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1, *, _shortc
     head = struct.pack("<H", groups) + np.concatenate([scale, offset]).astype("<f4").tobytes()
     # One pass of counting serves the median and both predictions' frequency tables.
     hist = column_histograms(codes, bits)
-    symbols = codes.reshape(-1).astype(np.uint16)
-    plain = bytes([PREDICT_NONE]) + _entropy_part(symbols, hist.sum(axis=0))
+    plain_part = (codes.reshape(-1).astype(np.uint16), hist.sum(axis=0))
     centre = lower_median_codes(codes, bits, hist)
     if _shortcut and np.all(centre == centre[0]):
-        return head + plain
+        return head + bytes([PREDICT_NONE]) + _entropy_parts(plain_part)[0]
     shifted = np.arange(top + 1)[None, :] + top - centre[:, None].astype(np.intp)  # residual of code v in column c
     res_counts = np.bincount(shifted.reshape(-1), weights=hist.reshape(-1), minlength=2 * top + 1).astype(np.int64)
     residual = (codes.astype(np.uint16) + np.uint16(top) - centre).reshape(-1)  # in 0 .. 2^(b+1) - 2
-    predicted = bytes([PREDICT_CENTRE]) + centre.tobytes() + _entropy_part(residual, res_counts)
+    plain_bytes, predicted_bytes = _entropy_parts(plain_part, (residual, res_counts))
+    plain = bytes([PREDICT_NONE]) + plain_bytes
+    predicted = bytes([PREDICT_CENTRE]) + centre.tobytes() + predicted_bytes
     return head + (predicted if len(predicted) < len(plain) else plain)
 
 
