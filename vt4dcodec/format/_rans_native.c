@@ -216,32 +216,47 @@ static ALWAYS_INLINE int job_step(mapped_job *j) {
     return ok;
 }
 
+/* The jobs tuple of decode_mapped / encode: 1 or 2 entries; -1 with an exception otherwise. */
+static Py_ssize_t job_count(PyObject *args, PyObject **jobs, const char *name) {
+    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, jobs)) return -1;
+    const Py_ssize_t n = PyTuple_GET_SIZE(*jobs);
+    if (n < 1 || n > 2) {
+        PyErr_Format(PyExc_ValueError, "%s takes 1 or 2 jobs", name);
+        return -1;
+    }
+    return n;
+}
+
+/* Step jobs a and b (local copies, so their fields can live in registers) in turn while both have work
+ * (MORE) and no step fails, then finish each alone. */
+#define INTERLEAVE(a, b, n, MORE, STEP)                                   \
+    do {                                                                  \
+        int live0 = 1, live1 = (n) == 2;                                  \
+        while (live0 && live1) {                                          \
+            live0 = MORE(a) && STEP(&(a));                                \
+            live1 = MORE(b) && STEP(&(b));                                \
+        }                                                                 \
+        while (live0 && MORE(a) && STEP(&(a))) {}                         \
+        while (live1 && MORE(b) && STEP(&(b))) {}                         \
+    } while (0)
+#define DECODE_MORE(j) ((j).i < (j).count)
+#define ENCODE_MORE(j) ((j).i > 0)
+
 /* decode_mapped(jobs) -> [(symbols_decoded, stream_pos, final_state, bad), ...] for 1 or 2 jobs.  Two
  * independent streams (a scene's two token sections) are decoded in one loop, a symbol of each in turn:
  * each stream is a chain of dependent steps, and two chains keep the core busy ~1.4x as well as one. */
 static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
     PyObject *jobs, *result = NULL;
-    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &jobs)) return NULL;
-    const Py_ssize_t n = PyTuple_GET_SIZE(jobs);
-    if (n < 1 || n > 2) {
-        PyErr_SetString(PyExc_ValueError, "decode_mapped takes 1 or 2 jobs");
-        return NULL;
-    }
+    const Py_ssize_t n = job_count(args, &jobs, "decode_mapped");
+    if (n < 0) return NULL;
     mapped_job j[2];
     memset(j, 0, sizeof(j));
     int ready = 1;
     for (Py_ssize_t k = 0; k < n && ready; k++) ready = job_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
     if (ready) {
         Py_BEGIN_ALLOW_THREADS
-        /* local copies whose address never escapes, so the compiler can keep their fields in registers */
         mapped_job a = j[0], b = j[1];
-        int live0 = 1, live1 = n == 2;
-        while (live0 && live1) {
-            live0 = a.i < a.count && job_step(&a);
-            live1 = b.i < b.count && job_step(&b);
-        }
-        while (live0 && a.i < a.count && job_step(&a)) {}
-        while (live1 && b.i < b.count && job_step(&b)) {}
+        INTERLEAVE(a, b, n, DECODE_MORE, job_step);
         j[0].i = a.i, j[0].pos = a.pos, j[0].x = a.x, j[0].bad = a.bad;
         j[1].i = b.i, j[1].pos = b.pos, j[1].x = b.x, j[1].bad = b.bad;
         Py_END_ALLOW_THREADS
@@ -375,26 +390,16 @@ static ALWAYS_INLINE int enc_step(enc_job *j) {
  * freqs_u32) jobs; two streams are encoded in one loop, a symbol of each in turn (as decode_mapped). */
 static PyObject *rans_encode(PyObject *self, PyObject *args) {
     PyObject *jobs, *result = NULL;
-    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &jobs)) return NULL;
-    const Py_ssize_t n = PyTuple_GET_SIZE(jobs);
-    if (n < 1 || n > 2) {
-        PyErr_SetString(PyExc_ValueError, "encode takes 1 or 2 jobs");
-        return NULL;
-    }
+    const Py_ssize_t n = job_count(args, &jobs, "encode");
+    if (n < 0) return NULL;
     enc_job j[2];
     memset(j, 0, sizeof(j));
     int ready = 1;
     for (Py_ssize_t k = 0; k < n && ready; k++) ready = enc_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
     if (ready) {
         Py_BEGIN_ALLOW_THREADS
-        enc_job a = j[0], b = j[1]; /* local copies whose address never escapes: fields stay in registers */
-        int live0 = 1, live1 = n == 2;
-        while (live0 && live1) {
-            live0 = a.i > 0 && enc_step(&a);
-            live1 = b.i > 0 && enc_step(&b);
-        }
-        while (live0 && a.i > 0 && enc_step(&a)) {}
-        while (live1 && b.i > 0 && enc_step(&b)) {}
+        enc_job a = j[0], b = j[1];
+        INTERLEAVE(a, b, n, ENCODE_MORE, enc_step);
         j[0].p = a.p, j[0].x = a.x, j[0].bad = a.bad;
         j[1].p = b.p, j[1].x = b.x, j[1].bad = b.bad;
         Py_END_ALLOW_THREADS
