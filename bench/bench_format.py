@@ -13,12 +13,13 @@ does: dumps(), then temp file, fsync, rename; "encode" is the dumps() part alone
 full validation + tokens as float32 arrays
 (``load``); "tokens-only" reads the same int8 files with ``open_scene`` and decodes just the two token
 sections (checksummed, but cameras and padding not checked).  Files go to a temporary directory (page cache warm, as in
-repeated access to an archive).  Tokens are i.i.d. Gaussian, the hardest case for compression; real encoder
+repeated access to an archive).  "Per CPU second" divides by this process's CPU time instead of wall
+time: on a shared machine it moves far less with the other jobs' load.  Tokens are i.i.d. Gaussian, the hardest case for compression; real encoder
 outputs are smoother.  Results: bench/results/format.json.
 
 Loader throughput (``--loader-scenes``, default 256; 0 skips it): the same paper-size scenes packed into one
 ``.vt4da`` archive per encoding (``--loader-encodings``, default int8 and the codec's default int4-rans),
-then scenes/s through ``ArchiveDataset`` in this process (every index in order: dequantized float32 token
+then scenes/s (wall, and per CPU second of this process) through ``ArchiveDataset`` in this process (every index in order: dequantized float32 token
 tensors, K, w2c, metadata) and through a ``torch.utils.data.DataLoader`` with 2 worker processes
 (batches of 16, token/camera tensors stacked; persistent workers, one untimed warm-up epoch, then
 ``--loader-epochs`` timed epochs).  Encodings take turns epoch by epoch, like the formats above.
@@ -141,13 +142,14 @@ class Tally:
     def __init__(self, name: str, write, read) -> None:
         self.name, self.write, self.read = name, write, read
         self.n, self.write_s, self.read_s, self.bytes, self.err, self.encode_s = 0, 0.0, 0.0, 0, 0.0, 0.0
+        self.write_cpu_s, self.read_cpu_s = 0.0, 0.0
 
     def round(self, scenes: list[Scene], start: int, count: int, workdir: str) -> None:
         paths = [os.path.join(workdir, f"{self.name}-{i}.bin") for i in range(count)]
-        encode0, t0 = ENCODE_S[0], time.perf_counter()
+        encode0, t0, c0 = ENCODE_S[0], time.perf_counter(), time.process_time()
         for k, p in enumerate(paths):
             self.write(scenes[(start + k) % POOL], p)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         self.encode_s += ENCODE_S[0] - encode0
         for k, p in enumerate(paths):
             static, dynamic = self.read(p)
@@ -155,7 +157,9 @@ class Tally:
                 ref = scenes[(start + k) % POOL]
                 self.err = max(self.err, float(np.abs(static - ref.static_tokens).max()),
                                float(np.abs(dynamic - ref.dynamic_tokens).max()))
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
+        self.write_cpu_s += c1 - c0
+        self.read_cpu_s += c2 - c1
         self.bytes += sum(os.path.getsize(p) for p in paths)
         for p in paths:
             os.unlink(p)
@@ -168,10 +172,12 @@ class Tally:
                "write_ms_per_scene": self.write_s / self.n * 1e3, "read_ms_per_scene": self.read_s / self.n * 1e3,
                "write_MBps": TOKEN_MB * self.n / self.write_s, "read_MBps": TOKEN_MB * self.n / self.read_s,
                "encode_MBps": TOKEN_MB * self.n / self.encode_s if self.encode_s else None,
+               "write_cpu_MBps": TOKEN_MB * self.n / self.write_cpu_s, "read_cpu_MBps": TOKEN_MB * self.n / self.read_cpu_s,
                "max_abs_error": self.err}
         encode = f"(encode {res['encode_MBps']:6.0f})" if self.encode_s else " " * 15
         print(f"{self.name:>24}: {res['bytes_per_scene']:>8} B/scene  write {res['write_MBps']:7.1f} MB/s {encode}  "
-              f"read {res['read_MBps']:7.1f} MB/s  max err {self.err:.3g}", flush=True)
+              f"read {res['read_MBps']:7.1f} MB/s  | per CPU second: write {res['write_cpu_MBps']:6.0f} read "
+              f"{res['read_cpu_MBps']:6.0f}  max err {self.err:.3g}", flush=True)
         return res
 
 
@@ -201,13 +207,14 @@ def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, e
         for _ in loaders[enc]:  # warm-up epoch: worker start-up and first page-cache touch, not timed
             pass
         rows[enc] = {"encoding": enc, "scenes": n, "archive_bytes": os.path.getsize(path),
-                     "dataset_s": 0.0, "dataloader_s": 0.0, "epochs": epochs}
+                     "dataset_s": 0.0, "dataset_cpu_s": 0.0, "dataloader_s": 0.0, "epochs": epochs}
     for _ in range(epochs):
         for enc in encodings:
-            ds, t0 = datasets[enc], time.perf_counter()
+            ds, t0, c0 = datasets[enc], time.perf_counter(), time.process_time()
             for i in range(len(ds)):
                 ds[i]
             t1 = time.perf_counter()
+            rows[enc]["dataset_cpu_s"] += time.process_time() - c0
             got = sum(b["static_tokens"].shape[0] for b in loaders[enc])
             t2 = time.perf_counter()
             assert got == n
@@ -217,8 +224,10 @@ def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, e
     for enc in encodings:
         r = rows[enc]
         r["dataset_scenes_per_s"] = n * epochs / r["dataset_s"]
+        r["dataset_scenes_per_cpu_s"] = n * epochs / r["dataset_cpu_s"]
         r["dataloader_2w_scenes_per_s"] = n * epochs / r["dataloader_s"]
-        print(f"{'loader ' + enc:>24}: ArchiveDataset {r['dataset_scenes_per_s']:7.0f} scenes/s  "
+        print(f"{'loader ' + enc:>24}: ArchiveDataset {r['dataset_scenes_per_s']:7.0f} scenes/s "
+              f"({r['dataset_scenes_per_cpu_s']:5.0f} per CPU second)  "
               f"DataLoader(2 workers) {r['dataloader_2w_scenes_per_s']:7.0f} scenes/s", flush=True)
         out.append(r)
     return out
