@@ -38,7 +38,7 @@ __all__ = ["RANS_ENCODINGS", "RANS_BITS", "MAX_RANS_VALUES", "encode_rans_tokens
 
 RANS_BITS = {f"int{b}-rans": b for b in (2, 3, 4, 5, 6, 7, 8)}
 RANS_ENCODINGS = tuple(RANS_BITS)
-MAX_RANS_VALUES = 1 << 21  # N * d per entropy-coded matrix: bounds the decoder's work (~1 s in pure Python)
+MAX_RANS_VALUES = 1 << 21  # N * d per entropy-coded matrix: bounds the decoder's work (~10 ms in C, ~0.5 s in pure Python)
 PREDICT_NONE, PREDICT_CENTRE = 0, 1
 
 
