@@ -180,3 +180,13 @@ def test_scene_equality_compares_contents():
 def test_loaded_scene_tokens_are_writable(encoding):
     scene = loads(dumps(simple_scene(encoding=encoding), compression_level=None))
     assert scene.static_tokens.flags.writeable and scene.dynamic_tokens.flags.writeable
+
+
+@pytest.mark.parametrize("enc", ["int8", "int4", "int8-rans", "int2-rans"])
+def test_error_bound_covers_a_scale_that_underflows_to_zero(enc):
+    """lo = 0, hi = 2^-149: scale = f32(2^-149 / (2^b - 1)) = 0, so every code is 0 and the top value
+    decodes 2^-149 off (found by hypothesis; FORMAT.md I.6, the (2^b - 1) * 2^-150 term)."""
+    x = np.array([[0.0], [2.0**-149]], np.float32)
+    e = encode_tokens(x, enc)
+    y = decode_tokens(e.tokens, e.quant, enc, 2, 1)
+    assert np.all(np.abs(x.astype(np.float64) - y) <= max_abs_error(x, enc))

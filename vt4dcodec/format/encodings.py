@@ -7,6 +7,7 @@ encoding   stored per value             maximum error |x - decode(encode(x))|
 float32    little-endian IEEE binary32  0 (lossless)
 float16    little-endian IEEE binary16  max(2^-11 * |x|, 2^-25); |x| must be <= 65504
 int8       u8 code, per-channel affine  scale_c / 2 * (1 + 2^-20) + 2^-23 * max(|lo_c|, |hi_c|)
+                                        + (2^b - 1) * 2^-150 (scales rounded in the subnormal range)
 int4       u4 code, two per byte        same formula with the 4-bit scale
 int<b>-rans  b-bit code (b = 2..8),     same formula with the b-bit scale of the code's channel group
            rANS entropy-coded           (format 1.1; see rans_tokens.py)
@@ -219,5 +220,6 @@ def max_abs_error(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> np.n
     scale = np.repeat(group_params(np.asarray(tokens, np.float32), bits, groups)[0], width)
     grouped = x.reshape(x.shape[0], groups, width)
     big = np.repeat(np.maximum(np.abs(grouped.min(axis=(0, 2))), np.abs(grouped.max(axis=(0, 2)))), width)
-    bound = scale.astype(np.float64) / 2 * (1 + 2.0**-20) + 2.0**-23 * big
+    # the last term: a scale that rounds in binary32's subnormal range (or to 0) is off by up to 2^-150
+    bound = scale.astype(np.float64) / 2 * (1 + 2.0**-20) + 2.0**-23 * big + ((1 << bits) - 1) * 2.0**-150
     return np.broadcast_to(bound, x.shape)
