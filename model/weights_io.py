@@ -1,4 +1,4 @@
-"""Weights I/O (issue #5 item 8): safetensors + config.json, the fingerprint, ``from_pretrained``.
+"""Weights I/O of the tokenizer: safetensors + config.json, the fingerprint, ``from_pretrained``.
 
 A model directory holds
 
@@ -33,7 +33,7 @@ from .configs import ModelConfig
 from .videotok4d import VideoTok4D
 
 __all__ = [
-    "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
+    "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint", "stored_fingerprint",
     "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory", "read_weights_meta", "storage_state", "widen_stored",
 ]
 
@@ -93,6 +93,18 @@ def model_fingerprint(model: VideoTok4D, model_id: str, model_version: str) -> A
     from vt4dcodec.format import ModelFingerprint  # the container's record type
 
     return ModelFingerprint(**fingerprint_fields(model, model_id, model_version))
+
+
+def stored_fingerprint(model: VideoTok4D) -> Any:
+    """The fingerprint a container stores for ``model``: its own id and version ("unnamed", "0" for a
+    model that was never saved or loaded), computed once and cached on the model object."""
+    cached = getattr(model, "_vt4d_fingerprint", None)
+    if cached is None:
+        model_id = getattr(model, "model_id", None) or "unnamed"
+        model_version = getattr(model, "model_version", None) or "0"
+        cached = model.fingerprint(model_id, model_version)
+        model._vt4d_fingerprint = cached
+    return cached
 
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
