@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from vt4dcodec.geometry import camera_flow
+from vt4dcodec.model.geometry import camera_flow
 from vt4dcodec.model.motion import (
     TAU_K,
     TAU_MIN,
@@ -214,7 +214,7 @@ def test_moving_objects_are_isolated_on_synthetic_scenes():
 
 
 def test_pair_geometry_is_camera_flow():
-    """F_pose of the all-pairs warp (frames unprojected once) equals vt4dcodec.geometry.camera_flow."""
+    """F_pose of the all-pairs warp (frames unprojected once) equals vt4dcodec.model.geometry.camera_flow."""
     s = plane_scene(0, False)
     depth = s["depth"].copy()
     depth[2, :6] = 0.0  # unknown depth is invalid in both
