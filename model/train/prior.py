@@ -1,4 +1,4 @@
-"""Train the Co4DGen prior from token archives (issue #8 items 1-3).
+"""Train the Co4DGen prior from token archives.
 
     python -m vt4dcodec.model.train.tokenize_scenes --tokenizer vt4d-tiny --out data/co4dgen --scenes 512
     python -m vt4dcodec.model.train.prior --shards data/co4dgen --out runs/co4dgen --steps 3000

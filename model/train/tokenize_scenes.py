@@ -1,5 +1,5 @@
 """Tokenize multi-camera synthetic scenes once with the frozen tokenizer, into archive shards for the
-Co4DGen prior (issue #8 item 2).
+Co4DGen prior.
 
     python -m vt4dcodec.model.train.tokenize_scenes --tokenizer vt4d-tiny --out data/co4dgen \
         --split train --scenes 512 --cameras 4 --per-shard 128

@@ -198,7 +198,7 @@ def test_hand_made_scene_with_estimated_depth():
     assert iou(iso.mask, s["dyn"]) >= 0.5  # measured ~0.7
 
 
-# --- masks on the synthetic scenes (issue #5 item 9) --------------------------------------------------
+# --- masks on the synthetic scenes --------------------------------------------------
 def test_static_synthetic_scenes_have_masks_under_two_percent():
     # seed 6 cameras 0-1 used to mark 9-10 % (DIS smoothing across depth edges; the step 6 veto); measured
     # max 0.85 % over seeds 0-17 (seed 0 cam01), 0.07 % on seed 6
