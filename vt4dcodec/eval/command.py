@@ -5,7 +5,9 @@
 
 The protocol is :mod:`vt4dcodec.eval.protocol`'s; models are given as shipped ids, model directories or
 training run directories (their latest checkpoint).  ``--merge`` adds or replaces some methods in an
-existing results file, ``--tables FILE`` prints the Markdown tables of a results file.
+existing results file (same protocol), so a model that finishes training later is added without
+rerunning the rest; ``--tables FILE`` prints the Markdown tables of a results file (what
+docs/RESULTS.md shows).
 """
 
 from __future__ import annotations

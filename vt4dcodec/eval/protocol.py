@@ -1,7 +1,5 @@
-"""The evaluation protocol of dynamic novel-view synthesis (the paper's Tables 1, 4 and 5 at this scale).
-
-    python -m vt4dcodec.eval --model vt4d-tiny [--unified runs/tok_unified/model] \
-        --scenes 50 --views 3 --steps 8 --out docs/results/eval.json --figure docs/figures/eval_scenes.png
+"""The evaluation protocol of dynamic novel-view synthesis (the paper's Tables 1, 4 and 5 at this scale);
+``python -m vt4dcodec.eval`` runs it (:mod:`vt4dcodec.eval.command`).
 
 Protocol.  Held-out scenes ``generate_scene(seed, split="test")`` (textures disjoint from the training
 split) for seeds ``first_seed .. first_seed + scenes - 1``, each with ``views + 1`` (at least 4)
@@ -29,10 +27,6 @@ only (views with no such pixel are skipped) and over the other (static) pixels. 
 the standard error, paired differences against ``ours`` and the fraction of views where ``ours`` wins.
 Sizes: floats of the representation (tokens ``N_s*d + N_d*d``, RGB-D ``T*H*W*4``, source video
 ``T*H*W*3``) and the bytes of the int8 ``.vt4d`` for token methods.
-
-``--merge`` adds or replaces some methods in an existing results file (same protocol), so a model
-that finishes training later is added without rerunning the rest; ``--tables FILE`` prints the
-Markdown tables of a results file (what docs/RESULTS.md shows).
 """
 
 from __future__ import annotations
