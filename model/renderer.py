@@ -3,7 +3,7 @@ v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) over target-video latents.
 
 Target latents Y^tau (B, T, C, h, w) are patchified together with the Plücker rays of P_tgt, pass
 through tau-modulated (AdaLN) blocks of spatial, temporal and token cross-attention, and are
-unpatchified into a velocity of the same shape. Token masking (issue #5 item 7): a dropped group
+unpatchified into a velocity of the same shape. Token masking (the ablation of Table 4): a dropped group
 (Z_s or Z_d) is removed from the keys of every cross-attention.
 """
 

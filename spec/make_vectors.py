@@ -265,7 +265,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(bad, "ZSTA")[3] = bytes([zsta[3][0] ^ 0x80]) + zsta[3][1:]
     data = bytearray(rebuild(header, bad))
     # restore the original CRC in the table so only the payload is damaged
-    pre = parse_preamble(bytes(data))
+    parse_preamble(bytes(data))
     idx = [s[0] for s in sections].index("ZSTA")
     data = patch_entry(bytes(data), idx, 32, "<I", crc32(zsta[3]))
     add("section_checksum", data, "ChecksumError", "one bit of a static-token code flipped")

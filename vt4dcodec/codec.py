@@ -92,13 +92,9 @@ def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "Vide
 
 def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
     """The fingerprint a container stores for ``model`` (cached on the model object)."""
-    cached = getattr(model, "_vt4d_fingerprint", None)
-    if cached is None:
-        model_id = getattr(model, "model_id", None) or "unnamed"
-        model_version = getattr(model, "model_version", None) or "0"
-        cached = model.fingerprint(model_id, model_version)
-        model._vt4d_fingerprint = cached
-    return cached
+    from .model.weights_io import stored_fingerprint
+
+    return stored_fingerprint(model)
 
 
 # --- encoding ---------------------------------------------------------------------------------------

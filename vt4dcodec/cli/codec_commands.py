@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import CaptureError
-from . import nonneg_int, positive_int
+from . import nonneg_int, positive_int, trajectory_label
 
 __all__ = ["register"]
 
@@ -166,14 +166,6 @@ def _open_scene_source(source: str, key: str | None):
     return load(source), Path(source).stem
 
 
-def _trajectory_label(spec: str, index: int) -> str:
-    if spec == "source":
-        return "source"
-    if os.path.isfile(spec):
-        return Path(spec).stem
-    return f"{index:02d}_" + "".join(c if c.isalnum() else "_" for c in spec)[:48]
-
-
 def cmd_decode(args: argparse.Namespace) -> int:
     from ..codec import SceneDecoder, model_fingerprint
     from ..media import write_frames
@@ -189,7 +181,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
     for i, (spec, traj) in enumerate(_progress(list(zip(specs, trajectories)), len(specs), "decode", args.quiet)):
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
-        path = write_frames(out_dir / f"{stem}_{_trajectory_label(spec, i)}", frames, args.format,
+        path = write_frames(out_dir / f"{stem}_{trajectory_label(spec, i)}", frames, args.format,
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started

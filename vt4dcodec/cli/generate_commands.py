@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CaptureError
-from . import nonneg_int, positive_int
+from . import nonneg_int, positive_int, trajectory_label
 
 __all__ = ["register", "split_view_specs"]
 
@@ -48,7 +48,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from ..generate import DEFAULT_PRIOR, generate, load_prior_model
     from ..media import write_frames
     from ..model.prior import check_tokenizer
-    from .codec_commands import _trajectory_label
 
     views = split_view_specs(args.views) or ["source"]
     cap = read_capture(args.capture)
@@ -72,7 +71,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     outputs = []
     for i, (spec, traj) in enumerate(zip(views, trajectories)):
         frames = decoder.render(traj, steps=args.render_steps, seed=args.seed)
-        path = write_frames(out_dir / f"view_{_trajectory_label(spec, i)}", frames, args.format,
+        path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format,
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"view": spec, "path": str(path), "frames": int(frames.shape[0])})
     done = time.perf_counter()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import LimitExceededError, MalformedHeaderError
+from ..version import __version__
 from .checks import exact_keys, require_map, require_sha256, require_shape, require_str
 from .limits import MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS
 
@@ -116,8 +117,6 @@ class Provenance:
     def now(cls, source_capture_id: str | None, kind: str = "encoded") -> "Provenance":
         """Provenance stamped with this library's version and the current UTC time (whole seconds)."""
         import datetime
-
-        from .. import __version__
 
         created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
         return cls(__version__, created, source_capture_id, kind)
