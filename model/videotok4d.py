@@ -29,13 +29,24 @@ from .source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
 from .temporal_branch import TemporalBranch
 
-__all__ = ["VideoTok4D", "MIN_TAU"]
+__all__ = ["VideoTok4D", "MIN_TAU", "DEFAULT_DECODE_STEPS", "MAX_DECODE_STEPS"]
 
 MIN_TAU = 1e-3  # x0 prediction: v = (Y^tau - X0_hat) / max(tau, MIN_TAU)
+DEFAULT_DECODE_STEPS = 8  # for model directories that record no decode_steps (written before it existed)
+MAX_DECODE_STEPS = 1000
 
 
 class VideoTok4D(nn.Module):
-    """The whole model for one :class:`ModelConfig`."""
+    """The whole model for one :class:`ModelConfig`.
+
+    Identity (set by ``from_pretrained`` from the model directory; never part of the config hash):
+    ``model_id`` / ``model_version`` (None for a model that was never saved or loaded) and
+    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default.
+    """
+
+    model_id: str | None = None
+    model_version: str | None = None
+    decode_steps: int = DEFAULT_DECODE_STEPS
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
@@ -135,14 +146,16 @@ class VideoTok4D(nn.Module):
     # sampling ------------------------------------------------------------------------------------
     @torch.no_grad()
     def render_latents(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
-                       *, steps: int = 8, seed: int = 0, drop_static: bool = False,
+                       *, steps: int | None = None, seed: int = 0, drop_static: bool = False,
                        drop_dynamic: bool = False) -> torch.Tensor:
-        """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0.
+        """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0, in ``steps`` steps
+        (None: ``self.decode_steps``, the model's recorded best-fidelity setting).
 
         K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4). Returns Y^0 (B, T, C, h, w).
         """
         self._check_tokens(z_s, z_d)
-        if not isinstance(steps, int) or steps < 1:
+        steps = self.decode_steps if steps is None else steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         cfg = self.config
         B = z_s.shape[0]

@@ -5,7 +5,8 @@ fingerprint.
 A tokenizer directory holds
 
 * ``config.json``: ``{"format": "vt4d-model/1", "model_id", "model_version", "config": {...},
-  "config_sha256", "weights_sha256"}``;
+  "config_sha256", "weights_sha256", "decode_steps"}`` (``decode_steps``: the sampler steps the codec
+  uses by default for this model, chosen by measurement; optional, 8 when absent; not hashed);
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
@@ -33,7 +34,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 
 from .configs import ModelConfig
 from .prior import Co4DGen, PriorConfig
-from .videotok4d import VideoTok4D
+from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 
 __all__ = [
     "save_pretrained", "from_pretrained", "save_prior", "load_prior", "weights_sha256", "fingerprint_fields",
@@ -106,16 +107,18 @@ def stored_fingerprint(model: VideoTok4D) -> Any:
     model that was never saved or loaded), computed once and cached on the model object."""
     cached = getattr(model, "_vt4d_fingerprint", None)
     if cached is None:
-        model_id = getattr(model, "model_id", None) or "unnamed"
-        model_version = getattr(model, "model_version", None) or "0"
+        model_id = model.model_id or "unnamed"
+        model_version = model.model_version or "0"
         cached = model.fingerprint(model_id, model_version)
         model._vt4d_fingerprint = cached
     return cached
 
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
-                    card: str | None = None, storage_dtype: str = "float32") -> Path:
+                    card: str | None = None, storage_dtype: str = "float32", decode_steps: int | None = None) -> Path:
     """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it.
+
+    ``decode_steps`` (default: ``model.decode_steps``) is recorded as the codec's default sampler steps.
 
     ``storage_dtype="float16"`` rounds ``model``'s floating weights to float16 values in place (they stay
     float32 tensors) and stores them as float16, so the saved file, the loaded model and the
@@ -125,9 +128,17 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     out.mkdir(parents=True, exist_ok=True)
     state, stored = storage_state(model, storage_dtype)
     digest = weights_sha256(state)
+    steps = _checked_decode_steps(model.decode_steps if decode_steps is None else decode_steps, out)
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
-            "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
+            "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest,
+            "decode_steps": steps}
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
+
+
+def _checked_decode_steps(value: Any, where: Path) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DECODE_STEPS:
+        raise ModelError(f"{where}: decode_steps must be an integer in [1, {MAX_DECODE_STEPS}], got {value!r}")
+    return value
 
 
 def write_weights_directory(out: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any], *,
@@ -232,6 +243,7 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
     model.model_id, model.model_version = meta["model_id"], meta["model_version"]
+    model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
     return model.to(device).eval()
 
 

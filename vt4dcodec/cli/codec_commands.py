@@ -185,7 +185,8 @@ def cmd_decode(args: argparse.Namespace) -> int:
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
-    result = {"outputs": outputs, "seconds": round(elapsed, 3), "steps": args.steps, "seed": args.seed,
+    result = {"outputs": outputs, "seconds": round(elapsed, 3),
+              "steps": decoder.model.decode_steps if args.steps is None else args.steps, "seed": args.seed,
               "model": model_fingerprint(decoder.model).to_dict()}
     _emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
           + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s"])
@@ -244,7 +245,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
-                   help=f"Euler steps of the rectified-flow sampler (default {DEFAULT_STEPS})")
+                   help="Euler steps of the rectified-flow sampler (default: the model's recorded best-fidelity "
+                        "setting, decode_steps in its config.json)")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
     p.set_defaults(func=cmd_decode)
@@ -254,5 +256,6 @@ def register(subparsers: Any) -> None:
         description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
                     "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
     p.add_argument("-o", "--output", default="demo_out", help="output directory (default demo_out)")
-    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS, help="sampler steps")
+    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
+                   help="sampler steps (default: the model's recorded decode_steps)")
     p.set_defaults(func=cmd_demo)

@@ -112,7 +112,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--model", default=None, help="tokenizer id or directory (default: the prior's tokenizer)")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_PRIOR_STEPS, help="prior sampler steps")
     p.add_argument("--sampler", choices=("euler", "heun"), default="heun")
-    p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view")
+    p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view (default: the tokenizer's recorded decode_steps)")
     p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding of the saved scene")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
     p.add_argument("--json", action="store_true", help="print a JSON result for scripts")
