@@ -27,7 +27,7 @@ __all__ = [
     "ARCHIVE_MAGIC", "ARCHIVE_EXTENSION", "VERSION_MAJOR", "VERSION_MINOR",
     "PREAMBLE_SIZE", "SLOT_SIZE", "SLOT_OFFSETS", "HEADER_SIZE", "FRAME_HEADER_SIZE",
     "INDEX_HEADER_SIZE", "INDEX_ENTRY_SIZE", "FOOTER_SIZE",
-    "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES",
+    "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES", "MAX_GENERATION",
     "Commit", "FrameHeader", "crc32", "check_key",
     "pack_preamble", "parse_preamble", "pack_slot", "parse_slot", "pack_footer", "parse_footer",
     "pack_frame_header", "parse_frame_header",
@@ -58,6 +58,7 @@ MAX_KEY_BYTES = 1024  #: UTF-8 bytes of one scene key
 MAX_SUMMARY_BYTES = 65536  #: msgpack bytes of one record summary
 MAX_SCENES = 1 << 24  #: scenes in one archive (16,777,216)
 MAX_RECORD_BYTES = 1 << 40  #: one record payload (1 TiB)
+MAX_GENERATION = (1 << 64) - 1  #: the u64 generation counter; a writer refuses to commit past it
 
 _KEY_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._\-]*(/[A-Za-z0-9_][A-Za-z0-9._\-]*)*")
 
