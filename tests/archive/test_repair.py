@@ -4,6 +4,7 @@ Regression tests for issue 15 (each builds the reproducing file), and a property
 damage, ``repair`` never reduces the set of committed scenes whose record is still intact.
 """
 
+import dataclasses
 import os
 import struct
 
@@ -11,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from vt4dcodec.archive import ArchiveWriter, open_archive, repair_archive, verify_archive
-from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, pack_footer, pack_slot
+from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, pack_footer, pack_slot, parse_footer
 from vt4dcodec.archive.reader import ArchiveTruncatedError
 from vt4dcodec.archive.recovery import ArchiveNotFoundError
 from vt4dcodec.cli import main
@@ -142,12 +143,10 @@ def test_truncated_exactly_at_an_older_footer_is_detected(tmp_path):
     with open_archive(path) as ar:
         assert ar.generation == 2
     data = path.read_bytes()
-    first = Commit(1, 0, 0, 0, 0)  # find generation 1's footer: the first footer after the header
-    pos = data.index(b"V4AFOOT\x00", HEADER_SIZE + 64 + FOOTER_SIZE)
+    pos = data.index(b"V4AFOOT\x00", HEADER_SIZE + 64 + FOOTER_SIZE)  # generation 1's footer
     os.truncate(path, pos + FOOTER_SIZE)
     with pytest.raises(ArchiveTruncatedError):
         open_archive(path)
-    del first
 
 
 def test_repair_of_a_truncated_archive_recovers_its_records(tmp_path, capsys):
@@ -168,11 +167,7 @@ def test_exhausted_generation_counter_is_a_typed_error(tmp_path, capsys):
     with ArchiveWriter(path, durable=False) as w:
         w.append("k", payload_for("k", 50), validate=False)
     data = bytearray(path.read_bytes())
-    c = Commit.__new__(Commit)
-    from vt4dcodec.archive.layout import parse_footer
-
-    c = parse_footer(bytes(data[-FOOTER_SIZE:]))
-    top = Commit(2**64 - 1, c.index_offset, c.index_length, c.index_crc32, c.scene_count)
+    top = dataclasses.replace(parse_footer(bytes(data[-FOOTER_SIZE:])), generation=2**64 - 1)
     data[-FOOTER_SIZE:] = pack_footer(top)
     data[SLOT_OFFSETS[1]: SLOT_OFFSETS[1] + SLOT_SIZE] = pack_slot(top)
     path.write_bytes(bytes(data))

@@ -226,6 +226,10 @@ class ArchiveIndex:
             target = key.encode("utf-8")
         except (UnicodeEncodeError, AttributeError):
             return None
+        return self.find_bytes(target)
+
+    def find_bytes(self, target: bytes) -> int | None:
+        """Position of the key with these UTF-8 bytes, or None."""
         lo, hi = 0, len(self._table)
         while lo < hi:
             mid = (lo + hi) // 2

@@ -12,9 +12,10 @@ import os
 from typing import Any, Iterator
 
 from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
-from .index import ArchiveIndex, IndexEntry
+from .index import IndexEntry
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
                      parse_footer, parse_preamble, parse_slot)
+from .segments import load_index
 from .source import ByteSource, open_source
 
 __all__ = ["ArchiveReader", "open_archive", "find_commit", "NoCommitError", "RecordChecksumError",
@@ -128,8 +129,11 @@ class ArchiveReader:
         except BaseException:
             self.source.close()
             raise
-        data = self.source.read(self.commit.index_offset, self.commit.index_length)
-        self.index = ArchiveIndex.parse(data, self.commit)
+        try:
+            self.index = load_index(self.source.read, self.commit)
+        except BaseException:
+            self.source.close()
+            raise
 
     # -- mapping-like access ---------------------------------------------------------------------
     @property
@@ -144,20 +148,20 @@ class ArchiveReader:
         return len(self.index)
 
     def __contains__(self, key: object) -> bool:
-        return isinstance(key, str) and self.index.find(key) is not None
+        return isinstance(key, str) and self.index.lookup(key) is not None
 
     def __iter__(self) -> Iterator[str]:
-        return (self.index.key(i) for i in range(len(self.index)))
+        return iter(self.index.keys())
 
     def keys(self) -> list[str]:
         """All committed keys, sorted by their UTF-8 bytes."""
         return self.index.keys()
 
     def entry(self, key: str) -> IndexEntry:
-        i = self.index.find(key)
-        if i is None:
+        e = self.index.lookup(key)
+        if e is None:
             raise SceneNotFoundError(f"no scene {key!r} in {self.name}")
-        return self.index.entry(i)
+        return e
 
     def entries(self) -> Iterator[IndexEntry]:
         return self.index.entries()
@@ -207,9 +211,9 @@ class ArchiveReader:
             for k in range(i, j):
                 data = block[offsets[k] - start: offsets[k] - start + lengths[k]]
                 if check and crc32(data) != crcs[k]:
-                    raise RecordChecksumError(f"record {self.index.key(positions[k])!r} in {self.name} "
+                    raise RecordChecksumError(f"record {self.index.key_at(positions[k])!r} in {self.name} "
                                               "fails its checksum")
-                yield self.index.key(positions[k]), data
+                yield self.index.key_at(positions[k]), data
             i = j
 
     @property

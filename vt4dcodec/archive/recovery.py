@@ -27,11 +27,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
-from .index import ArchiveIndex, IndexEntry, decode_summary
+from .index import IndexEntry, decode_summary
 from .layout import (ARCHIVE_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
-                     INDEX_HEADER_SIZE, INDEX_MAGIC, MAX_GENERATION, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
+                     INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
+                     MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
                      check_key, crc32, frame_meta_crc, parse_footer, parse_frame_header, parse_preamble,
                      parse_slot)
+from .segments import IndexView, load_index
 from .source import ByteSource
 
 __all__ = ["ScanResult", "scan_records", "RepairPlan", "plan_repair", "RepairReport", "repair_archive",
@@ -99,13 +101,20 @@ def _try_frame(source: ByteSource, pos: int, size: int) -> IndexEntry | None:
 
 
 def _try_commit(source: ByteSource, pos: int, size: int) -> Commit | None:
-    """The commit whose intact index block (at ``pos``) and footer follow, or None."""
+    """The commit whose intact index block or segment manifest (at ``pos``) and footer follow, or None."""
     if size - pos < INDEX_HEADER_SIZE + FOOTER_SIZE:
         return None
-    magic, _esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", source.read(pos, INDEX_HEADER_SIZE))
-    if magic != INDEX_MAGIC or count > MAX_SCENES:
+    magic, esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", source.read(pos, INDEX_HEADER_SIZE))
+    if magic == MANIFEST_MAGIC:  # u32 segment count sits where an index has its entry size
+        mlen = MANIFEST_HEADER_SIZE + esize * SEGMENT_REF_SIZE
+        seg = _segment_length(source, pos + mlen, size) if 1 <= esize <= MAX_SEGMENTS else None
+        if seg is None:
+            return None
+        index_len = mlen + seg
+    elif magic == INDEX_MAGIC and count <= MAX_SCENES:
+        index_len = INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len
+    else:
         return None
-    index_len = INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len
     if index_len + FOOTER_SIZE > size - pos:
         return None
     try:
@@ -119,11 +128,21 @@ def _try_commit(source: ByteSource, pos: int, size: int) -> Commit | None:
     return commit
 
 
+def _segment_length(source: ByteSource, pos: int, size: int) -> int | None:
+    """The length an index block at ``pos`` declares (segments of 1.1 commits have no footer)."""
+    if size - pos < INDEX_HEADER_SIZE:
+        return None
+    magic, esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", source.read(pos, INDEX_HEADER_SIZE))
+    if magic != INDEX_MAGIC or esize != INDEX_ENTRY_SIZE or count > MAX_SCENES:
+        return None
+    return INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len
+
+
 def _next_magic(source: ByteSource, pos: int, size: int) -> int | None:
     """The first offset >= ``pos`` where a frame or index magic starts, or None."""
     while pos < size:
         block = source.read(pos, min(_SCAN_CHUNK + 3, size - pos))  # +3: a magic across chunks
-        hits = [i for i in (block.find(FRAME_MAGIC), block.find(INDEX_MAGIC)) if i >= 0]
+        hits = [i for i in (block.find(FRAME_MAGIC), block.find(INDEX_MAGIC), block.find(MANIFEST_MAGIC)) if i >= 0]
         if hits:
             return pos + min(hits)
         pos += _SCAN_CHUNK
@@ -148,7 +167,7 @@ def scan_records(source: ByteSource, start: int, *, resync: bool = False) -> Sca
                 result.records.append(entry)
                 pos = result.end = entry.offset + entry.length
                 continue
-        elif magic == INDEX_MAGIC:
+        elif magic in (INDEX_MAGIC, MANIFEST_MAGIC):
             commit = _try_commit(source, pos, size)
             if commit is not None:
                 result.commits.append(commit)
@@ -160,7 +179,8 @@ def scan_records(source: ByteSource, start: int, *, resync: bool = False) -> Sca
         nxt = _next_magic(source, pos + 1, size)
         if nxt is None:
             break
-        result.damaged.append((pos, nxt))
+        if not (magic == INDEX_MAGIC and _segment_length(source, pos, size) == nxt - pos):
+            result.damaged.append((pos, nxt))  # (an index segment of a 1.1 commit is not damage)
         pos = nxt
     return result
 
@@ -183,6 +203,8 @@ class RepairPlan:
     full_scan: bool
     lost: Commit | None = None  # a commit named by a header slot but cut off the end of the file
     base_footer_ok: bool = True  # the base commit's own footer is intact and ends the file
+    segmented: bool = False  # the preamble says commits may use segmented indexes (version 1.1)
+    view: IndexView | None = None  # the base commit's index
 
     @property
     def needs_commit(self) -> bool:
@@ -206,11 +228,11 @@ def _frame_intact(source: ByteSource, e: IndexEntry) -> bool:
             and frame_meta_crc(meta, key_raw, e.summary_bytes) == fh.meta_crc32)
 
 
-def _load_index(source: ByteSource, c: Commit, size: int) -> ArchiveIndex | None:
+def _load_index(source: ByteSource, c: Commit, size: int) -> IndexView | None:
     if c.end > size:
         return None
     try:
-        return ArchiveIndex.parse(source.read(c.index_offset, c.index_length), c)
+        return load_index(source.read, c)
     except FormatError:
         return None
 
@@ -226,10 +248,10 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
     size = source.size()
     header = source.read(0, min(size, HEADER_SIZE))
     try:
-        parse_preamble(header)
+        segmented = bool(parse_preamble(header) & FLAG_SEGMENTED)
         preamble_ok = len(header) == HEADER_SIZE
     except FormatError:
-        preamble_ok = False
+        preamble_ok = segmented = False
     slots = [c for off in SLOT_OFFSETS if (c := parse_slot(header[off: off + SLOT_SIZE])) is not None]
     generations = [c.generation for c in slots]
     if not full_scan and base is not None:
@@ -251,7 +273,8 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
     entries: dict[str, IndexEntry] = {}
     copies: dict[str, IndexEntry] = {}
     unrecoverable: list[str] = []
-    if index is not None:  # a full scan checks every record the base names
+    checked = index is not None  # the full path: every record the base names is checked
+    if checked:
         for e in index.entries():
             if _payload_crc(source, e.offset, e.length) != e.crc32:
                 unrecoverable.append(e.key)
@@ -260,10 +283,10 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
             else:
                 copies[e.key] = e
     elif base is not None:
-        with_index = _load_index(source, base, size)
-        if with_index is None:
+        index = _load_index(source, base, size)
+        if index is None:
             raise ArchiveError(f"{source.name}: the last commit's index does not verify; use a full scan")
-        entries = {e.key: e for e in with_index.entries()}
+        entries = {e.key: e for e in index.entries()}
     recovered: dict[str, None] = {}
     after = base.end if base is not None else HEADER_SIZE
     for r in scan.records:
@@ -293,7 +316,8 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
         except FormatError:
             pass
     return RepairPlan(size, base, entries, copies, list(recovered), unrecoverable, cut, damaged,
-                      new_generation, preamble_ok, full_scan or index is not None, lost, footer_ok)
+                      new_generation, preamble_ok, full_scan or checked or base is None, lost, footer_ok,
+                      segmented, index)
 
 
 @dataclass

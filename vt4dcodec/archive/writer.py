@@ -22,12 +22,14 @@ from typing import Any, Literal
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
 from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary
-from .layout import (HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, check_key, crc32,
-                     pack_footer, pack_frame_header, pack_preamble, pack_slot, parse_preamble, parse_slot)
+from .layout import (FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
+                     VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
+                     parse_preamble, parse_slot)
 from .lock import WriterLock
 from .reader import ArchiveTruncatedError, NoCommitError, best_slot, find_commit
 from .recovery import RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
+from .segments import SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
 __all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive"]
@@ -55,21 +57,31 @@ def _check_magic(path: str) -> None:
         parse_preamble(head + bytes(PREAMBLE_SIZE - len(head)))
 
 
-def _empty_archive_bytes() -> bytes:
+def _empty_archive_bytes(minor: int = VERSION_MINOR) -> bytes:
     index = ArchiveIndex.build([])
     commit = Commit(0, HEADER_SIZE, len(index), crc32(index), 0)
-    header = pack_preamble() + pack_slot(commit) + bytes(HEADER_SIZE - 32 - 64)
+    header = pack_preamble(minor) + pack_slot(commit) + bytes(HEADER_SIZE - 32 - 64)
     return header + index + pack_footer(commit)
 
 
-def create_archive(path: str | os.PathLike, *, exist_ok: bool = False) -> None:
-    """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename."""
+def _check_version(version: tuple[int, int]) -> int:
+    if tuple(version) not in ((1, 0), (1, 1)):
+        raise ArchiveError(f"this writer writes archive versions 1.0 and 1.1, not {version!r}")
+    return version[1]
+
+
+def create_archive(path: str | os.PathLike, *, exist_ok: bool = False, version: tuple[int, int] = (1, VERSION_MINOR)) -> None:
+    """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename.
+
+    ``version`` (1, 1) (default) lets commits use segmented indexes; (1, 0) writes a whole index per
+    commit, readable by 1.0 readers."""
     path = os.fspath(path)
+    minor = _check_version(version)
     if os.path.exists(path) and not exist_ok:
         raise FileExistsError(f"{path} already exists")
     tmp = f"{path}.tmp-{os.getpid()}"
     with open(tmp, "wb") as f:
-        f.write(_empty_archive_bytes())
+        f.write(_empty_archive_bytes(minor))
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
@@ -94,7 +106,8 @@ class ArchiveWriter:
 
     def __init__(self, path: str | os.PathLike, mode: str = "a", *, on_uncommitted: Policy = "error",
                  durable: bool = True, full_scan: bool = False, dry_run: bool = False,
-                 allow_truncated: bool = False, _repair: bool = False):
+                 allow_truncated: bool = False, version: tuple[int, int] = (1, VERSION_MINOR),
+                 _repair: bool = False):
         if mode not in ("a", "x", "w"):
             raise ArchiveError(f"mode must be 'a', 'x' or 'w', not {mode!r}")
         if on_uncommitted not in ("error", "recover", "discard"):
@@ -107,6 +120,10 @@ class ArchiveWriter:
         self._next_generation: int | None = None
         self._commit: Commit | None = None
         self._pending: dict[str, IndexEntry] = {}
+        self._segments: list[tuple[SegmentRef, list[str]]] = []  # newest first (version 1.1)
+        self._segmented = False
+        self._consolidate = False
+        _check_version(version)
         exists = os.path.exists(self.path)
         if exists and mode == "a" and not full_scan:
             _check_magic(self.path)  # before the lock: a wrong file gets no .lock beside it
@@ -114,10 +131,10 @@ class ArchiveWriter:
         self._fd: int | None = None
         try:
             if mode == "x" or (mode == "a" and not os.path.exists(self.path)):
-                create_archive(self.path, exist_ok=False)
+                create_archive(self.path, exist_ok=False, version=version)
                 self._created = True
             elif mode == "w":
-                create_archive(self.path, exist_ok=True)
+                create_archive(self.path, exist_ok=True, version=version)
             self._fd = os.open(self.path, os.O_RDWR)
             self._open_existing(on_uncommitted, full_scan, dry_run, allow_truncated, _repair)
         except BaseException:
@@ -165,9 +182,16 @@ class ArchiveWriter:
                     if size > commit.end and policy == "recover":
                         plan = plan_repair(source, full_scan=False, base=commit)
                     else:
-                        index = ArchiveIndex.parse(source.read(commit.index_offset, commit.index_length), commit)
-                        self._entries = {e.key: e for e in index.entries()}
+                        view = load_index(source.read, commit)
+                        self._entries = {e.key: e for e in view.entries()}
                         self._commit, self._end, self._pending = commit, commit.end, {}
+                        self._segmented = bool(parse_preamble(source.read(0, PREAMBLE_SIZE)) & FLAG_SEGMENTED)
+                        if commit.segmented:
+                            self._segments = [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
+                        elif self._segmented and commit.scene_count:  # a whole index is a segment too
+                            seg = view.segments[0]
+                            ref = SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32)
+                            self._segments = [(ref, seg.keys())]
                         discarded = size - commit.end
                 except UncommittedDataError:
                     raise
@@ -201,10 +225,14 @@ class ArchiveWriter:
             sorted(plan.copies), plan.damaged_bytes, None if plan.lost is None else plan.lost.generation,
             None if plan.lost is None else plan.lost.scene_count, final, dry_run)
         self._commit, self._entries, self._pending, self._end = base, {}, {}, plan.cut
+        self._segmented = plan.segmented or not plan.preamble_ok
+        self._segments = []  # the repaired commit is one new segment (or one whole index)
         if dry_run:
             self._dry_run = True
             return
-        if not plan.needs_commit:
+        if not plan.needs_commit:  # a plain writer over the intact base
+            self._segments = [(r, seg.keys()) for r, seg in zip(plan.view.refs, plan.view.segments)] \
+                if base.segmented else []
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
             return
@@ -327,17 +355,31 @@ class ArchiveWriter:
     def _write_commit(self) -> int:
         entries = dict(self._entries)
         entries.update(self._pending)
-        index = ArchiveIndex.build(list(entries.values()))
         generation = self.generation + 1 if self._next_generation is None else self._next_generation
         if generation > MAX_GENERATION:
             raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
                                      "copy the scenes to a new archive with `vt4d compact`")
-        new = Commit(generation, self._end, len(index), crc32(index), len(entries))
+        if self._segmented:  # version 1.1: write what changed (plus the segments it merges)
+            merge = plan_merge([r.count for r, _ in self._segments], len(self._pending))
+            keys = set(self._pending)
+            for _, seg_keys in self._segments[:merge]:
+                keys.update(seg_keys)
+            segment = ArchiveIndex.build([entries[k] for k in keys])
+            kept = self._segments[merge:]
+            ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
+            segments = [(ref, sorted(keys, key=str.encode))] + kept
+            index = pack_manifest([r for r, _ in segments], len(entries)) + segment  # one block, one read
+            new = Commit(generation, self._end, len(index), crc32(index), len(entries), FLAG_SEGMENTED)
+        else:  # version 1.0: the whole index, every commit
+            index = ArchiveIndex.build(list(entries.values()))
+            new = Commit(generation, self._end, len(index), crc32(index), len(entries))
+            segments = []
         self._pwrite_all(index, self._end)
         self._sync()  # records + index durable before the footer can be
         os.pwrite(self._fd, pack_footer(new), new.footer_offset)
         self._sync()  # <- the commit point
         self._entries, self._pending, self._commit, self._end = entries, {}, new, new.end
+        self._segments = segments
         self._next_generation = None
         self._write_slot(new)
         return new.generation

@@ -176,6 +176,20 @@ def cmd_repair(args: argparse.Namespace) -> int:
     return status
 
 
+def cmd_compact(args: argparse.Namespace) -> int:
+    from ..archive import compact_archive
+
+    major, _, minor = args.format_version.partition(".")
+    report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
+    if args.json:
+        json.dump(report.to_dict(), sys.stdout, indent=1)
+        print()
+    else:
+        print(f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
+              f"generation {report.generation}, format {report.version[0]}.{report.version[1]}")
+    return 0
+
+
 TRUNC_HELP = ("read the last intact commit of an archive whose newest commit was cut off the end "
               "(truncated file); without it such an archive is an error")
 
@@ -226,3 +240,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--dry-run", action="store_true", help="print the plan; change nothing")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_repair)
+
+    p = subparsers.add_parser("compact", help="rewrite an archive with only its live records (atomic)",
+                              description="Copy every live record (CRC-checked) into a new file with one index, "
+                              "then rename it over the archive: replaced records and old indexes are reclaimed. "
+                              "Holds the writer lock; readers see the old or the new file, never a mix.")
+    p.add_argument("archive", help="local archive path")
+    p.add_argument("--format-version", default="1.1", choices=["1.0", "1.1"],
+                   help="1.1 (default: segmented indexes) or 1.0 (readable by 1.0 readers)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_compact)
