@@ -353,8 +353,9 @@ class ArchiveWriter:
         return self._write_commit()
 
     def _write_commit(self) -> int:
-        entries = dict(self._entries)
-        entries.update(self._pending)
+        # O(changed) for 1.1: the committed entries are updated in place after the commit point
+        pending, committed = self._pending, self._entries
+        total = len(committed) + sum(1 for k in pending if k not in committed)
         generation = self.generation + 1 if self._next_generation is None else self._next_generation
         if generation > MAX_GENERATION:
             raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
@@ -364,21 +365,22 @@ class ArchiveWriter:
             keys = set(self._pending)
             for _, seg_keys in self._segments[:merge]:
                 keys.update(seg_keys)
-            segment = ArchiveIndex.build([entries[k] for k in keys])
+            segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys])
             kept = self._segments[merge:]
             ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
-            segments = [(ref, sorted(keys, key=str.encode))] + kept
-            index = pack_manifest([r for r, _ in segments], len(entries)) + segment  # one block, one read
-            new = Commit(generation, self._end, len(index), crc32(index), len(entries), FLAG_SEGMENTED)
+            segments = [(ref, list(keys))] + kept
+            index = pack_manifest([r for r, _ in segments], total) + segment  # one block, one read
+            new = Commit(generation, self._end, len(index), crc32(index), total, FLAG_SEGMENTED)
         else:  # version 1.0: the whole index, every commit
-            index = ArchiveIndex.build(list(entries.values()))
-            new = Commit(generation, self._end, len(index), crc32(index), len(entries))
+            index = ArchiveIndex.build(list({**committed, **pending}.values()))
+            new = Commit(generation, self._end, len(index), crc32(index), total)
             segments = []
         self._pwrite_all(index, self._end)
         self._sync()  # records + index durable before the footer can be
         os.pwrite(self._fd, pack_footer(new), new.footer_offset)
         self._sync()  # <- the commit point
-        self._entries, self._pending, self._commit, self._end = entries, {}, new, new.end
+        committed.update(pending)
+        self._pending, self._commit, self._end = {}, new, new.end
         self._segments = segments
         self._next_generation = None
         self._write_slot(new)
