@@ -16,6 +16,7 @@ validation pass; lookup is a binary search over the key blob (O(log n)).
 
 from __future__ import annotations
 
+import operator
 import struct
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Sequence
@@ -101,7 +102,7 @@ class IndexEntry:
 class ArchiveIndex:
     """A parsed, validated index block.  Immutable; build new ones with :meth:`build`."""
 
-    def __init__(self, table: np.ndarray, keys_blob: bytes, summaries_blob: bytes):
+    def __init__(self, table: np.ndarray, keys_blob: bytes, summaries_blob: bytes | memoryview):
         self._table = table
         self._keys = keys_blob
         self._summaries = summaries_blob
@@ -164,7 +165,7 @@ class ArchiveIndex:
             )
         table = np.frombuffer(data, dtype=ENTRY_DTYPE, count=count, offset=INDEX_HEADER_SIZE)
         keys_blob = data[table_end: table_end + keys_len]
-        summaries_blob = data[table_end + keys_len:]
+        summaries_blob = memoryview(data)[table_end + keys_len:]  # no copy: sliced on access
         cls._validate(table, keys_blob, summaries_blob, index_offset)
         return cls(table, keys_blob, summaries_blob)
 
@@ -194,21 +195,22 @@ class ArchiveIndex:
             raise ArchiveError("index entry offset lies outside the record area (past the end?)")
         if np.any(length > np.uint64(index_offset) - off):
             raise ArchiveError("index entry runs past the start of its index (offset + length past the end)")
-        order = np.argsort(off, kind="stable")
-        so, sl = off[order].astype(np.int64), length[order].astype(np.int64)
+        if n > 1 and np.all(off[1:] >= off[:-1]):  # written in key order: no sort needed
+            so, sl = off.astype(np.int64), length.astype(np.int64)
+        else:
+            order = np.argsort(off, kind="stable")
+            so, sl = off[order].astype(np.int64), length[order].astype(np.int64)
         if n > 1 and np.any(so[1:] < so[:-1] + sl[:-1]):
             raise OverlappingRecordsError("index entries point at overlapping records")
-        prev = None
-        for i in range(n):
-            start = int(expected_koff[i])
-            k = keys[start: start + int(klen[i])]
-            if prev is not None and k <= prev:
-                if k == prev:
-                    raise DuplicateKeyError(f"duplicate key {k.decode(errors='replace')!r} in the index")
-                raise ArchiveError("index keys are not sorted")
-            prev = k
-        for i in (0, n - 1):  # keys are cheap to check fully; do it on access too
-            _decode_key(keys[int(expected_koff[i]): int(expected_koff[i] + klen[i])])
+        bounds = expected_koff.tolist() + [len(keys)]
+        ks = [keys[a:b] for a, b in zip(bounds, bounds[1:])]
+        if not all(map(operator.lt, ks, ks[1:])):  # strictly increasing (C-level comparison)
+            i = next(i for i in range(1, n) if ks[i] <= ks[i - 1])
+            if ks[i] == ks[i - 1]:
+                raise DuplicateKeyError(f"duplicate key {ks[i].decode(errors='replace')!r} in the index")
+            raise ArchiveError("index keys are not sorted")
+        for k in (ks[0], ks[-1]):  # keys are cheap to check fully; do it on access too
+            _decode_key(k)
 
     # -- queries -----------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -243,7 +245,7 @@ class ArchiveIndex:
         return None
 
     def summary_bytes(self, i: int) -> bytes:
-        return self._summaries[self._summary_bounds[i]: self._summary_bounds[i + 1]]
+        return bytes(self._summaries[self._summary_bounds[i]: self._summary_bounds[i + 1]])
 
     def entry(self, i: int) -> IndexEntry:
         return IndexEntry(self.key(i), self._offsets[i], self._lengths[i], self._crcs[i], self.summary_bytes(i))
