@@ -7,6 +7,7 @@ for 1.8 MB of scenes).  Now a commit writes a segment of its keys plus the small
 import os
 import struct
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
@@ -237,3 +238,44 @@ def test_real_scenes_in_a_segmented_archive_verify(tmp_path):
     verify_archive(path)
     with open_archive(path) as ar:
         assert ar.read_bytes("s3") == scene_record(3)
+
+
+# --- prefix-coded summaries (1.1 segments) ---------------------------------------------------------
+def test_prefix_coded_summaries_round_trip_and_shrink_the_index(tmp_path):
+    from vt4dcodec.archive.examples import example_record
+    from vt4dcodec.archive.records import summarize_payload
+
+    rec = example_record(1, static_shape=(8, 4), dynamic_shape=(4, 4), frames=2)
+    base = summarize_payload(rec)
+    sizes = {}
+    for version in ((1, 0), (1, 1)):
+        path = tmp_path / f"v{version[1]}.vt4da"
+        with ArchiveWriter(path, "w", durable=False, version=version) as w:
+            for i in range(100):
+                w.append(f"s{i:03d}", rec, summary={**base, "source_capture_id": f"cap-{i}"}, validate=False)
+        with open_archive(path) as ar:
+            sizes[version] = ar.commit.index_length
+            assert [ar.summary(f"s{i:03d}")["source_capture_id"] for i in range(100)] == [f"cap-{i}" for i in range(100)]
+            assert ar.summary("s050")["fingerprint"] == base["fingerprint"]
+        verify_archive(path, containers=False)  # frame summary bytes == decoded index summary bytes
+    assert sizes[(1, 1)] < sizes[(1, 0)] / 2.5
+
+
+@pytest.mark.parametrize("edit", ["restart", "too_long", "flag_in_1_0", "reserved_without_flag"])
+def test_hostile_summary_prefixes_are_rejected(tmp_path, edit):
+    from vt4dcodec.archive.index import ENTRY_DTYPE, ArchiveIndex, IndexEntry
+
+    entries = [IndexEntry(f"k{i:02d}", 192 + 100 * i, 10, 0, b"\x82\xa1a\xa8abcdefgh\xa1b" + bytes([0xa0 + 1]) + bytes([65 + i]))
+               for i in range(20)]
+    block = bytearray(ArchiveIndex.build(entries, prefix=True))
+    table = np.frombuffer(block, ENTRY_DTYPE, 20, 32).copy()
+    assert table["flags"][1] == 1 and table["flags"][0] == 0 and table["flags"][16] == 0
+    if edit == "restart":
+        table["flags"][16], table["reserved"][16] = 1, 1
+    elif edit == "too_long":
+        table["reserved"][1] = table["summary_len"][0] + 1
+    elif edit == "reserved_without_flag":
+        table["reserved"][0] = 3
+    block[32: 32 + 48 * 20] = table.tobytes()
+    with pytest.raises(ArchiveError):
+        ArchiveIndex.parse_unchecked(bytes(block), 10_000, 20, prefix=edit != "flag_in_1_0")

@@ -186,23 +186,29 @@ def _slot_commits(data: bytes):
     return out
 
 
-def _index(data: bytes, at: int, length: int, bound: int) -> dict[bytes, tuple[int, int, int]]:
-    """Section 5.1/5.2: key -> (payload offset, length, crc); payloads must end by ``bound``."""
+def _index(data: bytes, at: int, length: int, bound: int, segment: bool) -> dict[bytes, tuple]:
+    """Sections 5.1/5.2 (+ 5.5 prefix-coded summaries in segments): key -> (payload offset, length,
+    crc, summary bytes); payloads must end by ``bound``."""
     block = data[at:at + length]
     magic, esize, n, kb, sb = struct.unpack_from("<4sIQQQ", block)
     if magic != b"V4AI" or esize != 48 or 32 + 48 * n + kb + sb != len(block):
         raise Rejected("ArchiveError")
     keys, out, koff, soff, prev, spans = block[32 + 48 * n:32 + 48 * n + kb], {}, 0, 0, None, []
+    blob, summary = block[32 + 48 * n + kb:], b""
     for i in range(n):
         poff, plen, pcrc, klen, flags, ko, so, slen, res = struct.unpack_from("<QQIHHQQII", block, 32 + 48 * i)
-        if flags or res or klen < 1 or ko != koff or so != soff or slen > 65536:
+        prefixed = segment and flags == 1
+        if (flags and not prefixed) or (res and not prefixed) or klen < 1 or ko != koff or so != soff or slen > 65536:
             raise Rejected("ArchiveError")
+        if prefixed and (i % 16 == 0 or not 1 <= res <= min(slen, len(summary))):
+            raise Rejected("ArchiveError")
+        summary = (summary[:res] if prefixed else b"") + blob[so:so + slen - res]
         if poff < 192 or poff > bound or plen > bound - poff:
             raise Rejected("ArchiveError")
         key = keys[ko:ko + klen]
         if prev is not None and key <= prev:
             raise Rejected("DuplicateKeyError" if key == prev else "ArchiveError")
-        out[key], prev, koff, soff = (poff, plen, pcrc), key, koff + klen, soff + slen
+        out[key], prev, koff, soff = (poff, plen, pcrc, summary), key, koff + klen, soff + slen - res
         spans.append((poff, plen))
     spans.sort()
     if any(a + n > b for (a, n), (b, _) in zip(spans, spans[1:])):
@@ -237,7 +243,7 @@ def read_archive(data: bytes) -> tuple[int, dict[str, bytes]]:
     if not cflags & 1:
         if struct.unpack_from("<Q", data, ioff + 8)[0] > 2**24:
             raise Rejected("LimitExceededError")
-        entries = _index(data, ioff, ilen, ioff)
+        entries = _index(data, ioff, ilen, ioff, segment=False)
     else:  # section 5.5: manifest + newest segment, older segments newest first
         magic, m, total = struct.unpack_from("<4sIQ", data, ioff)
         if magic != b"V4AM" or not 1 <= m <= 64 or total != count:
@@ -252,15 +258,18 @@ def read_archive(data: bytes) -> tuple[int, dict[str, bytes]]:
             limit = off if k else limit
             if zlib.crc32(data[off:off + length]) != crc:
                 raise Rejected("IndexChecksumError")
-            for key, value in _index(data, off, length, off).items():
+            for key, value in _index(data, off, length, off, segment=True).items():
                 entries.setdefault(key, value)  # the newest segment holding a key wins
     if len(entries) != count:
         raise Rejected("ArchiveError")
     out = {}
-    for key, (poff, plen, pcrc) in entries.items():  # step 7
+    for key, (poff, plen, pcrc, summary) in entries.items():  # step 7
         payload = data[poff:poff + plen]
         if zlib.crc32(payload) != pcrc:
             raise Rejected("RecordChecksumError")
+        # verify (5.3, section 4): the frame before the payload holds the same key and summary bytes
+        if data[poff - len(summary):poff] != summary or data[poff - len(summary) - len(key):poff - len(summary)] != key:
+            raise Rejected("ArchiveError")
         out[key.decode()] = payload
     return gen, out
 

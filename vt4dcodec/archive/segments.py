@@ -192,7 +192,7 @@ def load_index(read, commit: Commit) -> IndexView:
         raw = data[manifest_length(len(refs)):] if k == 0 else read(r.offset, r.length)
         if crc32(raw) != r.crc32:
             raise IndexChecksumError(f"index segment at offset {r.offset} fails its checksum (corrupted index)")
-        segments.append(ArchiveIndex.parse_unchecked(raw, r.offset, r.count))
+        segments.append(ArchiveIndex.parse_unchecked(raw, r.offset, r.count, prefix=True))
     return IndexView(segments, commit.scene_count, refs)
 
 

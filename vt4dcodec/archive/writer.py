@@ -21,7 +21,7 @@ import os
 from typing import Any, Literal
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
-from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary
+from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary, shared_first
 from .layout import (FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
                      VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
                      parse_preamble, parse_slot)
@@ -323,6 +323,8 @@ class ArchiveWriter:
             payload = bytes(record)
         if summary is None:
             summary = summarize_payload(payload) if validate else {"bytes": len(payload)}
+        if self._segmented:  # per-scene fields last: index segments prefix-code the shared rest
+            summary = shared_first(summary)
         return self._append_raw(key, payload, encode_summary(summary))
 
     def _append_raw(self, key: str, payload: bytes, summary_raw: bytes) -> IndexEntry:
@@ -365,7 +367,7 @@ class ArchiveWriter:
             keys = set(self._pending)
             for _, seg_keys in self._segments[:merge]:
                 keys.update(seg_keys)
-            segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys])
+            segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys], prefix=True)
             kept = self._segments[merge:]
             ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
             segments = [(ref, list(keys))] + kept
