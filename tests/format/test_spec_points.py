@@ -77,3 +77,30 @@ def test_no_control_characters_means_c0_and_del(text, ok):
     else:
         with pytest.raises(MalformedHeaderError):
             ModelFingerprint.from_dict(args)
+
+
+def test_declared_raw_lengths_are_bounded_by_the_header_before_decompression():
+    """Issue 15 defect 8: an 18 KB scene with two zstd sections of zeros declaring 256 MiB each made
+    `load` allocate ~1 GB.  Now raw lengths are checked against the header before decompressing."""
+    import tracemalloc
+
+    import zstandard
+
+    from vt4dcodec.errors import MalformedSectionError
+
+    header, sections = MV.split(dumps(simple_scene(encoding="int8")))
+    size = 64 << 20
+    bomb = zstandard.ZstdCompressor(level=19).compress(bytes(size))
+    for name in ("ZSTA", "ZDYN"):
+        s = MV.find(sections, name)
+        s[2], s[3], s[4] = 1, bomb, size  # zstd, stored bytes, raw_length
+    data = MV.rebuild(header, sections)
+    assert len(data) < 64_000
+    tracemalloc.start()
+    try:
+        with pytest.raises(MalformedSectionError, match="header implies"):
+            loads(data)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 << 20, peak
