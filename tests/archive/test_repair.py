@@ -297,3 +297,36 @@ def test_repair_never_reduces_the_verifiable_committed_scenes(tmp_path_factory, 
             assert ar.read_bytes(k) == want, f"{k}: not the newest committed version"
     if report.full_scan:  # every record was checked: the result verifies end to end
         verify_archive(path, containers=False)
+
+
+def test_encode_style_writer_that_fails_before_its_commit_leaves_nothing(tmp_path):
+    """`vt4d encode --archive` opens ArchiveWriter(shard), appends, and closes with commit=False in a
+    finally block: a failure before its commit must not leave an empty archive and a lock behind."""
+    shard = tmp_path / "shards" / "train.vt4da"
+    shard.parent.mkdir()
+    with pytest.raises(ArchiveError):
+        writer = ArchiveWriter(shard)
+        try:
+            writer.append("a", payload_for("a", 10), validate=False)
+            writer.append("bad key/", b"x", validate=False)  # fails mid-encode
+        finally:
+            writer.close(commit=False)
+    assert os.listdir(shard.parent) == []
+    writer = ArchiveWriter(shard)  # the retry starts clean and succeeds
+    writer.append("a", payload_for("a", 10), validate=False)
+    writer.commit()
+    writer.close(commit=False)
+    assert _readable(shard) == {"a": payload_for("a", 10)}
+
+
+def test_repair_with_nothing_to_do_keeps_a_version_1_1_writer_whole(tmp_path):
+    path = tmp_path / "a.vt4da"
+    _single = [("k%d" % i, payload_for(str(i), 20)) for i in range(6)]
+    for key, data in _single:
+        with ArchiveWriter(path, durable=False) as w:
+            w.append(key, data, validate=False)
+    report = repair_archive(str(path), full_scan=True)
+    assert report.new_generation is None and report.complete
+    with ArchiveWriter(path, durable=False) as w:
+        w.append("new", payload_for("new", 5), validate=False)
+    assert _readable(path) == dict(_single) | {"new": payload_for("new", 5)}

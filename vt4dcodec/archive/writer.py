@@ -186,12 +186,7 @@ class ArchiveWriter:
                         self._entries = {e.key: e for e in view.entries()}
                         self._commit, self._end, self._pending = commit, commit.end, {}
                         self._segmented = bool(parse_preamble(source.read(0, PREAMBLE_SIZE)) & FLAG_SEGMENTED)
-                        if commit.segmented:
-                            self._segments = [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
-                        elif self._segmented and commit.scene_count:  # a whole index is a segment too
-                            seg = view.segments[0]
-                            ref = SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32)
-                            self._segments = [(ref, seg.keys())]
+                        self._segments = self._segments_of(commit, view)
                         discarded = size - commit.end
                 except UncommittedDataError:
                     raise
@@ -231,8 +226,7 @@ class ArchiveWriter:
             self._dry_run = True
             return
         if not plan.needs_commit:  # a plain writer over the intact base
-            self._segments = [(r, seg.keys()) for r, seg in zip(plan.view.refs, plan.view.segments)] \
-                if base.segmented else []
+            self._segments = self._segments_of(base, plan.view)
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
             return
@@ -251,6 +245,15 @@ class ArchiveWriter:
         self._next_generation = plan.new_generation
         self._write_commit()
         self.repair_report.new_generation = self._commit.generation
+
+    def _segments_of(self, commit: Commit, view) -> list[tuple[SegmentRef, list[str]]]:
+        """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment)."""
+        if commit.segmented:
+            return [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
+        if self._segmented and commit.scene_count:
+            seg = view.segments[0]
+            return [(SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32), seg.keys())]
+        return []
 
     def _find_commit(self, source: LocalSource, allow_truncated: bool) -> Commit:
         commit, at_tail = find_commit(source, allow_truncated=allow_truncated)
