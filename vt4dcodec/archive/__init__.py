@@ -4,7 +4,7 @@ Reading::
 
     from vt4dcodec.archive import open_archive
     with open_archive("scenes.vt4da") as ar:        # or "http://host/scenes.vt4da", "memory://x"
-        scene = ar.load("scene-000042")              # 2 reads to open, 1 read per scene
+        scene = ar.load("scene-000042")              # 3 reads to open, 1 read per scene
 
 Writing (one writer at a time; readers see the last commit)::
 

@@ -7,7 +7,9 @@ Write protocol (normative text in FORMAT.md, Part II):
    so readers that find no footer at the tail still find the last commit.
 3. Append record frames after the last footer (pending, not yet visible).
 4. ``commit()``: write the new index block, fsync; write the new 64-byte footer, fsync - **this
-   fsync is the commit point**; then write the other header slot to point at it, fsync.
+   fsync is the commit point**; then write the other header slot to point at it, fsync.  In a
+   version 1.1 archive the index block is a manifest + one segment holding only the keys this commit
+   changed (plus the small segments it merges, see ``segments.py``), so a commit costs what changed.
 
 A writer killed at any instant leaves the file readable at its last commit: either the tail is that
 commit's footer, or it is not and a header slot points at it (step 2).  Torn frames after the last
