@@ -16,6 +16,17 @@ __all__ = ["ModelFingerprint", "Provenance", "PROVENANCE_KINDS"]
 PROVENANCE_KINDS = ("encoded", "generated")
 _PRINTABLE = re.compile(r"[^\x00-\x1f\x7f]+")
 _UTC = re.compile(r"\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z")
+
+
+def _check_calendar(stamp: str) -> None:
+    """``created_utc`` must name a real UTC instant (FORMAT.md "Text"): 2026-02-30 and 24:00 are out."""
+    import datetime
+
+    try:
+        datetime.datetime.strptime(stamp[:19], "%Y-%m-%dT%H:%M:%S")
+    except ValueError:
+        raise MalformedHeaderError(f"provenance.created_utc {stamp!r:.44} is not a valid calendar date and "
+                                   "time (ISO-8601 UTC, seconds 00-59)") from None
 _DTYPE = re.compile(r"[a-z][a-z0-9_]{0,31}")
 _FINGERPRINT_KEYS = {"model_id", "model_version", "config_sha256", "weights_sha256", "static_shape",
                      "dynamic_shape", "token_dtype"}
@@ -107,6 +118,7 @@ class Provenance:
                     hint="control characters")
         require_str(self.created_utc, "provenance.created_utc", max_chars=40, pattern=_UTC,
                     hint="expected ISO-8601 UTC like 2026-01-31T12:00:00Z")
+        _check_calendar(self.created_utc)
         if self.source_capture_id is not None:
             require_str(self.source_capture_id, "provenance.source_capture_id", pattern=_PRINTABLE,
                         hint="control characters")
