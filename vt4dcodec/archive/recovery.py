@@ -31,7 +31,7 @@ from .index import IndexEntry, decode_summary
 from .layout import (ARCHIVE_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
                      INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
                      MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
-                     check_key, crc32, frame_meta_crc, parse_footer, parse_frame_header, parse_preamble,
+                     check_key, frame_meta_crc, parse_footer, parse_frame_header, parse_preamble,
                      parse_slot)
 from .segments import IndexView, load_index
 from .source import ByteSource

@@ -28,7 +28,7 @@ from .layout import (FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE,
                      VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
                      parse_preamble, parse_slot)
 from .lock import WriterLock
-from .reader import ArchiveTruncatedError, NoCommitError, best_slot, find_commit
+from .reader import best_slot, find_commit
 from .recovery import RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
 from .segments import SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
