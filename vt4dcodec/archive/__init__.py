@@ -20,10 +20,10 @@ from .index import ArchiveIndex, DuplicateKeyError, IndexChecksumError, IndexEnt
 from .layout import ARCHIVE_EXTENSION, ARCHIVE_MAGIC, Commit, check_key
 from .lock import WriterLock
 from .reader import ArchiveReader, ArchiveTruncatedError, NoCommitError, RecordChecksumError, open_archive
-from .recovery import ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair, repair_archive, scan_records
+from .recovery import ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair, scan_records
 from .source import BytesSource, FsspecSource, LocalSource, open_source
 from .verify import UncommittedTailError, verify_archive
-from .writer import ArchiveWriter, UncommittedDataError, create_archive
+from .writer import ArchiveWriter, UncommittedDataError, create_archive, repair_archive
 
 __all__ = [
     "ARCHIVE_MAGIC", "ARCHIVE_EXTENSION", "ArchiveReader", "ArchiveWriter", "ArchiveIndex", "IndexEntry",

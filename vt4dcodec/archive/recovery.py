@@ -20,7 +20,6 @@ next frame or index magic and carries on, so one flipped bit never hides the rec
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from typing import Any
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
 from .index import IndexEntry, decode_summary
-from .layout import (ARCHIVE_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
+from .layout import (FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
                      INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
                      MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
                      check_key, frame_meta_crc, parse_footer, parse_frame_header, parse_preamble,
@@ -36,11 +35,11 @@ from .layout import (ARCHIVE_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC,
 from .segments import IndexView, load_index
 from .source import ByteSource
 
-__all__ = ["ScanResult", "scan_records", "RepairPlan", "plan_repair", "RepairReport", "repair_archive",
+__all__ = ["ScanResult", "scan_records", "RepairPlan", "plan_repair", "RepairReport",
            "ArchiveNotFoundError"]
 
 _SCAN_CHUNK = 1 << 20  # frames are read whole; only the 32-byte heads are read speculatively
-_SCENE_MAGIC_PREFIX = b"\x89VT4D"
+SCENE_MAGIC_PREFIX = b"\x89VT4D"  # a single-scene .vt4d file, never an archive
 
 
 class ArchiveNotFoundError(ArchiveError, FileNotFoundError):
@@ -346,39 +345,3 @@ class RepairReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.__dict__, "complete": self.complete}
-
-
-def _check_repairable(path: str, full_scan: bool) -> None:
-    if not os.path.exists(path):
-        raise ArchiveNotFoundError(f"{path}: no such archive (repair never creates one; check the path)")
-    with open(path, "rb") as f:
-        head = f.read(len(ARCHIVE_MAGIC))
-    if head.startswith(_SCENE_MAGIC_PREFIX):
-        raise ArchiveError(f"{path} is a single-scene .vt4d file, not an archive; use `vt4d verify` on it")
-    if head != ARCHIVE_MAGIC and not full_scan:
-        raise ArchiveError(f"{path} does not start with the archive magic; if it is a damaged archive, "
-                           "run `vt4d repair --full-scan --dry-run` to see what can be recovered")
-
-
-def repair_archive(path: str | os.PathLike, *, full_scan: bool = False, dry_run: bool = False) -> RepairReport:
-    """Make an archive end in a valid commit again, never dropping a record that verifies.
-
-    The last commit is kept; complete, checksum-valid records written after it (damaged bytes
-    skipped) are added to a new commit; torn bytes after the last valid structure are cut off.  A
-    truncated archive, or one with no usable commit, is repaired as with ``full_scan``: the newest
-    commit whose index verifies is the base, its records are each checked, and the report lists the
-    keys that could not be recovered (``unrecoverable``) and any commit lost to truncation.  With
-    ``dry_run`` nothing is written and the report is the plan.
-    """
-    from .writer import ArchiveWriter
-
-    path = os.fspath(path)
-    _check_repairable(path, full_scan)
-    w = ArchiveWriter(path, mode="a", on_uncommitted="recover", full_scan=full_scan, dry_run=dry_run,
-                      _repair=True)
-    try:
-        report = w.repair_report
-    finally:
-        w.close()
-    assert report is not None
-    return report

@@ -24,17 +24,17 @@ from typing import Any, Literal
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
 from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary, shared_first
-from .layout import (FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
+from .layout import (ARCHIVE_MAGIC, FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
                      VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
                      parse_preamble, parse_slot)
 from .lock import WriterLock
 from .reader import best_slot, find_commit
-from .recovery import RepairPlan, RepairReport, plan_repair
+from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
 from .segments import SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
-__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive"]
+__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive"]
 
 Policy = Literal["error", "recover", "discard"]
 
@@ -433,3 +433,37 @@ class ArchiveWriter:
 
     def __repr__(self) -> str:
         return f"ArchiveWriter({self.path!r}, committed={len(self._entries)}, pending={len(self._pending)})"
+
+
+def _check_repairable(path: str, full_scan: bool) -> None:
+    if not os.path.exists(path):
+        raise ArchiveNotFoundError(f"{path}: no such archive (repair never creates one; check the path)")
+    with open(path, "rb") as f:
+        head = f.read(len(ARCHIVE_MAGIC))
+    if head.startswith(SCENE_MAGIC_PREFIX):
+        raise ArchiveError(f"{path} is a single-scene .vt4d file, not an archive; use `vt4d verify` on it")
+    if head != ARCHIVE_MAGIC and not full_scan:
+        raise ArchiveError(f"{path} does not start with the archive magic; if it is a damaged archive, "
+                           "run `vt4d repair --full-scan --dry-run` to see what can be recovered")
+
+
+def repair_archive(path: str | os.PathLike, *, full_scan: bool = False, dry_run: bool = False) -> RepairReport:
+    """Make an archive end in a valid commit again, never dropping a record that verifies.
+
+    The last commit is kept; complete, checksum-valid records written after it (damaged bytes
+    skipped) are added to a new commit; torn bytes after the last valid structure are cut off.  A
+    truncated archive, or one with no usable commit, is repaired as with ``full_scan``: the newest
+    commit whose index verifies is the base, its records are each checked, and the report lists the
+    keys that could not be recovered (``unrecoverable``) and any commit lost to truncation.  With
+    ``dry_run`` nothing is written and the report is the plan.
+    """
+    path = os.fspath(path)
+    _check_repairable(path, full_scan)
+    w = ArchiveWriter(path, mode="a", on_uncommitted="recover", full_scan=full_scan, dry_run=dry_run,
+                      _repair=True)
+    try:
+        report = w.repair_report
+    finally:
+        w.close()
+    assert report is not None
+    return report
