@@ -1,7 +1,8 @@
 #!/usr/bin/env python
-"""Archive benchmark: random-read cost vs archive size, and sequential read throughput.
+"""Archive benchmark: random-read cost vs archive size, sequential read throughput, commit growth.
 
     python bench/bench_archive.py [--sizes 1000 10000 100000] [--reads 2000] [--workdir /tmp/...]
+    python bench/bench_archive.py --growth 10000 [--growth-v10 1000]   # -> bench/results/archive_growth.json
 
 1. For each size N, pack N scenes (real ``.vt4d`` records, 96x64 static + 48x64 dynamic int8 tokens,
    4 frames, ~11 KB; drawn from a pool of 64 distinct records so packing is I/O bound) into one
@@ -13,7 +14,13 @@
 2. Sequential training read of 1,000 scenes: archive (open_scene + dequantize both token sets per
    scene, in file order) vs the same scenes as 1,000 separate ``.vt4d`` files.
 
-Writes ``bench/results/archive.json``; archives live in the workdir and are deleted afterwards.
+3. ``--growth N``: N single-scene commits (one ``append`` + ``commit`` each, the same records) into a
+   version 1.1 archive, and ``--growth-v10`` commits into a version 1.0 archive (whole index per
+   commit) for comparison: file size against the payload and one index, commit time per 1,000
+   commits (median, mean, p99, max), open time of the result, and the size after ``compact``.
+
+Writes ``bench/results/archive.json`` (or ``archive_growth.json``); archives live in the workdir and
+are deleted afterwards.
 Timings are with a warm page cache (the archives were just written) on a shared 2-core machine.
 """
 
@@ -33,7 +40,8 @@ import numpy as np
 
 from vt4dcodec.archive import ArchiveWriter, open_archive
 from vt4dcodec.archive.examples import example_record
-from vt4dcodec.archive.layout import FOOTER_SIZE
+from vt4dcodec.archive import compact_archive
+from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE
 from vt4dcodec.archive.records import summarize_payload
 from vt4dcodec.format import open_scene
 
@@ -66,7 +74,7 @@ def random_reads(path: str, n: int, reads: int, seed: int = 0) -> dict:
     ar = open_archive(path)
     open_s = time.perf_counter() - t0
     open_reads, open_bytes = ar.source.reads, ar.source.bytes_read
-    assert open_bytes == FOOTER_SIZE + ar.commit.index_length
+    assert open_bytes == HEADER_SIZE + FOOTER_SIZE + ar.commit.index_length
     rng = random.Random(seed)
     round_medians, times, extra = [], [], []
     for _ in range(ROUNDS):  # the machine is shared: keep the quietest round's median too
@@ -92,7 +100,7 @@ def random_reads(path: str, n: int, reads: int, seed: int = 0) -> dict:
     times.sort()
     return {
         "read_us_cache_flushed_median": statistics.median(cold) * 1e6, "cache_flushed_reads": len(cold),
-        "scenes": n, "file_bytes": os.path.getsize(path), "index_bytes": open_bytes - FOOTER_SIZE,
+        "scenes": n, "file_bytes": os.path.getsize(path), "index_bytes": open_bytes - FOOTER_SIZE - HEADER_SIZE,
         "open_ms": open_s * 1e3, "open_reads": open_reads, "open_bytes": open_bytes,
         "reads_timed": len(times),
         "read_us_mean": statistics.fmean(times) * 1e6, "read_us_median": times[len(times) // 2] * 1e6,
@@ -143,15 +151,85 @@ def sequential(workdir: str, archive: str, n: int) -> dict:
     return result
 
 
+def _open_ms(path: str, repeats: int = 7) -> tuple[float, int, float]:
+    """(best, reads, median) over ``repeats`` opens (the machine is shared: report both)."""
+    times, reads = [], 0
+    for _ in range(repeats):
+        t = time.perf_counter()
+        with open_archive(path) as ar:
+            times.append(time.perf_counter() - t)
+            reads = ar.source.reads
+    return min(times) * 1e3, reads, statistics.median(times) * 1e3
+
+
+def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, dict]]) -> dict:
+    """n single-scene commits; commit times per 1,000; file size vs payload + one index."""
+    times = []
+    payload = 0
+    with ArchiveWriter(path, "w", durable=False, version=version) as w:
+        for i in range(n):
+            rec, summary = pool[i % POOL]
+            t = time.perf_counter()
+            w.append(f"scene-{i:07d}", rec, summary=summary, validate=False)
+            w.commit()
+            times.append(time.perf_counter() - t)
+            payload += len(rec)
+    buckets = []
+    for b in range(0, n, 1000):
+        chunk = sorted(times[b: b + 1000])
+        buckets.append({"commits": f"{b + 1}-{b + len(chunk)}", "median_ms": statistics.median(chunk) * 1e3,
+                        "mean_ms": statistics.fmean(chunk) * 1e3, "p99_ms": chunk[int(len(chunk) * 0.99)] * 1e3,
+                        "max_ms": chunk[-1] * 1e3})
+    file_bytes = os.path.getsize(path)
+    open_ms, open_reads, open_median = _open_ms(path)
+    with open_archive(path) as ar:
+        segments = len(ar.index.segments)
+    report = compact_archive(path, version=version, durable=False)
+    with open_archive(path) as ar:  # one index: what the compacted archive's single index holds
+        one_index = ar.commit.index_length
+    return {"version": f"{version[0]}.{version[1]}", "commits": n, "payload_bytes": payload,
+            "file_bytes": file_bytes, "one_index_bytes": one_index,
+            "file_over_payload": file_bytes / payload,
+            "file_over_payload_plus_one_index": file_bytes / (payload + one_index),
+            "bound_1_5x_payload_plus_one_index": 1.5 * payload + one_index,
+            "within_bound": file_bytes <= 1.5 * payload + one_index,
+            "segments_at_end": segments, "open_ms_best_of_7": open_ms, "open_ms_median_of_7": open_median,
+            "open_reads": open_reads,
+            "compacted_bytes": report.bytes_after, "commit_time_per_1000": buckets,
+            "commit_ms_total": sum(times) * 1e3}
+
+
+def main_growth(args: argparse.Namespace, pool: list[tuple[bytes, dict]]) -> None:
+    results = {"record_bytes": len(pool[0][0]), "pool": POOL, "python": sys.version.split()[0],
+               "machine": platform.machine(), "cpus": os.cpu_count(), "durable": False,
+               "command": "python bench/bench_archive.py " + " ".join(sys.argv[1:]), "runs": []}
+    try:
+        for n, version in ((args.growth, (1, 1)), (args.growth_v10, (1, 0))):
+            if n:
+                r = growth(os.path.join(args.workdir, f"g{version[1]}.vt4da"), n, version, pool)
+                results["runs"].append(r)
+                print(json.dumps({k: v for k, v in r.items() if k != "commit_time_per_1000"}))
+    finally:
+        shutil.rmtree(args.workdir, ignore_errors=True)
+    out = os.path.join(HERE, "results", "archive_growth.json")
+    with open(out, "w") as f:
+        json.dump(results, f, indent=1)
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
+    ap.add_argument("--growth", type=int, default=0, metavar="N", help="N single-scene commits (version 1.1)")
+    ap.add_argument("--growth-v10", type=int, default=0, metavar="N", help="N single-scene commits (version 1.0)")
     ap.add_argument("--reads", type=int, default=2000)
     ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "archive.json"))
     args = ap.parse_args()
     os.makedirs(args.workdir, exist_ok=True)
     pool = _pool()
+    if args.growth or args.growth_v10:
+        return main_growth(args, pool)
     results = {"record_bytes": len(pool[0][0]), "pool": POOL, "python": sys.version.split()[0],
                "machine": platform.machine(), "cpus": os.cpu_count(), "random_read": [], "command":
                "python bench/bench_archive.py " + " ".join(sys.argv[1:])}
@@ -161,6 +239,7 @@ def main() -> None:
             pack_s = pack(path, n, pool)
             r = random_reads(path, n, args.reads)
             r["pack_scenes_per_s"] = n / pack_s
+            r["open_ms_best_of_7"], _, r["open_ms_median_of_7"] = _open_ms(path)
             results["random_read"].append(r)
             print(json.dumps(r))
             if n != min(args.sizes):

@@ -44,7 +44,7 @@ import zstandard
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
-from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, dumps, load, open_scene, save  # noqa: E402
+from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, dumps, load, open_scene  # noqa: E402
 from vt4dcodec.format import rans  # noqa: E402
 from vt4dcodec.format.encodings import V1_0_ENCODINGS  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Co4DGen evaluation (issue #8 item 5): quality of views rendered from one prior sample against the
+"""Co4DGen evaluation: quality of views rendered from one prior sample against the
 ground truth of held-out scenes, and the time for 9 views from one sample against 9 independent samples.
 
     python bench/bench_prior.py --shards data/co4dgen_test --prior co4dgen-tiny

@@ -1,4 +1,4 @@
-"""The frozen latent autoencoder (issue #5 item 1): stands in for the paper's VA-VAE encoder and
+"""The frozen latent autoencoder: it stands in for the paper's VA-VAE encoder and
 VideoDCAE decoder, which cannot be downloaded here.
 
 A per-frame convolutional autoencoder: RGB (3, H, W) in [0, 1] -> latent X_t (C, H/f, W/f) -> RGB.

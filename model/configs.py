@@ -18,7 +18,12 @@ from typing import Any
 
 from vt4dcodec.errors import ModelError
 
-__all__ = ["ModelConfig", "get_config", "CONFIG_NAMES"]
+__all__ = ["ModelConfig", "get_config", "CONFIG_NAMES", "PREDICTIONS"]
+
+PREDICTIONS = ("velocity", "x0")
+_UNSET = object()
+# fields added after models were shipped -> the default that reproduces the earlier behaviour
+_LATER_FIELDS: dict[str, Any] = {"prediction": "velocity"}
 
 
 @dataclass(frozen=True)
@@ -37,6 +42,10 @@ class ModelConfig:
         n_static (N_s), n_dynamic (N_d), token_dim (d), n_tracks (N, tracks fed to the Temporal Branch),
         token_noise (half-width of the uniform noise added to bounded tokens in training, in token units;
         1/254 matches int8 storage with scale 1/127).
+    Renderer output:
+        prediction: "velocity" -- the network outputs v (paper Eq. 2); "x0" -- it outputs the clean
+        target latent X0_hat and v = (Y^tau - X0_hat) / tau. With "x0" a one-step render is the
+        network's output itself, and training never has to learn to pass the input noise through.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -66,6 +75,7 @@ class ModelConfig:
     unified_tokens: bool = False
     motion_isolation: bool = True
     track_attention: bool = True
+    prediction: str = "velocity"
 
     def __post_init__(self) -> None:
         positive = ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width", "patch_size",
@@ -83,6 +93,8 @@ class ModelConfig:
             raise ModelError("image_size must be divisible by ae_downsample * patch_size")
         if self.width % self.heads:
             raise ModelError(f"width {self.width} is not divisible by heads {self.heads}")
+        if self.prediction not in PREDICTIONS:
+            raise ModelError(f"config prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 
@@ -113,8 +125,10 @@ class ModelConfig:
         return dataclasses.asdict(self)
 
     def canonical_json(self) -> str:
-        """Sorted keys, no whitespace: the bytes the fingerprint hashes."""
-        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        """Sorted keys, no whitespace: the bytes the fingerprint hashes. Fields added after models were
+        shipped are left out while they hold their original default, so older configs keep their hash."""
+        data = {k: v for k, v in self.to_dict().items() if _LATER_FIELDS.get(k, _UNSET) != v}
+        return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
     def sha256(self) -> str:
         return hashlib.sha256(self.canonical_json().encode("utf-8")).hexdigest()

@@ -2,7 +2,7 @@
 
 Optical flow F_t comes from OpenCV DIS (the stand-in for RAFT, tuned for 64x64 frames), depth D_t from
 the capture or from :func:`model.depth.estimate_depth`, and the flow the cameras alone would cause on a
-static scene, F_pose (Eq. 3), as :func:`vt4dcodec.geometry.camera_flow` defines it.  The residual
+static scene, F_pose (Eq. 3), as :func:`vt4dcodec.model.geometry.camera_flow` defines it.  The residual
 ``r_t(p) = || F_t(p) - F_pose_t(p) ||`` isolates independently moving content and
 ``M_t(p) = 1{ r_t(p) > tau_t }`` (Eq. 4).
 
@@ -70,7 +70,7 @@ import numpy as np
 import torch
 
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
+from .geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
 
 from .depth import estimate_depth
 
@@ -259,7 +259,7 @@ def _warp(image: np.ndarray, flow: np.ndarray, grid: tuple[np.ndarray, np.ndarra
 def _pair_geometry(
     depth: np.ndarray, K: np.ndarray, w2c: np.ndarray, src: np.ndarray, dst: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """F_pose (P, H, W, 2) of pairs src[i] -> dst[i] (Eq. 3, as :func:`vt4dcodec.geometry.camera_flow`), its
+    """F_pose (P, H, W, 2) of pairs src[i] -> dst[i] (Eq. 3, as :func:`vt4dcodec.model.geometry.camera_flow`), its
     validity (P, H, W) and the depth z_pred (P, H, W) each source pixel would have in the partner camera
     if it were static (for the occlusion and free-space tests).  ``depth`` (T, H, W) metres, 0 = unknown.
 

@@ -23,29 +23,23 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import torch
 import torch.nn.functional as F
-from safetensors import SafetensorError
-from safetensors.torch import load_file
 from torch import nn
 
-from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
+from vt4dcodec.errors import ModelError, ModelMismatchError
 
 from .configs import ModelConfig
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
-from .weights_io import SHIPPED_DIR, read_weights_meta, storage_state, weights_sha256, widen_stored, write_weights_directory
 
 __all__ = [
-    "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "save_prior",
-    "load_prior", "check_tokenizer", "shipped_prior_ids", "PRIOR_FORMAT", "SAMPLERS", "TOKEN_LIMIT",
+    "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "check_tokenizer",
+    "SAMPLERS", "TOKEN_LIMIT",
 ]
 
-PRIOR_FORMAT = "co4dgen-prior/1"
-PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, CARD_FILE = "prior.json", "prior.safetensors", "MODEL_CARD.md"
 SAMPLERS = ("euler", "heun")
 TOKEN_LIMIT = 1.0 - 1e-4  # sampled tokens are clipped to the tokenizer's bounded range (-1, 1)
 
@@ -164,6 +158,11 @@ class PriorCondition:
 
 class Co4DGen(nn.Module):
     """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder."""
+
+    # Identity, set by ``weights_io.load_prior`` (None for a prior that was never saved and loaded).
+    model_id: str | None = None
+    model_version: str | None = None
+    tokenizer_fingerprint: Any = None  # vt4dcodec.format.ModelFingerprint of the tokenizer it models
 
     def __init__(self, cfg: PriorConfig) -> None:
         super().__init__()
@@ -313,84 +312,13 @@ class Co4DGen(nn.Module):
         return z_s.clamp(-TOKEN_LIMIT, TOKEN_LIMIT), z_d.clamp(-TOKEN_LIMIT, TOKEN_LIMIT)
 
 
-# --- weights I/O ------------------------------------------------------------------------------------
-def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_version: str,
-               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None,
-               storage_dtype: str = "float32") -> Path:
-    """Write prior.json + prior.safetensors (+ MODEL_CARD.md); ``tokenizer`` is the
-    :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models.
-    ``storage_dtype="float16"`` halves the file (see ``weights_io.storage_state``)."""
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    state, stored = storage_state(prior, storage_dtype)
-    digest = weights_sha256(state)
-    meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
-            "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
-            "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
-    return write_weights_directory(out, stored, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
-                                   card=card)
-
-
-def shipped_prior_ids() -> list[str]:
-    """Ids of the priors shipped inside the package (directories of model/weights/ with prior.json)."""
-    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / PRIOR_META_FILE).is_file())
-
-
-def _resolve_prior(name_or_path: str | Path) -> Path:
-    path = Path(name_or_path)
-    if (path / PRIOR_META_FILE).is_file():
-        return path
-    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped_prior_ids():
-        return SHIPPED_DIR / name_or_path
-    raise ModelNotFoundError(f"no prior {str(name_or_path)!r}: not a prior directory (with {PRIOR_META_FILE}) "
-                             f"and not a shipped id (shipped: {shipped_prior_ids() or 'none'})")
-
-
-def _read_prior_meta(directory: Path) -> dict[str, Any]:
-    from vt4dcodec.format import ModelFingerprint
-
-    path = directory / PRIOR_META_FILE
-    meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
-                             fmt=PRIOR_FORMAT, config_type=PriorConfig)
-    try:
-        meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
-    except ValueError as exc:
-        raise ModelError(f"{path}: bad tokenizer fingerprint: {exc}") from None
-    return meta
-
-
-def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
-    """A shipped prior id (e.g. "co4dgen-tiny") or a prior directory, verified, in eval mode.
-
-    The result carries ``model_id``, ``model_version`` and ``tokenizer_fingerprint`` attributes.
-    """
-    directory = _resolve_prior(name_or_path)
-    meta = _read_prior_meta(directory)
-    try:
-        state = load_file(str(directory / PRIOR_WEIGHTS_FILE), device="cpu")
-    except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
-        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
-    prior = Co4DGen(meta["config"])
-    expected = prior.state_dict()
-    state = widen_stored(state, expected)
-    if weights_sha256(state) != meta["weights_sha256"]:
-        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
-    if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
-                                          for k in state):
-        raise ModelError(f"{directory}: weights do not fit the prior config")
-    prior.load_state_dict(state, strict=True)
-    prior.model_id, prior.model_version = meta["model_id"], meta["model_version"]
-    prior.tokenizer_fingerprint = meta["tokenizer"]
-    prior.requires_grad_(False)
-    return prior.to(device).eval()
-
-
+# --- the tokenizer it belongs to -------------------------------------------------------------------
 def check_tokenizer(prior: Co4DGen, tokenizer_fingerprint: Any, *, force: bool = False) -> None:
     """Refuse (ModelMismatchError) a tokenizer other than the one the prior was trained on.
 
     With ``force`` only the token shapes must agree.
     """
-    recorded = getattr(prior, "tokenizer_fingerprint", None)
+    recorded = prior.tokenizer_fingerprint
     if recorded is None:
         raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
     if recorded.matches(tokenizer_fingerprint):

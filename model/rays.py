@@ -1,6 +1,6 @@
 """Plücker camera-ray embeddings of a trajectory at latent resolution (the P_s / P_tgt inputs).
 
-Thin wrapper over :mod:`vt4dcodec.geometry`: intrinsics given for the H x W image are rescaled to
+Thin wrapper over :mod:`vt4dcodec.model.geometry`: intrinsics given for the H x W image are rescaled to
 the h x w latent map with the pixel-centre rule cx' = (cx + 0.5) s - 0.5, then every latent pixel
 centre gets its world ray (d, o x d).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from vt4dcodec.geometry import plucker_rays, scale_intrinsics
+from .geometry import plucker_rays, scale_intrinsics
 
 __all__ = ["latent_rays"]
 

@@ -3,7 +3,7 @@ v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) over target-video latents.
 
 Target latents Y^tau (B, T, C, h, w) are patchified together with the Plücker rays of P_tgt, pass
 through tau-modulated (AdaLN) blocks of spatial, temporal and token cross-attention, and are
-unpatchified into a velocity of the same shape. Token masking (issue #5 item 7): a dropped group
+unpatchified into a velocity of the same shape. Token masking (the ablation of Table 4): a dropped group
 (Z_s or Z_d) is removed from the keys of every cross-attention.
 """
 
@@ -40,26 +40,29 @@ class Renderer(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def embed_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor, drop_static: bool, drop_dynamic: bool
-                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """[Z_s; Z_d] (B, N_s+N_d, d) -> (B, N_s+N_d, D) and their key validity (None = all kept)."""
+    def embed_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor, drop_static: bool | torch.Tensor,
+                     drop_dynamic: bool | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """[Z_s; Z_d] (B, N_s+N_d, d) -> (B, N_s+N_d, D) and their key validity (None = all kept).
+
+        A drop flag is a bool for the whole batch or a (B,) bool tensor, one per item."""
         B, n_s, n_d = z_s.shape[0], z_s.shape[1], z_d.shape[1]
         tokens = self.token_in(torch.cat([z_s, z_d], dim=1).to(self.token_in.weight.dtype)) + self.token_slot[None]
         types = torch.zeros(n_s + n_d, dtype=torch.long, device=z_s.device)
         if not self.cfg.unified_tokens:
             types[n_s:] = 1
         tokens = tokens + self.token_type[types][None]
-        if not (drop_static or drop_dynamic):
+        if not any(isinstance(flag, torch.Tensor) or flag for flag in (drop_static, drop_dynamic)):
             return tokens, None
+        drops = [torch.as_tensor(flag, dtype=torch.bool, device=z_s.device).expand(B)
+                 for flag in (drop_static, drop_dynamic)]
         keep = torch.ones(B, n_s + n_d, dtype=torch.bool, device=z_s.device)
-        if drop_static:
-            keep[:, :n_s] = False
-        if drop_dynamic:
-            keep[:, n_s:] = False
+        keep[:, :n_s] &= ~drops[0][:, None]
+        keep[:, n_s:] &= ~drops[1][:, None]
         return tokens, keep
 
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
-                tau: torch.Tensor, *, drop_static: bool = False, drop_dynamic: bool = False) -> torch.Tensor:
+                tau: torch.Tensor, *, drop_static: bool | torch.Tensor = False,
+                drop_dynamic: bool | torch.Tensor = False) -> torch.Tensor:
         """y_tau: (B, T, C, h, w); z_s: (B, N_s, d); z_d: (B, N_d, d); rays: (B, T, 6, h, w) of P_tgt;
         tau: (B,) in [0, 1]. Returns the velocity v (B, T, C, h, w)."""
         B, T, C, h, w = y_tau.shape

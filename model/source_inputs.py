@@ -59,6 +59,8 @@ class SourceBatch:
         K: (B, T, 3, 3) float32.   w2c: (B, T, 4, 4) float32.
         motion_mask: (B, T, h, w) float32.
         track_xy: (B, N, T, 2) float32 (latent pixels).   track_valid: (B, N, T) bool.
+        latents: optional (B, T, C, h, w) float32, the frozen autoencoder's latents of ``frames``
+            when a caller already has them (training reads them from a cache); None = computed.
     """
 
     frames: torch.Tensor
@@ -67,6 +69,7 @@ class SourceBatch:
     motion_mask: torch.Tensor
     track_xy: torch.Tensor
     track_valid: torch.Tensor
+    latents: torch.Tensor | None = None
 
     @classmethod
     def collate(cls, items: list[SourceInputs]) -> "SourceBatch":
@@ -85,7 +88,8 @@ class SourceBatch:
         )
 
     def to(self, device: torch.device | str) -> "SourceBatch":
-        return SourceBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+        return SourceBatch(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name).to(device)
+                              for f in fields(self)})
 
     @property
     def batch_size(self) -> int:

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import QueryBlock, SelfAttentionBlock, patchify
+from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, patchify
 
 __all__ = ["SpatialBranch"]
 
@@ -45,7 +45,7 @@ class SpatialBranch(nn.Module):
         self.pos_space = nn.Parameter(torch.randn(cfg.patches_per_side ** 2, D) * 0.02)
         self.pos_time = nn.Parameter(torch.randn(cfg.frames, D) * 0.02)
         self.blocks = nn.ModuleList(FactorizedBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.spatial_layers))
-        self.queries = nn.Parameter(torch.randn(n_queries, D) * 0.02)
+        self.queries = nn.Parameter(torch.randn(n_queries, D) * QUERY_INIT_STD)
         self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
 
     def forward(self, latents: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import QueryBlock, SelfAttentionBlock
+from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock
 
 __all__ = ["TemporalBranch", "TrackAttention", "sample_at_tracks", "fixed_grid_tracks"]
 
@@ -94,7 +94,7 @@ class TemporalBranch(nn.Module):
         self.track_pos = nn.Linear(4, D)  # (u, v) normalised to [-1, 1] and their sines
         self.pos_time = nn.Parameter(torch.randn(cfg.frames, D) * 0.02)
         self.track_layers = nn.ModuleList(TrackAttention(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.track_layers))
-        self.queries = nn.Parameter(torch.randn(cfg.n_dynamic, D) * 0.02)
+        self.queries = nn.Parameter(torch.randn(cfg.n_dynamic, D) * QUERY_INIT_STD)
         self.query_layers = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.track_layers))
 
     def masked_features(self, latents: torch.Tensor, rays: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

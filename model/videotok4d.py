@@ -20,19 +20,33 @@ from torch import nn
 from vt4dcodec.errors import ModelError
 
 from .autoencoder import LatentAutoencoder
-from .bottleneck import TokenBottleneck
+from .bottleneck import TokenBottleneck, saturation_penalty
 from .configs import ModelConfig
+from .diagnostics import token_health
 from .rays import latent_rays
 from .renderer import Renderer
 from .source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
 from .temporal_branch import TemporalBranch
 
-__all__ = ["VideoTok4D"]
+__all__ = ["VideoTok4D", "MIN_TAU", "DEFAULT_DECODE_STEPS", "MAX_DECODE_STEPS"]
+
+MIN_TAU = 1e-3  # x0 prediction: v = (Y^tau - X0_hat) / max(tau, MIN_TAU)
+DEFAULT_DECODE_STEPS = 8  # for model directories that record no decode_steps (written before it existed)
+MAX_DECODE_STEPS = 1000
 
 
 class VideoTok4D(nn.Module):
-    """The whole model for one :class:`ModelConfig`."""
+    """The whole model for one :class:`ModelConfig`.
+
+    Identity (set by ``from_pretrained`` from the model directory; never part of the config hash):
+    ``model_id`` / ``model_version`` (None for a model that was never saved or loaded) and
+    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default.
+    """
+
+    model_id: str | None = None
+    model_version: str | None = None
+    decode_steps: int = DEFAULT_DECODE_STEPS
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
@@ -80,6 +94,13 @@ class VideoTok4D(nn.Module):
         with torch.autocast("cuda" if K.device.type == "cuda" else "cpu", enabled=False):
             return latent_rays(K, w2c, self.config.image_size, self.config.latent_size)
 
+    def _checked_latents(self, latents: torch.Tensor, B: int, T: int) -> torch.Tensor:
+        cfg = self.config
+        shape = (B, T, cfg.latent_channels, cfg.latent_size, cfg.latent_size)
+        if tuple(latents.shape) != shape:
+            raise ModelError(f"latents must be {shape}, got {tuple(latents.shape)}")
+        return latents.float()
+
     def latents(self, frames: torch.Tensor) -> torch.Tensor:
         """X_t of the frozen encoder: (B, T, 3, H, W) in [0, 1] -> (B, T, C, h, w)."""
         with torch.no_grad():
@@ -88,6 +109,13 @@ class VideoTok4D(nn.Module):
     # Eq. 1 ---------------------------------------------------------------------------------------
     def encode(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
         """Source clip -> (Z_s (B, N_s, d), Z_d (B, N_d, d)) float32 in (-1, 1)."""
+        a_s, a_d = self.encode_preactivations(batch)
+        if self.dynamic_bottleneck is None:
+            return self.static_bottleneck.bound(a_s), self.static_bottleneck.bound(a_d)
+        return self.static_bottleneck.bound(a_s), self.dynamic_bottleneck.bound(a_d)
+
+    def encode_preactivations(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """The bottleneck pre-activations (Z = tanh(A)): (A_s (B, N_s, d), A_d (B, N_d, d)) float32."""
         cfg = self.config
         self._check_video(batch.frames, "source frames")
         B, T = batch.frames.shape[:2]
@@ -98,14 +126,15 @@ class VideoTok4D(nn.Module):
         if batch.track_xy.ndim != 4 or batch.track_xy.shape[0] != B or batch.track_xy.shape[2:] != (T, 2) \
                 or batch.track_valid.shape != batch.track_xy.shape[:3]:
             raise ModelError("track_xy must be (B, N, T, 2) and track_valid (B, N, T)")
-        x = self.latents(batch.frames)
+        x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
         rays = self.rays(batch.K, batch.w2c)
         static_states = self.spatial_branch(x, rays)
         if self.temporal_branch is None:
-            tokens = self.static_bottleneck(static_states)
-            return tokens[:, :cfg.n_static], tokens[:, cfg.n_static:]
+            a = self.static_bottleneck.preactivation(static_states)
+            return a[:, :cfg.n_static], a[:, cfg.n_static:]
         dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid)
-        return self.static_bottleneck(static_states), self.dynamic_bottleneck(dynamic_states)
+        return (self.static_bottleneck.preactivation(static_states),
+                self.dynamic_bottleneck.preactivation(dynamic_states))
 
     def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
         cfg = self.config
@@ -117,14 +146,16 @@ class VideoTok4D(nn.Module):
     # sampling ------------------------------------------------------------------------------------
     @torch.no_grad()
     def render_latents(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
-                       *, steps: int = 8, seed: int = 0, drop_static: bool = False,
+                       *, steps: int | None = None, seed: int = 0, drop_static: bool = False,
                        drop_dynamic: bool = False) -> torch.Tensor:
-        """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0.
+        """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0, in ``steps`` steps
+        (None: ``self.decode_steps``, the model's recorded best-fidelity setting).
 
         K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4). Returns Y^0 (B, T, C, h, w).
         """
         self._check_tokens(z_s, z_d)
-        if not isinstance(steps, int) or steps < 1:
+        steps = self.decode_steps if steps is None else steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         cfg = self.config
         B = z_s.shape[0]
@@ -140,9 +171,19 @@ class VideoTok4D(nn.Module):
         z_s, z_d = z_s.float(), z_d.float()
         for i in range(steps):
             tau = torch.full((B,), 1.0 - i / steps, device=device)
-            v = self.renderer(y, z_s, z_d, rays, tau, drop_static=drop_static, drop_dynamic=drop_dynamic)
-            y = y - v.float() / steps
+            v = self.velocity(y, z_s, z_d, rays, tau, drop_static=drop_static, drop_dynamic=drop_dynamic)
+            y = y - v / steps
         return y
+
+    def velocity(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
+                 tau: torch.Tensor, **drop: bool) -> torch.Tensor:
+        """v(Y^tau, Z_s, Z_d, P_tgt, tau) (B, T, C, h, w) float32, whatever the renderer predicts
+        (``config.prediction``); rays are those of P_tgt at latent resolution, tau (B,) in (0, 1]."""
+        out = self.renderer(y_tau, z_s, z_d, rays, tau, **drop).float()
+        if self.config.prediction == "velocity":
+            return out
+        t = tau.float().clamp_min(MIN_TAU).view(-1, 1, 1, 1, 1)
+        return (y_tau.float() - out) / t
 
     @torch.no_grad()
     def render(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
@@ -153,32 +194,63 @@ class VideoTok4D(nn.Module):
 
     # Eq. 2 ---------------------------------------------------------------------------------------
     def rectified_flow_loss(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor,
-                            w2c_tgt: torch.Tensor, generator: torch.Generator | None = None
-                            ) -> tuple[torch.Tensor, dict[str, float]]:
-        """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2, tau ~ U(0, 1).
+                            w2c_tgt: torch.Tensor, generator: torch.Generator | None = None, *,
+                            target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
+                            drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
+                            saturation_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+        """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
-        ``generator`` (CPU) makes tau and Y^1 reproducible. Returns the scalar loss and float logs.
+        tau: (B,) flow times in [0, 1]; default tau ~ U(0, 1) from ``generator`` (CPU), which also draws
+        Y^1. At tau = 1 the one-step estimate Y^1 - v is what a 1-step render decodes, and the flow
+        loss there is exactly its regression error.
+        target_latents: optional (B, T, C, h, w) latents of ``target_frames`` (e.g. from a cache).
+        drop_static: optional (B,) bool: items rendered without Z_s (token masking as in Table 4), so
+        the renderer must read what Z_d carries and Z_d must carry it.
+        x0_weight: weight of || Y^tau - tau v - Y^0 ||^2, the error of the one-step estimate of Y^0 at
+        every tau (equal to the flow loss at tau = 1, tau^2 times it elsewhere). With
+        ``config.prediction == "x0"`` that error is the loss (weight 1) and this is ignored.
+        saturation_weight: weight of :func:`saturation_penalty` on the bottleneck pre-activations.
+        Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
         B, T = target_frames.shape[:2]
         self._check_cameras(K_tgt, w2c_tgt, B, T, "target cameras")
-        z_s, z_d = self.encode(batch)
-        y0 = self.latents(target_frames)
+        a_s, a_d = self.encode_preactivations(batch)
+        bottleneck_d = self.dynamic_bottleneck or self.static_bottleneck
+        z_s, z_d = self.static_bottleneck.bound(a_s), bottleneck_d.bound(a_d)
+        y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)
         y1 = torch.randn(y0.shape, generator=generator).to(y0.device)
-        tau = torch.rand((B,), generator=generator).to(y0.device)
+        if tau is None:
+            tau = torch.rand((B,), generator=generator)
+        tau = tau.to(y0.device, torch.float32)
+        if tau.shape != (B,) or not bool(((tau >= 0) & (tau <= 1)).all()):
+            raise ModelError(f"tau must be ({B},) in [0, 1]")
         t = tau.view(B, 1, 1, 1, 1)
         y_tau = (1.0 - t) * y0 + t * y1
-        v = self.renderer(y_tau, z_s, z_d, self.rays(K_tgt, w2c_tgt), tau)
-        loss = F.mse_loss(v.float(), y1 - y0)
-        logs = {"loss": float(loss.detach()), "tau": float(tau.mean()),
-                "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean())}
+        drop = {} if drop_static is None else {"drop_static": drop_static.to(y0.device)}
+        out = self.renderer(y_tau, z_s, z_d, self.rays(K_tgt, w2c_tgt), tau, **drop).float()
+        sat = saturation_penalty(torch.cat([a_s, a_d], dim=1))
+        if self.config.prediction == "velocity":
+            v, x0_hat = out, y_tau - t * out
+            flow = F.mse_loss(v, y1 - y0)
+            x0_err = F.mse_loss(x0_hat, y0)
+            loss = flow + x0_weight * x0_err + saturation_weight * sat
+        else:  # x0 prediction: the flow loss is tau^2-weighted x0 error; train on the x0 error itself
+            x0_hat = out
+            x0_err = F.mse_loss(x0_hat, y0)
+            flow = (((y_tau - x0_hat) / t.clamp_min(MIN_TAU) - (y1 - y0)) ** 2).mean().detach()
+            loss = x0_err + saturation_weight * sat
+        logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
+                "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
+                "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
+                **token_health(z_s, z_d)}
         return loss, logs
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
-                generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+                generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:
         """The training objective (so DistributedDataParallel can wrap the model): see rectified_flow_loss."""
-        return self.rectified_flow_loss(batch, target_frames, K_tgt, w2c_tgt, generator)
+        return self.rectified_flow_loss(batch, target_frames, K_tgt, w2c_tgt, generator, **loss_options)
 
     def fingerprint(self, model_id: str, model_version: str) -> Any:
         """The :class:`vt4dcodec.format.ModelFingerprint` a container stores for these weights."""

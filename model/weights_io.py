@@ -1,9 +1,12 @@
-"""Weights I/O (issue #5 item 8): safetensors + config.json, the fingerprint, ``from_pretrained``.
+"""Weights I/O and lookup of both models: the VideoTok4D tokenizer (``save_pretrained`` /
+``from_pretrained``) and the Co4DGen prior (``save_prior`` / ``load_prior``), shipped ids, the
+fingerprint.
 
-A model directory holds
+A tokenizer directory holds
 
 * ``config.json``: ``{"format": "vt4d-model/1", "model_id", "model_version", "config": {...},
-  "config_sha256", "weights_sha256"}``;
+  "config_sha256", "weights_sha256", "decode_steps"}`` (``decode_steps``: the sampler steps the codec
+  uses by default for this model, chosen by measurement; optional, 8 when absent; not hashed);
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
@@ -30,16 +33,20 @@ from safetensors.torch import load_file, save_file
 from vt4dcodec.errors import ModelError, ModelNotFoundError
 
 from .configs import ModelConfig
-from .videotok4d import VideoTok4D
+from .prior import Co4DGen, PriorConfig
+from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 
 __all__ = [
-    "save_pretrained", "from_pretrained", "weights_sha256", "fingerprint_fields", "model_fingerprint",
-    "shipped_model_ids", "SHIPPED_DIR", "MODEL_FORMAT", "write_weights_directory", "read_weights_meta", "storage_state", "widen_stored",
+    "save_pretrained", "from_pretrained", "save_prior", "load_prior", "weights_sha256", "fingerprint_fields",
+    "model_fingerprint", "stored_fingerprint", "shipped_model_ids", "shipped_prior_ids", "model_directory",
+    "SHIPPED_DIR", "MODEL_FORMAT", "PRIOR_FORMAT", "write_weights_directory", "read_weights_meta", "storage_state",
+    "widen_stored",
 ]
 
-MODEL_FORMAT = "vt4d-model/1"
+MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
+PRIOR_META_FILE, PRIOR_WEIGHTS_FILE = "prior.json", "prior.safetensors"
 MAX_CONFIG_BYTES = 1 << 20
 STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
 
@@ -95,9 +102,23 @@ def model_fingerprint(model: VideoTok4D, model_id: str, model_version: str) -> A
     return ModelFingerprint(**fingerprint_fields(model, model_id, model_version))
 
 
+def stored_fingerprint(model: VideoTok4D) -> Any:
+    """The fingerprint a container stores for ``model``: its own id and version ("unnamed", "0" for a
+    model that was never saved or loaded), computed once and cached on the model object."""
+    cached = getattr(model, "_vt4d_fingerprint", None)
+    if cached is None:
+        model_id = model.model_id or "unnamed"
+        model_version = model.model_version or "0"
+        cached = model.fingerprint(model_id, model_version)
+        model._vt4d_fingerprint = cached
+    return cached
+
+
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
-                    card: str | None = None, storage_dtype: str = "float32") -> Path:
+                    card: str | None = None, storage_dtype: str = "float32", decode_steps: int | None = None) -> Path:
     """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it.
+
+    ``decode_steps`` (default: ``model.decode_steps``) is recorded as the codec's default sampler steps.
 
     ``storage_dtype="float16"`` rounds ``model``'s floating weights to float16 values in place (they stay
     float32 tensors) and stores them as float16, so the saved file, the loaded model and the
@@ -107,9 +128,17 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     out.mkdir(parents=True, exist_ok=True)
     state, stored = storage_state(model, storage_dtype)
     digest = weights_sha256(state)
+    steps = _checked_decode_steps(model.decode_steps if decode_steps is None else decode_steps, out)
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
-            "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest}
+            "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest,
+            "decode_steps": steps}
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
+
+
+def _checked_decode_steps(value: Any, where: Path) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DECODE_STEPS:
+        raise ModelError(f"{where}: decode_steps must be an integer in [1, {MAX_DECODE_STEPS}], got {value!r}")
+    return value
 
 
 def write_weights_directory(out: Path, tensors: dict[str, torch.Tensor], meta: dict[str, Any], *,
@@ -124,19 +153,36 @@ def write_weights_directory(out: Path, tensors: dict[str, torch.Tensor], meta: d
     return out
 
 
+# --- lookup ------------------------------------------------------------------------------------------
+def _shipped_ids(meta_file: str) -> list[str]:
+    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / meta_file).is_file())
+
+
 def shipped_model_ids() -> list[str]:
-    """Ids of the models shipped inside the package (directories of model/weights/ with a config)."""
-    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / CONFIG_FILE).is_file())
+    """Ids of the tokenizers shipped inside the package (directories of model/weights/ with config.json)."""
+    return _shipped_ids(CONFIG_FILE)
 
 
-def _resolve(name_or_path: str | Path) -> Path:
+def shipped_prior_ids() -> list[str]:
+    """Ids of the priors shipped inside the package (directories of model/weights/ with prior.json)."""
+    return _shipped_ids(PRIOR_META_FILE)
+
+
+def model_directory(name_or_path: str | Path, meta_file: str = CONFIG_FILE) -> Path:
+    """The directory of a tokenizer (``meta_file`` config.json) or a prior (prior.json): a directory
+    holding ``meta_file``; else a shipped id; else any other directory (its reader then says what it
+    lacks).  ModelNotFoundError otherwise."""
     path = Path(name_or_path)
+    if (path / meta_file).is_file():
+        return path
+    shipped = _shipped_ids(meta_file)
+    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped:
+        return SHIPPED_DIR / name_or_path
     if path.is_dir():
         return path
-    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped_model_ids():
-        return SHIPPED_DIR / name_or_path
-    raise ModelNotFoundError(f"no model {str(name_or_path)!r}: not a directory and not a shipped id "
-                             f"(shipped: {shipped_model_ids() or 'none'})")
+    what = "prior" if meta_file == PRIOR_META_FILE else "model"
+    raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory and not a shipped id "
+                             f"(shipped: {shipped or 'none'})")
 
 
 def read_weights_meta(directory: Path, *, meta_file: str, weights_file: str, fmt: str,
@@ -176,7 +222,7 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
 
     Raises ModelNotFoundError for an unknown id/path, ModelError for damaged or inconsistent files.
     """
-    directory = _resolve(name_or_path)
+    directory = model_directory(name_or_path)
     meta = read_model_meta(directory)
     try:
         state = load_file(str(directory / WEIGHTS_FILE), device="cpu")
@@ -197,4 +243,62 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
     model.model_id, model.model_version = meta["model_id"], meta["model_version"]
+    model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
     return model.to(device).eval()
+
+
+# --- the Co4DGen prior -------------------------------------------------------------------------------------
+def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_version: str,
+               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None,
+               storage_dtype: str = "float32") -> Path:
+    """Write prior.json + prior.safetensors (+ MODEL_CARD.md); ``tokenizer`` is the
+    :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models.
+    ``storage_dtype="float16"`` halves the file (see :func:`storage_state`)."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    state, stored = storage_state(prior, storage_dtype)
+    digest = weights_sha256(state)
+    meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
+            "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
+            "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
+    return write_weights_directory(out, stored, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
+                                   card=card)
+
+
+def _read_prior_meta(directory: Path) -> dict[str, Any]:
+    from vt4dcodec.format import ModelFingerprint
+
+    path = directory / PRIOR_META_FILE
+    meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
+                             fmt=PRIOR_FORMAT, config_type=PriorConfig)
+    try:
+        meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
+    except ValueError as exc:
+        raise ModelError(f"{path}: bad tokenizer fingerprint: {exc}") from None
+    return meta
+
+
+def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
+    """A shipped prior id (e.g. "co4dgen-tiny") or a prior directory, verified, in eval mode.
+
+    Its ``model_id``, ``model_version`` and ``tokenizer_fingerprint`` are those recorded in prior.json.
+    """
+    directory = model_directory(name_or_path, PRIOR_META_FILE)
+    meta = _read_prior_meta(directory)
+    try:
+        state = load_file(str(directory / PRIOR_WEIGHTS_FILE), device="cpu")
+    except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
+        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
+    prior = Co4DGen(meta["config"])
+    expected = prior.state_dict()
+    state = widen_stored(state, expected)
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
+    if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
+                                          for k in state):
+        raise ModelError(f"{directory}: weights do not fit the prior config")
+    prior.load_state_dict(state, strict=True)
+    prior.model_id, prior.model_version = meta["model_id"], meta["model_version"]
+    prior.tokenizer_fingerprint = meta["tokenizer"]
+    prior.requires_grad_(False)
+    return prior.to(device).eval()

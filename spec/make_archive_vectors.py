@@ -34,10 +34,12 @@ def _record(seed: int) -> bytes:
     return example_record(seed, static_shape=(8, 4), dynamic_shape=(4, 4), frames=2)
 
 
-def _write(tmp: str, name: str, steps) -> bytes:
-    """Build an archive by ``steps``: a list of commits, each a list of (key, seed, replace)."""
+def _write(tmp: str, name: str, steps, version=(1, 0)) -> bytes:
+    """Build an archive by ``steps``: a list of commits, each a list of (key, seed, replace).
+
+    The vectors of version 1.0 are kept byte for byte forever, so they are written as 1.0."""
     path = os.path.join(tmp, name)
-    w = ArchiveWriter(path, "w", durable=False)
+    w = ArchiveWriter(path, "w", durable=False, version=version)
     for batch in steps:
         for key, seed, replace in batch:
             w.append(key, _record(seed), replace=replace)
@@ -50,7 +52,7 @@ def _write(tmp: str, name: str, steps) -> bytes:
 def _crashed(tmp: str) -> bytes:
     """One commit, then a complete uncommitted record, then a torn one (a writer killed mid-append)."""
     path = os.path.join(tmp, "crashed.vt4da")
-    w = ArchiveWriter(path, "w", durable=False)
+    w = ArchiveWriter(path, "w", durable=False, version=(1, 0))
     w.append("committed", _record(10))
     w.commit()
     w.append("complete-after-commit", _record(11))
@@ -115,6 +117,33 @@ def _invalid(base: bytes) -> dict[str, tuple[bytes, str]]:
     return out
 
 
+def _segmented_invalid(seg: bytes) -> dict[str, tuple[bytes, str]]:
+    """Rejections added with version 1.1 (issue 15): each a minimal change of a valid archive."""
+    out = {}
+    bad = bytearray(seg)
+    struct.pack_into("<H", bad, 8, 2)  # preamble major 2 behind a valid tail footer
+    out["preamble_major"] = (bytes(bad), "UnsupportedVersionError")
+    bad = bytearray(seg)
+    struct.pack_into("<I", bad, 12, 0x4)  # an unknown required flag in the preamble
+    out["preamble_flags"] = (bytes(bad), "UnsupportedVersionError")
+    # truncated: 10 bytes cut off; a valid header slot names the lost commit
+    out["truncated_commit"] = (seg[:-10], "ArchiveTruncatedError")
+    c = parse_footer(seg[-FOOTER_SIZE:])
+    index = seg[c.index_offset: c.footer_offset]
+    older = struct.unpack_from("<Q", index, 64)[0]  # reference 1: an older segment
+    bad = bytearray(seg)
+    bad[older + 40] ^= 0x01
+    out["segment_checksum"] = (bytes(bad), "IndexChecksumError")
+    return out
+
+
+def _tail_footer_only(data: bytes) -> bytes:
+    """A valid archive whose header slots are both empty: readers find the commit at the tail."""
+    out = bytearray(data)
+    out[32:HEADER_SIZE] = bytes(HEADER_SIZE - 32)
+    return bytes(out)
+
+
 def build() -> dict[str, bytes | dict]:
     """All vectors as {file name: bytes} plus the 'expected.json' manifest (a dict)."""
     files: dict[str, bytes] = {}
@@ -126,6 +155,12 @@ def build() -> dict[str, bytes | dict]:
             [("scene-b", 4, True), ("scene-d", 5, False)],
         ])
         files["crashed.vt4da"] = _crashed(tmp)
+        # version 1.1: six single-scene commits (one a replace) -> a manifest naming merged segments
+        files["segmented.vt4da"] = _write(tmp, "seg.vt4da", [
+            [("scene-a", 1, False)], [("scene-b", 2, False)], [("dir/scene-c", 3, False)],
+            [("scene-b", 4, True)], [("scene-d", 5, False)], [("scene-e", 6, False)],
+        ], version=(1, 1))
+    files["tail_footer_only.vt4da"] = _tail_footer_only(files["two_commits.vt4da"])
     for name, data in list(files.items()):
         with open_archive(data) as ar:
             expected[name] = {
@@ -133,7 +168,8 @@ def build() -> dict[str, bytes | dict]:
                 "records": {k: hashlib.sha256(v).hexdigest() for k, v in ar.iter_records()},
             }
     expected["crashed.vt4da"]["repair_recovers"] = ["complete-after-commit"]
-    for stem, (data, error) in _invalid(files["two_commits.vt4da"]).items():
+    invalid = _invalid(files["two_commits.vt4da"]) | _segmented_invalid(files["segmented.vt4da"])
+    for stem, (data, error) in invalid.items():
         files[f"invalid_{stem}.vt4da"] = data
         expected[f"invalid_{stem}.vt4da"] = {"valid": False, "error": error}
     return {**files, "expected.json": expected}

@@ -165,7 +165,32 @@ def rans_valid_vectors() -> dict[str, tuple[bytes, str]]:
         "int3_rans_constant_matrix": (
             dumps(constant, encoding="int3-rans", compression_level=None),
             "1.1: int3-rans; Z_d is constant (scale 0, a one-symbol frequency table, a 4-byte stream)"),
+        "int8_rans_centre_prediction_511": int8_rans_prediction_vector(),
     }
+
+
+def int8_rans_prediction_vector() -> tuple[bytes, str]:
+    """int8-rans with centre prediction, built by hand so it does not depend on the writer's choice of
+    mode: residual symbols run over the whole 511-symbol alphabet (0..510), so a reader that keeps
+    symbols in bytes decodes every other vector and fails here (issue 15)."""
+    base = scene(8, 4, 4, provenance=PROVENANCE)
+    header, sections = split(dumps(base, encoding="int8-rans", compression_level=None))
+    centres = [10, 250, 128, 0]
+    codes = [[255, 0, 128, 255], [254, 1, 0, 0], [200, 250, 255, 7], [10, 5, 127, 1],
+             [0, 255, 129, 128], [11, 249, 64, 3], [255, 2, 192, 254], [9, 251, 128, 2]]
+    symbols = [q - centres[k] + 255 for row in codes for k, q in enumerate(row)]
+    assert max(symbols) > 255 and min(symbols) < 255 and 0 <= min(symbols) and max(symbols) <= 510
+    used = sorted(set(symbols))
+    freqs = [0] * 511
+    for sym in used:
+        freqs[sym] = 16384 // len(used)
+    freqs[used[0]] += 16384 - sum(freqs)
+    head = struct.pack("<Hff", 1, 1 / 128, -1.0) + bytes([1]) + bytes(centres)
+    payload = rans_payload(head, freqs, symbols)
+    find(sections, "ZSTA")[2:5] = [0, payload, len(payload)]
+    return (rebuild(header, sections, minor=1, required_flags=1),
+            "1.1: int8-rans with centre prediction (prediction 1): residual symbols 5..500 of the "
+            "511-symbol alphabet; a reader storing symbols in bytes fails only here")
 
 
 def rans_payload(head: bytes, freqs: list[int], codes: list[int]) -> bytes:
@@ -265,7 +290,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(bad, "ZSTA")[3] = bytes([zsta[3][0] ^ 0x80]) + zsta[3][1:]
     data = bytearray(rebuild(header, bad))
     # restore the original CRC in the table so only the payload is damaged
-    pre = parse_preamble(bytes(data))
+    parse_preamble(bytes(data))
     idx = [s[0] for s in sections].index("ZSTA")
     data = patch_entry(bytes(data), idx, 32, "<I", crc32(zsta[3]))
     add("section_checksum", data, "ChecksumError", "one bit of a static-token code flipped")

@@ -6,7 +6,7 @@ import torch lazily, on first use.
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from .version import __version__  # noqa: F401
 
 from .errors import *  # noqa: F401,F403  (the exception family is part of the public API)
 from .cameras import Trajectory  # noqa: F401

@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
-DEFAULT_STEPS = 8
+DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding whose novel-view PSNR stays within 0.1 dB of float32 tokens on every held-out
 # view of vt4d-tiny (docs/benchmarks/rate_distortion.md: int4-rans, worst view +0.06 dB, 1/93 of the
 # float32 token bytes). int2-rans is 43 bytes smaller and within 0.1 dB on average but loses up to
@@ -92,13 +92,9 @@ def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "Vide
 
 def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
     """The fingerprint a container stores for ``model`` (cached on the model object)."""
-    cached = getattr(model, "_vt4d_fingerprint", None)
-    if cached is None:
-        model_id = getattr(model, "model_id", None) or "unnamed"
-        model_version = getattr(model, "model_version", None) or "0"
-        cached = model.fingerprint(model_id, model_version)
-        model._vt4d_fingerprint = cached
-    return cached
+    from .model.weights_io import stored_fingerprint
+
+    return stored_fingerprint(model)
 
 
 # --- encoding ---------------------------------------------------------------------------------------
@@ -279,13 +275,13 @@ class SceneDecoder:
         cfg = self.model.config
         return resolve_trajectory(spec, self.scene.cameras, size=cfg.image_size, max_frames=cfg.frames)
 
-    def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int = DEFAULT_STEPS,
+    def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int | None = DEFAULT_STEPS,
                seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> np.ndarray:
         """Frames (T, H, W, 3) uint8 of the scene seen along ``trajectory`` (deterministic per seed)."""
         return self.render_many([trajectory], steps=steps, seed=seed, drop_static=drop_static,
                                 drop_dynamic=drop_dynamic)[0]
 
-    def render_many(self, trajectories: Sequence["Trajectory | str | os.PathLike"], *, steps: int = DEFAULT_STEPS,
+    def render_many(self, trajectories: Sequence["Trajectory | str | os.PathLike"], *, steps: int | None = DEFAULT_STEPS,
                     seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> list[np.ndarray]:
         """Render several trajectories from the one token state, each with the same ``seed``."""
         import torch
@@ -305,7 +301,7 @@ class SceneDecoder:
 
 
 def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Trajectory | str | os.PathLike" = "source",
-           *, steps: int = DEFAULT_STEPS, seed: int = 0, model: "str | os.PathLike | VideoTok4D | None" = None,
+           *, steps: int | None = DEFAULT_STEPS, seed: int = 0, model: "str | os.PathLike | VideoTok4D | None" = None,
            force: bool = False) -> np.ndarray:
     """Render a stored scene along ``trajectory``: (T, H, W, 3) uint8 frames.
 

@@ -35,7 +35,7 @@ DEFAULT_PRIOR_STEPS = 16
 
 @functools.lru_cache(maxsize=4)
 def _load_prior_cached(resolved: str) -> "Co4DGen":
-    from .model.prior import load_prior
+    from .model.weights_io import load_prior
 
     return load_prior(resolved)
 
@@ -45,7 +45,7 @@ def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR) -> "C
     from .model.prior import Co4DGen
 
     if isinstance(model, Co4DGen):
-        if getattr(model, "tokenizer_fingerprint", None) is None:
+        if model.tokenizer_fingerprint is None:
             raise ModelError("this prior records no tokenizer fingerprint: load it with load_prior")
         return model
     path = Path(model)
@@ -124,7 +124,7 @@ def generate(
                           w2c_a=tensor(anchor.w2c))
     with torch.no_grad():
         z_s, z_d = prior.sample(cond, steps=steps, seed=seed, method=method)
-    info = {"prior_id": getattr(prior, "model_id", "unnamed"), "prior_version": getattr(prior, "model_version", "0"),
+    info = {"prior_id": prior.model_id or "unnamed", "prior_version": prior.model_version or "0",
             "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
             "clip_start": int(start), "clip_frames": int(cfg.frames)}
     return Scene(

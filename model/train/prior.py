@@ -1,4 +1,4 @@
-"""Train the Co4DGen prior from token archives (issue #8 items 1-3).
+"""Train the Co4DGen prior from token archives.
 
     python -m vt4dcodec.model.train.tokenize_scenes --tokenizer vt4d-tiny --out data/co4dgen --scenes 512
     python -m vt4dcodec.model.train.prior --shards data/co4dgen --out runs/co4dgen --steps 3000
@@ -28,7 +28,8 @@ from torch.utils.data import Dataset
 
 from vt4dcodec.errors import ModelError
 
-from ..prior import Co4DGen, PriorCondition, PriorConfig, get_prior_config, save_prior
+from ..prior import Co4DGen, PriorCondition, PriorConfig, get_prior_config
+from ..weights_io import save_prior
 from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
                      train_loop)
 from .tokenize_scenes import ClipStore

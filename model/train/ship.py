@@ -38,6 +38,15 @@ def _log_summary(log: Path) -> dict:
             "first_loss": records[0].get("loss"), "last_loss": records[-1].get("loss")}
 
 
+def _pairs_text(args: dict) -> str:
+    recon, sigma = args.get("recon_share", 0.0), args.get("neighbour_sigma")
+    if not recon and sigma is None:
+        return "every ordered camera pair (source c, target a != c) is a sample"
+    near = f"weighted exp(-angle / {sigma} deg) by optical-axis angle" if sigma is not None else "uniform"
+    return (f"one sample per (scene, source camera): the target is the source itself with probability {recon} "
+            f"(reconstruction), else another camera {near}")
+
+
 def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint: dict, notes: str) -> str:
     state = json.loads((run / "checkpoint" / "state.json").read_text())
     args, cfg = state["args"], state["config"]
@@ -64,11 +73,14 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         f"reconstruction PSNR {ae_info.get('sample_psnr_db', float('nan')):.2f} dB on 256 training frames",
         f"- stage 2 tokenizer + renderer: {tok['steps']} steps, batch {args['batch_size']}, lr {args['lr']} "
         f"(warm-up {args['warmup']}, cosine), bf16 autocast={args['bf16']}, {tok['wall_seconds'] / 60:.0f} min "
-        f"wall on the 2-core CPU machine shared with other jobs; rectified-flow loss "
+        f"wall on the 2-core CPU machine shared with other jobs; training loss "
         f"{tok['first_loss']:.3f} -> {tok['last_loss']:.3f}",
         f"- data: {args['scenes']} synthetic training scenes (seeds {args['scene_seed']}..."
         f"{args['scene_seed'] + args['scenes'] - 1}, split 'train'), {args['cameras']} cameras each, 8 frames at "
-        "64x64; every ordered camera pair (source c, target a != c) is a sample",
+        "64x64; " + _pairs_text(args),
+        f"- recipe: prediction={cfg.get('prediction', 'velocity')}, share of samples at tau = 1: "
+        f"{args.get('tau_one', 0.0)}, static-token dropout {args.get('drop_static', 0.0)}, saturation penalty "
+        f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}",
     ]
     if summary:
         lines.append(f"- render PSNR on {len(summary.get('pairs', []))} training pairs: "
@@ -86,11 +98,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", required=True)
     parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="directory of shipped models")
     parser.add_argument("--notes", type=Path, help="markdown appended to the generated model card")
+    parser.add_argument("--decode-steps", type=int, default=None,
+                        help="the codec's default sampler steps for this model (measure: the best-fidelity setting)")
     args = parser.parse_args(argv)
     model = from_pretrained(args.run / "model")
     notes = args.notes.read_text() if args.notes else ""
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
-                          storage_dtype="float16")
+                          storage_dtype="float16", decode_steps=args.decode_steps)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes))
     size = (out / "model.safetensors").stat().st_size

@@ -1,5 +1,5 @@
 """Tokenize multi-camera synthetic scenes once with the frozen tokenizer, into archive shards for the
-Co4DGen prior (issue #8 item 2).
+Co4DGen prior.
 
     python -m vt4dcodec.model.train.tokenize_scenes --tokenizer vt4d-tiny --out data/co4dgen \
         --split train --scenes 512 --cameras 4 --per-shard 128
@@ -37,6 +37,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
 
 from ..source_inputs import SourceBatch, SourceInputs
+from ..weights_io import from_pretrained, stored_fingerprint
 from .data import ScenePool
 
 __all__ = ["CLIP_EXTENSION", "clip_path", "pack_clip", "unpack_clip", "ClipStore", "event_key", "record_key",
@@ -141,13 +142,12 @@ def write_shards(tokenizer: Any, pool: ScenePool, seeds: list[int], out: Path, *
     """Tokenize ``seeds`` of ``pool`` into shards ``<out>/<split>-NNNNN.vt4da`` + sidecars; returns the
     token shard paths.  Shard numbers start at ``shard_offset`` (distinct per rank)."""
     from vt4dcodec.archive import ArchiveWriter
-    from vt4dcodec.codec import model_fingerprint
     from vt4dcodec.format import Provenance, Scene
 
     if per_shard < 1:
         raise ModelError("per_shard must be >= 1")
     out.mkdir(parents=True, exist_ok=True)
-    fingerprint = model_fingerprint(tokenizer)
+    fingerprint = stored_fingerprint(tokenizer)
     size = pool.image_size
     paths = []
     for n, start in enumerate(range(0, len(seeds), per_shard)):
@@ -187,8 +187,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    from vt4dcodec.codec import load_model
-
     from .data import rank_seeds
 
     torch.set_num_threads(args.threads)
@@ -197,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
     if args.cameras < 2:
         raise ModelError("Co4DGen pairs need at least 2 cameras per event")
-    tokenizer = load_model(args.tokenizer)
+    tokenizer = from_pretrained(args.tokenizer)
     pool = ScenePool.for_config(tokenizer.config, args.cache, args.cameras)
     if args.split != pool.split:
         pool = ScenePool(pool.cache, pool.cameras, pool.frames, pool.image_size, pool.latent_size, pool.n_tracks,

@@ -16,6 +16,7 @@ render for a few training pairs, and ``<out>/summary.json`` their PSNR.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -33,9 +34,9 @@ from ..videotok4d import VideoTok4D
 from ..weights_io import save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
                      scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
-from .data import PairBatch, PairDataset, collate_pairs
+from .data import PairBatch, PairDataset, collate_pairs, precompute_latents
 
-__all__ = ["main", "load_autoencoder"]
+__all__ = ["main", "load_autoencoder", "draw_tau", "flow_step"]
 
 
 def load_autoencoder(model: VideoTok4D, path: Path) -> None:
@@ -52,12 +53,24 @@ def load_autoencoder(model: VideoTok4D, path: Path) -> None:
     model.freeze_autoencoder()
 
 
-def flow_step(module: torch.nn.Module, batch: PairBatch) -> tuple[torch.Tensor, dict[str, float]]:
-    return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt)
+def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
+    """Flow times for one batch: 1 with probability ``tau_one`` (the renderer sees pure noise and
+    must produce the target from tokens and rays alone), else U(0, 1)."""
+    tau = torch.rand(batch_size)
+    return torch.where(torch.rand(batch_size) < tau_one, torch.ones_like(tau), tau)
+
+
+def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
+              saturation_weight: float = 0.0, drop_static: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+    B = batch.target_frames.shape[0]
+    tau = draw_tau(B, tau_one)
+    drop = torch.rand(B) < drop_static if drop_static > 0 else None
+    return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
+                  saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop)
 
 
 @torch.no_grad()
-def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Path, steps: int = 8
+def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Path, steps: int = 1
                    ) -> dict[str, float]:
     """PSNR of renders against the target camera for ``count`` pairs, and a PNG: rows are pairs,
     columns source | target | render at the first, middle and last frame."""
@@ -104,6 +117,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model-id", default="vt4d-tiny")
     parser.add_argument("--model-version", default="0.1.0")
     parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end")
+    parser.add_argument("--render-steps", type=int, default=1, help="Euler steps of the samples.png renders")
+    parser.add_argument("--cache-latents", action="store_true",
+                        help="encode every training frame once with the frozen autoencoder and read the latents "
+                             "from the scene cache (saves the encoder pass of every step)")
+    recipe = parser.add_argument_group("recipe (docs/training.md says what was measured)")
+    recipe.add_argument("--recon-share", type=float, default=0.0,
+                        help="share of samples whose target is the source camera itself (reconstruction)")
+    recipe.add_argument("--neighbour-sigma", type=float, default=None, metavar="DEG",
+                        help="draw other targets with weight exp(-axis angle / DEG) (default: all pairs, uniform)")
+    recipe.add_argument("--tau-one", type=float, default=0.0,
+                        help="share of samples trained at tau = 1 (pure regression of the target latents)")
+    recipe.add_argument("--x0-weight", type=float, default=0.0, help="weight of the one-step x0 error")
+    recipe.add_argument("--drop-static", type=float, default=0.0,
+                        help="share of samples rendered without Z_s, so Z_d must carry what it can")
+    recipe.add_argument("--saturation-weight", type=float, default=0.0,
+                        help="weight of the penalty on bottleneck pre-activations beyond |a| = 2")
     args = parser.parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)
@@ -114,9 +143,17 @@ def main(argv: list[str] | None = None) -> int:
     model = build_model(cfg, args.autoencoder)
     optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
-    dataset = PairDataset(*scene_pool_and_seeds(args, cfg, info))
+    pool, seeds = scene_pool_and_seeds(args, cfg, info)
+    latent_key = None
+    if args.cache_latents:
+        latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
+        model.freeze_autoencoder()
+    dataset = PairDataset(pool, seeds, recon_share=args.recon_share, neighbour_sigma_deg=args.neighbour_sigma,
+                          latent_key=latent_key)
     batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs))
-    records = train_loop(args, info, module, model, optimizer, batches, flow_step,
+    step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
+                             saturation_weight=args.saturation_weight, drop_static=args.drop_static)
+    records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
@@ -124,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         summary = {"config": cfg.to_dict(), "steps": args.steps,
                    "final_loss": records[-1]["loss"] if records else None,
                    "first_loss": records[0]["loss"] if records else None,
-                   **render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png")}
+                   **render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png",
+                                     steps=args.render_steps)}
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         print(f"tokenizer: loss {summary['first_loss']} -> {summary['final_loss']}, render PSNR "
               f"{summary['mean_psnr_db']:.2f} dB on {len(summary['pairs'])} training pairs; model -> {directory}")

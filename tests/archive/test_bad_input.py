@@ -20,8 +20,10 @@ KEYS2 = ["delta", "eps"]
 
 
 def _build(tmp_path) -> bytes:
+    """A version 1.0 archive (whole index per commit): the hostile indexes below rewrite that index.
+    (A 1.1 segment is the same block; manifests are attacked in test_segments.py.)"""
     path = tmp_path / "a.vt4da"
-    with ArchiveWriter(path, durable=False) as w:
+    with ArchiveWriter(path, durable=False, version=(1, 0)) as w:
         for k in KEYS1:
             w.append(k, payload_for(k, 40), validate=False)
         w.commit()

@@ -11,7 +11,7 @@ import fsspec
 import pytest
 
 from vt4dcodec.archive import ArchiveWriter, open_archive, verify_archive
-from vt4dcodec.archive.layout import FOOTER_SIZE
+from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE
 from vt4dcodec.data.archive_dataset import resolve_shards
 
 from .helpers import payload_for, scene_record
@@ -30,7 +30,8 @@ def archive_bytes(tmp_path_factory) -> bytes:
 
 
 def _expected_cost(ar, key) -> int:
-    return FOOTER_SIZE + ar.commit.index_length + ar.entry(key).length
+    # FORMAT.md Part II section 7: opening reads the header (preamble + slots), the footer, the index
+    return HEADER_SIZE + FOOTER_SIZE + ar.commit.index_length + ar.entry(key).length
 
 
 def test_memory_filesystem_reads_only_needed_ranges(archive_bytes):
@@ -39,7 +40,7 @@ def test_memory_filesystem_reads_only_needed_ranges(archive_bytes):
     try:
         with open_archive("memory://vt4d-test/r.vt4da") as ar:
             assert ar.read_bytes("k007") == payload_for("k7", 2007)
-            assert ar.source.reads == 3
+            assert ar.source.reads == 4
             assert ar.source.bytes_read == _expected_cost(ar, "k007")
         verify_archive("memory://vt4d-test/r.vt4da", records=False)
         assert resolve_shards("memory://vt4d-test/*.vt4da") == ["memory://vt4d-test/r.vt4da"]
@@ -119,4 +120,4 @@ def test_http_range_reads_fetch_only_footer_index_and_record(http_url):
         expected = _expected_cost(ar, "k031") + ar.entry("real").length
         assert ar.source.bytes_read == expected
     assert handler.sent == expected  # the server agrees: nothing else crossed the wire
-    assert handler.requests == 4
+    assert handler.requests == 5

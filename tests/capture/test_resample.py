@@ -11,7 +11,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.capture import Capture
 from vt4dcodec.capture.resample import fit_capture, plan_fit, undistort_pixels
 from vt4dcodec.errors import CaptureError
-from vt4dcodec.geometry import crop_intrinsics, scale_intrinsics, undistort_points
+from vt4dcodec.model.geometry import scale_intrinsics
 
 from capture_helpers import make_capture
 
@@ -41,10 +41,11 @@ def test_plan_covers_then_crops(W, H, ow, oh):
     assert plan.scaled_width >= ow and plan.scaled_height >= oh
     assert plan.x0 + ow <= plan.scaled_width and plan.y0 + oh <= plan.scaled_height
     assert plan.scaled_width == ow or plan.scaled_height == oh or abs(plan.sx - plan.sy) < 0.1
-    # the numpy intrinsics update equals geometry.scale_intrinsics followed by crop_intrinsics
+    # the numpy intrinsics update equals the torch scale_intrinsics followed by the crop's shift
     K = np.array([[300.0, 1.0, W / 2], [0, 310.0, H / 2], [0, 0, 1]])
-    expected = crop_intrinsics(scale_intrinsics(torch.from_numpy(K), plan.sx, plan.sy), plan.x0, plan.y0)
-    np.testing.assert_allclose(plan.intrinsics(K), expected.numpy(), atol=1e-9)
+    expected = scale_intrinsics(torch.from_numpy(K), plan.sx, plan.sy).numpy()
+    expected[:2, 2] -= (plan.x0, plan.y0)
+    np.testing.assert_allclose(plan.intrinsics(K), expected, atol=1e-9)
 
 
 @pytest.mark.parametrize("out_h, out_w", [(64, 64), (48, 96), (120, 160), (300, 400)])
@@ -74,10 +75,13 @@ def test_fit_capture_moves_points_where_the_new_intrinsics_say(out_h, out_w):
     np.testing.assert_allclose(mapped, pred, atol=1e-6)
 
 
-def test_undistort_pixels_agrees_with_torch_geometry():
+def test_undistort_pixels_agrees_with_kornia():
+    from kornia.geometry.calibration import undistort_points
+
     K = np.array([[600.0, 0, 330.0], [0, 610.0, 250.0], [0, 0, 1]])
     pts = np.random.default_rng(1).uniform([150, 100], [500, 380], size=(30, 2))
-    np.testing.assert_allclose(undistort_pixels(pts, K, DIST), undistort_points(pts, K, DIST).numpy(), atol=1e-4)
+    expected = undistort_points(*(torch.from_numpy(a) for a in (pts, K, DIST)), num_iters=40).numpy()
+    np.testing.assert_allclose(undistort_pixels(pts, K, DIST), expected, atol=1e-4)
 
 
 def test_fit_capture_frames_depth_and_timestamps():

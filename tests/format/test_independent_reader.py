@@ -1,6 +1,7 @@
 """A second, minimal reader written only from FORMAT.md (struct, zlib, msgpack, zstandard; no
-vt4dcodec.format import) must decode every valid vector to its expected content.  This keeps the prose
-specification and the implementation honest with each other."""
+vt4dcodec.format import) must decode every valid vector to its expected content, and (Part II) read
+every valid archive vector and reject every invalid one with the error class section 10.1 names.
+This keeps the prose specification and the implementation honest with each other."""
 
 from __future__ import annotations
 
@@ -17,8 +18,7 @@ import zstandard
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from format_strategies import REPO, simple_scene
-from vt4dcodec.format import Scene, dumps, loads  # only to make files and compare; the reader above is independent
+from format_strategies import REPO
 
 VECTORS = REPO / "spec" / "vectors"
 SIGNATURE = bytes.fromhex("8956543444 0d0a1a0a".replace(" ", ""))
@@ -154,7 +154,11 @@ def test_format_md_alone_reads_every_valid_vector(path):
        st.integers(0, 2**32 - 1), st.booleans())
 def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(encoding, rows, groups, seed, narrow):
     """The library's compiled rANS encoder writes streams that the spec-only decoder above reads to the
-    library's own decoded values (both predictions: ``narrow`` channels favour centre prediction)."""
+    library's own decoded values (both predictions: ``narrow`` channels favour centre prediction).  The
+    library is imported here only to make and compare files; the reader above uses none of it."""
+    from format_strategies import simple_scene
+    from vt4dcodec.format import Scene, dumps, loads
+
     rng = np.random.default_rng(seed)
     x = rng.standard_normal((rows, 4)).astype(np.float32)
     if narrow:
@@ -167,3 +171,150 @@ def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(enco
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         got = decode_tokens(mine, tok, tok.replace("Z", "Q", 1), mine["header"][f"{shape_key}_shape"])
         assert np.array_equal(np.array(got, dtype=np.float32), want)
+
+
+# --- Part II: archives, read from FORMAT.md alone (struct + zlib; no vt4dcodec import) ----------------
+ARCHIVES = VECTORS / "archive"
+
+
+class Rejected(Exception):
+    """FORMAT.md says a reader MUST reject this file; ``kind`` is the section 10.1 error class."""
+
+    def __init__(self, kind: str):
+        super().__init__(kind)
+        self.kind = kind
+
+
+def _commit(b: bytes, footer: bool, size: int):
+    """A footer (6) or slot (3.2) -> (generation, index offset, index length, index crc, count, flags)."""
+    if footer:
+        magic, major, _minor, flags, gen, ioff, ilen, count, icrc, end, _res, crc = struct.unpack(
+            "<8sHHIQQQQI4sII", b)  # section 6: index CRC at 48, "V4AE" at 52, reserved at 56, CRC at 60
+        if magic != b"V4AFOOT\0" or end != b"V4AE" or zlib.crc32(b[:60]) != crc:
+            return None
+        if major != 1 or flags & ~1:
+            raise Rejected("UnsupportedVersionError")
+    else:
+        magic, icrc, gen, foff, ioff, ilen, count, flags, crc = struct.unpack("<4sIQQQQQI8xI", b)
+        if magic != b"V4AP" or zlib.crc32(b[:60]) != crc or foff != ioff + ilen or flags & ~1:
+            return None
+    min_len = 96 if flags & 1 else 32 + 48 * count  # 6.1
+    if ioff < 160 or count > 2**24 or ilen < min_len or ioff + ilen + 64 > size:
+        return None
+    return gen, ioff, ilen, icrc, count, flags
+
+
+def _slot_commits(data: bytes):
+    out = []
+    for off in (32, 96):
+        magic, icrc, gen, foff, ioff, ilen, count, flags, crc = struct.unpack_from("<4sIQQQQQI8xI", data, off)
+        if magic == b"V4AP" and zlib.crc32(data[off:off + 60]) == crc and foff == ioff + ilen:
+            out.append((gen, ioff, ilen, icrc, count, flags))
+    return out
+
+
+def _index(data: bytes, at: int, length: int, bound: int, segment: bool) -> dict[bytes, tuple]:
+    """Sections 5.1/5.2 (+ 5.5 prefix-coded summaries in segments): key -> (payload offset, length,
+    crc, summary bytes); payloads must end by ``bound``."""
+    block = data[at:at + length]
+    magic, esize, n, kb, sb = struct.unpack_from("<4sIQQQ", block)
+    if magic != b"V4AI" or esize != 48 or 32 + 48 * n + kb + sb != len(block):
+        raise Rejected("ArchiveError")
+    keys, out, koff, soff, prev, spans = block[32 + 48 * n:32 + 48 * n + kb], {}, 0, 0, None, []
+    blob, summary = block[32 + 48 * n + kb:], b""
+    for i in range(n):
+        poff, plen, pcrc, klen, flags, ko, so, slen, res = struct.unpack_from("<QQIHHQQII", block, 32 + 48 * i)
+        prefixed = segment and flags == 1
+        if (flags and not prefixed) or (res and not prefixed) or klen < 1 or ko != koff or so != soff or slen > 65536:
+            raise Rejected("ArchiveError")
+        if prefixed and (i % 16 == 0 or not 1 <= res <= min(slen, len(summary))):
+            raise Rejected("ArchiveError")
+        summary = (summary[:res] if prefixed else b"") + blob[so:so + slen - res]
+        if poff < 192 or poff > bound or plen > bound - poff:
+            raise Rejected("ArchiveError")
+        key = keys[ko:ko + klen]
+        if prev is not None and key <= prev:
+            raise Rejected("DuplicateKeyError" if key == prev else "ArchiveError")
+        out[key], prev, koff, soff = (poff, plen, pcrc, summary), key, koff + klen, soff + slen - res
+        spans.append((poff, plen))
+    spans.sort()
+    if any(a + n > b for (a, n), (b, _) in zip(spans, spans[1:])):
+        raise Rejected("OverlappingRecordsError")
+    if koff != kb or soff != sb:
+        raise Rejected("ArchiveError")
+    return out
+
+
+def read_archive(data: bytes) -> tuple[int, dict[str, bytes]]:
+    """FORMAT.md Part II section 7 -> (generation, {key: payload})."""
+    size = len(data)
+    if size >= 8 and data[:8] != b"\x89V4A\r\n\x1a\n":
+        raise Rejected("BadMagicError")
+    if size < 256:
+        raise Rejected("TruncatedError")
+    _magic, major, _minor, flags = struct.unpack_from("<8sHHI", data)  # step 2: always
+    if major != 1 or flags & ~1:
+        raise Rejected("UnsupportedVersionError")
+    commit = _commit(data[-64:], True, size)  # step 3
+    if commit is None or commit[1] + commit[2] + 64 != size:
+        inside = [c for c in _slot_commits(data) if c[1] + c[2] + 64 <= size]
+        commit = max(inside, default=None)
+    newest = max(_slot_commits(data), default=None)  # step 4: truncation
+    if newest is not None and newest[1] + newest[2] + 64 > size and (commit is None or newest[0] > commit[0]):
+        raise Rejected("ArchiveTruncatedError")
+    if commit is None:
+        raise Rejected("NoCommitError")  # step 5
+    gen, ioff, ilen, icrc, count, cflags = commit
+    if zlib.crc32(data[ioff:ioff + ilen]) != icrc:  # step 6
+        raise Rejected("IndexChecksumError")
+    if not cflags & 1:
+        if struct.unpack_from("<Q", data, ioff + 8)[0] > 2**24:
+            raise Rejected("LimitExceededError")
+        entries = _index(data, ioff, ilen, ioff, segment=False)
+    else:  # section 5.5: manifest + newest segment, older segments newest first
+        magic, m, total = struct.unpack_from("<4sIQ", data, ioff)
+        if magic != b"V4AM" or not 1 <= m <= 64 or total != count:
+            raise Rejected("ArchiveError")
+        entries, limit = {}, ioff
+        for k in range(m):
+            off, length, n, crc = struct.unpack_from("<QQQI", data, ioff + 32 + 32 * k)
+            if k == 0 and (off, length) != (ioff + 32 + 32 * m, ilen - 32 - 32 * m):
+                raise Rejected("ArchiveError")
+            if k and (off < 160 or off + length > limit):
+                raise Rejected("ArchiveError")
+            limit = off if k else limit
+            if zlib.crc32(data[off:off + length]) != crc:
+                raise Rejected("IndexChecksumError")
+            for key, value in _index(data, off, length, off, segment=True).items():
+                entries.setdefault(key, value)  # the newest segment holding a key wins
+    if len(entries) != count:
+        raise Rejected("ArchiveError")
+    out = {}
+    for key, (poff, plen, pcrc, summary) in entries.items():  # step 7
+        payload = data[poff:poff + plen]
+        if zlib.crc32(payload) != pcrc:
+            raise Rejected("RecordChecksumError")
+        # verify (5.3, section 4): the frame before the payload holds the same key and summary bytes
+        if data[poff - len(summary):poff] != summary or data[poff - len(summary) - len(key):poff - len(summary)] != key:
+            raise Rejected("ArchiveError")
+        out[key.decode()] = payload
+    return gen, out
+
+
+ARCHIVE_EXPECTED = json.loads((ARCHIVES / "expected.json").read_text())
+
+
+@pytest.mark.parametrize("name", sorted(ARCHIVE_EXPECTED), ids=lambda n: n.removesuffix(".vt4da"))
+def test_format_md_alone_reads_or_rejects_every_archive_vector(name):
+    import hashlib
+
+    expected, data = ARCHIVE_EXPECTED[name], (ARCHIVES / name).read_bytes()
+    if expected["valid"]:
+        gen, records = read_archive(data)
+        assert gen == expected["generation"]
+        assert {k: hashlib.sha256(v).hexdigest() for k, v in records.items()} == expected["records"]
+    else:
+        with pytest.raises(Rejected) as info:
+            read_archive(data)
+        # section 10.1 names the class; "ArchiveError" is the catch-all (any structural violation)
+        assert info.value.kind == expected["error"] or expected["error"] == "ArchiveError", info.value.kind

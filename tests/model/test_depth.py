@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from vt4dcodec.geometry import project, relative_pose, transform_points
+from vt4dcodec.model.geometry import project, relative_pose, transform_points
 from vt4dcodec.model.depth import DepthInputError, estimate_depth, plane_homography
 from vt4dcodec.synth import SynthConfig, generate_scene
 

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from vt4dcodec.geometry import camera_flow
+from vt4dcodec.model.geometry import camera_flow
 from vt4dcodec.model.motion import (
     TAU_K,
     TAU_MIN,
@@ -198,7 +198,7 @@ def test_hand_made_scene_with_estimated_depth():
     assert iou(iso.mask, s["dyn"]) >= 0.5  # measured ~0.7
 
 
-# --- masks on the synthetic scenes (issue #5 item 9) --------------------------------------------------
+# --- masks on the synthetic scenes --------------------------------------------------
 def test_static_synthetic_scenes_have_masks_under_two_percent():
     # seed 6 cameras 0-1 used to mark 9-10 % (DIS smoothing across depth edges; the step 6 veto); measured
     # max 0.85 % over seeds 0-17 (seed 0 cam01), 0.07 % on seed 6
@@ -214,7 +214,7 @@ def test_moving_objects_are_isolated_on_synthetic_scenes():
 
 
 def test_pair_geometry_is_camera_flow():
-    """F_pose of the all-pairs warp (frames unprojected once) equals vt4dcodec.geometry.camera_flow."""
+    """F_pose of the all-pairs warp (frames unprojected once) equals vt4dcodec.model.geometry.camera_flow."""
     s = plane_scene(0, False)
     depth = s["depth"].copy()
     depth[2, :6] = 0.0  # unknown depth is invalid in both

@@ -116,3 +116,26 @@ def test_float16_storage_halves_the_file_and_loads_the_same_model(tmp_path):
     assert torch.equal(model.encode(batch)[0], loaded.encode(batch)[0])
     with pytest.raises(ModelError, match="storage_dtype"):
         save_pretrained(model, tmp_path / "x", model_id="m", model_version="1", storage_dtype="int8")
+
+
+def test_decode_steps_are_recorded_per_model_outside_the_hash(tmp_path):
+    torch.manual_seed(0)
+    model = VideoTok4D(CFG)
+    one = from_pretrained(save_pretrained(model, tmp_path / "one", model_id="t", model_version="1", decode_steps=1))
+    eight = from_pretrained(save_pretrained(model, tmp_path / "eight", model_id="t", model_version="1"))
+    assert one.decode_steps == 1 and eight.decode_steps == 8
+    meta = json.loads((tmp_path / "one" / "config.json").read_text())
+    assert meta["decode_steps"] == 1 and one.fingerprint("t", "1") == eight.fingerprint("t", "1")
+    batch = random_batch(CFG, B=1)
+    z = one.encode(batch)
+    assert torch.equal(one.render(*z, batch.K, batch.w2c, seed=2), eight.render(*z, batch.K, batch.w2c, steps=1, seed=2))
+    del meta["decode_steps"]  # directories written before the field existed decode with 8 steps
+    (tmp_path / "one" / "config.json").write_text(json.dumps(meta))
+    assert from_pretrained(tmp_path / "one").decode_steps == 8
+    for bad in (0, -1, 1.5, True, "8", 10**6):
+        meta["decode_steps"] = bad
+        (tmp_path / "one" / "config.json").write_text(json.dumps(meta))
+        with pytest.raises(ModelError, match="decode_steps"):
+            from_pretrained(tmp_path / "one")
+    with pytest.raises(ModelError, match="decode_steps"):
+        save_pretrained(model, tmp_path / "bad", model_id="t", model_version="1", decode_steps=0)

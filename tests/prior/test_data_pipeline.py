@@ -16,7 +16,7 @@ from vt4dcodec.archive import open_archive
 from vt4dcodec.data.archive_dataset import ArchiveDataset
 from vt4dcodec.errors import ArchiveError
 from vt4dcodec.model import from_pretrained
-from vt4dcodec.model.prior import load_prior
+from vt4dcodec.model.weights_io import load_prior
 from vt4dcodec.model.train.data import ScenePool
 from vt4dcodec.model.train.prior import PriorPairDataset, collate_prior
 from vt4dcodec.model.train.tokenize_scenes import clip_path, pack_clip, tokenize_event, unpack_clip

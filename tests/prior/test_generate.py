@@ -17,7 +17,8 @@ from vt4dcodec.errors import CaptureError, ModelMismatchError, TrajectoryError, 
 from vt4dcodec.format import load
 from vt4dcodec.generate import generate
 from vt4dcodec.model import VideoTok4D, from_pretrained, get_config, save_pretrained
-from vt4dcodec.model.prior import check_tokenizer, load_prior
+from vt4dcodec.model.prior import check_tokenizer
+from vt4dcodec.model.weights_io import load_prior
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 

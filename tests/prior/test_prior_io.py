@@ -10,7 +10,8 @@ import torch
 from co4dgen_helpers import random_condition, small_prior
 from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
-from vt4dcodec.model.prior import check_tokenizer, load_prior, save_prior
+from vt4dcodec.model.prior import check_tokenizer
+from vt4dcodec.model.weights_io import load_prior, save_prior
 
 FP = ModelFingerprint(model_id="tok", model_version="1", config_sha256="a" * 64, weights_sha256="b" * 64,
                       static_shape=(8, 8), dynamic_shape=(4, 8))

@@ -1,5 +1,5 @@
 """Static-Dynamic Cross-Token Attention: static queries attend only to the static stream, dynamic
-queries to both (issue #8 "a test proves the routing")."""
+queries to both."""
 
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.geometry import camera_flow
+from vt4dcodec.model.geometry import camera_flow
 from vt4dcodec.synth import SynthConfig, SynthError, generate_scene
 
 from .helpers import SMALL, SMALL_STATIC, backward_warp, scene

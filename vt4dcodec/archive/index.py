@@ -16,6 +16,7 @@ validation pass; lookup is a binary search over the key blob (O(log n)).
 
 from __future__ import annotations
 
+import operator
 import struct
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Sequence
@@ -37,6 +38,35 @@ ENTRY_DTYPE = np.dtype([
 ])
 assert ENTRY_DTYPE.itemsize == INDEX_ENTRY_SIZE
 _INDEX_HEADER = struct.Struct("<4sIQQQ")
+
+#: entry flag bit 0 (index segments of version 1.1 only): the summary is the previous entry's first
+#: ``reserved`` bytes followed by the ``summary_len - reserved`` bytes stored at ``summary_offset``
+ENTRY_PREFIX = 0x1
+PREFIX_RESTART = 16  #: entries 0, 16, 32, ... never use a prefix, so a summary decodes from <= 16
+MIN_PREFIX = 8
+#: summary fields that differ from scene to scene; a 1.1 writer packs them last so neighbours share
+#: the longest prefix (the model fingerprint, encoding, shapes...)
+PER_SCENE_FIELDS = ("source_capture_id", "created_utc", "bytes")
+
+
+def shared_first(summary: dict) -> dict:
+    """The same summary with the per-scene fields moved to the end (prefix coding shares more)."""
+    return {**{k: v for k, v in summary.items() if k not in PER_SCENE_FIELDS},
+            **{k: summary[k] for k in PER_SCENE_FIELDS if k in summary}}
+
+
+def _common_prefix(a: bytes, b: bytes) -> int:
+    n = min(len(a), len(b))
+    if a[:n] == b[:n]:
+        return n
+    lo, hi = 0, n  # a[:lo] == b[:lo], a[:hi + 1] != b[:hi + 1] (slice compares run at C speed)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if a[:mid] == b[:mid]:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
 
 
 class DuplicateKeyError(ArchiveError):
@@ -101,7 +131,7 @@ class IndexEntry:
 class ArchiveIndex:
     """A parsed, validated index block.  Immutable; build new ones with :meth:`build`."""
 
-    def __init__(self, table: np.ndarray, keys_blob: bytes, summaries_blob: bytes):
+    def __init__(self, table: np.ndarray, keys_blob: bytes, summaries_blob: bytes | memoryview):
         self._table = table
         self._keys = keys_blob
         self._summaries = summaries_blob
@@ -109,14 +139,20 @@ class ArchiveIndex:
         # keys and summaries are packed, so entry i spans [offset[i], offset[i + 1]).
         self._key_bounds = table["key_offset"].tolist() + [len(keys_blob)]
         self._summary_bounds = table["summary_offset"].tolist() + [len(summaries_blob)]
+        self._prefixed = bool(len(table)) and bool(np.any(table["flags"] & ENTRY_PREFIX))
+        if self._prefixed:
+            self._prefix = table["reserved"].tolist()
         self._offsets = table["payload_offset"].tolist()
         self._lengths = table["payload_length"].tolist()
         self._crcs = table["payload_crc32"].tolist()
 
     # -- construction --------------------------------------------------------------------------
     @staticmethod
-    def build(entries: Sequence[IndexEntry]) -> bytes:
-        """Serialise entries (any order; keys must be unique) into index-block bytes."""
+    def build(entries: Sequence[IndexEntry], *, prefix: bool = False) -> bytes:
+        """Serialise entries (any order; keys must be unique) into index-block bytes.
+
+        ``prefix`` (version 1.1 segments only): store each summary as the length of the prefix it
+        shares with the previous entry's plus the rest (entry flag bit 0), restarting every 16."""
         ordered = sorted(entries, key=lambda e: e.key.encode())
         keys = [check_key(e.key) for e in ordered]
         for a, b in zip(keys, keys[1:]):
@@ -126,12 +162,20 @@ class ArchiveIndex:
             raise LimitExceededError(f"{len(ordered)} scenes exceed the archive limit {MAX_SCENES}")
         table = np.zeros(len(ordered), dtype=ENTRY_DTYPE)
         key_off = summ_off = 0
+        stored = []
+        prev = b""
         for i, (e, k) in enumerate(zip(ordered, keys)):
-            table[i] = (e.offset, e.length, e.crc32, len(k), 0, key_off, summ_off, len(e.summary_bytes), 0)
+            summ = e.summary_bytes
+            p = _common_prefix(prev, summ) if prefix and i % PREFIX_RESTART else 0
+            p = p if p >= MIN_PREFIX else 0
+            table[i] = (e.offset, e.length, e.crc32, len(k), ENTRY_PREFIX if p else 0, key_off, summ_off,
+                        len(summ), p)
+            stored.append(summ[p:])
             key_off += len(k)
-            summ_off += len(e.summary_bytes)
+            summ_off += len(summ) - p
+            prev = summ
         head = _INDEX_HEADER.pack(INDEX_MAGIC, INDEX_ENTRY_SIZE, len(ordered), key_off, summ_off)
-        return b"".join([head, table.tobytes(), *keys, *(e.summary_bytes for e in ordered)])
+        return b"".join([head, table.tobytes(), *keys, *stored])
 
     @classmethod
     def parse(cls, data: bytes, commit: Commit) -> "ArchiveIndex":
@@ -143,8 +187,11 @@ class ArchiveIndex:
         return cls.parse_unchecked(data, commit.index_offset, commit.scene_count)
 
     @classmethod
-    def parse_unchecked(cls, data: bytes, index_offset: int, expected_count: int | None) -> "ArchiveIndex":
-        """Structure checks only (the CRC is the caller's business).  Records must end by ``index_offset``."""
+    def parse_unchecked(cls, data: bytes, index_offset: int, expected_count: int | None, *,
+                        prefix: bool = False) -> "ArchiveIndex":
+        """Structure checks only (the CRC is the caller's business).  Records must end by ``index_offset``.
+
+        ``prefix``: the block is a version 1.1 segment, whose entries may prefix-code summaries."""
         if len(data) < INDEX_HEADER_SIZE:
             raise TruncatedError("index block shorter than its 32-byte header")
         magic, esize, count, keys_len, summ_len = _INDEX_HEADER.unpack_from(data)
@@ -164,26 +211,35 @@ class ArchiveIndex:
             )
         table = np.frombuffer(data, dtype=ENTRY_DTYPE, count=count, offset=INDEX_HEADER_SIZE)
         keys_blob = data[table_end: table_end + keys_len]
-        summaries_blob = data[table_end + keys_len:]
-        cls._validate(table, keys_blob, summaries_blob, index_offset)
+        summaries_blob = memoryview(data)[table_end + keys_len:]  # no copy: sliced on access
+        cls._validate(table, keys_blob, summaries_blob, index_offset, prefix)
         return cls(table, keys_blob, summaries_blob)
 
     @staticmethod
-    def _validate(t: np.ndarray, keys: bytes, summaries: bytes, index_offset: int) -> None:
+    def _validate(t: np.ndarray, keys: bytes, summaries: bytes, index_offset: int, prefix: bool = False) -> None:
         n = len(t)
         if n == 0:
             return
-        if np.any(t["flags"] != 0) or np.any(t["reserved"] != 0):
+        flags = t["flags"]
+        pref = t["reserved"].astype(np.int64)
+        has = (flags & ENTRY_PREFIX) != 0
+        if np.any(flags & ~np.uint16(ENTRY_PREFIX if prefix else 0)) or np.any(pref[~has] != 0):
             raise ArchiveError("index entry sets unknown flags")
+        slen = t["summary_len"].astype(np.int64)
+        if np.any(has):
+            prev_len = np.concatenate([[0], slen[:-1]])
+            if (np.any(has[::PREFIX_RESTART]) or np.any(pref[has] < 1) or np.any(pref > slen)
+                    or np.any(pref > prev_len)):
+                raise ArchiveError("index entry's summary prefix is out of range")
         klen = t["key_len"].astype(np.int64)
         if np.any(klen < 1):
             raise ArchiveError("index entry has an empty key")
         expected_koff = np.concatenate([[0], np.cumsum(klen)[:-1]])
         if np.any(t["key_offset"].astype(np.int64) != expected_koff) or int(klen.sum()) != len(keys):
             raise ArchiveError("index keys are not packed in entry order")
-        slen = t["summary_len"].astype(np.int64)
-        expected_soff = np.concatenate([[0], np.cumsum(slen)[:-1]])
-        if np.any(t["summary_offset"].astype(np.int64) != expected_soff) or int(slen.sum()) != len(summaries):
+        stored = slen - pref
+        expected_soff = np.concatenate([[0], np.cumsum(stored)[:-1]])
+        if np.any(t["summary_offset"].astype(np.int64) != expected_soff) or int(stored.sum()) != len(summaries):
             raise ArchiveError("index summaries are not packed in entry order")
         if np.any(slen > MAX_SUMMARY_BYTES):
             raise LimitExceededError("index summary exceeds the size limit")
@@ -194,21 +250,22 @@ class ArchiveIndex:
             raise ArchiveError("index entry offset lies outside the record area (past the end?)")
         if np.any(length > np.uint64(index_offset) - off):
             raise ArchiveError("index entry runs past the start of its index (offset + length past the end)")
-        order = np.argsort(off, kind="stable")
-        so, sl = off[order].astype(np.int64), length[order].astype(np.int64)
+        if n > 1 and np.all(off[1:] >= off[:-1]):  # written in key order: no sort needed
+            so, sl = off.astype(np.int64), length.astype(np.int64)
+        else:
+            order = np.argsort(off, kind="stable")
+            so, sl = off[order].astype(np.int64), length[order].astype(np.int64)
         if n > 1 and np.any(so[1:] < so[:-1] + sl[:-1]):
             raise OverlappingRecordsError("index entries point at overlapping records")
-        prev = None
-        for i in range(n):
-            start = int(expected_koff[i])
-            k = keys[start: start + int(klen[i])]
-            if prev is not None and k <= prev:
-                if k == prev:
-                    raise DuplicateKeyError(f"duplicate key {k.decode(errors='replace')!r} in the index")
-                raise ArchiveError("index keys are not sorted")
-            prev = k
-        for i in (0, n - 1):  # keys are cheap to check fully; do it on access too
-            _decode_key(keys[int(expected_koff[i]): int(expected_koff[i] + klen[i])])
+        bounds = expected_koff.tolist() + [len(keys)]
+        ks = [keys[a:b] for a, b in zip(bounds, bounds[1:])]
+        if not all(map(operator.lt, ks, ks[1:])):  # strictly increasing (C-level comparison)
+            i = next(i for i in range(1, n) if ks[i] <= ks[i - 1])
+            if ks[i] == ks[i - 1]:
+                raise DuplicateKeyError(f"duplicate key {ks[i].decode(errors='replace')!r} in the index")
+            raise ArchiveError("index keys are not sorted")
+        for k in (ks[0], ks[-1]):  # keys are cheap to check fully; do it on access too
+            _decode_key(k)
 
     # -- queries -----------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -226,6 +283,10 @@ class ArchiveIndex:
             target = key.encode("utf-8")
         except (UnicodeEncodeError, AttributeError):
             return None
+        return self.find_bytes(target)
+
+    def find_bytes(self, target: bytes) -> int | None:
+        """Position of the key with these UTF-8 bytes, or None."""
         lo, hi = 0, len(self._table)
         while lo < hi:
             mid = (lo + hi) // 2
@@ -239,7 +300,10 @@ class ArchiveIndex:
         return None
 
     def summary_bytes(self, i: int) -> bytes:
-        return self._summaries[self._summary_bounds[i]: self._summary_bounds[i + 1]]
+        stored = bytes(self._summaries[self._summary_bounds[i]: self._summary_bounds[i + 1]])
+        if not self._prefixed or not self._prefix[i]:
+            return stored
+        return self.summary_bytes(i - 1)[: self._prefix[i]] + stored  # at most 15 steps back
 
     def entry(self, i: int) -> IndexEntry:
         return IndexEntry(self.key(i), self._offsets[i], self._lengths[i], self._crcs[i], self.summary_bytes(i))

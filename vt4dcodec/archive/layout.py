@@ -20,14 +20,15 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from ..errors import ArchiveError, BadMagicError, ChecksumError, LimitExceededError, TruncatedError
+from ..errors import ArchiveError, FormatError, BadMagicError, ChecksumError, LimitExceededError, TruncatedError
 from ..errors import UnsupportedVersionError
 
 __all__ = [
     "ARCHIVE_MAGIC", "ARCHIVE_EXTENSION", "VERSION_MAJOR", "VERSION_MINOR",
     "PREAMBLE_SIZE", "SLOT_SIZE", "SLOT_OFFSETS", "HEADER_SIZE", "FRAME_HEADER_SIZE",
     "INDEX_HEADER_SIZE", "INDEX_ENTRY_SIZE", "FOOTER_SIZE",
-    "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES",
+    "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES", "MAX_GENERATION",
+    "FLAG_SEGMENTED", "KNOWN_FLAGS", "MANIFEST_HEADER_SIZE", "SEGMENT_REF_SIZE", "MAX_SEGMENTS",
     "Commit", "FrameHeader", "crc32", "check_key",
     "pack_preamble", "parse_preamble", "pack_slot", "parse_slot", "pack_footer", "parse_footer",
     "pack_frame_header", "parse_frame_header",
@@ -37,7 +38,14 @@ __all__ = [
 # --- constants ------------------------------------------------------------------------------------
 ARCHIVE_MAGIC = b"\x89V4A\r\n\x1a\n"  #: 8 bytes, PNG-style: high bit, name, CRLF, ^Z, LF
 ARCHIVE_EXTENSION = ".vt4da"
-VERSION_MAJOR, VERSION_MINOR = 1, 0
+VERSION_MAJOR, VERSION_MINOR = 1, 1  #: what this implementation writes (it reads every 1.x)
+#: required flag bit 0 (preamble, footer, slot): the commit's index block is a segment manifest
+#: (FORMAT.md Part II section 5.5, version 1.1).  In the preamble it says commits may use it.
+FLAG_SEGMENTED = 0x1
+KNOWN_FLAGS = FLAG_SEGMENTED
+MANIFEST_HEADER_SIZE = 32
+SEGMENT_REF_SIZE = 32
+MAX_SEGMENTS = 64  #: index segments one commit may name
 
 PREAMBLE_SIZE = 32
 SLOT_SIZE = 64
@@ -51,6 +59,7 @@ FOOTER_SIZE = 64
 SLOT_MAGIC = b"V4AP"
 FRAME_MAGIC = b"V4AR"
 INDEX_MAGIC = b"V4AI"
+MANIFEST_MAGIC = b"V4AM"
 FOOTER_MAGIC = b"V4AFOOT\x00"
 FOOTER_END_MAGIC = b"V4AE"
 
@@ -58,6 +67,7 @@ MAX_KEY_BYTES = 1024  #: UTF-8 bytes of one scene key
 MAX_SUMMARY_BYTES = 65536  #: msgpack bytes of one record summary
 MAX_SCENES = 1 << 24  #: scenes in one archive (16,777,216)
 MAX_RECORD_BYTES = 1 << 40  #: one record payload (1 TiB)
+MAX_GENERATION = (1 << 64) - 1  #: the u64 generation counter; a writer refuses to commit past it
 
 _KEY_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._\-]*(/[A-Za-z0-9_][A-Za-z0-9._\-]*)*")
 
@@ -90,12 +100,20 @@ def check_key(key: str) -> bytes:
 _PREAMBLE = struct.Struct("<8sHHI16x")  # magic, major, minor, flags, reserved
 
 
-def pack_preamble() -> bytes:
-    return _PREAMBLE.pack(ARCHIVE_MAGIC, VERSION_MAJOR, VERSION_MINOR, 0)
+def pack_preamble(minor: int = VERSION_MINOR) -> bytes:
+    """Version 1.1 archives set required flag bit 0 (commits may use segmented indexes); 1.0: none."""
+    return _PREAMBLE.pack(ARCHIVE_MAGIC, VERSION_MAJOR, minor, FLAG_SEGMENTED if minor >= 1 else 0)
 
 
-def parse_preamble(data: bytes) -> None:
-    """Check the 32-byte preamble: magic, supported major version, no unknown required flags."""
+def preamble_minor(data: bytes) -> int:
+    """The minor version a (checked) preamble declares."""
+    return _PREAMBLE.unpack_from(data)[2]
+
+
+def parse_preamble(data: bytes) -> int:
+    """Check the 32-byte preamble: magic, supported major version, no unknown required flags.
+
+    Returns the required flags (bit 0: commits may use segmented indexes)."""
     if len(data) < PREAMBLE_SIZE:
         raise TruncatedError(f"archive is {len(data)} bytes, shorter than its {PREAMBLE_SIZE}-byte preamble")
     magic, major, _minor, flags = _PREAMBLE.unpack_from(data)
@@ -103,8 +121,9 @@ def parse_preamble(data: bytes) -> None:
         raise BadMagicError("not a vt4d archive (bad magic; expected \\x89V4A\\r\\n\\x1a\\n)")
     if major != VERSION_MAJOR:
         raise UnsupportedVersionError(f"archive major version {major}; this reader reads {VERSION_MAJOR}")
-    if flags != 0:
-        raise UnsupportedVersionError(f"archive sets unknown required flags 0x{flags:08x}")
+    if flags & ~KNOWN_FLAGS:
+        raise UnsupportedVersionError(f"archive sets unknown required flags 0x{flags & ~KNOWN_FLAGS:08x}")
+    return flags
 
 
 # --- commits (footer and the two header slots hold the same fields) -----------------------------
@@ -121,6 +140,11 @@ class Commit:
     index_length: int
     index_crc32: int
     scene_count: int
+    flags: int = 0  #: FLAG_SEGMENTED: the index block is a segment manifest (version 1.1)
+
+    @property
+    def segmented(self) -> bool:
+        return bool(self.flags & FLAG_SEGMENTED)
 
     @property
     def footer_offset(self) -> int:
@@ -131,8 +155,9 @@ class Commit:
         return self.footer_offset + FOOTER_SIZE
 
 
-# slot: magic, index crc, generation, footer offset, index offset, index length, scene count, pad, crc
-_SLOT = struct.Struct("<4sIQQQQQ12xI")
+# slot: magic, index crc, generation, footer offset, index offset, index length, scene count, flags
+# (1.1; reserved zero in 1.0), pad, crc
+_SLOT = struct.Struct("<4sIQQQQQI8xI")
 # footer: magic, major, minor, flags, generation, index offset, index length, scene count, index crc,
 # reserved, end magic, footer crc
 _FOOTER = struct.Struct("<8sHHIQQQQI4s4xI")
@@ -144,6 +169,12 @@ def _check_commit_fields(c: Commit) -> Commit:
         raise ArchiveError(f"commit index offset {c.index_offset} lies inside the archive header")
     if c.scene_count > MAX_SCENES:
         raise LimitExceededError(f"commit claims {c.scene_count} scenes (limit {MAX_SCENES})")
+    if c.flags & ~KNOWN_FLAGS:
+        raise UnsupportedVersionError(f"commit sets unknown required flags 0x{c.flags & ~KNOWN_FLAGS:08x}")
+    if c.segmented:  # manifest (32 + 32 m bytes, m >= 1) + the newest segment (>= 32 bytes)
+        if c.index_length < MANIFEST_HEADER_SIZE + SEGMENT_REF_SIZE + INDEX_HEADER_SIZE:
+            raise ArchiveError(f"segmented index block of {c.index_length} bytes is too short")
+        return c
     min_len = INDEX_HEADER_SIZE + INDEX_ENTRY_SIZE * c.scene_count
     if c.index_length < min_len:
         raise ArchiveError(f"index of {c.index_length} bytes cannot hold {c.scene_count} scenes")
@@ -152,7 +183,7 @@ def _check_commit_fields(c: Commit) -> Commit:
 
 def pack_slot(c: Commit) -> bytes:
     body = _SLOT.pack(SLOT_MAGIC, c.index_crc32, c.generation, c.footer_offset, c.index_offset,
-                      c.index_length, c.scene_count, 0)
+                      c.index_length, c.scene_count, c.flags, 0)
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
 
 
@@ -160,20 +191,21 @@ def parse_slot(data: bytes) -> Commit | None:
     """A header commit slot, or None if it is empty/torn (wrong magic or checksum)."""
     if len(data) < SLOT_SIZE:
         return None
-    magic, icrc, gen, footer_off, ioff, ilen, count, scrc = _SLOT.unpack_from(data)
+    magic, icrc, gen, footer_off, ioff, ilen, count, flags, scrc = _SLOT.unpack_from(data)
     if magic != SLOT_MAGIC or crc32(data[: SLOT_SIZE - 4]) != scrc:
         return None
-    c = Commit(gen, ioff, ilen, icrc, count)
+    c = Commit(gen, ioff, ilen, icrc, count, flags)
     if footer_off != c.footer_offset:
         return None
     try:
         return _check_commit_fields(c)
-    except ArchiveError:
+    except FormatError:  # unusable: a reader that needs it reports the preamble's or footer's error
         return None
 
 
 def pack_footer(c: Commit) -> bytes:
-    body = _FOOTER.pack(FOOTER_MAGIC, VERSION_MAJOR, VERSION_MINOR, 0, c.generation, c.index_offset,
+    minor = 1 if c.flags else 0  # a 1.0 reader can read an unsegmented commit
+    body = _FOOTER.pack(FOOTER_MAGIC, VERSION_MAJOR, minor, c.flags, c.generation, c.index_offset,
                         c.index_length, c.scene_count, c.index_crc32, FOOTER_END_MAGIC, 0)
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
 
@@ -189,9 +221,9 @@ def parse_footer(data: bytes) -> Commit:
         raise ArchiveFooterChecksumError("archive footer checksum mismatch")
     if major != VERSION_MAJOR:
         raise UnsupportedVersionError(f"archive footer major version {major}; this reader reads {VERSION_MAJOR}")
-    if flags != 0:
-        raise UnsupportedVersionError(f"archive footer sets unknown required flags 0x{flags:08x}")
-    return _check_commit_fields(Commit(gen, ioff, ilen, icrc, count))
+    if flags & ~KNOWN_FLAGS:
+        raise UnsupportedVersionError(f"archive footer sets unknown required flags 0x{flags & ~KNOWN_FLAGS:08x}")
+    return _check_commit_fields(Commit(gen, ioff, ilen, icrc, count, flags))
 
 
 class ArchiveFooterChecksumError(ArchiveError, ChecksumError):

@@ -25,9 +25,14 @@ class WriterLock:
     def __init__(self, archive_path: str | os.PathLike):
         self.path = lock_path(archive_path)
         self._fd: int | None = None
+        self.created = False  #: this lock created the lock file (so it may remove it again)
 
     def acquire(self) -> "WriterLock":
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+            self.created = True
+        except FileExistsError:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -50,6 +55,17 @@ class WriterLock:
             finally:
                 os.close(self._fd)
                 self._fd = None
+
+    def release_and_remove(self) -> None:
+        """Release, removing the lock file first if this lock created it (used when the writer
+        created nothing that stays: a failed open, or an archive it created and then removed).
+        Another writer racing for the lock fails with ArchiveLockedError (locks are non-blocking)."""
+        if self._fd is not None and self.created:
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+        self.release()
 
     @property
     def held(self) -> bool:

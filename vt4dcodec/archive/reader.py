@@ -1,8 +1,8 @@
 """Read an archive: find the last commit, load its index, fetch records by key.
 
-Opening costs two reads (the 64-byte tail and the index) when the file ends with a footer, three
-when it does not (a writer is appending, or one crashed): the tail, the 160-byte header whose commit
-slots point at the last commit, then the index.  Reading a scene is one read of exactly its payload.
+Opening costs three reads whether or not the file ends with a footer: the 160-byte header (the
+preamble is always checked, and its commit slots name the last commit when the tail is not a footer
+or reveal a commit cut off by truncation), the 64-byte tail, then the index.  Reading a scene is one read of exactly its payload.
 Readers never lock; they see the last state committed before they opened.
 """
 
@@ -12,13 +12,14 @@ import os
 from typing import Any, Iterator
 
 from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
-from .index import ArchiveIndex, IndexEntry
+from .index import IndexEntry
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
                      parse_footer, parse_preamble, parse_slot)
+from .segments import load_index
 from .source import ByteSource, open_source
 
 __all__ = ["ArchiveReader", "open_archive", "find_commit", "NoCommitError", "RecordChecksumError",
-           "best_slot"]
+           "ArchiveTruncatedError", "best_slot", "newest_slot"]
 
 MIN_ARCHIVE_SIZE = HEADER_SIZE + INDEX_HEADER_SIZE + FOOTER_SIZE
 
@@ -41,32 +42,77 @@ def best_slot(header: bytes, size: int) -> Commit | None:
     return best
 
 
-def find_commit(source: ByteSource) -> tuple[Commit, bool]:
-    """The last commit and whether it is the file's tail footer (False: found via a header slot)."""
+class ArchiveTruncatedError(ArchiveError, TruncatedError):
+    """A header slot names a newer commit that ends past the end of the file: the file was cut short.
+
+    Reading the older commit that is still intact would silently serve an earlier state of the
+    archive (scenes missing, replaced keys reverted), so readers refuse unless asked
+    (``allow_truncated=True``, CLI ``--allow-truncated``).  ``lost`` is the commit that was cut off.
+    """
+
+    def __init__(self, message: str, lost: Commit | None = None, fallback: Commit | None = None):
+        super().__init__(message)
+        self.lost = lost
+        self.fallback = fallback
+
+
+def newest_slot(header: bytes) -> Commit | None:
+    """The valid header slot with the highest generation, wherever its commit ends."""
+    best = None
+    for off in SLOT_OFFSETS:
+        c = parse_slot(header[off: off + SLOT_SIZE])
+        if c is not None and (best is None or c.generation > best.generation):
+            best = c
+    return best
+
+
+def find_commit(source: ByteSource, *, allow_truncated: bool = False) -> tuple[Commit, bool]:
+    """The last commit and whether it is the file's tail footer (False: found via a header slot).
+
+    FORMAT.md Part II section 7: the preamble is always checked (magic, major version, required
+    flags); a valid header slot naming a newer commit than the one found, ending past the end of
+    the file, means the file was truncated: :class:`ArchiveTruncatedError` unless
+    ``allow_truncated`` (then the last intact commit is returned).
+    """
     size = source.size()
     if size < MIN_ARCHIVE_SIZE:
         if size >= 8:
             parse_preamble(source.read(0, min(size, 32)) + bytes(32))  # bad magic beats "too short"
         raise TruncatedError(f"{source.name}: {size} bytes is too short for an archive ({MIN_ARCHIVE_SIZE} minimum)")
-    try:
-        commit = parse_footer(source.read(size - FOOTER_SIZE, FOOTER_SIZE))
-        if commit.end == size:
-            return commit, True
-    except ArchiveError:
-        pass
     header = source.read(0, HEADER_SIZE)
     parse_preamble(header)
+    commit: Commit | None = None
+    at_tail = False
+    try:
+        tail = parse_footer(source.read(size - FOOTER_SIZE, FOOTER_SIZE))
+        if tail.end == size:
+            commit, at_tail = tail, True
+    except ArchiveError:
+        pass
     # A writer may have committed (and moved the slots past our size snapshot) since we measured:
-    # re-measure, so slots naming commits that are now complete count.
+    # re-measure, so slots naming commits that are now complete are not mistaken for truncation.
     if hasattr(source, "refresh"):
         source.refresh()
-    commit = best_slot(header, max(size, source.size()))
+    now = max(size, source.size())
+    if commit is None:
+        commit = best_slot(header, now)
+    newest = newest_slot(header)
+    if newest is not None and newest.end > now and (commit is None or newest.generation > commit.generation):
+        if not allow_truncated or commit is None:
+            older = ("no older commit is intact" if commit is None else
+                     f"generation {commit.generation} ({commit.scene_count} scenes) is the last intact one; "
+                     "pass allow_truncated=True (CLI: --allow-truncated) to read it knowingly")
+            raise ArchiveTruncatedError(
+                f"{source.name}: truncated: commit generation {newest.generation} ({newest.scene_count} scenes) "
+                f"ends at byte {newest.end} but the file has {now} bytes; {older}, or run `vt4d repair` "
+                "to recover the records that are still in the file",
+                lost=newest, fallback=commit)
     if commit is None:
         raise NoCommitError(
             f"{source.name}: no valid commit (footer and header slots damaged); "
             "run `vt4d repair --full-scan` to rebuild the index from the records"
         )
-    return commit, False
+    return commit, at_tail
 
 
 class ArchiveReader:
@@ -76,11 +122,18 @@ class ArchiveReader:
     ``storage_options`` go to fsspec), raw bytes, or a :class:`ByteSource`.
     """
 
-    def __init__(self, path_or_url: Any, **storage_options: Any):
+    def __init__(self, path_or_url: Any, *, allow_truncated: bool = False, **storage_options: Any):
         self.source: ByteSource = open_source(path_or_url, **storage_options)
-        self.commit, self.committed_at_tail = find_commit(self.source)
-        data = self.source.read(self.commit.index_offset, self.commit.index_length)
-        self.index = ArchiveIndex.parse(data, self.commit)
+        try:
+            self.commit, self.committed_at_tail = find_commit(self.source, allow_truncated=allow_truncated)
+        except BaseException:
+            self.source.close()
+            raise
+        try:
+            self.index = load_index(self.source.read, self.commit)
+        except BaseException:
+            self.source.close()
+            raise
 
     # -- mapping-like access ---------------------------------------------------------------------
     @property
@@ -95,20 +148,20 @@ class ArchiveReader:
         return len(self.index)
 
     def __contains__(self, key: object) -> bool:
-        return isinstance(key, str) and self.index.find(key) is not None
+        return isinstance(key, str) and self.index.lookup(key) is not None
 
     def __iter__(self) -> Iterator[str]:
-        return (self.index.key(i) for i in range(len(self.index)))
+        return iter(self.index.keys())
 
     def keys(self) -> list[str]:
         """All committed keys, sorted by their UTF-8 bytes."""
         return self.index.keys()
 
     def entry(self, key: str) -> IndexEntry:
-        i = self.index.find(key)
-        if i is None:
+        e = self.index.lookup(key)
+        if e is None:
             raise SceneNotFoundError(f"no scene {key!r} in {self.name}")
-        return self.index.entry(i)
+        return e
 
     def entries(self) -> Iterator[IndexEntry]:
         return self.index.entries()
@@ -158,9 +211,9 @@ class ArchiveReader:
             for k in range(i, j):
                 data = block[offsets[k] - start: offsets[k] - start + lengths[k]]
                 if check and crc32(data) != crcs[k]:
-                    raise RecordChecksumError(f"record {self.index.key(positions[k])!r} in {self.name} "
+                    raise RecordChecksumError(f"record {self.index.key_at(positions[k])!r} in {self.name} "
                                               "fails its checksum")
-                yield self.index.key(positions[k]), data
+                yield self.index.key_at(positions[k]), data
             i = j
 
     @property
@@ -181,8 +234,12 @@ class ArchiveReader:
         return f"ArchiveReader({self.name!r}, scenes={len(self)}, generation={self.generation})"
 
 
-def open_archive(path_or_url: Any, **storage_options: Any) -> ArchiveReader:
-    """Open an archive for reading (see :class:`ArchiveReader`)."""
+def open_archive(path_or_url: Any, *, allow_truncated: bool = False, **storage_options: Any) -> ArchiveReader:
+    """Open an archive for reading (see :class:`ArchiveReader`).
+
+    A truncated archive (a header slot names a commit cut off the end) raises
+    :class:`ArchiveTruncatedError`; ``allow_truncated=True`` reads its last intact commit instead.
+    """
     if isinstance(path_or_url, os.PathLike):
         path_or_url = os.fspath(path_or_url)
-    return ArchiveReader(path_or_url, **storage_options)
+    return ArchiveReader(path_or_url, allow_truncated=allow_truncated, **storage_options)

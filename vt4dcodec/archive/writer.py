@@ -7,7 +7,9 @@ Write protocol (normative text in FORMAT.md, Part II):
    so readers that find no footer at the tail still find the last commit.
 3. Append record frames after the last footer (pending, not yet visible).
 4. ``commit()``: write the new index block, fsync; write the new 64-byte footer, fsync - **this
-   fsync is the commit point**; then write the other header slot to point at it, fsync.
+   fsync is the commit point**; then write the other header slot to point at it, fsync.  In a
+   version 1.1 archive the index block is a manifest + one segment holding only the keys this commit
+   changed (plus the small segments it merges, see ``segments.py``), so a commit costs what changed.
 
 A writer killed at any instant leaves the file readable at its last commit: either the tail is that
 commit's footer, or it is not and a header slot points at it (step 2).  Torn frames after the last
@@ -20,17 +22,19 @@ from __future__ import annotations
 import os
 from typing import Any, Literal
 
-from ..errors import ArchiveError
-from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary
-from .layout import (HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, check_key, crc32, pack_footer,
-                     pack_frame_header, pack_preamble, pack_slot, parse_preamble, parse_slot)
+from ..errors import ArchiveError, FormatError, LimitExceededError
+from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary, shared_first
+from .layout import (ARCHIVE_MAGIC, FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
+                     VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
+                     parse_preamble, parse_slot)
 from .lock import WriterLock
-from .reader import NoCommitError, best_slot, find_commit
-from .recovery import RepairReport, scan_records
+from .reader import best_slot, find_commit
+from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
+from .segments import SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
-__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive"]
+__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive"]
 
 Policy = Literal["error", "recover", "discard"]
 
@@ -47,21 +51,39 @@ def _fsync_dir(path: str) -> None:
         os.close(fd)
 
 
-def _empty_archive_bytes() -> bytes:
+def _check_magic(path: str) -> None:
+    """The existing file at ``path`` must start with an archive preamble (checked before locking)."""
+    with open(path, "rb") as f:
+        head = f.read(PREAMBLE_SIZE)
+    if len(head) >= 8:
+        parse_preamble(head + bytes(PREAMBLE_SIZE - len(head)))
+
+
+def _empty_archive_bytes(minor: int = VERSION_MINOR) -> bytes:
     index = ArchiveIndex.build([])
     commit = Commit(0, HEADER_SIZE, len(index), crc32(index), 0)
-    header = pack_preamble() + pack_slot(commit) + bytes(HEADER_SIZE - 32 - 64)
+    header = pack_preamble(minor) + pack_slot(commit) + bytes(HEADER_SIZE - 32 - 64)
     return header + index + pack_footer(commit)
 
 
-def create_archive(path: str | os.PathLike, *, exist_ok: bool = False) -> None:
-    """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename."""
+def _check_version(version: tuple[int, int]) -> int:
+    if tuple(version) not in ((1, 0), (1, 1)):
+        raise ArchiveError(f"this writer writes archive versions 1.0 and 1.1, not {version!r}")
+    return version[1]
+
+
+def create_archive(path: str | os.PathLike, *, exist_ok: bool = False, version: tuple[int, int] = (1, VERSION_MINOR)) -> None:
+    """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename.
+
+    ``version`` (1, 1) (default) lets commits use segmented indexes; (1, 0) writes a whole index per
+    commit, readable by 1.0 readers."""
     path = os.fspath(path)
+    minor = _check_version(version)
     if os.path.exists(path) and not exist_ok:
         raise FileExistsError(f"{path} already exists")
     tmp = f"{path}.tmp-{os.getpid()}"
     with open(tmp, "wb") as f:
-        f.write(_empty_archive_bytes())
+        f.write(_empty_archive_bytes(minor))
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
@@ -85,7 +107,9 @@ class ArchiveWriter:
     """
 
     def __init__(self, path: str | os.PathLike, mode: str = "a", *, on_uncommitted: Policy = "error",
-                 durable: bool = True, full_scan: bool = False, dry_run: bool = False):
+                 durable: bool = True, full_scan: bool = False, dry_run: bool = False,
+                 allow_truncated: bool = False, version: tuple[int, int] = (1, VERSION_MINOR),
+                 _repair: bool = False):
         if mode not in ("a", "x", "w"):
             raise ArchiveError(f"mode must be 'a', 'x' or 'w', not {mode!r}")
         if on_uncommitted not in ("error", "recover", "discard"):
@@ -93,86 +117,158 @@ class ArchiveWriter:
         self.path = os.fspath(path)
         self.durable = durable
         self.repair_report: RepairReport | None = None
+        self._created = False
+        self._dry_run = False
+        self._next_generation: int | None = None
+        self._commit: Commit | None = None
+        self._pending: dict[str, IndexEntry] = {}
+        self._segments: list[tuple[SegmentRef, list[str]]] = []  # newest first (version 1.1)
+        self._segmented = False
+        self._consolidate = False
+        _check_version(version)
+        exists = os.path.exists(self.path)
+        if exists and mode == "a" and not full_scan:
+            _check_magic(self.path)  # before the lock: a wrong file gets no .lock beside it
         self._lock = WriterLock(self.path).acquire()
         self._fd: int | None = None
         try:
             if mode == "x" or (mode == "a" and not os.path.exists(self.path)):
-                create_archive(self.path, exist_ok=False)
+                create_archive(self.path, exist_ok=False, version=version)
+                self._created = True
             elif mode == "w":
-                create_archive(self.path, exist_ok=True)
+                create_archive(self.path, exist_ok=True, version=version)
             self._fd = os.open(self.path, os.O_RDWR)
-            self._open_existing(on_uncommitted, full_scan, dry_run)
+            self._open_existing(on_uncommitted, full_scan, dry_run, allow_truncated, _repair)
         except BaseException:
             self._close_fd()
-            self._lock.release()
+            self._commit = None
+            self._release(failed=True)
             raise
 
+    def _release(self, *, failed: bool) -> None:
+        """Release the lock.  After a failure, an archive this writer created and never committed a
+        scene to is removed with its lock file, so a failed first ``pack``/``encode --archive``
+        leaves nothing behind and the retry starts clean; a lock file this writer created for a
+        file it could not open is removed too."""
+        commit = self._commit
+        if failed and self._created and (commit is None or not commit.scene_count):
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+            self._lock.release_and_remove()
+        elif failed and commit is None:
+            self._lock.release_and_remove()
+        else:
+            self._lock.release()
+
     # -- opening ---------------------------------------------------------------------------------
-    def _open_existing(self, policy: Policy, full_scan: bool, dry_run: bool) -> None:
+    def _open_existing(self, policy: Policy, full_scan: bool, dry_run: bool, allow_truncated: bool,
+                       repairing: bool) -> None:
         source = LocalSource(self.path)
+        plan: RepairPlan | None = None
         try:
             size = source.size()
-            commit = None if full_scan else self._find_commit_or_none(source, policy)
-            if commit is None:  # full scan: rebuild from every frame in the file
-                scan = scan_records(source, HEADER_SIZE)
-                self._entries = scan.latest
-                self._commit = None
-                self._end = scan.end
-                recovered, discarded = list(self._entries), size - scan.end
-                self._pending = dict(self._entries)
-                self._entries = {}
+            if full_scan:
+                plan = plan_repair(source, full_scan=True)
             else:
-                index = ArchiveIndex.parse(source.read(commit.index_offset, commit.index_length), commit)
-                self._entries = {e.key: e for e in index.entries()}
-                self._commit = commit
-                self._end = commit.end
-                self._pending = {}
-                recovered, discarded = [], 0
-                if size > commit.end:
-                    if policy == "error":
+                try:
+                    commit = self._find_commit(source, allow_truncated)
+                    if size > commit.end and policy == "error":
                         raise UncommittedDataError(
                             f"{self.path}: {size - commit.end} bytes after the last commit "
                             f"(generation {commit.generation}) - a writer crashed or is running; run "
                             "`vt4d repair` to keep its complete records, or open with "
                             "on_uncommitted='discard' to drop them"
                         )
-                    if policy == "recover":
-                        scan = scan_records(source, commit.end)
-                        for e in scan.records:
-                            self._pending[e.key] = e
-                        recovered, self._end = [e.key for e in scan.records], scan.end
-                    discarded = size - self._end
+                    if size > commit.end and policy == "recover":
+                        plan = plan_repair(source, full_scan=False, base=commit)
+                    else:
+                        view = load_index(source.read, commit)
+                        self._entries = {e.key: e for e in view.entries()}
+                        self._commit, self._end, self._pending = commit, commit.end, {}
+                        self._segmented = bool(parse_preamble(source.read(0, PREAMBLE_SIZE)) & FLAG_SEGMENTED)
+                        self._segments = self._segments_of(commit, view)
+                        discarded = size - commit.end
+                except UncommittedDataError:
+                    raise
+                except FormatError as exc:  # no usable last commit: a repair walks the whole file
+                    if not repairing:
+                        raise
+                    plan = plan_repair(source, full_scan=True, lost=getattr(exc, "lost", None))
+            if plan is not None:
+                copy_payloads = {k: source.read(e.offset, e.length) for k, e in plan.copies.items()}
         finally:
             source.close()
+        if plan is None:
+            self._check_generation()
+            self.repair_report = RepairReport(self.path, self._commit.generation, len(self._entries), [],
+                                              discarded, None, False, scenes=len(self._entries), dry_run=dry_run)
+            if dry_run:
+                self._dry_run = True
+                return
+            if discarded:
+                os.ftruncate(self._fd, self._end)
+            self._ensure_slot(self._commit)
+            return
+        self._apply_plan(plan, copy_payloads, dry_run)
+
+    def _apply_plan(self, plan: RepairPlan, copy_payloads: dict[str, bytes], dry_run: bool) -> None:
+        base = plan.base
+        final = len(plan.entries) + len(plan.copies)
         self.repair_report = RepairReport(
-            self.path, None if self._commit is None else self._commit.generation,
-            0 if self._commit is None else len(self._entries), recovered, discarded, None, full_scan)
+            self.path, None if base is None else base.generation, 0 if base is None else base.scene_count,
+            plan.recovered, plan.size - plan.cut, None, plan.full_scan, list(plan.unrecoverable),
+            sorted(plan.copies), plan.damaged_bytes, None if plan.lost is None else plan.lost.generation,
+            None if plan.lost is None else plan.lost.scene_count, final, dry_run)
+        self._commit, self._entries, self._pending, self._end = base, {}, {}, plan.cut
+        self._segmented = plan.segmented or not plan.preamble_ok
+        self._segments = []  # the repaired commit is one new segment (or one whole index)
         if dry_run:
-            self._pending = {}
             self._dry_run = True
             return
-        self._dry_run = False
-        if self._commit is None:  # a full scan also mends a damaged preamble and drops old slots
-            os.pwrite(self._fd, pack_preamble() + bytes(2 * SLOT_SIZE), 0)
-        if size != self._end:
-            os.ftruncate(self._fd, self._end)
-        if self._commit is not None:
-            self._ensure_slot(self._commit)
-        if self._pending or self._commit is None or discarded:
-            self.commit()
-            self.repair_report.new_generation = self._commit.generation
+        if not plan.needs_commit:  # a plain writer over the intact base
+            self._segments = self._segments_of(base, plan.view)
+            self._entries = dict(plan.entries)
+            self._ensure_slot(base)
+            return
+        if not plan.preamble_ok:  # a damaged preamble is mended (magic, version, flags)
+            os.pwrite(self._fd, pack_preamble(), 0)
+        if base is not None:  # step 2: a slot names the base before anything follows it
+            header = os.pread(self._fd, HEADER_SIZE, 0)
+            if best_slot(header, plan.cut) != base:
+                self._write_slot(base)
+        if plan.size != plan.cut:
+            os.ftruncate(self._fd, plan.cut)
+        self._sync()
+        self._pending = dict(plan.entries)
+        for key, entry in plan.copies.items():
+            self._append_raw(key, copy_payloads[key], entry.summary_bytes)
+        self._next_generation = plan.new_generation
+        self._write_commit()
+        self.repair_report.new_generation = self._commit.generation
 
-    def _find_commit_or_none(self, source: LocalSource, policy: Policy) -> Commit | None:
-        try:
-            commit, at_tail = find_commit(source)
-        except NoCommitError:
-            if policy == "recover":
-                return None
-            raise
+    def _segments_of(self, commit: Commit, view) -> list[tuple[SegmentRef, list[str]]]:
+        """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment)."""
+        if commit.segmented:
+            return [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
+        if self._segmented and commit.scene_count:
+            seg = view.segments[0]
+            return [(SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32), seg.keys())]
+        return []
+
+    def _find_commit(self, source: LocalSource, allow_truncated: bool) -> Commit:
+        commit, at_tail = find_commit(source, allow_truncated=allow_truncated)
         if not at_tail and source.size() == commit.end:  # damaged last footer, intact slot: mend it
             os.pwrite(self._fd, pack_footer(commit), commit.footer_offset)
             self._sync()
         return commit
+
+    def _check_generation(self) -> None:
+        if self._commit is not None and self._commit.generation >= MAX_GENERATION:
+            raise LimitExceededError(
+                f"{self.path}: generation {self._commit.generation} is the last the 64-bit counter holds; "
+                "no further commit is possible - copy the scenes to a new archive with `vt4d compact`")
 
     def _ensure_slot(self, commit: Commit) -> None:
         """Step 2 of the protocol: a header slot names ``commit`` before anything follows it.
@@ -223,7 +319,7 @@ class ArchiveWriter:
         Appending a key that exists raises :class:`DuplicateKeyError` unless ``replace=True``.
         """
         self._check_open()
-        key_raw = check_key(key)
+        check_key(key)
         if not replace and key in self:
             raise DuplicateKeyError(f"scene {key!r} is already in {self.path} (pass replace=True)")
         if validate or not isinstance(record, (bytes, bytearray, memoryview)):
@@ -232,7 +328,12 @@ class ArchiveWriter:
             payload = bytes(record)
         if summary is None:
             summary = summarize_payload(payload) if validate else {"bytes": len(payload)}
-        summary_raw = encode_summary(summary)
+        if self._segmented:  # per-scene fields last: index segments prefix-code the shared rest
+            summary = shared_first(summary)
+        return self._append_raw(key, payload, encode_summary(summary))
+
+    def _append_raw(self, key: str, payload: bytes, summary_raw: bytes) -> IndexEntry:
+        key_raw = check_key(key)
         pcrc = crc32(payload)
         frame = pack_frame_header(key_raw, summary_raw, pcrc, len(payload)) + key_raw + summary_raw
         start = self._end
@@ -256,21 +357,45 @@ class ArchiveWriter:
         self._check_open()
         if not self._pending and self._commit is not None:
             return self._commit.generation
-        entries = dict(self._entries)
-        entries.update(self._pending)
-        index = ArchiveIndex.build(list(entries.values()))
-        new = Commit(self.generation + 1, self._end, len(index), crc32(index), len(entries))
+        return self._write_commit()
+
+    def _write_commit(self) -> int:
+        # O(changed) for 1.1: the committed entries are updated in place after the commit point
+        pending, committed = self._pending, self._entries
+        total = len(committed) + sum(1 for k in pending if k not in committed)
+        generation = self.generation + 1 if self._next_generation is None else self._next_generation
+        if generation > MAX_GENERATION:
+            raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
+                                     "copy the scenes to a new archive with `vt4d compact`")
+        if self._segmented:  # version 1.1: write what changed (plus the segments it merges)
+            merge = plan_merge([r.count for r, _ in self._segments], len(self._pending))
+            keys = set(self._pending)
+            for _, seg_keys in self._segments[:merge]:
+                keys.update(seg_keys)
+            segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys], prefix=True)
+            kept = self._segments[merge:]
+            ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
+            segments = [(ref, list(keys))] + kept
+            index = pack_manifest([r for r, _ in segments], total) + segment  # one block, one read
+            new = Commit(generation, self._end, len(index), crc32(index), total, FLAG_SEGMENTED)
+        else:  # version 1.0: the whole index, every commit
+            index = ArchiveIndex.build(list({**committed, **pending}.values()))
+            new = Commit(generation, self._end, len(index), crc32(index), total)
+            segments = []
         self._pwrite_all(index, self._end)
         self._sync()  # records + index durable before the footer can be
         os.pwrite(self._fd, pack_footer(new), new.footer_offset)
         self._sync()  # <- the commit point
-        self._entries, self._pending, self._commit, self._end = entries, {}, new, new.end
+        committed.update(pending)
+        self._pending, self._commit, self._end = {}, new, new.end
+        self._segments = segments
+        self._next_generation = None
         self._write_slot(new)
         return new.generation
 
     def abort(self) -> None:
         """Drop pending scenes: truncate the file back to the last commit."""
-        if self._fd is not None and self._pending and not self._dry_run:
+        if self._fd is not None and self._pending and not self._dry_run and self._commit is not None:
             os.ftruncate(self._fd, self._commit.end)
             self._end = self._commit.end
         self._pending = {}
@@ -298,7 +423,7 @@ class ArchiveWriter:
                 self.abort()
         finally:
             self._close_fd()
-            self._lock.release()
+            self._release(failed=not commit)
 
     def __enter__(self) -> "ArchiveWriter":
         return self
@@ -308,3 +433,37 @@ class ArchiveWriter:
 
     def __repr__(self) -> str:
         return f"ArchiveWriter({self.path!r}, committed={len(self._entries)}, pending={len(self._pending)})"
+
+
+def _check_repairable(path: str, full_scan: bool) -> None:
+    if not os.path.exists(path):
+        raise ArchiveNotFoundError(f"{path}: no such archive (repair never creates one; check the path)")
+    with open(path, "rb") as f:
+        head = f.read(len(ARCHIVE_MAGIC))
+    if head.startswith(SCENE_MAGIC_PREFIX):
+        raise ArchiveError(f"{path} is a single-scene .vt4d file, not an archive; use `vt4d verify` on it")
+    if head != ARCHIVE_MAGIC and not full_scan:
+        raise ArchiveError(f"{path} does not start with the archive magic; if it is a damaged archive, "
+                           "run `vt4d repair --full-scan --dry-run` to see what can be recovered")
+
+
+def repair_archive(path: str | os.PathLike, *, full_scan: bool = False, dry_run: bool = False) -> RepairReport:
+    """Make an archive end in a valid commit again, never dropping a record that verifies.
+
+    The last commit is kept; complete, checksum-valid records written after it (damaged bytes
+    skipped) are added to a new commit; torn bytes after the last valid structure are cut off.  A
+    truncated archive, or one with no usable commit, is repaired as with ``full_scan``: the newest
+    commit whose index verifies is the base, its records are each checked, and the report lists the
+    keys that could not be recovered (``unrecoverable``) and any commit lost to truncation.  With
+    ``dry_run`` nothing is written and the report is the plan.
+    """
+    path = os.fspath(path)
+    _check_repairable(path, full_scan)
+    w = ArchiveWriter(path, mode="a", on_uncommitted="recover", full_scan=full_scan, dry_run=dry_run,
+                      _repair=True)
+    try:
+        report = w.repair_report
+    finally:
+        w.close()
+    assert report is not None
+    return report

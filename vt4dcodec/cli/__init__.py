@@ -17,23 +17,33 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+from pathlib import Path
 from typing import Sequence
 
 from ..errors import Vt4dError
 
 EXIT_OK, EXIT_INVALID, EXIT_USAGE, EXIT_OS, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
-# Command modules, in the order their commands appear in --help.  A module that is not present yet
-# (a part of the project still being built) is skipped.
+# Command modules, in the order their commands appear in --help.
 COMMAND_MODULES = (
     "vt4dcodec.cli.scene_commands",    # info, verify
     "vt4dcodec.cli.codec_commands",    # encode, decode, demo
     "vt4dcodec.cli.archive_commands",  # pack, ls, extract, repair
-    "vt4dcodec.cli.capture_commands",  # synth, capture-info, contact-sheet
-    "vt4dcodec.cli.train_commands",    # train, evaluate
+    "vt4dcodec.cli.capture_commands",  # capture-info, contact-sheet, synth (synth_commands)
     "vt4dcodec.cli.generate_commands", # generate
 )
+
+
+def trajectory_label(spec: str, index: int) -> str:
+    """A file-name stem for the ``index``-th rendered trajectory ``spec``: "source", a trajectory
+    file's stem, or the index and the spec with every non-alphanumeric character replaced."""
+    if spec == "source":
+        return "source"
+    if os.path.isfile(spec):
+        return Path(spec).stem
+    return f"{index:02d}_" + "".join(c if c.isalnum() else "_" for c in spec)[:48]
 
 
 def int_at_least(minimum: int):
@@ -65,18 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
         ),
         epilog="Exit codes: 0 ok, 1 invalid input or failed verification, 2 usage, 3 file system error.",
     )
-    from .. import __version__
+    from ..version import __version__
 
     parser.add_argument("--version", action="version", version=f"vt4dcodec {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(name).register(sub)
     return parser
 
 

@@ -89,7 +89,8 @@ def _ls_row(key: str, s: dict[str, Any]) -> list[str]:
 def cmd_ls(args: argparse.Namespace) -> int:
     from ..archive import open_archive
 
-    with open_archive(args.archive, **_storage_options(args.storage_option)) as reader:
+    with open_archive(args.archive, allow_truncated=args.allow_truncated,
+                      **_storage_options(args.storage_option)) as reader:
         rows = [(e.key, e.summary, e.length, e.offset) for e in reader.entries()]
         info = {"archive": reader.name, "generation": reader.generation, "scenes": len(reader),
                 "uncommitted_bytes": reader.uncommitted_bytes}
@@ -111,7 +112,8 @@ def cmd_ls(args: argparse.Namespace) -> int:
 def cmd_extract(args: argparse.Namespace) -> int:
     from ..archive import open_archive
 
-    with open_archive(args.archive, **_storage_options(args.storage_option)) as reader:
+    with open_archive(args.archive, allow_truncated=args.allow_truncated,
+                      **_storage_options(args.storage_option)) as reader:
         keys = args.keys or reader.keys()
         entries = [reader.entry(k) for k in keys]  # SceneNotFoundError before anything is written
         targets = [os.path.join(args.output, *e.key.split("/")) + ".vt4d" for e in entries]
@@ -135,19 +137,61 @@ def cmd_repair(args: argparse.Namespace) -> int:
     from ..archive import repair_archive
 
     report = repair_archive(args.archive, full_scan=args.full_scan, dry_run=args.dry_run)
+    status = 0 if report.complete else 1  # never report success when committed scenes were lost
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
         print()
-        return 0
-    what = "would recover" if args.dry_run else "recovered"
-    start = "a full scan" if report.full_scan else f"generation {report.last_generation} ({report.committed} scenes)"
-    print(f"{args.archive}: from {start}, {what} {len(report.recovered)} scenes, "
-          f"cut {report.discarded_bytes} torn bytes")
+        return status
+    if report.last_generation is None:
+        start = "no commit verifies; a full scan of the record frames"
+    else:
+        start = f"generation {report.last_generation} ({report.committed} scenes)"
+        if report.full_scan:
+            start += ", every record checked"
+    recover, cut, copy = ("would recover", "would cut", "would copy") if args.dry_run else ("recovered", "cut", "copied")
+    lines = [f"{args.archive}: from {start}: {recover} {len(report.recovered)} scenes written after it"
+             f"{' (' + ', '.join(report.recovered) + ')' if report.recovered else ''}, {cut} "
+             f"{report.discarded_bytes} torn bytes after the last valid record"]
+    if report.damaged_bytes:
+        lines.append(f"skipped {report.damaged_bytes} damaged bytes between valid records (left in place)")
+    if report.copied:
+        lines.append(f"{copy} {len(report.copied)} records whose frame header is damaged but whose "
+                     f"payload verifies into fresh frames: {', '.join(report.copied)}")
+    if report.lost_generation is not None:
+        lines.append(f"the file was truncated: commit generation {report.lost_generation} "
+                     f"({report.lost_scenes} scenes) was cut off its end; its records still in the file are kept")
     if report.new_generation is not None:
-        print(f"committed generation {report.new_generation}")
-    elif not args.dry_run:
-        print("nothing to repair")
+        lines.append(f"committed generation {report.new_generation} ({report.scenes} scenes)")
+    elif args.dry_run:
+        lines.append(f"dry run: nothing written; the repaired archive would hold {report.scenes} scenes")
+    else:
+        lines.append("nothing to repair")
+    print("\n".join(lines))
+    if report.unrecoverable:
+        print(f"{args.archive}: error: {len(report.unrecoverable)} committed scenes could not be recovered "
+              f"(their records fail their checksum): {', '.join(report.unrecoverable)}", file=sys.stderr)
+    elif not report.complete:
+        print(f"{args.archive}: error: the truncated commit held {report.lost_scenes} scenes, "
+              f"{report.scenes} could be recovered", file=sys.stderr)
+    return status
+
+
+def cmd_compact(args: argparse.Namespace) -> int:
+    from ..archive import compact_archive
+
+    major, _, minor = args.format_version.partition(".")
+    report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
+    if args.json:
+        json.dump(report.to_dict(), sys.stdout, indent=1)
+        print()
+    else:
+        print(f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
+              f"generation {report.generation}, format {report.version[0]}.{report.version[1]}")
     return 0
+
+
+TRUNC_HELP = ("read the last intact commit of an archive whose newest commit was cut off the end "
+              "(truncated file); without it such an archive is an error")
 
 
 def register(subparsers: Any) -> None:
@@ -170,6 +214,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("archive", help="archive path or fsspec URL")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--storage-option", **so)
+    p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.set_defaults(func=cmd_ls)
 
     p = subparsers.add_parser("extract", help="extract scenes from an archive as standalone .vt4d files")
@@ -178,14 +223,30 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.add_argument("--storage-option", **so)
+    p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_extract)
 
-    p = subparsers.add_parser("repair", help="recover an archive after a crashed writer",
+    p = subparsers.add_parser("repair", help="recover an archive after a crashed writer or damage",
                               description="Keep the last commit, add complete checksum-valid records written "
-                              "after it, cut off torn bytes, and commit.")
+                              "after it (skipping damaged bytes), cut off torn bytes after the last valid record, "
+                              "and commit.  A truncated archive, or one without a usable commit, gets a full "
+                              "scan.  Never drops a record that verifies; exits 1 if committed scenes could not "
+                              "be recovered (they are listed).")
     p.add_argument("archive", help="local archive path")
-    p.add_argument("--full-scan", action="store_true", help="ignore commits; rebuild from every record frame")
-    p.add_argument("--dry-run", action="store_true", help="report only; change nothing")
+    p.add_argument("--full-scan", action="store_true",
+                   help="also check every record of the newest commit whose index verifies, and walk the whole "
+                   "file for records written after it")
+    p.add_argument("--dry-run", action="store_true", help="print the plan; change nothing")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_repair)
+
+    p = subparsers.add_parser("compact", help="rewrite an archive with only its live records (atomic)",
+                              description="Copy every live record (CRC-checked) into a new file with one index, "
+                              "then rename it over the archive: replaced records and old indexes are reclaimed. "
+                              "Holds the writer lock; readers see the old or the new file, never a mix.")
+    p.add_argument("archive", help="local archive path")
+    p.add_argument("--format-version", default="1.1", choices=["1.0", "1.1"],
+                   help="1.1 (default: segmented indexes) or 1.0 (readable by 1.0 readers)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_compact)

@@ -123,7 +123,7 @@ def register(subparsers: Any) -> None:
 
 
 def _register_synth(sub: Any) -> None:
-    from ..synth.command import add_synth_parser  # numpy-only at import: no torch, no cv2
+    from .synth_commands import add_synth_parser  # numpy-only at import: no torch, no cv2
 
     add_synth_parser(sub)
 

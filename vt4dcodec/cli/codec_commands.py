@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import CaptureError
-from . import nonneg_int, positive_int
+from . import nonneg_int, positive_int, trajectory_label
 
 __all__ = ["register"]
 
@@ -166,14 +166,6 @@ def _open_scene_source(source: str, key: str | None):
     return load(source), Path(source).stem
 
 
-def _trajectory_label(spec: str, index: int) -> str:
-    if spec == "source":
-        return "source"
-    if os.path.isfile(spec):
-        return Path(spec).stem
-    return f"{index:02d}_" + "".join(c if c.isalnum() else "_" for c in spec)[:48]
-
-
 def cmd_decode(args: argparse.Namespace) -> int:
     from ..codec import SceneDecoder, model_fingerprint
     from ..media import write_frames
@@ -189,11 +181,12 @@ def cmd_decode(args: argparse.Namespace) -> int:
     for i, (spec, traj) in enumerate(_progress(list(zip(specs, trajectories)), len(specs), "decode", args.quiet)):
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
-        path = write_frames(out_dir / f"{stem}_{_trajectory_label(spec, i)}", frames, args.format,
+        path = write_frames(out_dir / f"{stem}_{trajectory_label(spec, i)}", frames, args.format,
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
-    result = {"outputs": outputs, "seconds": round(elapsed, 3), "steps": args.steps, "seed": args.seed,
+    result = {"outputs": outputs, "seconds": round(elapsed, 3),
+              "steps": decoder.model.decode_steps if args.steps is None else args.steps, "seed": args.seed,
               "model": model_fingerprint(decoder.model).to_dict()}
     _emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
           + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s"])
@@ -252,7 +245,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
-                   help=f"Euler steps of the rectified-flow sampler (default {DEFAULT_STEPS})")
+                   help="Euler steps of the rectified-flow sampler (default: the model's recorded best-fidelity "
+                        "setting, decode_steps in its config.json)")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
     p.set_defaults(func=cmd_decode)
@@ -262,5 +256,6 @@ def register(subparsers: Any) -> None:
         description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
                     "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
     p.add_argument("-o", "--output", default="demo_out", help="output directory (default demo_out)")
-    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS, help="sampler steps")
+    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
+                   help="sampler steps (default: the model's recorded decode_steps)")
     p.set_defaults(func=cmd_demo)

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CaptureError
-from . import nonneg_int, positive_int
+from . import nonneg_int, positive_int, trajectory_label
 
 __all__ = ["register", "split_view_specs"]
 
@@ -48,7 +48,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from ..generate import DEFAULT_PRIOR, generate, load_prior_model
     from ..media import write_frames
     from ..model.prior import check_tokenizer
-    from .codec_commands import _trajectory_label
 
     views = split_view_specs(args.views) or ["source"]
     cap = read_capture(args.capture)
@@ -72,7 +71,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     outputs = []
     for i, (spec, traj) in enumerate(zip(views, trajectories)):
         frames = decoder.render(traj, steps=args.render_steps, seed=args.seed)
-        path = write_frames(out_dir / f"view_{_trajectory_label(spec, i)}", frames, args.format,
+        path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format,
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"view": spec, "path": str(path), "frames": int(frames.shape[0])})
     done = time.perf_counter()
@@ -113,7 +112,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--model", default=None, help="tokenizer id or directory (default: the prior's tokenizer)")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_PRIOR_STEPS, help="prior sampler steps")
     p.add_argument("--sampler", choices=("euler", "heun"), default="heun")
-    p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view")
+    p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view (default: the tokenizer's recorded decode_steps)")
     p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding of the saved scene")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
     p.add_argument("--json", action="store_true", help="print a JSON result for scripts")

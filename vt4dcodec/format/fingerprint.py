@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import LimitExceededError, MalformedHeaderError
+from ..version import __version__
 from .checks import exact_keys, require_map, require_sha256, require_shape, require_str
 from .limits import MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS
 
@@ -15,6 +16,17 @@ __all__ = ["ModelFingerprint", "Provenance", "PROVENANCE_KINDS"]
 PROVENANCE_KINDS = ("encoded", "generated")
 _PRINTABLE = re.compile(r"[^\x00-\x1f\x7f]+")
 _UTC = re.compile(r"\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z")
+
+
+def _check_calendar(stamp: str) -> None:
+    """``created_utc`` must name a real UTC instant (FORMAT.md "Text"): 2026-02-30 and 24:00 are out."""
+    import datetime
+
+    try:
+        datetime.datetime.strptime(stamp[:19], "%Y-%m-%dT%H:%M:%S")
+    except ValueError:
+        raise MalformedHeaderError(f"provenance.created_utc {stamp!r:.44} is not a valid calendar date and "
+                                   "time (ISO-8601 UTC, seconds 00-59)") from None
 _DTYPE = re.compile(r"[a-z][a-z0-9_]{0,31}")
 _FINGERPRINT_KEYS = {"model_id", "model_version", "config_sha256", "weights_sha256", "static_shape",
                      "dynamic_shape", "token_dtype"}
@@ -106,6 +118,7 @@ class Provenance:
                     hint="control characters")
         require_str(self.created_utc, "provenance.created_utc", max_chars=40, pattern=_UTC,
                     hint="expected ISO-8601 UTC like 2026-01-31T12:00:00Z")
+        _check_calendar(self.created_utc)
         if self.source_capture_id is not None:
             require_str(self.source_capture_id, "provenance.source_capture_id", pattern=_PRINTABLE,
                         hint="control characters")
@@ -116,8 +129,6 @@ class Provenance:
     def now(cls, source_capture_id: str | None, kind: str = "encoded") -> "Provenance":
         """Provenance stamped with this library's version and the current UTC time (whole seconds)."""
         import datetime
-
-        from .. import __version__
 
         created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
         return cls(__version__, created, source_capture_id, kind)

@@ -140,6 +140,31 @@ class SceneFile:
         missing = required - set(self._by_type)
         if missing:
             raise MalformedSectionError(f"the file lacks required section(s) {sorted(missing)}")
+        self._check_raw_lengths()
+
+    def _check_raw_lengths(self) -> None:
+        """Every known section's ``raw_length`` against what the header implies, *before* anything is
+        decompressed (FORMAT.md I.11): a tiny file cannot make a reader allocate more than its tokens,
+        cameras and quantization need (issue 15: an 18 KB scene declaring two 256 MiB zstd sections)."""
+        from .encodings import payload_size
+
+        d = self._info.static_shape[1]
+        limits = {SECTION_CAMERAS: self._info.cameras.raw_length}
+        for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
+                                   (SECTION_DYNAMIC, self._info.dynamic_shape)):
+            if is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, <= 2 bytes a code
+                limits[name] = 2 + 8 * cols + 1 + cols + 4 + 3 * 511 + 4 + 2 * rows * cols
+            else:
+                limits[name] = payload_size(self._info.encoding, rows, cols)
+        if is_affine(self._info.encoding):
+            limits[SECTION_STATIC_QUANT] = limits[SECTION_DYNAMIC_QUANT] = 8 * d
+        for entry in self.sections:
+            limit = limits.get(entry.type)
+            if limit is not None and entry.raw_length > limit:
+                raise MalformedSectionError(
+                    f"section {entry.type} declares {entry.raw_length} raw bytes; the header implies "
+                    f"{'at most ' if entry.type in (SECTION_STATIC, SECTION_DYNAMIC) and is_entropy_coded(self._info.encoding) else ''}"
+                    f"{limit}")
 
     def raw_section(self, name: str):
         """The decompressed, checksum-verified bytes of section ``name`` (a zero-copy view when stored raw)."""

@@ -1,6 +1,6 @@
 """The `vt4d synth` command: generate synthetic scenes as capture directories.
 
-Registered by :mod:`vt4dcodec.cli.capture_commands` (one line); the work is done here.
+Registered by :mod:`vt4dcodec.cli.capture_commands`; the scenes come from :mod:`vt4dcodec.synth`.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import argparse
 import time
 from typing import Any
 
-from ..cli import int_at_least
+from . import int_at_least
 
 __all__ = ["add_synth_parser", "run_synth"]
 
@@ -17,8 +17,8 @@ __all__ = ["add_synth_parser", "run_synth"]
 
 
 def run_synth(args: argparse.Namespace) -> int:
-    from .dataset_writer import write_dataset
-    from .generator import SynthConfig
+    from ..synth.dataset_writer import write_dataset
+    from ..synth.generator import SynthConfig
 
     config = SynthConfig(
         num_cameras=args.cameras, num_frames=args.frames, height=args.size, width=args.size,

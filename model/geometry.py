@@ -1,5 +1,5 @@
 """Camera geometry on torch tensors: pixel grids, (un)projection, relative poses, the flow camera
-motion induces (the paper's F_pose), Plücker ray maps and lens distortion.
+motion induces (the paper's F_pose) and Plücker ray maps.
 
 Conventions are those of :mod:`vt4dcodec.cameras` (OpenCV pinhole): x right, y down, z forward;
 pixel (u, v) = (column, row) has its centre at integer coordinates; ``K`` is in pixels; poses are
@@ -13,14 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from kornia.geometry.calibration import distort_points as _kornia_distort_points
-from kornia.geometry.calibration import undistort_points as _kornia_undistort_points
 
-from .errors import CameraError
+from vt4dcodec.errors import CameraError
 
 __all__ = [
     "scale_intrinsics",
-    "crop_intrinsics",
     "pixel_grid",
     "unproject",
     "project",
@@ -29,13 +26,6 @@ __all__ = [
     "transform_points",
     "camera_flow",
     "plucker_rays",
-    "distort_points",
-    "undistort_points",
-    "opencv_to_opengl_c2w",
-    "opengl_to_opencv_c2w",
-    "pixels_to_grid",
-    "grid_to_pixels",
-    "backward_warp",
 ]
 
 # Points closer to the image plane than this (metres along z) count as "not in front" of a camera.
@@ -81,16 +71,6 @@ def scale_intrinsics(K, sx: float, sy: float) -> torch.Tensor:
     out[..., 1, :] = K[..., 1, :] * sy
     out[..., 0, 2] = (K[..., 0, 2] + 0.5) * sx - 0.5
     out[..., 1, 2] = (K[..., 1, 2] + 0.5) * sy - 0.5
-    return out
-
-
-def crop_intrinsics(K, x0: float, y0: float) -> torch.Tensor:
-    """Intrinsics after cropping the image so that pixel ``(x0, y0)`` becomes ``(0, 0)``."""
-    K = _tensor(K)
-    _check_square(K, 3, "K")
-    out = K.clone()
-    out[..., 0, 2] = K[..., 0, 2] - x0
-    out[..., 1, 2] = K[..., 1, 2] - y0
     return out
 
 
@@ -255,102 +235,3 @@ def plucker_rays(K, w2c, height: int, width: int) -> torch.Tensor:
     o = c2w[..., None, None, :3, 3].expand_as(d)
     m = torch.linalg.cross(o, d, dim=-1)
     return torch.cat([d, m], dim=-1).movedim(-1, -3)
-
-
-def _check_distortion(dist: torch.Tensor) -> None:
-    if dist.shape[-1] not in (4, 5, 8, 12, 14):
-        raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 OpenCV terms, got {dist.shape[-1]}")
-
-
-def distort_points(uv, K, dist) -> torch.Tensor:
-    """Pixels of an ideal pinhole camera ``K`` -> pixels of the real (distorted) lens.
-
-    Args:
-        uv: (..., N, 2) undistorted pixel coordinates.
-        K: (..., 3, 3) intrinsics (the same for both images, as in ``cv2.projectPoints``).
-        dist: (..., n) OpenCV distortion terms ``k1 k2 p1 p2 [k3 ...]``.
-    Returns:
-        (..., N, 2) distorted pixel coordinates.
-    """
-    uv = _tensor(uv)
-    K, dist = _tensor(K, like=uv), _tensor(dist, like=uv)
-    _check_distortion(dist)
-    return _kornia_distort_points(uv, K, dist)
-
-
-def undistort_points(uv, K, dist, *, num_iters: int = 40) -> torch.Tensor:
-    """Pixels of the real (distorted) lens -> pixels of the ideal pinhole camera ``K``.
-
-    The inverse of :func:`distort_points` by fixed-point iteration (as ``cv2.undistortPoints`` with
-    ``P=K``) with ``num_iters`` steps; for k1 down to -0.35 it recovers points within 31 degrees of
-    the axis to < 1e-3 px (tested).  Beyond the radius where the lens model stops being monotone
-    (strong barrel distortion, image corners) no inverse exists and the result is meaningless.
-    """
-    uv = _tensor(uv)
-    K, dist = _tensor(K, like=uv), _tensor(dist, like=uv)
-    _check_distortion(dist)
-    return _kornia_undistort_points(uv, K, dist, num_iters=num_iters)
-
-
-# --- convention conversions ----------------------------------------------------------------------
-_FLIP_YZ = (1.0, -1.0, -1.0)
-
-
-def opencv_to_opengl_c2w(c2w) -> torch.Tensor:
-    """Camera-to-world (..., 4, 4) from OpenCV axes (x right, y down, z forward) to OpenGL/Blender
-    axes (x right, y up, z backward): the camera's y and z axes flip; the centre is unchanged."""
-    c2w = _tensor(c2w)
-    _check_square(c2w, 4, "c2w")
-    out = c2w.clone()
-    out[..., :3, 1:3] = -c2w[..., :3, 1:3]
-    return out
-
-
-def opengl_to_opencv_c2w(c2w) -> torch.Tensor:
-    """Inverse of :func:`opencv_to_opengl_c2w` (the same flip; it is its own inverse)."""
-    return opencv_to_opengl_c2w(c2w)
-
-
-def pixels_to_grid(uv, height: int, width: int) -> torch.Tensor:
-    """Pixel coordinates (..., 2) -> ``torch.nn.functional.grid_sample`` coordinates in [-1, 1]
-    (``align_corners=False``: -1 and 1 are the outer edges of the border pixels, so pixel centre
-    u maps to ``(2u + 1) / W - 1``)."""
-    uv = _tensor(uv)
-    scale = uv.new_tensor([2.0 / width, 2.0 / height])
-    return (uv + 0.5) * scale - 1.0
-
-
-def grid_to_pixels(grid, height: int, width: int) -> torch.Tensor:
-    """Inverse of :func:`pixels_to_grid`."""
-    grid = _tensor(grid)
-    scale = grid.new_tensor([width / 2.0, height / 2.0])
-    return (grid + 1.0) * scale - 0.5
-
-
-def backward_warp(image, flow) -> tuple[torch.Tensor, torch.Tensor]:
-    """Sample ``image`` at ``p + flow(p)`` for every pixel p (bilinear).
-
-    With ``image`` = frame t+1 and ``flow`` = the t -> t+1 flow (e.g. :func:`camera_flow`), the result
-    predicts frame t wherever the scene point is visible in both frames.
-
-    Args:
-        image: (..., C, H', W') float image to sample.
-        flow: (..., H, W, 2) displacements in pixels of ``image``.
-    Returns:
-        ``(warped, inside)``: (..., C, H, W) samples and (..., H, W) bool, true where ``p + flow``
-        falls inside the image (outside samples are zero).
-    """
-    image = _tensor(image)
-    flow = _tensor(flow, like=image)
-    if image.ndim < 3 or flow.ndim < 3 or flow.shape[-1] != 2:
-        raise CameraError(f"backward_warp needs image (..., C, H, W) and flow (..., H, W, 2), got "
-                          f"{tuple(image.shape)} and {tuple(flow.shape)}")
-    H, W = flow.shape[-3:-1]
-    Hi, Wi = image.shape[-2:]
-    target = pixel_grid(H, W, device=flow.device, dtype=flow.dtype) + flow
-    batch = torch.broadcast_shapes(image.shape[:-3], flow.shape[:-3])
-    img = image.expand(*batch, *image.shape[-3:]).reshape(-1, *image.shape[-3:])
-    grid = pixels_to_grid(target, Hi, Wi).expand(*batch, H, W, 2).reshape(-1, H, W, 2)
-    warped = torch.nn.functional.grid_sample(img, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
-    inside = ((target[..., 0] >= 0) & (target[..., 0] <= Wi - 1) & (target[..., 1] >= 0) & (target[..., 1] <= Hi - 1))
-    return warped.reshape(*batch, image.shape[-3], H, W), inside.expand(*batch, H, W)

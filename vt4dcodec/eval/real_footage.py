@@ -1,6 +1,6 @@
-"""Real-footage check (issue #6 item 4): encode one camera of caliscope_4cam, render another camera's view.
+"""Real-footage check: encode one camera of caliscope_4cam, render another camera's view.
 
-    python -m vt4dcodec.model.real_footage --model vt4d-tiny --out docs/results/real_caliscope.json \
+    python -m vt4dcodec.eval.real_footage --model vt4d-tiny --out docs/results/real_caliscope.json \
         --figure docs/figures/real_caliscope.png
 
 The recording (four static webcams, a person moving a ChArUco board, 48 synchronized frames at ~6 fps)
@@ -11,7 +11,7 @@ is encoded exactly as ``vt4d encode`` does (int8 ``.vt4d``; no depth ships with 
 ``prepare_source`` estimates it by plane sweep, and with static cameras that sweep has no baseline and
 falls back to one constant depth), the bytes are decoded and the target camera's trajectory for the same
 frames is rendered (resolved against the scene as the codec does), then compared with the target
-camera's real frames (PSNR, SSIM).  The two baselines of :mod:`model.evaluate` run on the same clips:
+camera's real frames (PSNR, SSIM).  The two baselines of :mod:`vt4dcodec.eval.protocol` run on the same clips:
 the nearest source frame (static cameras: the source frame at the same time) and the forward warp with
 the same plane-sweep depth, plus a flat image of the source clip's mean colour as the structure-free
 reference.
@@ -35,10 +35,14 @@ from vt4dcodec.capture.capture import Capture
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.format import dumps
 
+from vt4dcodec.model.depth import estimate_depth
+from vt4dcodec.model.motion import DEFAULT_DEPTH_RANGE
+
 from . import baselines
-from .depth import estimate_depth
-from .evaluate import ENCODING, resolve_model, run_command, save_png_small, video_metrics, write_json
-from .motion import DEFAULT_DEPTH_RANGE
+from .command import resolve_model, run_command
+from .metrics import video_metrics
+from .protocol import ENCODING
+from .report import save_png_small, write_json
 
 __all__ = ["DEFAULT_CAPTURE", "best_overlap_pair", "evaluate_real", "save_real_figure", "main"]
 
@@ -127,7 +131,7 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m vt4dcodec.model.real_footage", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m vt4dcodec.eval.real_footage", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", default="vt4d-tiny", help="shipped id, model directory or training run directory")
     p.add_argument("--capture", default=DEFAULT_CAPTURE, help="caliscope recording directory")
     p.add_argument("--source", default=None, help="source camera (default: best-overlapping pair)")
@@ -158,7 +162,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     rows, clips = evaluate_real(capture, net, source, target, steps=args.steps, seed=args.seed)
     wall = time.perf_counter() - t0
     results = {
-        "command": "python -m vt4dcodec.model.real_footage " + " ".join(sys.argv[1:] if argv is None else argv),
+        "command": "python -m vt4dcodec.eval.real_footage " + " ".join(sys.argv[1:] if argv is None else argv),
         "capture": str(args.capture), "source": source, "target": target,
         "axis_angle_deg": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
         "image_size": size, "clip_frames": net.config.frames, "steps": args.steps, "seed": args.seed,

@@ -1,4 +1,4 @@
-"""Baselines for dynamic novel-view synthesis (issue #6 item 3), against which the tokens are measured.
+"""Baselines for dynamic novel-view synthesis, against which the tokens are measured.
 
 Both baselines see exactly what the encoder sees, one source camera's clip, and predict the frames of
 a target trajectory with the same number of frames:

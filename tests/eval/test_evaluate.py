@@ -12,7 +12,10 @@ from hypothesis import strategies as st
 import torch
 
 from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
-from vt4dcodec.model.evaluate import EvalSettings, format_tables, main, summarize, video_metrics
+from vt4dcodec.eval.command import main
+from vt4dcodec.eval.metrics import video_metrics
+from vt4dcodec.eval.protocol import EvalSettings
+from vt4dcodec.eval.report import format_tables, summarize
 
 
 def _random_model(path, seed: int, **overrides) -> str:
@@ -120,7 +123,7 @@ def test_summary_pairs_views_with_ours():
 def test_real_footage_path_on_a_capture_without_depth(models):
     from vt4dcodec.capture.capture import Capture
     from vt4dcodec.model import from_pretrained
-    from vt4dcodec.model.real_footage import best_overlap_pair, evaluate_real
+    from vt4dcodec.eval.real_footage import best_overlap_pair, evaluate_real
     from vt4dcodec.synth import SynthConfig, generate_scene
 
     cap = generate_scene(5, split="test", config=SynthConfig(num_cameras=3)).capture
@@ -139,7 +142,8 @@ def test_real_footage_path_on_a_capture_without_depth(models):
 
 def test_a_training_run_directory_evaluates_its_latest_checkpoint(tmp_path):
     from vt4dcodec import codec
-    from vt4dcodec.model.evaluate import EvaluationError, load_run_checkpoint, resolve_model
+    from vt4dcodec.eval.command import load_run_checkpoint, resolve_model
+    from vt4dcodec.eval.protocol import EvaluationError
     from vt4dcodec.model.train.common import save_checkpoint
 
     torch.manual_seed(3)
@@ -164,7 +168,7 @@ _json_scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floa
 def test_results_json_round_trips(head, rows):
     import tempfile
 
-    from vt4dcodec.model.evaluate import write_json
+    from vt4dcodec.eval.report import write_json
 
     data = dict(head) if rows is None else {**head, "rows": rows}
     with tempfile.TemporaryDirectory() as d:

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.model.baselines import (
+from vt4dcodec.eval.baselines import (
     BaselineError, forward_warp, mean_colour, nearest_frame_floats, nearest_source_frame, pose_distance, rgbd_floats,
     token_floats,
 )

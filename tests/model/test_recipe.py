@@ -1,0 +1,213 @@
+"""The stage-2 recipe pieces: query scale, x0 prediction, pre-activations, token health, pair sampling,
+cached latents and the stage-1 photo crops."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.bottleneck import saturation_penalty
+from vt4dcodec.model.configs import ModelConfig
+from vt4dcodec.model.diagnostics import effective_rank, saturation, slot_spread, swap_drop_db, token_health
+from vt4dcodec.model.train.data import MixedFrames, PairDataset, PhotoCrops, axis_angles_deg
+from vt4dcodec.model.train.tokenizer import draw_tau
+
+from network_fixtures import random_batch
+
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=8, n_dynamic=4, token_dim=8, n_tracks=8)
+
+
+def small_model(seed: int = 0, **overrides) -> VideoTok4D:
+    torch.manual_seed(seed)
+    return VideoTok4D(get_config("tiny", **{**SMALL, **overrides})).eval()
+
+
+def test_fresh_query_slots_differ():
+    """Unit-scale queries: a fresh encoder gives every slot its own vector (std-0.02 queries gave 0.03)."""
+    model = small_model()
+    z_s, z_d = model.encode(random_batch(model.config, B=3))
+    assert slot_spread(z_s) > 0.3 and slot_spread(z_d) > 0.3
+
+
+def test_old_configs_keep_their_hash_and_x0_changes_it():
+    shipped = Path(__file__).resolve().parents[2] / "model" / "weights" / "vt4d-tiny" / "config.json"
+    meta = json.loads(shipped.read_text())
+    if "prediction" not in meta["config"]:  # a config written before the field existed
+        assert ModelConfig.from_dict(meta["config"]).sha256() == meta["config_sha256"]
+    velocity = get_config("tiny", prediction="velocity")
+    assert velocity.sha256() == get_config("tiny").sha256()
+    assert get_config("tiny", prediction="x0").sha256() != velocity.sha256()
+    with pytest.raises(ModelError):
+        get_config("tiny", prediction="epsilon")
+
+
+def test_x0_prediction_one_step_render_is_the_network_output():
+    model = small_model(prediction="x0")
+    for p in model.renderer.out.parameters():  # make the zero-initialised head say something
+        torch.nn.init.normal_(p, std=0.5)
+    batch = random_batch(model.config, B=2)
+    z_s, z_d = model.encode(batch)
+    latents = model.render_latents(z_s, z_d, batch.K, batch.w2c, steps=1, seed=3)
+    cfg = model.config
+    noise = torch.randn((2, cfg.frames, cfg.latent_channels, cfg.latent_size, cfg.latent_size),
+                        generator=torch.Generator().manual_seed(3))
+    direct = model.renderer(noise, z_s, z_d, model.rays(batch.K, batch.w2c), torch.ones(2))
+    assert torch.allclose(latents, direct, atol=1e-5)
+
+
+def test_x0_loss_at_tau_one_is_the_one_step_error_and_trains_the_encoder():
+    model = small_model(prediction="x0").train()
+    model.freeze_autoencoder()
+    batch = random_batch(model.config, B=2)
+    opt = torch.optim.SGD(model.tokenizer_parameters(), lr=0.05)
+    for _ in range(3):  # zero-initialised gates and output (DiT) open the token path by step 3
+        opt.zero_grad()
+        loss, logs = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, tau=torch.ones(2),
+                                               saturation_weight=0.1)
+        loss.backward()
+        opt.step()
+    assert logs["tau"] == 1.0 and np.isfinite(logs["flow"]) and logs["x0"] == pytest.approx(logs["flow"], rel=1e-4)
+    grads = [p.grad for p in (model.spatial_branch.queries, model.temporal_branch.queries)]
+    assert all(g is not None and g.abs().sum() > 0 for g in grads)
+    for key in ("static_spread", "dynamic_spread", "static_saturation", "dynamic_rank"):
+        assert key in logs
+    with pytest.raises(ModelError):
+        model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, tau=torch.full((2,), 1.5))
+
+
+def test_cached_latents_give_the_same_loss_as_frames():
+    model = small_model(prediction="x0")
+    batch = random_batch(model.config, B=2)
+    gen = lambda: torch.Generator().manual_seed(5)  # noqa: E731
+    ref, _ = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, gen())
+    batch.latents = model.latents(batch.frames)
+    cached, _ = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, gen(),
+                                          target_latents=batch.latents)
+    assert torch.allclose(ref, cached)
+    batch.latents = batch.latents[:, :1]
+    with pytest.raises(ModelError):
+        model.encode(batch)
+
+
+def test_encode_is_tanh_of_the_preactivations():
+    model = small_model()
+    batch = random_batch(model.config, B=2)
+    a_s, a_d = model.encode_preactivations(batch)
+    z_s, z_d = model.encode(batch)
+    assert torch.allclose(z_s, torch.tanh(a_s)) and torch.allclose(z_d, torch.tanh(a_d))
+
+
+def test_saturation_penalty_is_zero_inside_the_knee():
+    assert float(saturation_penalty(torch.tensor([0.0, 1.9, -1.99]))) == 0.0
+    assert float(saturation_penalty(torch.tensor([3.0, -4.0]))) == pytest.approx((1 + 4) / 2)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(2, 6), st.integers(2, 9), st.integers(1, 5), st.integers(0, 2**31 - 1))
+def test_health_statistics(B, N, d, seed):
+    g = torch.Generator().manual_seed(seed)
+    same = torch.rand(B, 1, d, generator=g).expand(B, N, d) * 2 - 1
+    assert slot_spread(same) == pytest.approx(0.0, abs=1e-6)   # every slot the same vector
+    distinct = torch.rand(B, N, d, generator=g) * 2 - 1
+    assert slot_spread(distinct) > 0.2
+    identical_scenes = distinct[:1].expand(B, N, d)
+    assert effective_rank(identical_scenes) == 0.0
+    assert 1.0 <= effective_rank(distinct) <= B
+    assert saturation(torch.full((B, N, d), 0.99)) == 1.0 and saturation(distinct * 0.9) == 0.0
+    health = token_health(distinct, same)
+    assert health["dynamic_spread"] == pytest.approx(0.0, abs=1e-6) and health["static_spread"] > 0.2
+
+
+class _FakeModel:
+    """Renders the first token value as a flat grey video: own tokens match, swapped ones do not."""
+
+    def render(self, z_s, z_d, K, w2c, steps=1, seed=0):
+        return z_s[:, :1, :1, None, None].expand(-1, 2, 3, 4, 4).clamp(0, 1)
+
+
+def test_swap_drop_measures_how_much_the_tokens_matter():
+    z_s = torch.tensor([0.2, 0.8]).view(2, 1, 1).expand(2, 3, 2).clone()
+    truth = z_s[:, :1, :1, None, None].expand(-1, 2, 3, 4, 4)
+    out = swap_drop_db(_FakeModel(), z_s, z_s, None, None, truth)
+    assert out["psnr_own_db"] == pytest.approx(100.0) and out["swap_drop_db"] > 50
+
+
+@pytest.fixture(scope="module")
+def pool(tmp_path_factory):
+    from vt4dcodec.model.train.data import ScenePool
+
+    cfg = get_config("tiny", **SMALL)
+    return ScenePool.for_config(cfg, tmp_path_factory.mktemp("cache"), cameras=4)
+
+
+def test_pair_sampling_reconstruction_share_and_neighbours(pool):
+    every = PairDataset(pool, [0])
+    assert len(every) == 12 and all(a != b for a, b in every.pairs)
+    recon = PairDataset(pool, [0], recon_share=1.0)
+    assert len(recon) == 4
+    torch.manual_seed(0)
+    for i in range(4):
+        source, target_frames, _, _ = recon[i]
+        assert np.array_equal(source.frames, target_frames)  # the target is the encoded camera
+    near = PairDataset(pool, [0], neighbour_sigma_deg=1e-3)  # only the closest camera has any weight
+    angles = axis_angles_deg(pool.scene(0)["w2c"])
+    np.fill_diagonal(angles, np.inf)
+    scene = pool.scene(0)
+    for src in range(4):
+        _, target_frames, _, _ = near[src]
+        assert np.array_equal(target_frames, scene["frames"][int(np.argmin(angles[src]))])
+    with pytest.raises(ValueError):
+        PairDataset(pool, [0], recon_share=1.5)
+
+
+def test_axis_angles_are_symmetric_degrees():
+    w2c = np.tile(np.eye(4), (3, 2, 1, 1))
+    w2c[1, :, :3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]  # camera 1 looks along world x
+    angles = axis_angles_deg(w2c)
+    assert np.allclose(angles, angles.T) and angles[0, 1] == pytest.approx(90.0) and angles[0, 2] == 0.0
+
+
+def test_draw_tau_shares():
+    torch.manual_seed(0)
+    assert bool((draw_tau(64, 1.0) == 1.0).all())
+    tau = draw_tau(2000, 0.0)
+    assert 0.0 <= float(tau.min()) and float(tau.max()) < 1.0 and abs(float(tau.mean()) - 0.5) < 0.05
+
+
+def test_photo_crops_are_deterministic_train_split_images(pool):
+    crops = PhotoCrops(32, count=5, seed=1)
+    a, b = crops[3], PhotoCrops(32, count=5, seed=1)[3]
+    assert a.shape == (3, 32, 32) and torch.equal(a, b) and 0.0 <= float(a.min()) and float(a.max()) <= 1.0
+    assert not torch.equal(crops[0], crops[1])
+    assert all(n not in crops.names for n in ("rocket", "coins", "gravel", "clock", "retina"))  # test photos
+    from vt4dcodec.model.train.data import FrameDataset
+
+    frames = FrameDataset(pool, [0])
+    mixed = MixedFrames(frames, photo_share=0.5)
+    assert len(mixed) == 2 * len(frames) and mixed[len(frames)].shape == frames[0].shape
+
+
+def test_per_item_static_drop_matches_whole_batch_drops():
+    model = small_model()
+    for p in model.renderer.parameters():  # open the zero-initialised gates so tokens matter
+        if p.abs().sum() == 0:
+            torch.nn.init.normal_(p, std=0.1)
+    batch = random_batch(model.config, B=2)
+    z_s, z_d = model.encode(batch)
+    cfg = model.config
+    y = torch.randn(2, cfg.frames, cfg.latent_channels, cfg.latent_size, cfg.latent_size)
+    rays, tau = model.rays(batch.K, batch.w2c), torch.full((2,), 0.5)
+    mixed = model.renderer(y, z_s, z_d, rays, tau, drop_static=torch.tensor([True, False]))
+    dropped = model.renderer(y, z_s, z_d, rays, tau, drop_static=True)
+    kept = model.renderer(y, z_s, z_d, rays, tau)
+    assert torch.allclose(mixed[0], dropped[0], atol=1e-6) and torch.allclose(mixed[1], kept[1], atol=1e-6)
+    assert not torch.allclose(dropped[0], kept[0])

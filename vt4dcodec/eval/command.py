@@ -1,0 +1,170 @@
+"""Evaluate models on held-out synthetic scenes: the command behind ``python -m vt4dcodec.eval``.
+
+    python -m vt4dcodec.eval --model vt4d-tiny [--unified runs/tok_unified/model] \
+        --scenes 50 --views 3 --steps 8 --out docs/results/eval.json --figure docs/figures/eval_scenes.png
+
+The protocol is :mod:`vt4dcodec.eval.protocol`'s; models are given as shipped ids, model directories or
+training run directories (their latest checkpoint).  ``--merge`` adds or replaces some methods in an
+existing results file (same protocol), so a model that finishes training later is added without
+rerunning the rest; ``--tables FILE`` prints the Markdown tables of a results file (what
+docs/RESULTS.md shows).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import torch
+
+from vt4dcodec import codec
+from vt4dcodec.errors import Vt4dError
+from vt4dcodec.model import ModelConfig, VideoTok4D
+from vt4dcodec.model.train.common import load_checkpoint
+
+from . import baselines
+from .protocol import (ENCODING, METHODS, TOKEN_METHODS, EvalSettings, EvaluationError, describe_model,
+                       representation_floats, run_evaluation)
+
+from .report import format_tables, save_figure, summarize, write_json
+
+__all__ = ["load_run_checkpoint", "resolve_model", "run_command", "main"]
+
+
+# --- models ----------------------------------------------------------------------------------------
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m vt4dcodec.eval", description=__doc__.split("\n\n")[0])
+    p.add_argument("--model", default="vt4d-tiny", help="main model: shipped id, model directory, or a training "
+                   "run directory (its latest checkpoint)")
+    p.add_argument("--unified", default=None, help="unified-token ablation: model or training run directory")
+    p.add_argument("--scenes", type=int, default=50)
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--views", type=int, default=3, help="target cameras per scene (cameras 1..views)")
+    p.add_argument("--cameras", type=int, default=None, help="cameras per scene (default max(4, views + 1))")
+    p.add_argument("--steps", type=int, default=8, help="Euler steps of the renderer")
+    p.add_argument("--seed", type=int, default=0, help="sampling noise and track seed")
+    p.add_argument("--methods", default=None, help=f"comma-separated subset of {','.join(METHODS)} (default: all "
+                   "that have a model)")
+    p.add_argument("--merge", action="store_true", help="add/replace these methods in an existing --out file")
+    p.add_argument("--out", default="docs/results/eval.json")
+    p.add_argument("--figure", default=None, help="PNG of a few scenes across time")
+    p.add_argument("--figure-scenes", type=int, default=3)
+    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--tables", metavar="RESULTS_JSON", default=None, help="print the Markdown tables of a results "
+                   "file and exit")
+    return p
+
+
+def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
+    """The model of a training run's latest checkpoint (``<run>/checkpoint/``, written by the training
+    commands), for evaluating a run in progress.  Its fingerprint version is ``<version>+step<N>``."""
+    ckpt = Path(run_dir) / "checkpoint"
+    try:
+        state = json.loads((ckpt / "state.json").read_text())
+        net = VideoTok4D(ModelConfig.from_dict(state["config"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise EvaluationError(f"{ckpt} holds no complete training checkpoint: {exc}") from None
+    load_checkpoint(ckpt, net, None)
+    train_args = state.get("args", {})
+    net.model_id = str(train_args.get("model_id", "unnamed"))
+    net.model_version = f"{train_args.get('model_version', '0')}+step{int(state['step'])}"
+    net.training_step = int(state["step"])
+    return net.eval()
+
+
+def resolve_model(spec: str) -> VideoTok4D:
+    """A shipped id, a model directory, or a training run directory (its latest checkpoint)."""
+    path = Path(spec)
+    if path.is_dir() and not (path / "config.json").is_file() and (path / "checkpoint" / "state.json").is_file():
+        return load_run_checkpoint(path)
+    return codec.load_model(spec)
+
+
+def _load_models(args: argparse.Namespace) -> dict[str, VideoTok4D]:
+    models = {"main": resolve_model(args.model)}
+    if args.unified:
+        models["unified"] = resolve_model(args.unified)
+        if not models["unified"].config.unified_tokens:
+            raise EvaluationError(f"{args.unified} is not a unified-token model (config unified_tokens is false)")
+    for net in models.values():
+        net.eval()
+    return models
+
+
+def run_command(body: Callable[[], int]) -> int:
+    """Run a command body with the project's exit codes: 1 for a Vt4dError, 3 for an OSError."""
+    try:
+        return body()
+    except Vt4dError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    return run_command(lambda: _run(args, argv))
+
+
+def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    if args.tables:
+        sys.stdout.write(format_tables(json.loads(Path(args.tables).read_text())))
+        return 0
+    torch.set_num_threads(max(1, args.threads))
+    models = _load_models(args)
+    cfg = models["main"].config
+    settings = EvalSettings(scenes=args.scenes, first_seed=args.first_seed, views=args.views, steps=args.steps,
+                            seed=args.seed, num_cameras=args.cameras or max(4, args.views + 1),
+                            frames=cfg.frames, image_size=cfg.image_size)
+    available = [m for m in METHODS if m not in TOKEN_METHODS or TOKEN_METHODS[m][1][0] in models]
+    methods = args.methods.split(",") if args.methods else available
+    out = Path(args.out)
+    previous = json.loads(out.read_text()) if args.merge and out.is_file() else None
+    if previous is not None and previous["settings"] != asdict(settings):
+        raise EvaluationError(f"{out} was made with settings {previous['settings']}, not {asdict(settings)}")
+    figure_seeds = settings.seeds[:args.figure_scenes] if args.figure else []
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    rows, kept, seconds = run_evaluation(settings, models, methods, figure_seeds=figure_seeds,
+                                         progress=not args.no_progress)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    if args.figure and set(methods) != set(available):   # the figure shows every available method
+        _, kept, _ = run_evaluation(replace(settings, scenes=len(figure_seeds)),
+                                    models, available, figure_seeds=figure_seeds)
+    model_info = {k: describe_model(v) for k, v in models.items()}
+    timing = {"wall_s": round(wall, 1), "process_cpu_s": round(cpu, 1), "per_method_wall_s": seconds,
+              "threads": args.threads, "load_average_at_end": [round(x, 2) for x in os.getloadavg()]}
+    if previous is not None:
+        rows = [r for r in previous["rows"] if r["method"] not in methods] + rows
+        model_info = {**previous["models"], **model_info}
+        timing = {**previous["timing"], f"merge_{'+'.join(methods)}": timing}
+    command = "python -m vt4dcodec.eval " + " ".join(sys.argv[1:] if argv is None else argv)
+    token_floats = {k: baselines.token_floats(v["n_static"], v["n_dynamic"], v["token_dim"]) for k, v in model_info.items()}
+    present = sorted({r["method"] for r in rows}, key=list(METHODS).index)
+    floats = {m: representation_floats(m, settings, token_floats=token_floats.get(TOKEN_METHODS[m][1][0])
+                                       if m in TOKEN_METHODS else None) for m in present}
+    results = {
+        "commands": (previous["commands"] if previous is not None else []) + [command],
+        "settings": asdict(settings), "encoding": ENCODING, "models": model_info,
+        "machine": {"python": platform.python_version(), "torch": torch.__version__},
+        "timing": timing, "summary": summarize(rows, floats), "rows": rows,
+    }
+    write_json(out, results)
+    if args.figure:
+        save_figure(args.figure, kept)
+    sys.stdout.write(format_tables(results))
+    sys.stdout.write(f"wall {wall:.1f} s, process CPU {cpu:.1f} s; results -> {out}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
