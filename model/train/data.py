@@ -333,7 +333,8 @@ class PairDataset(Dataset):
             weights = others.astype(np.float64)
         else:  # exp(-angle / sigma), shifted by the nearest camera's angle so it never underflows to all 0
             angles = axis_angles_deg(w2c)[src]
-            weights = np.where(others, np.exp(-(angles - angles[others].min()) / self.sigma), 0.0)
+            weights = np.zeros(self.pool.cameras)
+            weights[others] = np.exp(-(angles[others] - angles[others].min()) / self.sigma)
         return int(torch.multinomial(torch.from_numpy(weights / weights.sum()), 1))
 
     def __getitem__(self, index: int) -> tuple:
