@@ -14,7 +14,7 @@ from vt4dcodec.eval.command import main
 from vt4dcodec.eval.protocol import (HEALTH_THRESHOLDS, RIG_CAMERAS, EvalSettings, EvaluationError, axis_angles_deg,
                                      make_scene, nearest_cameras, parse_sets, set_targets, token_health_report)
 from vt4dcodec.eval.report import format_tables
-from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+from vt4dcodec.model import VideoTok4D, from_pretrained, get_config, save_pretrained
 
 
 HEALTH_KEYS = {"static_spread", "dynamic_spread", "static_rank", "dynamic_rank", "static_saturation",
@@ -169,3 +169,34 @@ def test_default_steps_are_the_models_recorded_decode_steps(tmp_path):
     assert default["models"]["main"]["steps"] == forced["models"]["main"]["steps"] == 1
     assert default["models"]["main"]["decode_steps"] == 1
     assert [r["psnr"] for r in default["rows"]] == [r["psnr"] for r in forced["rows"]]
+
+
+def test_real_footage_source_target_skips_the_trivial_baselines(models):
+    from vt4dcodec.capture.capture import Capture
+    from vt4dcodec.eval.real_footage import evaluate_real, summarize_real
+    from vt4dcodec.synth import SynthConfig, generate_scene
+
+    cap = generate_scene(6, split="test", config=SynthConfig(num_cameras=2)).capture
+    cap = Capture(cameras=cap.cameras, frames=cap.frames, fps=cap.fps, capture_id=cap.capture_id)  # no depth
+    rows, clips = evaluate_real(cap, from_pretrained(models[0]), "cam00", "cam00", steps=1)
+    assert [r["method"] for r in rows] == ["ours", "mean_colour"]
+    summary = summarize_real(rows)
+    assert set(summary) == {"ours", "mean_colour", "ours_minus_flat"}
+    assert summary["ours_minus_flat"]["psnr_mean"] == pytest.approx(rows[0]["psnr"] - rows[1]["psnr"], abs=1e-3)
+    assert "nearest_frame" not in clips[0]
+
+
+def test_real_footage_command_on_the_source_camera(models, tmp_path):
+    from vt4dcodec.capture.caliscope import find_sample_capture
+    from vt4dcodec.eval.real_footage import main as real_main
+
+    capture = find_sample_capture()
+    if capture is None:
+        pytest.skip("caliscope_4cam sample not found")
+    out = tmp_path / "real.json"
+    assert real_main(["--model", models[0], "--capture", str(capture), "--target", "source", "--frame-step", "6",
+                      "--steps", "1", "--out", str(out), "--figure", str(tmp_path / "real.png")]) == 0
+    results = json.loads(out.read_text())
+    assert results["source"] == results["target"] and results["target_mode"] == "source"
+    assert set(results["summary"]) == {"ours", "mean_colour", "ours_minus_flat"}
+    assert results["steps"] == 1 and (tmp_path / "real.png").is_file()
