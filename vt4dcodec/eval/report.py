@@ -183,9 +183,11 @@ def _set_tables(s: dict[str, Any], view_set: str) -> str:
     out = "\n".join(lines)
     if "ours" in s and "mean_colour" in s:
         p = s["mean_colour"].get("ours_minus_this_psnr")
-        diff = f"ours − flat {paired(s['mean_colour'], 'psnr')}" if p else "no paired difference"
+        se = f" ± {p['se']:.2f}" if p and p.get("se") is not None else ""
+        diff = (f"ours − flat {p['mean']:+.2f}{se} dB (ours higher on {100 * p['ours_wins']:.0f}% of the views)"
+                if p else "no paired difference")
         out += (f"\n\nFlat mean-colour reference: {_fmt(s['mean_colour']['psnr'])} dB; ours "
-                f"{_fmt(s['ours']['psnr'])} dB; {diff} dB.")
+                f"{_fmt(s['ours']['psnr'])} dB; {diff}.")
     if "depth_warp" in s:
         e = s["depth_warp"]
         out += (f"\n\nDepth forward-warp: {100 * e['hole_fraction']:.1f}% of target pixels receive no splat "
