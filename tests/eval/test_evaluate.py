@@ -11,46 +11,24 @@ from hypothesis import given
 from hypothesis import strategies as st
 import torch
 
-from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+from vt4dcodec.model import VideoTok4D, get_config
 from vt4dcodec.eval.command import main
 from vt4dcodec.eval.metrics import video_metrics
 from vt4dcodec.eval.protocol import EvalSettings
 from vt4dcodec.eval.report import format_tables, summarize
 
 
-def _random_model(path, seed: int, **overrides) -> str:
-    torch.manual_seed(seed)
-    net = VideoTok4D(get_config("tiny", patch_size=4, **overrides)).eval()
-    with torch.no_grad():  # the renderer's zero-initialised output would ignore the tokens
-        for p in net.renderer.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    save_pretrained(net, path, model_id=f"test-eval-{seed}", model_version="0")
-    return str(path)
-
-
-@pytest.fixture(scope="module")
-def models(tmp_path_factory):
-    root = tmp_path_factory.mktemp("eval_models")
-    return _random_model(root / "main", 0), _random_model(root / "unified", 1, unified_tokens=True)
-
-
-@pytest.fixture(scope="module")
-def evaluated(models, tmp_path_factory):
-    torch.set_num_threads(1)
-    out = tmp_path_factory.mktemp("eval_out")
-    args = ["--model", models[0], "--unified", models[1], "--scenes", "2", "--views", "2", "--steps", "2",
-            "--out", str(out / "eval.json"), "--figure", str(out / "eval.png"), "--figure-scenes", "1",
-            "--no-progress"]
-    assert main(args) == 0
-    return json.loads((out / "eval.json").read_text()), out
-
-
 def test_every_method_scores_every_view(evaluated):
     results, out = evaluated
     methods = ["ours", "ours_no_static", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp", "mean_colour"]
     assert list(results["summary"]) == methods
-    assert len(results["rows"]) == 2 * 2 * len(methods)
-    assert {(r["seed"], r["view"]) for r in results["rows"]} == {(s, v) for s in (0, 1) for v in ("cam01", "cam02")}
+    far = [r for r in results["rows"] if r["set"] == "far"]
+    assert len(far) == 2 * 2 * len(methods)
+    assert {(r["seed"], r["view"]) for r in far} == {(s, v) for s in (0, 1) for v in ("cam01", "cam02")}
+    # the default evaluates all three sets: near has 2 targets, source 1 without the two trivial baselines
+    assert results["sets"] == ["far", "near", "source"]
+    assert len(results["rows"]) == len(far) + 2 * 2 * len(methods) + 2 * 1 * (len(methods) - 2)
+    assert results["summary_by_set"]["far"] == results["summary"]
     for r in results["rows"]:
         assert 0.0 < r["psnr"] < 60.0 and -1.0 <= r["ssim"] <= 1.0
     assert results["settings"] == {**EvalSettings(scenes=2, views=2, steps=2).__dict__}

@@ -1,13 +1,18 @@
 """Evaluate models on held-out synthetic scenes: the command behind ``python -m vt4dcodec.eval``.
 
-    python -m vt4dcodec.eval --model vt4d-tiny [--unified runs/tok_unified/model] \
-        --scenes 50 --views 3 --steps 8 --out docs/results/eval.json --figure docs/figures/eval_scenes.png
+    python -m vt4dcodec.eval --model vt4d-tiny [--unified runs/tok_unified/model] [--sets far,near,source] \
+        --scenes 50 --views 3 --out docs/results/eval.json --figure docs/figures/eval_scenes.png
 
 The protocol is :mod:`vt4dcodec.eval.protocol`'s; models are given as shipped ids, model directories or
-training run directories (their latest checkpoint).  ``--merge`` adds or replaces some methods in an
-existing results file (same protocol), so a model that finishes training later is added without
-rerunning the rest; ``--tables FILE`` prints the Markdown tables of a results file (what
-docs/RESULTS.md shows).
+training run directories (their latest checkpoint).  ``--sets`` chooses the target sets (default all
+three); the results file holds their rows (field ``"set"``), ``summary_by_set`` (set -> method ->
+summary), ``summary`` (the far set's, as before sets existed) and ``token_health``.  ``--steps``
+forces the sampler steps; by default each model renders with its recorded ``decode_steps`` (recorded
+per model under ``models.<key>.steps``).  ``--merge`` adds or replaces some methods (in the sets
+evaluated) in an existing results file (same protocol; rows of files without sets are far rows), so a
+model that finishes training later is added without rerunning the rest; ``--tables FILE`` prints the
+Markdown tables of a results file (what docs/RESULTS.md shows).  The figure of the far set is written
+to ``--figure``, those of the other sets beside it as ``<stem>_<set>.png``.
 """
 
 from __future__ import annotations
@@ -30,10 +35,10 @@ from vt4dcodec.model import ModelConfig, VideoTok4D
 from vt4dcodec.model.train.common import load_checkpoint
 
 from . import baselines
-from .protocol import (ENCODING, METHODS, TOKEN_METHODS, EvalSettings, EvaluationError, describe_model,
-                       representation_floats, run_evaluation)
+from .protocol import (ENCODING, METHODS, TOKEN_METHODS, VIEW_SETS, EvalSettings, EvaluationError, describe_model,
+                       parse_sets, representation_floats, run_evaluation)
 
-from .report import format_tables, save_figure, summarize, write_json
+from .report import format_tables, row_set, save_figure, summarize_sets, write_json
 
 __all__ = ["load_run_checkpoint", "resolve_model", "run_command", "main"]
 
@@ -48,7 +53,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--views", type=int, default=3, help="target cameras per scene (cameras 1..views)")
     p.add_argument("--cameras", type=int, default=None, help="cameras per scene (default max(4, views + 1))")
-    p.add_argument("--steps", type=int, default=8, help="Euler steps of the renderer")
+    p.add_argument("--sets", default=",".join(VIEW_SETS), help="comma-separated target sets of "
+                   f"{','.join(VIEW_SETS)} (default: all three)")
+    p.add_argument("--steps", type=int, default=None, help="Euler steps of the renderer (default: each model's "
+                   "recorded decode_steps)")
     p.add_argument("--seed", type=int, default=0, help="sampling noise and track seed")
     p.add_argument("--methods", default=None, help=f"comma-separated subset of {','.join(METHODS)} (default: all "
                    "that have a model)")
@@ -116,11 +124,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_command(lambda: _run(args, argv))
 
 
+def _figure_path(figure: str, view_set: str) -> Path:
+    """The far set's figure is ``figure`` itself; the others' sit beside it as ``<stem>_<set>.png``."""
+    path = Path(figure)
+    return path if view_set == "far" else path.with_name(f"{path.stem}_{view_set}{path.suffix or '.png'}")
+
+
+def _merge_health(previous: dict | None, new: dict | None) -> dict | None:
+    if new is None or previous is None or previous.get("set") != new.get("set"):
+        return new if new is not None else previous
+    return {**new, "models": {**previous["models"], **new["models"]}}
+
+
 def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     if args.tables:
         sys.stdout.write(format_tables(json.loads(Path(args.tables).read_text())))
         return 0
     torch.set_num_threads(max(1, args.threads))
+    sets = parse_sets(args.sets)
     models = _load_models(args)
     cfg = models["main"].config
     settings = EvalSettings(scenes=args.scenes, first_seed=args.first_seed, views=args.views, steps=args.steps,
@@ -134,33 +155,41 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         raise EvaluationError(f"{out} was made with settings {previous['settings']}, not {asdict(settings)}")
     figure_seeds = settings.seeds[:args.figure_scenes] if args.figure else []
     t0, cpu0 = time.perf_counter(), time.process_time()
-    rows, kept, seconds = run_evaluation(settings, models, methods, figure_seeds=figure_seeds,
-                                         progress=not args.no_progress)
+    rows, kept, seconds, health = run_evaluation(settings, models, methods, sets=sets, figure_seeds=figure_seeds,
+                                                 progress=not args.no_progress)
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     if args.figure and set(methods) != set(available):   # the figure shows every available method
-        _, kept, _ = run_evaluation(replace(settings, scenes=len(figure_seeds)),
-                                    models, available, figure_seeds=figure_seeds)
-    model_info = {k: describe_model(v) for k, v in models.items()}
+        _, kept, _, _ = run_evaluation(replace(settings, scenes=len(figure_seeds)), models, available, sets=sets,
+                                       figure_seeds=figure_seeds)
+    model_info = {k: describe_model(v, settings) for k, v in models.items()}
     timing = {"wall_s": round(wall, 1), "process_cpu_s": round(cpu, 1), "per_method_wall_s": seconds,
               "threads": args.threads, "load_average_at_end": [round(x, 2) for x in os.getloadavg()]}
+    all_sets = list(sets)
     if previous is not None:
-        rows = [r for r in previous["rows"] if r["method"] not in methods] + rows
+        replaced = {(m, v) for m in methods for v in sets}
+        rows = [{**r, "set": row_set(r)} for r in previous["rows"] if (r["method"], row_set(r)) not in replaced] + rows
         model_info = {**previous["models"], **model_info}
         timing = {**previous["timing"], f"merge_{'+'.join(methods)}": timing}
+        health = _merge_health(previous.get("token_health"), health)
+        all_sets = [v for v in VIEW_SETS if v in set(previous.get("sets", ["far"])) | set(sets)]
     command = "python -m vt4dcodec.eval " + " ".join(sys.argv[1:] if argv is None else argv)
     token_floats = {k: baselines.token_floats(v["n_static"], v["n_dynamic"], v["token_dim"]) for k, v in model_info.items()}
     present = sorted({r["method"] for r in rows}, key=list(METHODS).index)
     floats = {m: representation_floats(m, settings, token_floats=token_floats.get(TOKEN_METHODS[m][1][0])
                                        if m in TOKEN_METHODS else None) for m in present}
+    by_set = summarize_sets(rows, floats)
     results = {
         "commands": (previous["commands"] if previous is not None else []) + [command],
-        "settings": asdict(settings), "encoding": ENCODING, "models": model_info,
+        "settings": asdict(settings), "sets": all_sets, "encoding": ENCODING, "models": model_info,
         "machine": {"python": platform.python_version(), "torch": torch.__version__},
-        "timing": timing, "summary": summarize(rows, floats), "rows": rows,
+        "timing": timing, "summary": by_set.get("far", {}), "summary_by_set": by_set, "token_health": health,
+        "rows": rows,
     }
     write_json(out, results)
     if args.figure:
-        save_figure(args.figure, kept)
+        for view_set, scenes in kept.items():
+            if scenes:
+                save_figure(_figure_path(args.figure, view_set), scenes)
     sys.stdout.write(format_tables(results))
     sys.stdout.write(f"wall {wall:.1f} s, process CPU {cpu:.1f} s; results -> {out}\n")
     return 0

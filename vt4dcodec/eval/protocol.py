@@ -2,13 +2,25 @@
 ``python -m vt4dcodec.eval`` runs it (:mod:`vt4dcodec.eval.command`).
 
 Protocol.  Held-out scenes ``generate_scene(seed, split="test")`` (textures disjoint from the training
-split) for seeds ``first_seed .. first_seed + scenes - 1``, each with ``views + 1`` (at least 4)
-synchronized moving cameras and moving objects.  Camera 0 is the source.  Every method sees only the
-source clip and predicts the videos of cameras 1..views along their trajectories:
+split) for seeds ``first_seed .. first_seed + scenes - 1`` with synchronized moving cameras and moving
+objects.  Camera 0 is the source.  Every method sees only the source clip and predicts the videos of
+the target cameras along their trajectories.  Three target sets (``VIEW_SETS``; rows carry ``"set"``):
+
+* ``far``: the original protocol: rigs of ``num_cameras`` (``views + 1``, at least 4) cameras from
+  :func:`make_scene`, targets cameras 1..views (50-160 degrees from the source);
+* ``near``: rigs of ``RIG_CAMERAS`` (10) cameras, same split and seeds, targets the ``NEAR_VIEWS`` (2)
+  cameras whose first-frame optical axes are closest in direction to camera 0's
+  (:func:`nearest_cameras`);
+* ``source``: the same 10-camera rigs, target camera 0 itself: reconstruction of the encoded view.
+  The nearest-frame and depth-warp baselines are skipped there (the target is the source: they are
+  trivially exact); the flat mean colour stays as the reference.
+
+The methods:
 
 * ``ours``: ``codec.encode`` camera 0 with the model, store it as an int8 ``.vt4d`` (``format.dumps``;
   its length is the reported size), load those bytes back with ``SceneDecoder`` and
-  ``render_many`` the target trajectories (``steps`` Euler steps, noise seed ``seed``);
+  ``render_many`` the target trajectories (``steps`` Euler steps, None: each model's recorded
+  ``decode_steps``; noise seed ``seed``);
 * ``ours_no_static`` / ``ours_no_dynamic``: the same tokens rendered with Z_s or Z_d masked out of the
   renderer (Table 4);
 * ``unified``: the unified-token ablation (one token set of the same size, no Temporal Branch), encoded
@@ -27,6 +39,12 @@ only (views with no such pixel are skipped) and over the other (static) pixels. 
 the standard error, paired differences against ``ours`` and the fraction of views where ``ours`` wins.
 Sizes: floats of the representation (tokens ``N_s*d + N_d*d``, RGB-D ``T*H*W*4``, source video
 ``T*H*W*3``) and the bytes of the int8 ``.vt4d`` for token methods.
+
+Token health (:func:`token_health_report`): for each token model, over the evaluated scenes' source
+clips (the tokens as decoded from the int8 ``.vt4d`` bytes): slot spread, effective rank across
+scenes and saturation of Z_s and Z_d (:mod:`model.diagnostics`), and the token-swap drop: the
+source-view PSNR with the scene's own tokens minus with the next scene's (in seed order, cyclic), the
+same source cameras, steps and seed.  Issue 12's thresholds are ``HEALTH_THRESHOLDS``.
 """
 
 from __future__ import annotations
@@ -36,12 +54,14 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+import torch
 
 from vt4dcodec import codec
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.format import dumps
 from vt4dcodec.media import psnr
 from vt4dcodec.model import VideoTok4D
+from vt4dcodec.model.diagnostics import psnr_db, token_health
 from vt4dcodec.synth import SynthConfig, generate_scene
 from vt4dcodec.synth.generator import SynthScene
 
@@ -49,8 +69,9 @@ from . import baselines
 from .metrics import round_metric, video_metrics
 
 __all__ = [
-    "EvalSettings", "EvaluationError", "METHODS", "TOKEN_METHODS", "make_scene", "predict_scene", "score_scene",
-    "representation_floats", "run_evaluation", "describe_model",
+    "EvalSettings", "EvaluationError", "METHODS", "TOKEN_METHODS", "VIEW_SETS", "RIG_CAMERAS", "HEALTH_THRESHOLDS",
+    "make_scene", "predict_scene", "score_scene", "representation_floats", "run_evaluation", "describe_model",
+    "axis_angles_deg", "nearest_cameras", "set_targets", "parse_sets", "token_health_report",
 ]
 
 # method -> (label, (model key, drop_static, drop_dynamic)) for token methods
@@ -65,6 +86,13 @@ BASELINE_METHODS = {"nearest_frame": "Nearest source frame (view-bound)", "depth
 METHODS: dict[str, str] = {**{k: v[0] for k, v in TOKEN_METHODS.items()}, **BASELINE_METHODS}
 METRICS = ("psnr", "ssim", "psnr_dynamic", "psnr_static")
 ENCODING = "int8"
+VIEW_SETS = ("far", "near", "source")
+RIG_CAMERAS = 10  # cameras of the near/source rigs
+NEAR_VIEWS = 2  # targets of the near set
+# baselines that are trivially exact when the target is the source camera itself
+SKIPPED_ON_SOURCE = ("nearest_frame", "depth_warp")
+# issue 12, "Done when": never change these to make a model pass
+HEALTH_THRESHOLDS = {"spread_min": 0.2, "swap_drop_min_db": 5.0}
 
 
 class EvaluationError(Vt4dError, ValueError):
@@ -78,7 +106,7 @@ class EvalSettings:
     scenes: int = 50
     first_seed: int = 0
     views: int = 3
-    steps: int = 8
+    steps: int | None = None  # None: each model's recorded decode_steps
     seed: int = 0
     num_cameras: int = 4
     frames: int = 8
@@ -86,7 +114,8 @@ class EvalSettings:
 
     def __post_init__(self) -> None:
         for key in ("scenes", "views", "steps", "frames", "image_size"):
-            if getattr(self, key) < 1:
+            value = getattr(self, key)
+            if (value is None and key != "steps") or (value is not None and value < 1):
                 raise EvaluationError(f"{key} must be >= 1")
         if self.num_cameras < self.views + 1:
             raise EvaluationError(f"num_cameras ({self.num_cameras}) must be at least views + 1 ({self.views + 1})")
@@ -95,20 +124,77 @@ class EvalSettings:
     def seeds(self) -> list[int]:
         return list(range(self.first_seed, self.first_seed + self.scenes))
 
+    def rig_cameras(self, view_set: str = "far") -> int:
+        """Cameras per scene of a target set: ``num_cameras`` for "far", ``RIG_CAMERAS`` otherwise."""
+        _check_set(view_set)
+        return self.num_cameras if view_set == "far" else RIG_CAMERAS
 
-def make_scene(seed: int, settings: EvalSettings) -> SynthScene:
-    """The held-out test scene for ``seed`` (split="test": textures disjoint from training)."""
-    cfg = SynthConfig(num_cameras=settings.num_cameras, num_frames=settings.frames, height=settings.image_size,
-                      width=settings.image_size)
+    def steps_for(self, net: VideoTok4D) -> int:
+        """The sampler steps a model renders with: ``steps``, or the model's recorded ``decode_steps``."""
+        return int(net.decode_steps if self.steps is None else self.steps)
+
+
+def _check_set(view_set: str) -> None:
+    if view_set not in VIEW_SETS:
+        raise EvaluationError(f"unknown view set {view_set!r}; choose from {list(VIEW_SETS)}")
+
+
+def parse_sets(spec: str | Sequence[str]) -> tuple[str, ...]:
+    """``"far,near"`` or a sequence -> the sets in ``VIEW_SETS`` order, each once."""
+    names = [x.strip() for x in (spec.split(",") if isinstance(spec, str) else spec) if x.strip()]
+    for name in names:
+        _check_set(name)
+    if not names:
+        raise EvaluationError(f"no view set given; choose from {list(VIEW_SETS)}")
+    return tuple(s for s in VIEW_SETS if s in names)
+
+
+def make_scene(seed: int, settings: EvalSettings, view_set: str = "far") -> SynthScene:
+    """The held-out test scene for ``seed`` (split="test": textures disjoint from training), with the
+    rig of ``view_set`` (near and source share one 10-camera scene per seed)."""
+    cfg = SynthConfig(num_cameras=settings.rig_cameras(view_set), num_frames=settings.frames,
+                      height=settings.image_size, width=settings.image_size)
     return generate_scene(seed, split="test", config=cfg)
+
+
+def axis_angles_deg(w2c: np.ndarray) -> np.ndarray:
+    """(C, 4, 4) or (C, T, 4, 4) world-to-camera (first frame used) -> (C, C) angles in degrees between
+    the cameras' optical axes (the z rows of the rotations): 0 = same viewing direction."""
+    w = np.asarray(w2c, np.float64)
+    z = (w[:, 0] if w.ndim == 4 else w)[:, 2, :3]
+    z = z / np.linalg.norm(z, axis=1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(z @ z.T, -1.0, 1.0)))
+
+
+def nearest_cameras(capture: Any, source: str, k: int) -> list[tuple[str, float]]:
+    """The ``k`` other cameras of ``capture`` whose first-frame optical axes are closest in direction to
+    ``source``'s: [(name, angle in degrees)], closest first (ties in camera order)."""
+    names = list(capture.camera_names)
+    angles = axis_angles_deg(np.stack([capture.cameras[n].w2c[0] for n in names]))[names.index(source)]
+    others = sorted((i for i, n in enumerate(names) if n != source), key=lambda i: (angles[i], i))
+    if len(others) < k:
+        raise EvaluationError(f"{source} has {len(others)} other cameras, {k} needed")
+    return [(names[i], float(angles[i])) for i in others[:k]]
+
+
+def set_targets(sc: SynthScene, settings: EvalSettings, view_set: str = "far") -> tuple[str, list[str]]:
+    """(source camera, target cameras) of a scene for a target set."""
+    names = sc.capture.camera_names
+    _check_set(view_set)
+    if view_set == "far":
+        return names[0], list(names[1:settings.views + 1])
+    if view_set == "near":
+        return names[0], [n for n, _ in nearest_cameras(sc.capture, names[0], NEAR_VIEWS)]
+    return names[0], [names[0]]
 
 
 # --- predictions ------------------------------------------------------------------------------------
 def _render_tokens(net: VideoTok4D, sc: SynthScene, source: str, targets: Sequence[str], settings: EvalSettings,
-                   variants: dict[str, tuple[bool, bool]]) -> tuple[dict[str, list[np.ndarray]], int, float]:
+                   variants: dict[str, tuple[bool, bool]]
+                   ) -> tuple[dict[str, list[np.ndarray]], int, float, codec.SceneDecoder]:
     """Encode ``source`` into an int8 .vt4d, decode the bytes, render every target per variant.
 
-    Returns (variant -> videos, file bytes, seconds spent).
+    Returns (variant -> videos, file bytes, seconds spent, the decoder of the stored bytes).
     """
     t0 = time.perf_counter()
     scene = codec.encode(sc.capture, net, ENCODING, camera=source, seed=settings.seed)
@@ -118,23 +204,29 @@ def _render_tokens(net: VideoTok4D, sc: SynthScene, source: str, targets: Sequen
     videos = {name: decoder.render_many(trajectories, steps=settings.steps, seed=settings.seed,
                                         drop_static=ds, drop_dynamic=dd)
               for name, (ds, dd) in variants.items()}
-    return videos, len(blob), time.perf_counter() - t0
+    return videos, len(blob), time.perf_counter() - t0, decoder
 
 
 def predict_scene(sc: SynthScene, settings: EvalSettings, methods: Sequence[str],
-                  models: dict[str, VideoTok4D]) -> dict[str, dict[str, Any]]:
-    """Every method's predicted videos of the target views of one scene.
+                  models: dict[str, VideoTok4D], view_set: str = "far",
+                  decoders: dict[str, codec.SceneDecoder] | None = None) -> dict[str, dict[str, Any]]:
+    """Every method's predicted videos of the target views (of ``view_set``) of one scene.
 
     Returns method -> {"videos": [per view (T, H, W, 3) uint8], "extra": [per view dict],
-    "bytes": int | None, "seconds": float}.
+    "bytes": int | None, "seconds": float}.  On the "source" set the nearest-frame and depth-warp
+    baselines are skipped (the target is the source).  ``decoders``, if given, receives each token
+    model's decoder of the stored bytes (model key -> decoder), for the token-health report.
     """
-    names = sc.capture.camera_names
-    source, targets = names[0], names[1:settings.views + 1]
+    source, targets = set_targets(sc, settings, view_set)
+    if view_set == "source":
+        methods = [m for m in methods if m not in SKIPPED_ON_SOURCE]
     src_frames, src_traj = sc.capture.frames[source], sc.capture.cameras[source]
     out: dict[str, dict[str, Any]] = {}
     for key in sorted({TOKEN_METHODS[m][1][0] for m in methods if m in TOKEN_METHODS}):
         variants = {m: TOKEN_METHODS[m][1][1:] for m in methods if m in TOKEN_METHODS and TOKEN_METHODS[m][1][0] == key}
-        videos, nbytes, seconds = _render_tokens(models[key], sc, source, targets, settings, variants)
+        videos, nbytes, seconds, decoder = _render_tokens(models[key], sc, source, targets, settings, variants)
+        if decoders is not None:
+            decoders[key] = decoder
         for m, vids in videos.items():
             out[m] = {"videos": vids, "extra": [{} for _ in vids], "bytes": nbytes, "seconds": seconds / len(videos)}
     if "nearest_frame" in methods:
@@ -165,14 +257,15 @@ def predict_scene(sc: SynthScene, settings: EvalSettings, methods: Sequence[str]
     return out
 
 
-def score_scene(sc: SynthScene, settings: EvalSettings, predictions: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per (method, target view): seed, view, metrics, extra fields and bytes."""
-    names = sc.capture.camera_names
+def score_scene(sc: SynthScene, settings: EvalSettings, predictions: dict[str, dict[str, Any]],
+                view_set: str = "far") -> list[dict[str, Any]]:
+    """One row per (method, target view): set, seed, view, metrics, extra fields and bytes."""
+    _, targets = set_targets(sc, settings, view_set)
     rows = []
     for method, pred in predictions.items():
-        for i, k in enumerate(names[1:settings.views + 1]):
+        for i, k in enumerate(targets):
             metrics = video_metrics(pred["videos"][i], sc.capture.frames[k], sc.dynamic_mask[k])
-            rows.append({"method": method, "seed": sc.seed, "view": k,
+            rows.append({"method": method, "set": view_set, "seed": sc.seed, "view": k,
                          "dynamic_fraction": round(float(sc.dynamic_mask[k].mean()), 5),
                          **{m: round_metric(v) for m, v in metrics.items()}, "bytes": pred["bytes"], **pred["extra"][i]})
     return rows
@@ -206,24 +299,84 @@ def _check_models(models: dict[str, VideoTok4D], settings: EvalSettings) -> None
         raise EvaluationError("the unified ablation must have the same token budget as the main model")
 
 
-def describe_model(net: VideoTok4D) -> dict[str, Any]:
+def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dict[str, Any]:
+    """The model's identity and shape; ``decode_steps`` (its recorded default) and, with ``settings``,
+    ``steps``: the sampler steps this evaluation rendered it with."""
     fp = codec.model_fingerprint(net)
     cfg = net.config
-    return {"fingerprint": fp.short(), "training_step": getattr(net, "training_step", None), "config": cfg.name, "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic,
-            "token_dim": cfg.token_dim, "unified_tokens": cfg.unified_tokens,
-            "motion_isolation": cfg.motion_isolation, "track_attention": cfg.track_attention}
+    info = {"fingerprint": fp.short(), "training_step": getattr(net, "training_step", None), "config": cfg.name,
+            "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic, "token_dim": cfg.token_dim,
+            "unified_tokens": cfg.unified_tokens, "motion_isolation": cfg.motion_isolation,
+            "track_attention": cfg.track_attention, "decode_steps": int(net.decode_steps)}
+    if settings is not None:
+        info["steps"] = settings.steps_for(net)
+    return info
 
 
+# --- token health -----------------------------------------------------------------------------------
+MODEL_METHOD = {"main": "ours", "unified": "unified"}  # the plain render of each token model
+
+
+def _unit_video(video: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(video)).float()[None] / 255.0
+
+
+def token_health_report(items: dict[str, list[dict[str, Any]]], settings: EvalSettings, view_set: str
+                        ) -> dict[str, Any]:
+    """Token health of each token model over the scenes of ``view_set`` (see the module docstring).
+
+    ``items``: model key -> per scene in seed order {"seed", "decoder" (of the stored int8 bytes),
+    "trajectory" and "truth" (the source camera's), "own" (its source-view render, or None)}.
+    """
+    report: dict[str, Any] = {"set": view_set, "thresholds": dict(HEALTH_THRESHOLDS), "models": {}}
+    for key, scenes in items.items():
+        z_s = torch.stack([torch.from_numpy(np.asarray(x["decoder"].scene.static_tokens, np.float32)) for x in scenes])
+        z_d = torch.stack([torch.from_numpy(np.asarray(x["decoder"].scene.dynamic_tokens, np.float32)) for x in scenes])
+        entry: dict[str, Any] = {k: round_metric(v) for k, v in token_health(z_s, z_d).items()}
+        entry["scenes"] = len(scenes)
+        entry["spread_pass"] = bool(min(entry["static_spread"], entry["dynamic_spread"]) >= HEALTH_THRESHOLDS["spread_min"])
+        if len(scenes) >= 2:
+            own, swapped = [], []
+            for i, x in enumerate(scenes):
+                other = scenes[(i + 1) % len(scenes)]  # the next scene in seed order
+                kwargs = {"steps": settings.steps, "seed": settings.seed}
+                mine = x["own"] if x["own"] is not None else x["decoder"].render(x["trajectory"], **kwargs)
+                theirs = other["decoder"].render(x["trajectory"], **kwargs)
+                truth = _unit_video(x["truth"])
+                own.append(float(psnr_db(_unit_video(mine), truth)[0]))
+                swapped.append(float(psnr_db(_unit_video(theirs), truth)[0]))
+            drops = np.array(own) - np.array(swapped)
+            se = float(drops.std(ddof=1) / np.sqrt(drops.size))
+            entry.update({"psnr_own_db": round_metric(float(np.mean(own))),
+                          "psnr_swapped_db": round_metric(float(np.mean(swapped))),
+                          "swap_drop_db": round_metric(float(drops.mean())), "swap_drop_se_db": round_metric(se),
+                          "swap_pass": bool(drops.mean() >= HEALTH_THRESHOLDS["swap_drop_min_db"])})
+        else:
+            entry.update({"psnr_own_db": None, "psnr_swapped_db": None, "swap_drop_db": None,
+                          "swap_drop_se_db": None, "swap_pass": None})
+        report["models"][key] = entry
+    return report
+
+
+def health_set(sets: Sequence[str]) -> str:
+    """The set whose scenes the token health is measured on: "source" (10-camera rigs), else the first."""
+    return "source" if "source" in sets else ("near" if "near" in sets else sets[0])
+
+
+# --- the run ----------------------------------------------------------------------------------------
 def run_evaluation(settings: EvalSettings, models: dict[str, VideoTok4D], methods: Sequence[str], *,
-                   figure_seeds: Sequence[int] = (), progress: bool = False
-                   ) -> tuple[list[dict[str, Any]], dict[int, dict[str, dict[str, Any]]], dict[str, float]]:
-    """Predict and score every scene.
+                   sets: Sequence[str] = ("far",), figure_seeds: Sequence[int] = (), progress: bool = False
+                   ) -> tuple[list[dict[str, Any]], dict[str, dict[int, dict[str, dict[str, Any]]]],
+                              dict[str, float], dict[str, Any] | None]:
+    """Predict and score every scene of every target set in ``sets``.
 
-    Returns (rows, predictions of the ``figure_seeds`` scenes (seed -> method -> prediction, plus the
-    scene under key "scene"), wall seconds per method summed over scenes; a token model's encode and
-    renders are split evenly over the variants rendered from it).
+    Returns (rows, predictions of the ``figure_seeds`` scenes per set (set -> seed -> method ->
+    prediction, plus the scene and its targets under key "scene"), wall seconds per method summed over
+    scenes and sets (a token model's encode and renders are split evenly over the variants rendered
+    from it), the token-health report of the token models used (None when no token method runs)).
     """
     _check_models(models, settings)
+    sets = parse_sets(sets)
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise EvaluationError(f"unknown methods {unknown}; choose from {list(METHODS)}")
@@ -237,18 +390,33 @@ def run_evaluation(settings: EvalSettings, models: dict[str, VideoTok4D], method
 
         iterator = tqdm(seeds, desc="scenes", unit="scene")
     rows: list[dict[str, Any]] = []
-    kept: dict[int, dict[str, dict[str, Any]]] = {}
+    kept: dict[str, dict[int, dict[str, dict[str, Any]]]] = {s: {} for s in sets}
     seconds: dict[str, float] = {"generate": 0.0}
+    health_on = health_set(sets)
+    health_items: dict[str, list[dict[str, Any]]] = {}
     for seed in iterator:
-        t0 = time.perf_counter()
-        sc = make_scene(seed, settings)
-        seconds["generate"] += time.perf_counter() - t0
-        preds = predict_scene(sc, settings, methods, models)
-        for m, p in preds.items():
-            seconds[m] = seconds.get(m, 0.0) + p["seconds"]
-        rows.extend(score_scene(sc, settings, preds))
-        if seed in figure_seeds:
-            kept[seed] = {**preds, "scene": {"scene": sc}}
-    return rows, kept, {k: round(v, 2) for k, v in seconds.items()}
-
-
+        rigs: dict[int, SynthScene] = {}  # near and source share the 10-camera scene
+        for view_set in sets:
+            t0 = time.perf_counter()
+            n = settings.rig_cameras(view_set)
+            sc = rigs[n] if n in rigs else rigs.setdefault(n, make_scene(seed, settings, view_set))
+            seconds["generate"] += time.perf_counter() - t0
+            decoders: dict[str, codec.SceneDecoder] = {}
+            preds = predict_scene(sc, settings, methods, models, view_set, decoders=decoders)
+            for m, p in preds.items():
+                seconds[m] = seconds.get(m, 0.0) + p["seconds"]
+            rows.extend(score_scene(sc, settings, preds, view_set))
+            if seed in figure_seeds:
+                kept[view_set][seed] = {**preds, "scene": {"scene": sc, "targets": set_targets(sc, settings, view_set)[1]}}
+            if view_set == health_on:
+                source = set_targets(sc, settings, view_set)[0]
+                for key, decoder in decoders.items():
+                    own = preds[MODEL_METHOD[key]]["videos"][0] if view_set == "source" and MODEL_METHOD[key] in preds else None
+                    health_items.setdefault(key, []).append({
+                        "seed": seed, "decoder": decoder, "trajectory": sc.capture.cameras[source],
+                        "truth": sc.capture.frames[source], "own": own})
+    t0 = time.perf_counter()
+    health = token_health_report(health_items, settings, health_on) if health_items else None
+    if health is not None:
+        seconds["token_health"] = time.perf_counter() - t0
+    return rows, kept, {k: round(v, 2) for k, v in seconds.items()}, health

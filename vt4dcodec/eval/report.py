@@ -14,9 +14,16 @@ import numpy as np
 from vt4dcodec.synth.generator import SynthScene
 
 from .metrics import mean_se, round_metric
-from .protocol import METHODS, METRICS, EvaluationError
+from .protocol import HEALTH_THRESHOLDS, METHODS, METRICS, SKIPPED_ON_SOURCE, VIEW_SETS, EvaluationError
 
-__all__ = ["summarize", "format_tables", "save_figure", "save_png_small", "write_json"]
+__all__ = ["summarize", "summarize_sets", "row_set", "format_tables", "format_health", "save_figure",
+           "save_png_small", "write_json"]
+
+SET_TITLES = {
+    "far": "Far views (the original protocol: cameras 1..views of 4-camera rigs)",
+    "near": "Near views (the two cameras nearest in viewing direction to the source, 10-camera rigs)",
+    "source": "Source view (camera 0 itself: reconstruction of the encoded view, 10-camera rigs)",
+}
 
 
 # --- summary ----------------------------------------------------------------------------------------
@@ -55,6 +62,17 @@ def summarize(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[str, d
     return summary
 
 
+def row_set(row: dict[str, Any]) -> str:
+    """The target set of a row; rows of results files written before sets existed are "far"."""
+    return row.get("set", "far")
+
+
+def summarize_sets(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[str, dict[str, dict[str, Any]]]:
+    """:func:`summarize` per target set present in ``rows`` (set -> method -> entry), in VIEW_SETS order."""
+    present = {row_set(r) for r in rows}
+    return {v: summarize([r for r in rows if row_set(r) == v], floats) for v in VIEW_SETS if v in present}
+
+
 # --- figure -----------------------------------------------------------------------------------------
 FIGURE_COLUMNS = ("ours", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp")
 
@@ -82,7 +100,7 @@ def save_figure(path: str | Path, kept: dict[int, dict[str, dict[str, Any]]], *,
         entry = kept[seed]
         sc: SynthScene = entry["scene"]["scene"]
         names = sc.capture.camera_names
-        target = names[1 + view]
+        target = entry["scene"].get("targets", names[1:])[view]
         tiles = [sc.capture.frames[names[0]][t], sc.capture.frames[target][t]]
         tiles += [entry[c]["videos"][view][t] for c in columns]
         for c, tile in enumerate(tiles):
@@ -124,8 +142,21 @@ def _fmt(entry: dict[str, Any] | None, nd: int = 2) -> str:
 
 
 def format_tables(results: dict[str, Any]) -> str:
-    """Markdown tables of a results file: the main comparison (Table 1) and token masking (Table 4)."""
-    s = results["summary"]
+    """Markdown tables of a results file: per target set the main comparison (Table 1), the flat
+    mean-colour reference next to ours and token masking (Table 4); then token health, if measured.
+    Files written before target sets existed hold only the far set."""
+    by_set = results.get("summary_by_set") or {"far": results["summary"]}
+    parts = []
+    for view_set in [v for v in VIEW_SETS if v in by_set]:
+        s = by_set[view_set]
+        views = max((e["views"] for e in s.values()), default=0)
+        parts.append(f"### {SET_TITLES[view_set]}: {views} target videos\n\n" + _set_tables(s, view_set))
+    if results.get("token_health"):
+        parts.append(format_health(results["token_health"]))
+    return "\n".join(parts)
+
+
+def _set_tables(s: dict[str, Any], view_set: str) -> str:
     lines = ["| method | floats | int8 .vt4d bytes | PSNR (dB) | SSIM | dynamic PSNR (dB) | static PSNR (dB) | "
              "ours − this, PSNR (ours wins) | ours − this, dyn. PSNR (ours wins) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -138,6 +169,10 @@ def format_tables(results: dict[str, Any]) -> str:
         return f"{p['mean']:+.2f}{se} ({100 * p['ours_wins']:.0f}%)"
 
     for m in ("ours", "unified", "nearest_frame", "depth_warp", "mean_colour"):
+        if view_set == "source" and m in SKIPPED_ON_SOURCE:
+            lines.append(f"| {METHODS[m]} | skipped: the target is the source camera (trivially exact) |"
+                         + " |" * 7)
+            continue
         if m not in s:
             continue
         e = s[m]
@@ -146,6 +181,13 @@ def format_tables(results: dict[str, Any]) -> str:
                      f"{_fmt(e['psnr_dynamic'])} | {_fmt(e['psnr_static'])} | {paired(e, 'psnr')} | "
                      f"{paired(e, 'psnr_dynamic')} |")
     out = "\n".join(lines)
+    if "ours" in s and "mean_colour" in s:
+        p = s["mean_colour"].get("ours_minus_this_psnr")
+        se = f" ± {p['se']:.2f}" if p and p.get("se") is not None else ""
+        diff = (f"ours − flat {p['mean']:+.2f}{se} dB (ours higher on {100 * p['ours_wins']:.0f}% of the views)"
+                if p else "no paired difference")
+        out += (f"\n\nFlat mean-colour reference: {_fmt(s['mean_colour']['psnr'])} dB; ours "
+                f"{_fmt(s['ours']['psnr'])} dB; {diff}.")
     if "depth_warp" in s:
         e = s["depth_warp"]
         out += (f"\n\nDepth forward-warp: {100 * e['hole_fraction']:.1f}% of target pixels receive no splat "
@@ -163,6 +205,49 @@ def format_tables(results: dict[str, Any]) -> str:
                 out += (f"\n| {label} | {_fmt(e['psnr'])} | {_fmt(e['ssim'], 3)} | {_fmt(e['psnr_dynamic'])} | "
                         f"{_fmt(e['psnr_static'])} |")
     return out + "\n"
+
+
+HEALTH_LABELS = {"main": "ours", "unified": "unified"}
+
+
+def format_health(health: dict[str, Any]) -> str:
+    """The token-health table: one column per token model, PASS/FAIL next to issue 12's thresholds."""
+    keys = list(health["models"])
+    th = health.get("thresholds", HEALTH_THRESHOLDS)
+    n = max(e["scenes"] for e in health["models"].values())
+
+    def num(v: Any, nd: int = 3) -> str:
+        return "n/a" if v is None else f"{v:.{nd}f}"
+
+    def verdict(ok: Any) -> str:
+        return "" if ok is None else (" PASS" if ok else " FAIL")
+
+    def spread(e: dict[str, Any], group: str) -> str:
+        v = e[f"{group}_spread"]
+        return num(v) + verdict(None if v is None else v >= th["spread_min"])
+
+    def swap(e: dict[str, Any]) -> str:
+        if e.get("swap_drop_db") is None:
+            return "n/a"
+        se = f" ± {e['swap_drop_se_db']:.2f}" if e.get("swap_drop_se_db") is not None else ""
+        return f"{e['swap_drop_db']:.2f}{se}" + verdict(e["swap_drop_db"] >= th["swap_drop_min_db"])
+
+    rows = [
+        (f"Z_s spread across slots / overall std (≥ {th['spread_min']})", lambda e: spread(e, "static")),
+        (f"Z_d spread across slots / overall std (≥ {th['spread_min']})", lambda e: spread(e, "dynamic")),
+        ("Z_s effective rank across scenes", lambda e: num(e["static_rank"], 2)),
+        ("Z_d effective rank across scenes", lambda e: num(e["dynamic_rank"], 2)),
+        ("Z_s saturation (abs z > 0.95)", lambda e: num(e["static_saturation"])),
+        ("Z_d saturation (abs z > 0.95)", lambda e: num(e["dynamic_saturation"])),
+        ("source-view PSNR, own tokens (dB)", lambda e: num(e.get("psnr_own_db"), 2)),
+        ("source-view PSNR, next scene's tokens (dB)", lambda e: num(e.get("psnr_swapped_db"), 2)),
+        (f"token-swap drop (dB, ≥ {th['swap_drop_min_db']})", swap),
+    ]
+    out = [f"### Token health ({n} held-out scenes of the {health['set']} set; int8 tokens as stored)\n",
+           "| | " + " | ".join(HEALTH_LABELS.get(k, k) for k in keys) + " |",
+           "|---|" + "---:|" * len(keys)]
+    out += [f"| {label} | " + " | ".join(f(health["models"][k]) for k in keys) + " |" for label, f in rows]
+    return "\n".join(out) + "\n"
 
 
 def write_json(path: str | Path, data: dict[str, Any]) -> Path:
