@@ -1,15 +1,19 @@
-"""Stage 2: train the tokenizer (Spatial + Temporal Branch) and the renderer with the rectified-flow
-loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (paper Eq. 2), on pairs
-of cameras of synthetic dynamic scenes, with the stage-1 autoencoder frozen (issue #6 item 1).
+"""Stage 2: train the tokenizer (Spatial + Temporal Branch) and the renderer with the frozen stage-1
+autoencoder: the rectified-flow loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2
+(paper Eq. 2), or its x0 form for ``prediction="x0"`` models, on camera pairs of synthetic dynamic scenes.
 
     python -m vt4dcodec.model.train.tokenizer --autoencoder runs/ae/autoencoder.safetensors \
-        --out runs/tok --steps 3000
+        --out runs/tok --steps 3000 [recipe flags]
+    python -m vt4dcodec.model.train.tokenizer --init vt4d-tiny --out runs/tok2 --steps 20000 [same --set]
     torchrun --nproc_per_node=2 -m vt4dcodec.model.train.tokenizer --autoencoder ... --out ... --steps ...
 
 Each sample: one scene, a source camera c (its clip, cameras, motion mask and tracks from
-``model.preprocess``) and a different target camera a (its video is Y^0, its trajectory P_tgt).
-Ranks train on disjoint scene seeds. The finished model is written with ``save_pretrained`` to
-``<out>/model`` (loadable by ``from_pretrained``); ``<out>/samples.png`` shows source | target |
+``model.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
+pair a != c, or with the recipe flags a sampled target (c itself for reconstruction, else a camera
+that overlaps c), flow times with a share at tau = 1, static-token dropout and a saturation penalty
+(docs/training.md says what each does and what was measured). ``--init`` continues a saved model
+(e.g. the shipped one on another machine). Ranks train on disjoint scene seeds. The finished model
+is written with ``save_pretrained`` to ``<out>/model``; ``<out>/samples.png`` shows source | target |
 render for a few training pairs, and ``<out>/summary.json`` their PSNR.
 """
 
@@ -31,7 +35,7 @@ from vt4dcodec.errors import ModelError
 
 from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
-from ..weights_io import save_pretrained
+from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
                      scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
 from .data import PairBatch, PairDataset, collate_pairs, precompute_latents
@@ -103,6 +107,18 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
     return {"psnr_db": psnr, "mean_psnr_db": float(np.mean(psnr)), "pairs": idx, "render_steps": steps}
 
 
+def warm_start_model(cfg: ModelConfig, name_or_path: str) -> VideoTok4D:
+    """A saved model (shipped id or directory) to continue training: its weights, autoencoder included
+    (frozen), as float32. Its config must equal this run's."""
+    model = from_pretrained(name_or_path)
+    if model.config != cfg:
+        raise ModelError(f"--init {name_or_path}: its config differs from this run's "
+                         f"({model.config.sha256()[:12]} vs {cfg.sha256()[:12]}); pass the same --config/--set")
+    model.model_id = model.model_version = None
+    model.freeze_autoencoder()
+    return model
+
+
 def build_model(cfg: ModelConfig, autoencoder: Path) -> VideoTok4D:
     model = VideoTok4D(cfg)
     load_autoencoder(model, autoencoder)
@@ -113,11 +129,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.tokenizer", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     common_arguments(parser)
-    parser.add_argument("--autoencoder", type=Path, required=True, help="stage-1 autoencoder.safetensors")
+    parser.add_argument("--autoencoder", type=Path, default=None,
+                        help="stage-1 autoencoder.safetensors (not needed with --init)")
     parser.add_argument("--model-id", default="vt4d-tiny")
     parser.add_argument("--model-version", default="0.1.0")
     parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end")
     parser.add_argument("--render-steps", type=int, default=1, help="Euler steps of the samples.png renders")
+    parser.add_argument("--init", default=None, metavar="MODEL",
+                        help="start from a saved model (shipped id or model directory, same config), its "
+                             "frozen autoencoder included, instead of fresh weights: continues a shipped "
+                             "model's training on another machine; a checkpoint in --out still takes precedence")
     parser.add_argument("--cache-latents", action="store_true",
                         help="encode every training frame once with the frozen autoencoder and read the latents "
                              "from the scene cache (saves the encoder pass of every step)")
@@ -140,7 +161,12 @@ def main(argv: list[str] | None = None) -> int:
     cfg = get_config(args.config, **parse_overrides(args.set))
     args.out.mkdir(parents=True, exist_ok=True)
 
-    model = build_model(cfg, args.autoencoder)
+    if args.init is not None:
+        model = warm_start_model(cfg, args.init)  # a checkpoint in --out, if any, still wins (train_loop)
+    elif args.autoencoder is not None:
+        model = build_model(cfg, args.autoencoder)
+    else:
+        parser.error("give --autoencoder (a stage-1 output) or --init (a saved model, autoencoder included)")
     optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
     pool, seeds = scene_pool_and_seeds(args, cfg, info)

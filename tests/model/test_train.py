@@ -150,3 +150,21 @@ def test_prepared_cache_is_keyed_by_the_mask_rule_version(tmp_path, monkeypatch)
     assert pool.prepared_path(3) != before
     no_iso = data.ScenePool(tmp_path, 2, 8, 64, 16, 8, motion_isolation=False)
     assert no_iso.prepared_path(3).name.endswith("-noiso.npz")  # the mask rule is not used at all
+
+
+def test_stage2_continues_a_saved_model_with_init(runs, tmp_path):
+    """--init: a saved model (weights and frozen autoencoder) is the start, no --autoencoder needed."""
+    start = runs / "tok" / "model"
+    if not start.is_dir():
+        pytest.skip("needs the model of test_stage2_trains_and_saves_a_loadable_model")
+    out = tmp_path / "cont"
+    assert stage2.main(["--init", str(start), "--out", str(out), "--steps", "1", "--batch-size", "2",
+                        "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0", "--warmup", "1",
+                        *COMMON]) == 0
+    before, after = from_pretrained(start), from_pretrained(out / "model")
+    assert all(torch.equal(a, b) for a, b in zip(before.state_dict().values(), after.state_dict().values()))
+    with pytest.raises(ModelError, match="config differs"):
+        stage2.main(["--init", str(start), "--out", str(tmp_path / "x"), "--steps", "1",
+                     "--cache", str(runs / "cache"), *COMMON, "renderer_layers=2"])
+    with pytest.raises(SystemExit):  # neither --init nor --autoencoder
+        stage2.main(["--out", str(tmp_path / "y"), "--steps", "1", "--cache", str(runs / "cache"), *COMMON])
