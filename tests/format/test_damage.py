@@ -215,3 +215,25 @@ def test_spliced_garbage_inside_a_valid_file_is_rejected(position, garbage):
         return
     with pytest.raises(FormatError):
         load(spliced)
+
+
+SKIPPABLE_FRAME = b"\x50\x2a\x4d\x18" + (0).to_bytes(4, "little")  # an empty skippable frame (RFC 8878 3.1.2)
+
+
+@pytest.mark.parametrize("content_size", [True, False])  # the one-shot path and the bounded stream path
+@pytest.mark.parametrize("tail", ["skippable", "second frame", "garbage"])
+def test_zstd_section_is_exactly_one_frame(content_size, tail):
+    """FORMAT.md I.4: the stored bytes are exactly one zstd frame; bytes after it are an error (they were
+    silently ignored before)."""
+    header, sections = mv.split(SMALL["raw"])
+    cams = mv.find(sections, "CAMS")
+    frame = zstandard.ZstdCompressor(level=3, write_content_size=content_size).compress(bytes(cams[3]))
+    cams[2], cams[3] = 1, frame
+    good = load(mv.rebuild(header, sections))
+    assert good.cameras.K.shape == load(SMALL["raw"]).cameras.K.shape
+    extra = {"skippable": SKIPPABLE_FRAME, "second frame": frame, "garbage": b"\x01\x02\x03"}[tail]
+    cams[3] = frame + extra
+    # with a declared size the frame decodes in one shot and the tail is named; without one the bounded
+    # stream reader may already stop on it (reading on, or failing on the garbage) -- rejected either way
+    with pytest.raises(MalformedSectionError, match="follow the zstd frame" if content_size else ""):
+        load(mv.rebuild(header, sections))

@@ -78,10 +78,12 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
         # context per thread: creating one costs more than decompressing a small section.
         dctx = getattr(_local, "dctx", None) or _new_dctx()
         try:
-            out = dctx.decompress(stored, allow_extra_data=True)  # like the stream below: first frame only
+            frame = dctx.decompressobj(read_across_frames=False)  # first frame only; the rest is unused_data
+            out = frame.decompress(stored)
         except zstandard.ZstdError as exc:
             raise MalformedSectionError(f"section {entry.type}: corrupt zstd data ({exc})") from None
-        if len(out) == entry.raw_length:
+        if len(out) == entry.raw_length and frame.eof:
+            _reject_trailing(frame.unused_data, entry)
             return out
     reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(stored), read_across_frames=False)
     chunks, total = [], 0
@@ -100,7 +102,23 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
             f"{min(total, entry.raw_length) if total > entry.raw_length else total} bytes; "
             f"the table declares {entry.raw_length}"
         )
+    # The first frame yields exactly raw_length bytes (checked above with bounded reads), so decoding it
+    # once more to find where it ends allocates no more than that.
+    frame = zstandard.ZstdDecompressor().decompressobj(read_across_frames=False)
+    try:
+        frame.decompress(stored)
+    except zstandard.ZstdError as exc:
+        raise MalformedSectionError(f"section {entry.type}: corrupt zstd data ({exc})") from None
+    _reject_trailing(frame.unused_data, entry)
     return b"".join(chunks)
+
+
+def _reject_trailing(unused: bytes, entry: SectionEntry) -> None:
+    """FORMAT.md I.4: the stored bytes are exactly one zstd frame; anything after it (another frame, a
+    skippable frame, garbage) is an error."""
+    if unused:
+        raise MalformedSectionError(
+            f"section {entry.type}: {len(unused)} bytes follow the zstd frame; a section holds exactly one frame")
 
 
 def pack_cameras(traj: Trajectory) -> tuple[CameraLayout, bytes]:
