@@ -37,7 +37,7 @@ def test_encode_save_load_decode_with_shipped_weights(tmp_path, scene):
     path = tmp_path / "scene.vt4d"
     nbytes = vt4dcodec.save(encoded, path)
     assert vt4dcodec.load(path).encoding == codec.DEFAULT_ENCODING
-    assert nbytes < 4096  # entropy-coded tokens + cameras + fingerprint (about 1.8 KB)
+    assert nbytes < 4096  # entropy-coded tokens + cameras + fingerprint (about 2.6 KB)
     frames = vt4dcodec.decode(path, "source", steps=4, seed=0)
     assert frames.shape == cap.frames[cap.camera_names[0]].shape
     # a trained model reproduces the source view far better than a constant grey image does
@@ -135,3 +135,46 @@ def test_generate_with_the_shipped_prior(tmp_path, scene):
     assert generated.provenance.kind == "generated"
     assert generated.fingerprint.model_id == "vt4d-tiny"
     assert len(list((tmp_path / "gen").glob("*.mp4"))) == 2
+
+
+# Regression guards for the shipped vt4d-tiny, measured through the public encode/decode path on
+# held-out scenes. They guard what the model achieves now (docs/RESULTS.md); issue 12's targets
+# (source view >= 25 dB, slot spread >= 0.2 in both groups, swap drop >= 5 dB) are not met yet, and
+# these are not those targets.
+# vt4d-tiny 0.3.0 on these four scenes (python runs the test's own computation): source view +0.69 dB
+# over the flat mean-colour image (these four are hard scenes: +2.5 dB over 16), swap drop 5.31 dB,
+# static slot spread 0.237 (0.2.0: +0.5 dB, 3.1 dB, 0.002).
+GUARD_SOURCE_OVER_FLAT_DB = 0.4
+GUARD_SWAP_DROP_DB = 4.0
+GUARD_STATIC_SPREAD = 0.2
+
+
+@pytest.fixture(scope="module")
+def held_out_tokens():
+    """Camera 0 of four held-out 10-camera scenes: encoded (default encoding), decoded from the bytes."""
+    out = []
+    for seed in range(4):
+        sc = generate_scene(seed, split="test", config=SynthConfig(num_cameras=10))
+        cam = sc.capture.camera_names[0]
+        blob = vt4dcodec.format.dumps(codec.encode(sc.capture, "vt4d-tiny", camera=cam))
+        out.append((sc.capture, cam, codec.SceneDecoder.open(blob)))
+    return out
+
+
+def test_shipped_tokens_carry_the_scene(held_out_tokens):
+    import torch
+
+    from vt4dcodec.model.diagnostics import slot_spread
+
+    own, flat, swapped = [], [], []
+    for i, (cap, cam, decoder) in enumerate(held_out_tokens):
+        truth = cap.frames[cam]
+        own.append(psnr(decoder.render("source"), truth))
+        flat.append(psnr(np.broadcast_to(truth.reshape(-1, 3).mean(0).round().astype(np.uint8), truth.shape), truth))
+        other = held_out_tokens[(i + 1) % len(held_out_tokens)][2]  # another scene's tokens, this camera
+        swap = codec.SceneDecoder(scene=other.scene, model=decoder.model)
+        swapped.append(psnr(swap.render(cap.cameras[cam]), truth))
+    z_s = torch.stack([torch.from_numpy(np.asarray(d.scene.static_tokens, np.float32)) for _, _, d in held_out_tokens])
+    assert np.mean(own) - np.mean(flat) >= GUARD_SOURCE_OVER_FLAT_DB
+    assert np.mean(own) - np.mean(swapped) >= GUARD_SWAP_DROP_DB
+    assert slot_spread(z_s) >= GUARD_STATIC_SPREAD
