@@ -340,6 +340,11 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(liar, "CAMS")[2:4] = [1, zstandard.ZstdCompressor().compress(b"\0" * 4096)]
     add("zstd_size_mismatch", rebuild(header, liar), "MalformedSectionError",
         "the zstd frame declares 4096 bytes, the table 200")
+    trail = [list(s) for s in sections]
+    skippable = b"\x50\x2a\x4d\x18" + bytes(4)  # an empty skippable frame (RFC 8878 3.1.2)
+    find(trail, "CAMS")[2:4] = [1, zstandard.ZstdCompressor(level=3).compress(find(sections, "CAMS")[3]) + skippable]
+    add("zstd_trailing_frame", rebuild(header, trail), "MalformedSectionError",
+        "a valid zstd frame followed by an empty skippable frame: a section is exactly one frame")
     add("unknown_critical_section", rebuild(header, sections + [["FUTR", True, 0, b"x", 1]]),
         "UnsupportedFeatureError", "a critical section type unknown to 1.0")
     add("missing_section", rebuild(header, [s for s in sections if s[0] != "QSTA"]), "MalformedSectionError",
