@@ -7,22 +7,31 @@ with ground truth), writes mp4s and a PNG contact sheet, and reports the file si
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["run_demo"]
+from .errors import CaptureError
+
+__all__ = ["run_demo", "REPORT_FILE"]
+
+REPORT_FILE = "demo_report.json"  # written last; marks a directory as the demo's own output
 
 
 def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, steps: int | None = None,
-             log: Callable[[str], Any] | None = print) -> dict[str, Any]:
-    """Run the demo into ``output``; returns a JSON-able summary (paths, bytes, PSNR per view)."""
+             overwrite: bool = False, log: Callable[[str], Any] | None = print) -> dict[str, Any]:
+    """Run the demo into ``output``; returns a JSON-able summary (paths, bytes, PSNR per view), also
+    written to ``output/demo_report.json``.
+
+    A directory that holds an earlier demo's report is the demo's own and is rewritten; a capture the
+    demo did not write is replaced only with ``overwrite=True`` (``vt4d demo --overwrite``)."""
     from . import codec
     from .capture import Capture
     from .capture.contact_sheet import write_contact_sheet
-    from .capture.io import write_capture
+    from .capture.io import MANIFEST_NAME, write_capture
     from .format import save
     from .media import psnr, write_mp4
     from .synth import SynthConfig, generate_scene
@@ -36,7 +45,11 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
     synth = generate_scene(seed, split="test", config=SynthConfig(num_frames=cfg.frames, height=cfg.image_size,
                                                                    width=cfg.image_size))
     cap = synth.capture
-    write_capture(cap, out / "capture", media="png")
+    replace = overwrite or (out / REPORT_FILE).is_file()  # an earlier demo's output is the demo's own
+    if (out / "capture" / MANIFEST_NAME).exists() and not replace:
+        raise CaptureError(f"{out / 'capture'} already holds a capture the demo did not write; pass "
+                           "--overwrite to replace it, or choose another -o/--output")
+    write_capture(cap, out / "capture", media="png", overwrite=replace)
     names = cap.camera_names
     source, novel = names[0], [names[len(names) // 3], names[(2 * len(names)) // 3]]
     say(f"capture: {len(names)} cameras x {cap.num_frames} frames at {cfg.image_size}x{cfg.image_size} "
@@ -83,6 +96,7 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
     write_contact_sheet(Capture(cameras=rows_cams, frames=rows_frames, fps=cap.fps, capture_id="demo"), sheet)
     report["contact_sheet"] = str(sheet)
     report["total_seconds"] = round(time.perf_counter() - started, 2)
+    (out / REPORT_FILE).write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
     say(f"contact sheet (rows: ground truth / decoded per view) -> {sheet}")
     say(f"done in {report['total_seconds']:.1f} s")
     return report

@@ -178,3 +178,18 @@ def test_shipped_tokens_carry_the_scene(held_out_tokens):
     assert np.mean(own) - np.mean(flat) >= GUARD_SOURCE_OVER_FLAT_DB
     assert np.mean(own) - np.mean(swapped) >= GUARD_SWAP_DROP_DB
     assert slot_spread(z_s) >= GUARD_STATIC_SPREAD
+
+
+def test_demo_runs_twice_into_the_same_directory_and_guards_foreign_captures(tmp_path):
+    """The README's first command must work when run twice; a capture the demo did not write is never
+    replaced without --overwrite, and the error names that flag."""
+    out = tmp_path / "demo"
+    for _ in range(2):
+        r = vt4d("demo", "-o", out, "--json")
+        assert r.returncode == 0, r.stderr
+    assert json.loads((out / "demo_report.json").read_text())["scene_bytes"] > 0
+    (out / "demo_report.json").unlink()  # now the capture there is nobody's the demo knows
+    r = vt4d("demo", "-o", out)
+    assert r.returncode == 1 and "--overwrite" in r.stderr
+    r = vt4d("demo", "-o", out, "--overwrite")
+    assert r.returncode == 0, r.stderr

@@ -198,7 +198,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..demo import run_demo
 
     result = run_demo(args.output, model=args.model or DEFAULT_MODEL, seed=args.seed, steps=args.steps,
-                      log=None if args.json else print)
+                      overwrite=args.overwrite, log=None if args.json else print)
     if args.json:
         print(json.dumps(result, indent=2, sort_keys=True))
     return 0
@@ -255,7 +255,10 @@ def register(subparsers: Any) -> None:
         "demo", parents=[common], help="make a synthetic capture, encode it, render views, write videos + a picture",
         description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
                     "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
-    p.add_argument("-o", "--output", default="demo_out", help="output directory (default demo_out)")
+    p.add_argument("-o", "--output", default="demo_out",
+                   help="output directory (default demo_out); an earlier demo's output there is replaced")
+    p.add_argument("--overwrite", action="store_true",
+                   help="also replace a capture in OUTPUT/capture that the demo did not write")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
                    help="sampler steps (default: the model's recorded decode_steps)")
     p.set_defaults(func=cmd_demo)
