@@ -109,10 +109,11 @@ class VideoTok4D(nn.Module):
     # Eq. 1 ---------------------------------------------------------------------------------------
     def encode(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
         """Source clip -> (Z_s (B, N_s, d), Z_d (B, N_d, d)) float32 in (-1, 1)."""
-        a_s, a_d = self.encode_preactivations(batch)
-        if self.dynamic_bottleneck is None:
-            return self.static_bottleneck.bound(a_s), self.static_bottleneck.bound(a_d)
-        return self.static_bottleneck.bound(a_s), self.dynamic_bottleneck.bound(a_d)
+        return self._bound(*self.encode_preactivations(batch))
+
+    def _bound(self, a_s: torch.Tensor, a_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pre-activations -> tokens (the unified ablation bounds both groups with its one bottleneck)."""
+        return self.static_bottleneck.bound(a_s), (self.dynamic_bottleneck or self.static_bottleneck).bound(a_d)
 
     def encode_preactivations(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
         """The bottleneck pre-activations (Z = tanh(A)): (A_s (B, N_s, d), A_d (B, N_d, d)) float32."""
@@ -217,8 +218,7 @@ class VideoTok4D(nn.Module):
         B, T = target_frames.shape[:2]
         self._check_cameras(K_tgt, w2c_tgt, B, T, "target cameras")
         a_s, a_d = self.encode_preactivations(batch)
-        bottleneck_d = self.dynamic_bottleneck or self.static_bottleneck
-        z_s, z_d = self.static_bottleneck.bound(a_s), bottleneck_d.bound(a_d)
+        z_s, z_d = self._bound(a_s, a_d)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)
         y1 = torch.randn(y0.shape, generator=generator).to(y0.device)
         if tau is None:

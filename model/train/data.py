@@ -133,10 +133,10 @@ class ScenePool:
     def latents_path(self, seed: int, key: str) -> Path:
         """Cache file of one scene's autoencoder latents (C, T, c, h, w) float32; ``key`` names the
         frozen autoencoder (:func:`autoencoder_key`), so latents of other weights are never mixed in."""
-        return self.cache / f"lat-{self._stem(seed)}-{key}.npy"
+        return self.cache / f"lat-{self._stem(seed)}-{key}.npz"
 
     def latents(self, seed: int, key: str) -> np.ndarray:
-        return np.load(self.latents_path(seed, key), allow_pickle=False)
+        return _load_npz(self.latents_path(seed, key))["latents"]
 
     def prepared_path(self, seed: int) -> Path:
         """Cache file of one scene's prepared inputs; keyed by the mask rule's version, so masks made
@@ -166,14 +166,10 @@ class ScenePool:
 
 
 def autoencoder_key(autoencoder: torch.nn.Module) -> str:
-    """12 hex digits of SHA-256 over the autoencoder's tensors (names, shapes, float32 bytes)."""
-    import hashlib
+    """12 hex digits of the autoencoder's weights hash (the one model fingerprints use)."""
+    from ..weights_io import weights_sha256
 
-    digest = hashlib.sha256()
-    for name, tensor in sorted(autoencoder.state_dict().items()):
-        digest.update(name.encode() + str(tuple(tensor.shape)).encode())
-        digest.update(tensor.detach().cpu().float().contiguous().numpy().tobytes())
-    return digest.hexdigest()[:12]
+    return weights_sha256(autoencoder.state_dict())[:12]
 
 
 @torch.no_grad()
@@ -190,10 +186,7 @@ def precompute_latents(pool: "ScenePool", seeds: list[int], autoencoder: torch.n
         if path.is_file():
             continue
         frames = torch.from_numpy(pool.scene(seed)["frames"]).permute(0, 1, 4, 2, 3).float().div_(255.0)
-        latents = autoencoder.encode(frames).float().numpy()  # (C, T, c, h, w), normalised
-        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
-        np.save(tmp, latents, allow_pickle=False)
-        os.replace(tmp, path)
+        _save_npz(path, {"latents": autoencoder.encode(frames).float().numpy()})  # (C, T, c, h, w), normalised
     return key
 
 

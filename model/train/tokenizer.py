@@ -173,7 +173,6 @@ def main(argv: list[str] | None = None) -> int:
     latent_key = None
     if args.cache_latents:
         latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
-        model.freeze_autoencoder()
     dataset = PairDataset(pool, seeds, recon_share=args.recon_share, neighbour_sigma_deg=args.neighbour_sigma,
                           latent_key=latent_key)
     batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs))

@@ -154,9 +154,10 @@ def test_prepared_cache_is_keyed_by_the_mask_rule_version(tmp_path, monkeypatch)
 
 def test_stage2_continues_a_saved_model_with_init(runs, tmp_path):
     """--init: a saved model (weights and frozen autoencoder) is the start, no --autoencoder needed."""
-    start = runs / "tok" / "model"
-    if not start.is_dir():
-        pytest.skip("needs the model of test_stage2_trains_and_saves_a_loadable_model")
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "first"),
+                        "--steps", "1", "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"),
+                        *COMMON]) == 0
+    start = tmp_path / "first" / "model"
     out = tmp_path / "cont"
     assert stage2.main(["--init", str(start), "--out", str(out), "--steps", "1", "--batch-size", "2",
                         "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0", "--warmup", "1",
