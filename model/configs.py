@@ -23,7 +23,7 @@ __all__ = ["ModelConfig", "get_config", "CONFIG_NAMES", "PREDICTIONS"]
 PREDICTIONS = ("velocity", "x0")
 _UNSET = object()
 # fields added after models were shipped -> the default that reproduces the earlier behaviour
-_LATER_FIELDS: dict[str, Any] = {"prediction": "velocity"}
+_LATER_FIELDS: dict[str, Any] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0}
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,8 @@ class ModelConfig:
     Sizes:
         frames (T), image_size (H = W, pixels), latent_channels (C), ae_downsample (H / h),
         ae_width (channels of the autoencoder's first stage), patch_size (latent pixels per token side),
+        render_patch_size (latent pixels per renderer token side; 0 = patch_size: a smaller renderer
+        patch gives the renderer more output tokens per frame for detail, the token budget is unchanged),
         width (transformer width D), heads, mlp_ratio.
     Layers:
         spatial_layers (factorized spatial+temporal blocks of the Spatial Branch), static_query_layers,
@@ -46,6 +48,13 @@ class ModelConfig:
         prediction: "velocity" -- the network outputs v (paper Eq. 2); "x0" -- it outputs the clean
         target latent X0_hat and v = (Y^tau - X0_hat) / tau. With "x0" a one-step render is the
         network's output itself, and training never has to learn to pass the input noise through.
+    Token locality:
+        locality_sigma: > 0 anchors the static tokens on the source image grid: static query i (and, in
+        the renderer, static token i) gets a learned attention-logit bias initialised to a Gaussian
+        of width ``locality_sigma`` encoder patches around anchor cell i mod P on half of the heads
+        (the other heads read anywhere). Without it the static queries of vt4d-tiny 0.3.0 attend
+        almost uniformly (84 of 128 grid keys effective) and carry only a scene's global colours.
+        0 = no bias (earlier models).
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -76,6 +85,8 @@ class ModelConfig:
     motion_isolation: bool = True
     track_attention: bool = True
     prediction: str = "velocity"
+    render_patch_size: int = 0
+    locality_sigma: float = 0.0
 
     def __post_init__(self) -> None:
         positive = ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width", "patch_size",
@@ -91,10 +102,18 @@ class ModelConfig:
             raise ModelError(f"ae_downsample must be a power of two, got {self.ae_downsample}")
         if self.image_size % (self.ae_downsample * self.patch_size):
             raise ModelError("image_size must be divisible by ae_downsample * patch_size")
+        if isinstance(self.render_patch_size, bool) or not isinstance(self.render_patch_size, int) \
+                or self.render_patch_size < 0:
+            raise ModelError(f"config render_patch_size must be an integer >= 0, got {self.render_patch_size!r}")
+        if self.image_size % (self.ae_downsample * self.renderer_patch):
+            raise ModelError("image_size must be divisible by ae_downsample * render_patch_size")
         if self.width % self.heads:
             raise ModelError(f"width {self.width} is not divisible by heads {self.heads}")
         if self.prediction not in PREDICTIONS:
             raise ModelError(f"config prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
+        if isinstance(self.locality_sigma, bool) or not isinstance(self.locality_sigma, (int, float)) \
+                or not 0.0 <= self.locality_sigma < 1e6:
+            raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 
@@ -107,6 +126,15 @@ class ModelConfig:
     @property
     def patches_per_side(self) -> int:
         return self.latent_size // self.patch_size
+
+    @property
+    def renderer_patch(self) -> int:
+        """Latent pixels per renderer token side (render_patch_size, or patch_size when it is 0)."""
+        return self.render_patch_size or self.patch_size
+
+    @property
+    def renderer_patches_per_side(self) -> int:
+        return self.latent_size // self.renderer_patch
 
     @property
     def static_shape(self) -> tuple[int, int]:

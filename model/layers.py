@@ -15,7 +15,7 @@ from torch import nn
 
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
-    "timestep_embedding", "patchify", "unpatchify",
+    "timestep_embedding", "patchify", "unpatchify", "locality_prior", "grid_positions",
 ]
 
 
@@ -27,21 +27,46 @@ QUERY_INIT_STD = 1.0
 
 
 def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor,
-                     key_valid: torch.Tensor | None = None) -> torch.Tensor:
+                     key_valid: torch.Tensor | None = None, bias: torch.Tensor | None = None) -> torch.Tensor:
     """Scaled dot-product attention over heads.
 
     Args:
         q: (B, heads, Lq, Dh); k, v: (B, heads, Lk, Dh).
         key_valid: optional (B, Lk) bool, False keys are ignored.
+        bias: optional float (heads, Lq, Lk) added to the attention logits (a positional prior).
     Returns:
         (B, heads, Lq, Dh); rows whose batch item has no valid key are exactly zero.
     """
+    if bias is not None:
+        bias = bias.to(q.dtype)
     if key_valid is None:
-        return F.scaled_dot_product_attention(q, k, v)
+        return F.scaled_dot_product_attention(q, k, v, attn_mask=bias)
     any_valid = key_valid.any(dim=-1)  # (B,)
     safe = key_valid | ~any_valid[:, None]  # rows without keys attend everywhere, then get zeroed
-    out = F.scaled_dot_product_attention(q, k, v, attn_mask=safe[:, None, None, :])
+    mask = safe[:, None, None, :]
+    if bias is not None:
+        mask = torch.where(mask, bias[None], torch.tensor(float("-inf"), dtype=q.dtype, device=q.device))
+    out = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
     return out * any_valid[:, None, None, None].to(out.dtype)
+
+
+def locality_prior(anchors: torch.Tensor, positions: torch.Tensor, heads: int, sigma: float) -> torch.Tensor:
+    """A Gaussian attention-logit prior between anchored items and positions on one image grid.
+
+    anchors: (Na, 2) and positions: (Np, 2), (row, col) in the same units as ``sigma`` (encoder patches).
+    Returns (heads, Na, Np): -d^2 / (2 sigma^2) for the first half of the heads, 0 for the others (so
+    every token keeps heads that may read anywhere)."""
+    d2 = ((anchors[:, None, :] - positions[None, :, :]) ** 2).sum(-1)
+    prior = (-d2 / (2.0 * sigma ** 2))[None].repeat(heads, 1, 1)
+    prior[heads // 2 if heads > 1 else heads:] = 0.0
+    return prior
+
+
+def grid_positions(side: int, cell: float = 1.0) -> torch.Tensor:
+    """(side^2, 2) (row, col) centres of a side x side grid of cells of size ``cell``, row-major."""
+    idx = (torch.arange(side, dtype=torch.float32) + 0.5) * cell
+    rows, cols = torch.meshgrid(idx, idx, indexing="ij")
+    return torch.stack([rows, cols], dim=-1).reshape(-1, 2)
 
 
 class Attention(nn.Module):
@@ -55,13 +80,14 @@ class Attention(nn.Module):
         self.out = nn.Linear(width, width)
 
     def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
-                key_valid: torch.Tensor | None = None) -> torch.Tensor:
-        """x: (B, Lq, D); context: (B, Lk, Dc) or None; key_valid: (B, Lk) bool. Returns (B, Lq, D)."""
+                key_valid: torch.Tensor | None = None, bias: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, Lq, D); context: (B, Lk, Dc) or None; key_valid: (B, Lk) bool; bias: (heads, Lq, Lk)
+        float added to the logits. Returns (B, Lq, D)."""
         B, Lq, D = x.shape
         ctx = x if context is None else context
         q = self.q(x).view(B, Lq, self.heads, D // self.heads).transpose(1, 2)
         k, v = self.kv(ctx).view(B, ctx.shape[1], 2, self.heads, D // self.heads).permute(2, 0, 3, 1, 4)
-        out = masked_attention(q, k, v, key_valid)
+        out = masked_attention(q, k, v, key_valid, bias)
         return self.out(out.transpose(1, 2).reshape(B, Lq, D))
 
 
@@ -100,10 +126,11 @@ class QueryBlock(nn.Module):
         self.norm_mlp, self.mlp = nn.LayerNorm(width), MLP(width, mlp_ratio)
 
     def forward(self, queries: torch.Tensor, context: torch.Tensor,
-                context_valid: torch.Tensor | None = None) -> torch.Tensor:
-        """queries: (B, Nq, D); context: (B, L, D); context_valid: (B, L) bool. Returns (B, Nq, D)."""
+                context_valid: torch.Tensor | None = None, bias: torch.Tensor | None = None) -> torch.Tensor:
+        """queries: (B, Nq, D); context: (B, L, D); context_valid: (B, L) bool; bias: (heads, Nq, L)
+        float added to the cross-attention logits. Returns (B, Nq, D)."""
         queries = queries + self.self_attn(self.norm_self(queries))
-        queries = queries + self.cross_attn(self.norm_q(queries), self.norm_ctx(context), context_valid)
+        queries = queries + self.cross_attn(self.norm_q(queries), self.norm_ctx(context), context_valid, bias)
         return queries + self.mlp(self.norm_mlp(queries))
 
 
@@ -127,9 +154,10 @@ class AdaLNBlock(nn.Module):
         nn.init.zeros_(self.modulation.bias)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, tokens: torch.Tensor,
-                tokens_valid: torch.Tensor | None) -> torch.Tensor:
+                tokens_valid: torch.Tensor | None, token_bias: torch.Tensor | None = None) -> torch.Tensor:
         """x: (B, T, P, D) video patch tokens; cond: (B, D) tau embedding; tokens: (B, N, D);
-        tokens_valid: (B, N) bool or None. Returns (B, T, P, D)."""
+        tokens_valid: (B, N) bool or None; token_bias: (heads, T P, N) float added to the
+        cross-attention logits. Returns (B, T, P, D)."""
         B, T, P, D = x.shape
         mods = self.modulation(F.silu(cond)).view(B, self.N_BRANCHES, 3, 1, 1, D)
 
@@ -144,7 +172,7 @@ class AdaLNBlock(nn.Module):
         x = x + gate * self.temporal(h).view(B, P, T, D).transpose(1, 2)
         h, gate = branch(2, x)
         ctx = self.norm_tokens(tokens)
-        x = x + gate * self.cross(h.reshape(B, T * P, D), ctx, tokens_valid).view(B, T, P, D)
+        x = x + gate * self.cross(h.reshape(B, T * P, D), ctx, tokens_valid, token_bias).view(B, T, P, D)
         h, gate = branch(3, x)
         return x + gate * self.mlp(h)
 

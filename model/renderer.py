@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import AdaLNBlock, patchify, timestep_embedding, unpatchify
+from .layers import AdaLNBlock, grid_positions, locality_prior, patchify, timestep_embedding, unpatchify
 
 __all__ = ["Renderer"]
 
@@ -22,10 +22,10 @@ __all__ = ["Renderer"]
 class Renderer(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        p, D, C = cfg.patch_size, cfg.width, cfg.latent_channels
+        p, D, C = cfg.renderer_patch, cfg.width, cfg.latent_channels
         self.cfg = cfg
         self.embed = nn.Linear((C + 6) * p * p, D)
-        self.pos_space = nn.Parameter(torch.randn(cfg.patches_per_side ** 2, D) * 0.02)
+        self.pos_space = nn.Parameter(torch.randn(cfg.renderer_patches_per_side ** 2, D) * 0.02)
         self.pos_time = nn.Parameter(torch.randn(cfg.frames, D) * 0.02)
         self.tau_mlp = nn.Sequential(nn.Linear(D, D), nn.SiLU(), nn.Linear(D, D))
         self.token_in = nn.Linear(cfg.token_dim, D)
@@ -36,6 +36,15 @@ class Renderer(nn.Module):
         self.final_norm = nn.LayerNorm(D, elementwise_affine=False)
         self.final_mod = nn.Linear(D, 2 * D)
         self.out = nn.Linear(D, C * p * p)
+        self.token_bias = None
+        if cfg.locality_sigma > 0:  # render patch j prefers the static tokens anchored near it (configs)
+            cells = grid_positions(cfg.patches_per_side)  # encoder grid, in encoder patches
+            n_anchored = n_tokens if cfg.unified_tokens else cfg.n_static
+            anchors = cells[torch.arange(n_anchored) % cells.shape[0]]
+            patches = grid_positions(cfg.renderer_patches_per_side, cfg.renderer_patch / cfg.patch_size)
+            prior = torch.zeros(cfg.heads, patches.shape[0], n_tokens)
+            prior[:, :, :n_anchored] = locality_prior(patches, anchors, cfg.heads, cfg.locality_sigma)
+            self.token_bias = nn.Parameter(prior)
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -66,13 +75,14 @@ class Renderer(nn.Module):
         """y_tau: (B, T, C, h, w); z_s: (B, N_s, d); z_d: (B, N_d, d); rays: (B, T, 6, h, w) of P_tgt;
         tau: (B,) in [0, 1]. Returns the velocity v (B, T, C, h, w)."""
         B, T, C, h, w = y_tau.shape
-        p = self.cfg.patch_size
+        p = self.cfg.renderer_patch
         x = self.embed(patchify(torch.cat([y_tau, rays.to(y_tau.dtype)], dim=2), p))
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
         cond = self.tau_mlp(timestep_embedding(tau, x.shape[-1]))
         tokens, keep = self.embed_tokens(z_s, z_d, drop_static, drop_dynamic)
+        bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
         for block in self.blocks:
-            x = block(x, cond, tokens, keep)
+            x = block(x, cond, tokens, keep, bias)
         shift, scale = self.final_mod(F.silu(cond)).view(B, 1, 1, 2, -1).unbind(dim=3)
         x = self.out(self.final_norm(x) * (1 + scale) + shift)
         return unpatchify(x, p, C, h, w)

@@ -3,7 +3,9 @@
 The learned networks never call OpenCV: optical flow, motion isolation (paper Sec. 3.2) and track
 propagation are computed once per clip by ``model.motion`` / ``model.tracks`` and arrive here as arrays.
 One clip is a :class:`SourceInputs` (numpy); a training or inference batch is a :class:`SourceBatch`
-(torch), built by :meth:`SourceBatch.collate`.
+(torch), built by :meth:`SourceBatch.collate`. A scene may be encoded from several synchronized cameras
+at once: the batch then holds ``views`` clips per scene, scene-major, and the encoder fuses them into
+one token set per scene.
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ class SourceBatch:
         track_xy: (B, N, T, 2) float32 (latent pixels).   track_valid: (B, N, T) bool.
         latents: optional (B, T, C, h, w) float32, the frozen autoencoder's latents of ``frames``
             when a caller already has them (training reads them from a cache); None = computed.
+        views: clips per scene (V >= 1). The B items are scene-major: scene b's cameras are items
+            b V .. b V + V - 1, so the batch encodes B / V scenes.
     """
 
     frames: torch.Tensor
@@ -70,10 +74,14 @@ class SourceBatch:
     track_xy: torch.Tensor
     track_valid: torch.Tensor
     latents: torch.Tensor | None = None
+    views: int = 1
 
     @classmethod
-    def collate(cls, items: list[SourceInputs]) -> "SourceBatch":
-        """Stack clips; they must share T, H, W, latent size and track count N."""
+    def collate(cls, items: list[SourceInputs], views: int = 1) -> "SourceBatch":
+        """Stack clips; they must share T, H, W, latent size and track count N. ``views`` > 1: the
+        items are ``views`` synchronized cameras per scene, scene-major."""
+        if views < 1 or len(items) % views:
+            raise ValueError(f"{len(items)} clips do not split into scenes of {views} views")
         def stack(name: str) -> np.ndarray:
             return np.stack([getattr(it, name) for it in items])
 
@@ -85,12 +93,20 @@ class SourceBatch:
             motion_mask=torch.from_numpy(stack("motion_mask")).float(),
             track_xy=torch.from_numpy(stack("track_xy")).float(),
             track_valid=torch.from_numpy(stack("track_valid")).bool(),
+            views=views,
         )
 
     def to(self, device: torch.device | str) -> "SourceBatch":
-        return SourceBatch(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name).to(device)
-                              for f in fields(self)})
+        def move(value: object) -> object:
+            return value.to(device) if isinstance(value, torch.Tensor) else value
+
+        return SourceBatch(**{f.name: move(getattr(self, f.name)) for f in fields(self)})
 
     @property
     def batch_size(self) -> int:
+        """Clips in the batch (B); scenes = B / views."""
         return int(self.frames.shape[0])
+
+    @property
+    def num_scenes(self) -> int:
+        return self.batch_size // self.views

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, patchify
+from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, grid_positions, locality_prior, patchify
 
 __all__ = ["SpatialBranch"]
 
@@ -47,16 +47,27 @@ class SpatialBranch(nn.Module):
         self.blocks = nn.ModuleList(FactorizedBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.spatial_layers))
         self.queries = nn.Parameter(torch.randn(n_queries, D) * QUERY_INIT_STD)
         self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
+        self.query_bias = None
+        if cfg.locality_sigma > 0:  # static query i anchored at grid cell i mod P (configs.ModelConfig)
+            cells = grid_positions(cfg.patches_per_side)
+            anchors = cells[torch.arange(n_queries) % cells.shape[0]]
+            self.query_bias = nn.Parameter(locality_prior(anchors, cells, cfg.heads, cfg.locality_sigma))
 
-    def forward(self, latents: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
-        """latents X: (B, T, C, h, w); rays: (B, T, 6, h, w). Returns (B, n_queries, D)."""
+    def forward(self, latents: torch.Tensor, rays: torch.Tensor, views: int = 1) -> torch.Tensor:
+        """latents X: (B, T, C, h, w); rays: (B, T, 6, h, w). Returns (B / views, n_queries, D).
+
+        With ``views`` > 1 the B clips are ``views`` cameras per scene (scene-major): each camera's
+        grid is built on its own (its rays say where it looks), then the queries of a scene attend to
+        the grids of all its cameras at once."""
         x = self.embed(patchify(torch.cat([latents, rays], dim=2), self.patch_size))
         T = x.shape[1]
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
         for block in self.blocks:
             x = block(x)
         grid = x.flatten(1, 2)  # camera-aware feature grid (B, T P, D)
-        q = self.queries[None].expand(x.shape[0], -1, -1)
+        grid = grid.reshape(grid.shape[0] // views, views * grid.shape[1], grid.shape[2])  # (B/V, V T P, D)
+        q = self.queries[None].expand(grid.shape[0], -1, -1)
+        bias = None if self.query_bias is None else self.query_bias.repeat(1, 1, grid.shape[1] // self.query_bias.shape[-1])
         for block in self.query_blocks:
-            q = block(q, grid)
+            q = block(q, grid, bias=bias)
         return q

@@ -118,9 +118,12 @@ class TemporalBranch(nn.Module):
         return out.view(B, T, h, w, -1).permute(0, 1, 4, 2, 3)
 
     def forward(self, latents: torch.Tensor, rays: torch.Tensor, motion_mask: torch.Tensor,
-                track_xy: torch.Tensor, track_valid: torch.Tensor) -> torch.Tensor:
+                track_xy: torch.Tensor, track_valid: torch.Tensor, views: int = 1) -> torch.Tensor:
         """latents X: (B,T,C,h,w); rays: (B,T,6,h,w); motion_mask: (B,T,h,w) in [0,1];
-        track_xy: (B,N,T,2) latent pixels; track_valid: (B,N,T) bool. Returns (B, N_d, D)."""
+        track_xy: (B,N,T,2) latent pixels; track_valid: (B,N,T) bool. Returns (B / views, N_d, D).
+
+        With ``views`` > 1 (cameras per scene, scene-major) every camera's tracks are attended along
+        on their own (Eq. 7) and the dynamic queries of a scene read the tracks of all its cameras."""
         B, T, _, h, w = latents.shape
         if not self.cfg.motion_isolation:
             motion_mask = torch.ones_like(motion_mask)
@@ -132,9 +135,10 @@ class TemporalBranch(nn.Module):
         g = g + self.track_pos(torch.cat([norm_xy, torch.sin(math.pi * norm_xy)], dim=-1)) + self.pos_time[:T]
         valid = track_valid.bool()
         g = g * valid[..., None].to(g.dtype)
-        q = self.queries[None].expand(B, -1, -1)
-        flat_valid = valid.flatten(1)
+        scenes = B // views
+        q = self.queries[None].expand(scenes, -1, -1)
+        flat_valid = valid.reshape(scenes, -1)  # (B/V, V N T)
         for track_layer, query_layer in zip(self.track_layers, self.query_layers):
             g = track_layer(g, valid)  # Eq. 7 (pre-norm residual block)
-            q = query_layer(q, g.flatten(1, 2), flat_valid)
+            q = query_layer(q, g.reshape(scenes, -1, g.shape[-1]), flat_valid)
         return q

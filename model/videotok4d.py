@@ -108,7 +108,8 @@ class VideoTok4D(nn.Module):
 
     # Eq. 1 ---------------------------------------------------------------------------------------
     def encode(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """Source clip -> (Z_s (B, N_s, d), Z_d (B, N_d, d)) float32 in (-1, 1)."""
+        """Source clips -> (Z_s (S, N_s, d), Z_d (S, N_d, d)) float32 in (-1, 1), one token set per scene:
+        S = B / batch.views scenes (one camera per scene unless the batch says otherwise)."""
         return self._bound(*self.encode_preactivations(batch))
 
     def _bound(self, a_s: torch.Tensor, a_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,10 +117,13 @@ class VideoTok4D(nn.Module):
         return self.static_bottleneck.bound(a_s), (self.dynamic_bottleneck or self.static_bottleneck).bound(a_d)
 
     def encode_preactivations(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """The bottleneck pre-activations (Z = tanh(A)): (A_s (B, N_s, d), A_d (B, N_d, d)) float32."""
+        """The bottleneck pre-activations (Z = tanh(A)): (A_s (S, N_s, d), A_d (S, N_d, d)) float32."""
         cfg = self.config
         self._check_video(batch.frames, "source frames")
         B, T = batch.frames.shape[:2]
+        V = batch.views
+        if isinstance(V, bool) or not isinstance(V, int) or V < 1 or B % V:
+            raise ModelError(f"a batch of {B} clips does not split into scenes of {V!r} views")
         self._check_cameras(batch.K, batch.w2c, B, T, "source cameras")
         h = cfg.latent_size
         if batch.motion_mask.shape != (B, T, h, h):
@@ -129,11 +133,12 @@ class VideoTok4D(nn.Module):
             raise ModelError("track_xy must be (B, N, T, 2) and track_valid (B, N, T)")
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
         rays = self.rays(batch.K, batch.w2c)
-        static_states = self.spatial_branch(x, rays)
+        static_states = self.spatial_branch(x, rays, views=V)
         if self.temporal_branch is None:
             a = self.static_bottleneck.preactivation(static_states)
             return a[:, :cfg.n_static], a[:, cfg.n_static:]
-        dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid)
+        dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid,
+                                              views=V)
         return (self.static_bottleneck.preactivation(static_states),
                 self.dynamic_bottleneck.preactivation(dynamic_states))
 
@@ -198,7 +203,8 @@ class VideoTok4D(nn.Module):
                             w2c_tgt: torch.Tensor, generator: torch.Generator | None = None, *,
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
-                            saturation_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+                            saturation_weight: float = 0.0, pixel_weight: float = 0.0
+                            ) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -212,11 +218,18 @@ class VideoTok4D(nn.Module):
         every tau (equal to the flow loss at tau = 1, tau^2 times it elsewhere). With
         ``config.prediction == "x0"`` that error is the loss (weight 1) and this is ignored.
         saturation_weight: weight of :func:`saturation_penalty` on the bottleneck pre-activations.
+        pixel_weight: weight of the pixel MSE of the one-step estimate decoded by the frozen autoencoder,
+        || D_ae(X0_hat) - target_frames ||^2 (gradients pass through the frozen decoder): the latent
+        loss weighs every normalised channel alike, the pixel loss weighs them by what they do to the
+        image -- what PSNR measures.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
         B, T = target_frames.shape[:2]
         self._check_cameras(K_tgt, w2c_tgt, B, T, "target cameras")
+        if batch.batch_size != B * batch.views:
+            raise ModelError(f"{B} targets need {B} source scenes; the batch holds {batch.batch_size} clips "
+                             f"of {batch.views} view(s) each")
         a_s, a_d = self.encode_preactivations(batch)
         z_s, z_d = self._bound(a_s, a_d)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)
@@ -241,7 +254,12 @@ class VideoTok4D(nn.Module):
             x0_err = F.mse_loss(x0_hat, y0)
             flow = (((y_tau - x0_hat) / t.clamp_min(MIN_TAU) - (y1 - y0)) ** 2).mean().detach()
             loss = x0_err + saturation_weight * sat
+        pixel = torch.zeros(())
+        if pixel_weight > 0:
+            pixel = F.mse_loss(self.autoencoder.decode(x0_hat).float(), target_frames.float())
+            loss = loss + pixel_weight * pixel
         logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
+                "pixel_mse": float(pixel.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}

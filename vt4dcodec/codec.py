@@ -114,17 +114,41 @@ def _pick_camera(capture: Capture, camera: str | None) -> str:
     return camera
 
 
+def _pick_cameras(capture: Capture, camera: str | None, cameras: "Sequence[str] | str | None") -> list[str]:
+    """The encoded cameras: ``cameras`` ("all", or names in the order given) or the one ``camera``."""
+    if cameras is None:
+        return [_pick_camera(capture, camera)]
+    if camera is not None:
+        raise CaptureError("give camera= (one camera) or cameras= (several), not both")
+    if isinstance(cameras, str):
+        names = capture.camera_names if cameras == "all" else [c.strip() for c in cameras.split(",")]
+    else:
+        names = list(cameras)
+    if not names or any(not isinstance(n, str) or not n for n in names):
+        raise CaptureError(f"cameras must name at least one camera, got {cameras!r}")
+    if len(set(names)) != len(names):
+        raise CaptureError(f"cameras names a camera twice: {names}")
+    for name in names:
+        _pick_camera(capture, name)
+    return names
+
+
 def encode(
     capture: "Capture | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
     encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
+    cameras: "Sequence[str] | str | None" = None,
     start: int = 0,
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
 ) -> Scene:
-    """Compress one clip of one camera of a capture into a :class:`~vt4dcodec.format.Scene`.
+    """Compress one clip of a capture -- one camera or several synchronized ones -- into a
+    :class:`~vt4dcodec.format.Scene`.
+
+    The token budget is per scene: encoding more cameras gives the same N_s static and N_d dynamic
+    tokens, fused from every encoded camera (the encoder's queries attend to all of them).
 
     Args:
         capture: a :class:`Capture` or a capture directory.
@@ -132,6 +156,10 @@ def encode(
         encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``;
             default :data:`DEFAULT_ENCODING`).
         camera: the source camera (default: the capture's first camera).
+        cameras: several source cameras instead: ``"all"``, or names (a list or ``"cam00,cam02"``).
+            The first is the reference camera: its trajectory is the scene's stored cameras
+            (``decode(..., "source")``); the metadata lists every encoded camera
+            (``metadata["vt4d"]["source_cameras"]``). Any trajectory, encoded or not, renders.
         start: first frame of the clip; the clip is ``model.config.frames`` frames long.
         seed: seeds track sampling, so the same capture and seed give the same tokens.
         metadata: user key/values stored in the file (bounded; see FORMAT.md "Metadata").
@@ -139,7 +167,8 @@ def encode(
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
     """
-    return _encode_clip(_as_capture(capture), load_model(model), encoding, camera, start, seed, metadata)
+    cap = _as_capture(capture)
+    return _encode_clip(cap, load_model(model), encoding, _pick_cameras(cap, camera, cameras), start, seed, metadata)
 
 
 def encode_clips(
@@ -148,6 +177,7 @@ def encode_clips(
     encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
+    cameras: "Sequence[str] | str | None" = None,
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
 ) -> list[Scene]:
@@ -160,10 +190,11 @@ def encode_clips(
     T = net.config.frames
     if cap.num_frames < T:
         raise CaptureError(f"capture has {cap.num_frames} frames; model clips are {T} frames")
-    return [_encode_clip(cap, net, encoding, camera, s, seed, metadata) for s in range(0, cap.num_frames - T + 1, T)]
+    names = _pick_cameras(cap, camera, cameras)
+    return [_encode_clip(cap, net, encoding, names, s, seed, metadata) for s in range(0, cap.num_frames - T + 1, T)]
 
 
-def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, camera: str | None, start: int, seed: int,
+def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
                  metadata: dict[str, Any] | None) -> Scene:
     import torch
 
@@ -172,7 +203,6 @@ def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, camera: str | N
     from .model.source_inputs import SourceBatch
 
     cfg = net.config
-    name = _pick_camera(cap, camera)
     if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
         raise CaptureError(f"start must be a non-negative frame index, got {start!r}")
     if start + cfg.frames > cap.num_frames:
@@ -180,22 +210,27 @@ def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, camera: str | N
             f"capture {cap.capture_id!r} has {cap.num_frames} frames; a clip of {cfg.frames} frames starting at "
             f"frame {start} does not fit (this model encodes exactly {cfg.frames} frames per scene)"
         )
-    single = Capture(cameras={name: cap.cameras[name]}, frames={name: cap.frames[name]},
-                     depth={name: cap.depth[name]} if cap.has_depth(name) else None,
+    chosen = Capture(cameras={n: cap.cameras[n] for n in names}, frames={n: cap.frames[n] for n in names},
+                     depth={n: cap.depth[n] for n in names if cap.has_depth(n)} or None,
                      fps=cap.fps, capture_id=cap.capture_id, metadata=cap.metadata)
-    fitted = fit_capture(single, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, start=start)
-    traj = fitted.cameras[name]
-    depth = fitted.depth[name] if fitted.has_depth(name) else None
-    inputs = prepare_source(fitted.frames[name], traj, depth, latent_hw=(cfg.latent_size, cfg.latent_size),
-                            num_tracks=cfg.n_tracks, seed=seed, motion_isolation=cfg.motion_isolation)
+    fitted = fit_capture(chosen, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, start=start)
+    clips, depth_sources = [], []
+    for name in names:
+        depth = fitted.depth[name] if fitted.has_depth(name) else None
+        clips.append(prepare_source(fitted.frames[name], fitted.cameras[name], depth,
+                                    latent_hw=(cfg.latent_size, cfg.latent_size), num_tracks=cfg.n_tracks,
+                                    seed=seed, motion_isolation=cfg.motion_isolation))
+        depth_sources.append("capture" if depth is not None else "estimated")
     with torch.no_grad():
-        z_s, z_d = net.encode(SourceBatch.collate([inputs]))
-    info = {"source_camera": name, "clip_start": int(start), "clip_frames": int(cfg.frames),
-            "depth_source": "capture" if depth is not None else "estimated"}
+        z_s, z_d = net.encode(SourceBatch.collate(clips, views=len(clips)))
+    info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
+                            "depth_source": depth_sources[0]}
+    if len(names) > 1:
+        info["source_cameras"] = list(names)
     return Scene(
         static_tokens=z_s[0].numpy().astype(np.float32),
         dynamic_tokens=z_d[0].numpy().astype(np.float32),
-        cameras=traj,
+        cameras=fitted.cameras[names[0]],
         fingerprint=model_fingerprint(net),
         metadata={**(metadata or {}), "vt4d": info},
         provenance=Provenance.now(cap.capture_id, "encoded"),

@@ -101,11 +101,16 @@ def scene_pool_and_seeds(args: argparse.Namespace, cfg: Any, info: DistInfo) -> 
     return pool, rank_seeds(0, len(captures), info.rank, info.world_size)
 
 
-def make_loader(dataset: Any, args: argparse.Namespace, info: DistInfo, collate_fn: Any = None) -> Any:
-    """Shuffled DataLoader with a per-rank seeded order (ranks already hold disjoint scenes)."""
+def make_loader(dataset: Any, args: argparse.Namespace, info: DistInfo, collate_fn: Any = None,
+                batch_sampler: Any = None) -> Any:
+    """Shuffled DataLoader with a per-rank seeded order (ranks already hold disjoint scenes), or the
+    given ``batch_sampler`` (a callable taking the rank's seeded generator)."""
     from torch.utils.data import DataLoader, RandomSampler
 
     generator = torch.Generator().manual_seed(args.seed + info.rank)
+    if batch_sampler is not None:
+        return DataLoader(dataset, batch_sampler=batch_sampler(generator), num_workers=args.workers,
+                          collate_fn=collate_fn, persistent_workers=args.workers > 0)
     return DataLoader(dataset, batch_size=args.batch_size, sampler=RandomSampler(dataset, generator=generator),
                       num_workers=args.workers, drop_last=True, collate_fn=collate_fn,
                       persistent_workers=args.workers > 0)

@@ -21,10 +21,11 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, Sampler
 
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import CaptureError
@@ -35,7 +36,8 @@ from ..motion import MASK_RULE_VERSION
 from ..preprocess import prepare_source
 from ..source_inputs import SourceBatch, SourceInputs
 
-__all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "axis_angles_deg",
+__all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "ViewsBatchSampler",
+           "axis_angles_deg",
            "autoencoder_key", "precompute_latents", "collate_pairs", "PairBatch", "rank_seeds"]
 
 
@@ -298,6 +300,11 @@ class PairDataset(Dataset):
     ``recon_share`` (a reconstruction pair), else another camera drawn with weight
     exp(-angle / ``neighbour_sigma_deg``) by optical-axis angle, so targets lean toward views that
     overlap the source. Draws use torch's RNG (seeded per DataLoader worker).
+
+    Multi-camera items: indexed with ``(index, V)`` (see :class:`ViewsBatchSampler`) an item encodes V
+    cameras of the event -- the index's camera first, then V - 1 others drawn at random -- and its
+    target is one of them with probability ``recon_share``, else a camera that was not encoded, drawn
+    with weight exp(-angle to the nearest encoded camera / ``neighbour_sigma_deg``).
     """
 
     def __init__(self, pool: ScenePool, seeds: list[int], *, recon_share: float = 0.0,
@@ -318,42 +325,83 @@ class PairDataset(Dataset):
     def __len__(self) -> int:
         return len(self.seeds) * len(self.pairs)
 
-    def _draw_target(self, src: int, w2c: np.ndarray) -> int:
-        if torch.rand(()) < self.recon_share:
-            return src
-        others = np.arange(self.pool.cameras) != src
+    def _draw_target(self, src: int, w2c: np.ndarray, encoded: list[int] | None = None) -> int:
+        encoded = [src] if encoded is None else encoded
+        others = ~np.isin(np.arange(self.pool.cameras), encoded)
+        if torch.rand(()) < self.recon_share or not others.any():
+            return encoded[int(torch.randint(len(encoded), ()))]
         if self.sigma is None:
             weights = others.astype(np.float64)
         else:  # exp(-angle / sigma), shifted by the nearest camera's angle so it never underflows to all 0
-            angles = axis_angles_deg(w2c)[src]
+            angles = axis_angles_deg(w2c)[encoded].min(axis=0)
             weights = np.zeros(self.pool.cameras)
             weights[others] = np.exp(-(angles[others] - angles[others].min()) / self.sigma)
         return int(torch.multinomial(torch.from_numpy(weights / weights.sum()), 1))
 
-    def __getitem__(self, index: int) -> tuple:
+    def __getitem__(self, index: int | tuple[int, int]) -> tuple:
         """(source inputs, target frames, target K, target w2c) and, with ``latent_key``, the source's
-        and the target's cached latents."""
+        and the target's cached latents. Indexed ``(index, V)`` with V > 1, the source inputs and
+        source latents are lists of the V encoded cameras."""
+        index, views = index if isinstance(index, tuple) else (index, 1)
         seed = self.seeds[index // len(self.pairs)]
         src, tgt = self.pairs[index % len(self.pairs)]
         scene, prep = self.pool.scene(seed), self.pool.prepared(seed)
+        encoded = [src]
+        if views > 1:
+            if not self.sampled:
+                raise ValueError("multi-camera items need a sampled dataset (recon_share or neighbour_sigma_deg)")
+            rest = [c for c in range(self.pool.cameras) if c != src]
+            pick = torch.randperm(len(rest))[:views - 1].tolist()
+            encoded += [rest[i] for i in pick]
         if self.sampled:
-            tgt = self._draw_target(src, scene["w2c"])
-        source = SourceInputs(frames=scene["frames"][src], K=scene["K"][src].astype(np.float32),
-                              w2c=scene["w2c"][src].astype(np.float32), motion_mask=prep["motion_mask"][src],
-                              track_xy=prep["track_xy"][src], track_valid=prep["track_valid"][src])
-        item = (source, scene["frames"][tgt], scene["K"][tgt], scene["w2c"][tgt])
+            tgt = self._draw_target(src, scene["w2c"], encoded)
+        sources = [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
+                                w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
+                                track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c]) for c in encoded]
+        item = (sources if views > 1 else sources[0], scene["frames"][tgt], scene["K"][tgt], scene["w2c"][tgt])
         if self.latent_key is None:
             return item
         latents = self.pool.latents(seed, self.latent_key)
-        return item + (latents[src], latents[tgt])
+        return item + ([latents[c] for c in encoded] if views > 1 else latents[src], latents[tgt])
+
+
+class ViewsBatchSampler(Sampler):
+    """Shuffled batches of :class:`PairDataset` indices whose items share their number of encoded cameras:
+    a batch is single-camera (V = 1), or with probability ``multi_share`` multi-camera with V drawn
+    uniformly from ``multi_views``. Yields lists of ``(index, V)``; every index once per pass."""
+
+    def __init__(self, size: int, batch_size: int, *, multi_share: float, multi_views: tuple[int, ...],
+                 generator: torch.Generator) -> None:
+        if not 0.0 <= multi_share <= 1.0 or any(v < 2 for v in multi_views) or (multi_share > 0 and not multi_views):
+            raise ValueError("multi_share must be in [0, 1] and multi_views numbers >= 2")
+        self.size, self.batch_size = size, batch_size
+        self.multi_share, self.multi_views, self.generator = multi_share, tuple(multi_views), generator
+
+    def __len__(self) -> int:
+        return self.size // self.batch_size
+
+    def __iter__(self):
+        order = torch.randperm(self.size, generator=self.generator).tolist()
+        for b in range(len(self)):
+            views = 1
+            if float(torch.rand((), generator=self.generator)) < self.multi_share:
+                views = self.multi_views[int(torch.randint(len(self.multi_views), (), generator=self.generator))]
+            yield [(i, views) for i in order[b * self.batch_size:(b + 1) * self.batch_size]]
 
 
 def collate_pairs(items: list[tuple]) -> PairBatch:
+    """Stack PairDataset items (all single-camera, or all with the same number of encoded cameras)."""
+    def flat(value: Any) -> list:
+        return value if isinstance(value, list) else [value]
+
+    views = len(flat(items[0][0]))
+    if any(len(flat(it[0])) != views for it in items):
+        raise ValueError("a batch mixes items with different numbers of encoded cameras")
     target = torch.from_numpy(np.stack([it[1] for it in items])).permute(0, 1, 4, 2, 3).float().div_(255.0)
-    source = SourceBatch.collate([it[0] for it in items])
+    source = SourceBatch.collate([s for it in items for s in flat(it[0])], views=views)
     target_latents = None
     if len(items[0]) > 4:
-        source.latents = torch.from_numpy(np.stack([it[4] for it in items])).float()
+        source.latents = torch.from_numpy(np.stack([x for it in items for x in flat(it[4])])).float()
         target_latents = torch.from_numpy(np.stack([it[5] for it in items])).float()
     return PairBatch(source=source, target_frames=target,
                      K_tgt=torch.from_numpy(np.stack([it[2] for it in items])).float(),

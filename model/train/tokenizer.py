@@ -38,7 +38,7 @@ from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
                      scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
-from .data import PairBatch, PairDataset, collate_pairs, precompute_latents
+from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents
 
 __all__ = ["main", "load_autoencoder", "draw_tau", "flow_step"]
 
@@ -65,12 +65,14 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 
 
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
-              saturation_weight: float = 0.0, drop_static: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+              saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0
+              ) -> tuple[torch.Tensor, dict[str, float]]:
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
-                  saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop)
+                  saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
+                  pixel_weight=pixel_weight)
 
 
 @torch.no_grad()
@@ -107,13 +109,29 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
     return {"psnr_db": psnr, "mean_psnr_db": float(np.mean(psnr)), "pairs": idx, "render_steps": steps}
 
 
-def warm_start_model(cfg: ModelConfig, name_or_path: str) -> VideoTok4D:
+def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False) -> VideoTok4D:
     """A saved model (shipped id or directory) to continue training: its weights, autoencoder included
-    (frozen), as float32. Its config must equal this run's."""
-    model = from_pretrained(name_or_path)
-    if model.config != cfg:
+    (frozen), as float32. Its config must equal this run's; with ``partial`` it may differ in sizes
+    outside the autoencoder (e.g. ``render_patch_size``): every tensor whose name and shape match is
+    copied, the others keep their fresh initialisation and are listed on stdout."""
+    source = from_pretrained(name_or_path)
+    if source.config == cfg:
+        model = source
+    elif not partial:
         raise ModelError(f"--init {name_or_path}: its config differs from this run's "
-                         f"({model.config.sha256()[:12]} vs {cfg.sha256()[:12]}); pass the same --config/--set")
+                         f"({source.config.sha256()[:12]} vs {cfg.sha256()[:12]}); pass the same --config/--set, "
+                         f"or --init-partial to copy only the tensors that fit")
+    else:
+        model = VideoTok4D(cfg)
+        fresh, saved = model.state_dict(), source.state_dict()
+        fits = {k: v.to(fresh[k].dtype) for k, v in saved.items() if k in fresh and fresh[k].shape == v.shape}
+        ae = [k for k in fresh if k.startswith("autoencoder.")]
+        if any(k not in fits for k in ae):
+            raise ModelError(f"--init-partial {name_or_path}: its autoencoder does not fit this config "
+                             f"(latent_channels, ae_width, ae_downsample must match)")
+        model.load_state_dict(fits, strict=False)
+        skipped = sorted(set(fresh) - set(fits))
+        print(f"--init-partial: copied {len(fits)} of {len(fresh)} tensors; fresh: {', '.join(skipped) or 'none'}")
     model.model_id = model.model_version = None
     model.freeze_autoencoder()
     return model
@@ -139,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="start from a saved model (shipped id or model directory, same config), its "
                              "frozen autoencoder included, instead of fresh weights: continues a shipped "
                              "model's training on another machine; a checkpoint in --out still takes precedence")
+    parser.add_argument("--init-partial", action="store_true",
+                        help="with --init: the saved model's config may differ outside the autoencoder (e.g. "
+                             "render_patch_size); copy the tensors whose shapes fit, start the rest fresh")
     parser.add_argument("--cache-latents", action="store_true",
                         help="encode every training frame once with the frozen autoencoder and read the latents "
                              "from the scene cache (saves the encoder pass of every step)")
@@ -152,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--x0-weight", type=float, default=0.0, help="weight of the one-step x0 error")
     recipe.add_argument("--drop-static", type=float, default=0.0,
                         help="share of samples rendered without Z_s, so Z_d must carry what it can")
+    recipe.add_argument("--pixel-weight", type=float, default=0.0,
+                        help="weight of the pixel MSE of the one-step estimate through the frozen decoder")
+    recipe.add_argument("--multi-share", type=float, default=0.0,
+                        help="share of batches that encode several cameras of the event into one token set")
+    recipe.add_argument("--multi-views", default="2,3,5", metavar="V,V,...",
+                        help="numbers of encoded cameras a multi-camera batch draws from (default 2,3,5)")
     recipe.add_argument("--saturation-weight", type=float, default=0.0,
                         help="weight of the penalty on bottleneck pre-activations beyond |a| = 2")
     args = parser.parse_args(argv)
@@ -162,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
 
     if args.init is not None:
-        model = warm_start_model(cfg, args.init)  # a checkpoint in --out, if any, still wins (train_loop)
+        model = warm_start_model(cfg, args.init, partial=args.init_partial)  # a checkpoint in --out, if any, still wins (train_loop)
     elif args.autoencoder is not None:
         model = build_model(cfg, args.autoencoder)
     else:
@@ -175,9 +202,23 @@ def main(argv: list[str] | None = None) -> int:
         latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
     dataset = PairDataset(pool, seeds, recon_share=args.recon_share, neighbour_sigma_deg=args.neighbour_sigma,
                           latent_key=latent_key)
-    batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs))
+    sampler = None
+    if args.multi_share > 0:
+        try:
+            views = tuple(int(v) for v in args.multi_views.split(","))
+        except ValueError:
+            parser.error(f"--multi-views takes comma-separated integers, got {args.multi_views!r}")
+        if any(not 2 <= v <= pool.cameras for v in views):
+            parser.error(f"--multi-views must lie in 2..{pool.cameras} (the training rig's cameras)")
+        if not (args.recon_share > 0 or args.neighbour_sigma is not None):
+            parser.error("--multi-share needs --recon-share or --neighbour-sigma (sampled targets)")
+        sampler = functools.partial(ViewsBatchSampler, len(dataset), args.batch_size, multi_share=args.multi_share,
+                                    multi_views=views)
+    batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs,
+                                batch_sampler=None if sampler is None else lambda g: sampler(generator=g)))
     step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
-                             saturation_weight=args.saturation_weight, drop_static=args.drop_static)
+                             saturation_weight=args.saturation_weight, drop_static=args.drop_static,
+                             pixel_weight=args.pixel_weight)
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:

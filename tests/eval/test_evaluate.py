@@ -25,9 +25,11 @@ def test_every_method_scores_every_view(evaluated):
     far = [r for r in results["rows"] if r["set"] == "far"]
     assert len(far) == 2 * 2 * len(methods)
     assert {(r["seed"], r["view"]) for r in far} == {(s, v) for s in (0, 1) for v in ("cam01", "cam02")}
-    # the default evaluates all three sets: near has 2 targets, source 1 without the two trivial baselines
-    assert results["sets"] == ["far", "near", "source"]
-    assert len(results["rows"]) == len(far) + 2 * 2 * len(methods) + 2 * 1 * (len(methods) - 2)
+    # the default evaluates every set: near has 2 targets, source 1 without the two trivial baselines, the
+    # multi-camera sets 5 each without the two single-source baselines
+    assert results["sets"] == ["far", "near", "source", "multi-held", "multi-enc"]
+    assert len(results["rows"]) == (len(far) + 2 * 2 * len(methods) + 2 * 1 * (len(methods) - 2)
+                                    + 2 * 2 * 5 * (len(methods) - 2))
     assert results["summary_by_set"]["far"] == results["summary"]
     for r in results["rows"]:
         assert 0.0 < r["psnr"] < 60.0 and -1.0 <= r["ssim"] <= 1.0

@@ -12,7 +12,8 @@ import torch
 
 from vt4dcodec.eval.command import main
 from vt4dcodec.eval.protocol import (HEALTH_THRESHOLDS, RIG_CAMERAS, EvalSettings, EvaluationError, axis_angles_deg,
-                                     make_scene, nearest_cameras, parse_sets, set_targets, token_health_report)
+                                     make_scene, nearest_cameras, parse_sets, set_sources, set_targets,
+                                     token_health_report)
 from vt4dcodec.eval.report import format_tables
 from vt4dcodec.model import VideoTok4D, from_pretrained, get_config, save_pretrained
 
@@ -58,6 +59,11 @@ def test_targets_of_each_set():
     assert max(angles[names.index(n)] for n in near) <= min(angles[i] for i in range(1, len(names))
                                                            if names[i] not in near)
     assert set_targets(rig, settings, "source") == ("cam00", ["cam00"])
+    encoded = ["cam00", "cam02", "cam04", "cam06", "cam08"]
+    assert set_sources(rig, "multi-held") == set_sources(rig, "multi-enc") == encoded
+    assert set_sources(rig, "near") == ["cam00"]
+    assert set_targets(rig, settings, "multi-held") == ("cam00", ["cam01", "cam03", "cam05", "cam07", "cam09"])
+    assert set_targets(rig, settings, "multi-enc") == ("cam00", encoded)
     with pytest.raises(EvaluationError):
         set_targets(rig, settings, "sideways")
 
@@ -81,10 +87,18 @@ def test_steps_none_means_the_models_recorded_decode_steps():
 
 def test_rows_sets_figures_and_tables(evaluated):
     results, out = evaluated
-    assert {r["set"] for r in results["rows"]} == {"far", "near", "source"}
+    assert {r["set"] for r in results["rows"]} == {"far", "near", "source", "multi-held", "multi-enc"}
     source_rows = [r for r in results["rows"] if r["set"] == "source"]
     assert {r["view"] for r in source_rows} == {"cam00"}
     assert not {"nearest_frame", "depth_warp"} & {r["method"] for r in source_rows}
+    held = [r for r in results["rows"] if r["set"] == "multi-held"]
+    enc = [r for r in results["rows"] if r["set"] == "multi-enc"]
+    assert {r["view"] for r in held} == {"cam01", "cam03", "cam05", "cam07", "cam09"}
+    assert {r["view"] for r in enc} == {"cam00", "cam02", "cam04", "cam06", "cam08"}
+    assert not {"nearest_frame", "depth_warp"} & {r["method"] for r in held + enc}
+    # one token set per scene from five cameras: the same stored bytes for every target of a scene
+    ours = [r for r in held + enc if r["method"] == "ours"]
+    assert len({(r["seed"], r["bytes"]) for r in ours}) == len({r["seed"] for r in ours})
     assert {r["view"] for r in results["rows"] if r["set"] == "near"} <= {f"cam{i:02d}" for i in range(1, 10)}
     assert results["models"]["main"]["steps"] == 2  # forced with --steps 2
     assert "decode_steps" in results["models"]["main"]
@@ -92,9 +106,10 @@ def test_rows_sets_figures_and_tables(evaluated):
         assert (out / name).stat().st_size > 1000
     tables = format_tables(results)
     for text in ("### Far views", "### Near views", "### Source view", "skipped: the target is the source camera",
-                 "Flat mean-colour reference", "### Token health", "token-swap drop"):
+                 "Flat mean-colour reference", "### Token health", "token-swap drop", "### Multi-camera, held-out",
+                 "### Multi-camera, encoded", "skipped: a single-source baseline"):
         assert text in tables
-    assert tables.count("Flat mean-colour reference") == 3
+    assert tables.count("Flat mean-colour reference") == 5
 
 
 def test_token_health_block(evaluated):

@@ -212,3 +212,67 @@ def test_per_item_static_drop_matches_whole_batch_drops():
     kept = model.renderer(y, z_s, z_d, rays, tau)
     assert torch.allclose(mixed[0], dropped[0], atol=1e-6) and torch.allclose(mixed[1], kept[1], atol=1e-6)
     assert not torch.allclose(dropped[0], kept[0])
+
+
+def test_render_patch_size_keeps_old_hashes_and_shapes_the_renderer_only():
+    base = get_config("tiny", **SMALL)
+    assert get_config("tiny", **SMALL, render_patch_size=0).sha256() == base.sha256()
+    assert "render_patch_size" not in base.canonical_json()
+    fine = get_config("tiny", **SMALL, render_patch_size=1)
+    assert fine.sha256() != base.sha256() and fine.renderer_patch == 1 and base.renderer_patch == base.patch_size
+    model = VideoTok4D(fine).eval()
+    assert model.renderer.pos_space.shape[0] == fine.latent_size ** 2
+    assert model.spatial_branch.pos_space.shape[0] == fine.patches_per_side ** 2
+    batch = random_batch(fine, B=2)
+    z_s, z_d = model.encode(batch)
+    frames = model.render(z_s, z_d, batch.K, batch.w2c, steps=1)
+    assert frames.shape == batch.frames.shape
+    for bad in (-1, 3, True, 2.0):  # 3 does not divide the 8-pixel latent
+        with pytest.raises(ModelError):
+            get_config("tiny", **SMALL, render_patch_size=bad)
+
+
+def test_masked_attention_adds_the_bias_and_keeps_invalid_keys_out():
+    from vt4dcodec.model.layers import masked_attention
+
+    g = torch.Generator().manual_seed(0)
+    q, k, v = (torch.randn(2, 3, 5, 4, generator=g) for _ in range(3))
+    bias = torch.randn(3, 5, 6 - 1, generator=g)
+    bias = torch.cat([bias, torch.zeros(3, 5, 1)], dim=-1)
+    k, v = torch.cat([k, k[:, :, :1]], dim=2), torch.cat([v, v[:, :, :1]], dim=2)
+    valid = torch.tensor([[True] * 5 + [False], [False] * 6])
+    out = masked_attention(q, k, v, valid, bias)
+    logits = q @ k.transpose(-1, -2) / 2.0 + bias[None]
+    logits = logits.masked_fill(~valid[:, None, None, :], float("-inf"))
+    want = logits[:1].softmax(-1) @ v[:1]
+    torch.testing.assert_close(out[:1], want, atol=1e-5, rtol=1e-5)
+    assert torch.equal(out[1], torch.zeros_like(out[1]))  # no valid key: exactly zero, no NaN
+    torch.testing.assert_close(masked_attention(q, k, v, None, bias),
+                               (q @ k.transpose(-1, -2) / 2.0 + bias[None]).softmax(-1) @ v, atol=1e-5, rtol=1e-5)
+
+
+def test_locality_prior_anchors_static_queries_and_renderer_tokens():
+    base = get_config("tiny", **SMALL)
+    assert get_config("tiny", **SMALL, locality_sigma=0.0).sha256() == base.sha256()
+    assert VideoTok4D(base).spatial_branch.query_bias is None and VideoTok4D(base).renderer.token_bias is None
+    cfg = get_config("tiny", **SMALL, locality_sigma=1.0)
+    assert cfg.sha256() != base.sha256()
+    model = VideoTok4D(cfg).eval()
+    P = cfg.patches_per_side ** 2
+    qb = model.spatial_branch.query_bias.detach()
+    assert qb.shape == (cfg.heads, cfg.n_static, P)
+    # the first half of the heads prefer the anchor cell (i mod P); the rest read anywhere
+    for i in range(cfg.n_static):
+        assert int(qb[0, i].argmax()) == i % P and float(qb[0, i].max()) == 0.0
+    assert torch.equal(qb[cfg.heads // 2:], torch.zeros_like(qb[cfg.heads // 2:]))
+    tb = model.renderer.token_bias.detach()
+    assert tb.shape == (cfg.heads, P, cfg.n_static + cfg.n_dynamic)
+    assert torch.equal(tb[:, :, cfg.n_static:], torch.zeros_like(tb[:, :, cfg.n_static:]))  # Z_d unanchored
+    assert int(tb[0, 3, :cfg.n_static].argmax()) % P == 3
+    batch = random_batch(cfg, B=2)
+    z_s, z_d = model.encode(batch)
+    assert model.render(z_s, z_d, batch.K, batch.w2c, steps=1).shape == batch.frames.shape
+    unified = VideoTok4D(get_config("tiny", **SMALL, locality_sigma=1.0, unified_tokens=True))
+    assert unified.renderer.token_bias[0, :, -1].abs().sum() > 0  # every unified token is anchored
+    with pytest.raises(ModelError):
+        get_config("tiny", **SMALL, locality_sigma=-1.0)

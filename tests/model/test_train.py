@@ -169,3 +169,28 @@ def test_stage2_continues_a_saved_model_with_init(runs, tmp_path):
                      "--cache", str(runs / "cache"), *COMMON, "renderer_layers=2"])
     with pytest.raises(SystemExit):  # neither --init nor --autoencoder
         stage2.main(["--out", str(tmp_path / "y"), "--steps", "1", "--cache", str(runs / "cache"), *COMMON])
+
+
+def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(runs, tmp_path):
+    """--init-partial: a renderer with smaller patches starts from a saved model's other tensors; with
+    --multi-share 1 every batch encodes several cameras, and --pixel-weight adds the decoded-pixel loss."""
+    first = tmp_path / "first"
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(first),
+                        "--steps", "1", "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"),
+                        *COMMON]) == 0
+    out = tmp_path / "p2"
+    assert stage2.main(["--init", str(first / "model"), "--init-partial", "--out", str(out), "--steps", "1",
+                        "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0",
+                        "--warmup", "1", "--recon-share", "0.5", "--multi-share", "1", "--multi-views", "2",
+                        "--pixel-weight", "1", *COMMON, "render_patch_size=2"]) == 0
+    before, after = from_pretrained(first / "model"), from_pretrained(out / "model")
+    assert after.config.renderer_patch == 2 and before.config.renderer_patch == after.config.patch_size
+    old, new = before.state_dict(), after.state_dict()
+    fresh = {k for k in new if k not in old or old[k].shape != new[k].shape}
+    assert fresh == {"renderer.embed.weight", "renderer.pos_space", "renderer.out.weight", "renderer.out.bias"}
+    assert all(torch.equal(old[k], new[k]) for k in new if k not in fresh)
+    log = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert log and "pixel_mse" in log[-1] and log[-1]["pixel_mse"] > 0
+    with pytest.raises(SystemExit):  # multi-camera batches need sampled targets
+        stage2.main(["--init", str(first / "model"), "--out", str(tmp_path / "m"), "--steps", "1",
+                     "--cache", str(runs / "cache"), "--multi-share", "0.5", *COMMON])

@@ -19,6 +19,7 @@ ENCODE_EPILOG = """\
 examples:
   vt4d encode demo_out/capture -o scene.vt4d                 one capture -> one scene file
   vt4d encode demo_out/capture --camera cam03 --start 0 -o s.vt4d
+  vt4d encode demo_out/capture --cameras cam00,cam02,cam04 -o multi.vt4d   one scene from 3 cameras
   vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive
   vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips
   torchrun --nproc_per_node=4 -m vt4dcodec encode captures/ --archive shards/train.vt4da
@@ -117,14 +118,17 @@ def cmd_encode(args: argparse.Namespace) -> int:
         for cap_dir in _progress(mine, len(mine), "encode", args.quiet):
             cap = read_capture(cap_dir)
             if args.split:
-                scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, seed=args.seed)
+                scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
+                                            seed=args.seed)
             else:
-                scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, start=args.start,
-                                       seed=args.seed)]
+                scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
+                                       start=args.start, seed=args.seed)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
-                    key = f"{cap.capture_id}/{info['source_camera']}/{info['clip_start']:06d}"
+                    names = info.get("source_cameras", [info["source_camera"]])
+                    encoded = "all" if len(names) > 1 and len(names) == len(cap.camera_names) else ".".join(names)
+                    key = f"{cap.capture_id}/{encoded}/{info['clip_start']:06d}"
                     data = dumps(scene)
                     writer.append(key, data)
                     results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
@@ -221,12 +225,16 @@ def register(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "encode", parents=[common], help="compress capture directories into .vt4d scenes or an archive",
-        description="Encode one camera of a capture (a clip of the model's frame count) into a .vt4d scene.",
+        description="Encode one camera, or several synchronized cameras, of a capture (a clip of the model's "
+                    "frame count) into a .vt4d scene: one token set per scene, whatever the number of cameras.",
         epilog=ENCODE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("captures", nargs="+", help="capture directories, or directories holding capture directories")
     p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip)")
     p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
+    p.add_argument("--cameras", metavar="all|CAM,CAM,...",
+                   help="encode several cameras into one scene: 'all' or a comma-separated list (the first is the "
+                        "reference camera whose trajectory the scene stores); instead of --camera")
     p.add_argument("--start", type=nonneg_int, default=0, help="first frame of the clip (default 0)")
     p.add_argument("--split", action="store_true", help="encode every consecutive clip of a long capture")
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,

@@ -54,7 +54,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--views", type=int, default=3, help="target cameras per scene (cameras 1..views)")
     p.add_argument("--cameras", type=int, default=None, help="cameras per scene (default max(4, views + 1))")
     p.add_argument("--sets", default=",".join(VIEW_SETS), help="comma-separated target sets of "
-                   f"{','.join(VIEW_SETS)} (default: all three)")
+                   f"{','.join(VIEW_SETS)} (default: all)")
     p.add_argument("--steps", type=int, default=None, help="Euler steps of the renderer (default: each model's "
                    "recorded decode_steps)")
     p.add_argument("--seed", type=int, default=0, help="sampling noise and track seed")

@@ -4,7 +4,7 @@
 Protocol.  Held-out scenes ``generate_scene(seed, split="test")`` (textures disjoint from the training
 split) for seeds ``first_seed .. first_seed + scenes - 1`` with synchronized moving cameras and moving
 objects.  Camera 0 is the source.  Every method sees only the source clip and predicts the videos of
-the target cameras along their trajectories.  Three target sets (``VIEW_SETS``; rows carry ``"set"``):
+the target cameras along their trajectories.  Five target sets (``VIEW_SETS``; rows carry ``"set"``):
 
 * ``far``: the original protocol: rigs of ``num_cameras`` (``views + 1``, at least 4) cameras from
   :func:`make_scene`, targets cameras 1..views (50-160 degrees from the source);
@@ -14,6 +14,10 @@ the target cameras along their trajectories.  Three target sets (``VIEW_SETS``; 
 * ``source``: the same 10-camera rigs, target camera 0 itself: reconstruction of the encoded view.
   The nearest-frame and depth-warp baselines are skipped there (the target is the source: they are
   trivially exact); the flat mean colour stays as the reference.
+* ``multi-held`` / ``multi-enc``: multi-camera encoding on the same 10-camera rigs: every other camera
+  (0, 2, 4, 6, 8: ``MULTI_ENCODED``) is encoded into one token set; the targets are the five held-out
+  cameras (1, 3, ...) or the five encoded ones. The warp and nearest-frame baselines are skipped (they
+  are single-source); the flat reference is the mean colour of the encoded cameras' clips.
 
 The methods:
 
@@ -71,7 +75,8 @@ from .metrics import round_metric, video_metrics
 __all__ = [
     "EvalSettings", "EvaluationError", "METHODS", "TOKEN_METHODS", "VIEW_SETS", "RIG_CAMERAS", "HEALTH_THRESHOLDS",
     "make_scene", "predict_scene", "score_scene", "representation_floats", "run_evaluation", "describe_model",
-    "axis_angles_deg", "nearest_cameras", "set_targets", "parse_sets", "token_health_report",
+    "axis_angles_deg", "nearest_cameras", "set_targets", "set_sources", "parse_sets", "token_health_report",
+    "MULTI_SETS", "MULTI_ENCODED",
 ]
 
 # method -> (label, (model key, drop_static, drop_dynamic)) for token methods
@@ -86,7 +91,9 @@ BASELINE_METHODS = {"nearest_frame": "Nearest source frame (view-bound)", "depth
 METHODS: dict[str, str] = {**{k: v[0] for k, v in TOKEN_METHODS.items()}, **BASELINE_METHODS}
 METRICS = ("psnr", "ssim", "psnr_dynamic", "psnr_static")
 ENCODING = "int8"
-VIEW_SETS = ("far", "near", "source")
+VIEW_SETS = ("far", "near", "source", "multi-held", "multi-enc")
+MULTI_SETS = ("multi-held", "multi-enc")
+MULTI_ENCODED = (0, 2, 4, 6, 8)  # camera indices encoded together on the multi-camera sets
 RIG_CAMERAS = 10  # cameras of the near/source rigs
 NEAR_VIEWS = 2  # targets of the near set
 # baselines that are trivially exact when the target is the source camera itself
@@ -177,10 +184,20 @@ def nearest_cameras(capture: Any, source: str, k: int) -> list[tuple[str, float]
     return [(names[i], float(angles[i])) for i in others[:k]]
 
 
+def set_sources(sc: SynthScene, view_set: str = "far") -> list[str]:
+    """The cameras encoded for a target set: camera 0, or ``MULTI_ENCODED`` on the multi-camera sets."""
+    _check_set(view_set)
+    names = sc.capture.camera_names
+    return [names[i] for i in MULTI_ENCODED] if view_set in MULTI_SETS else [names[0]]
+
+
 def set_targets(sc: SynthScene, settings: EvalSettings, view_set: str = "far") -> tuple[str, list[str]]:
-    """(source camera, target cameras) of a scene for a target set."""
+    """(source camera -- the first encoded one --, target cameras) of a scene for a target set."""
     names = sc.capture.camera_names
     _check_set(view_set)
+    if view_set in MULTI_SETS:
+        encoded = set_sources(sc, view_set)
+        return encoded[0], encoded if view_set == "multi-enc" else [n for n in names if n not in encoded]
     if view_set == "far":
         return names[0], list(names[1:settings.views + 1])
     if view_set == "near":
@@ -189,15 +206,17 @@ def set_targets(sc: SynthScene, settings: EvalSettings, view_set: str = "far") -
 
 
 # --- predictions ------------------------------------------------------------------------------------
-def _render_tokens(net: VideoTok4D, sc: SynthScene, source: str, targets: Sequence[str], settings: EvalSettings,
-                   variants: dict[str, tuple[bool, bool]]
+def _render_tokens(net: VideoTok4D, sc: SynthScene, sources: Sequence[str], targets: Sequence[str],
+                   settings: EvalSettings, variants: dict[str, tuple[bool, bool]]
                    ) -> tuple[dict[str, list[np.ndarray]], int, float, codec.SceneDecoder]:
-    """Encode ``source`` into an int8 .vt4d, decode the bytes, render every target per variant.
+    """Encode ``sources`` (one camera or several) into an int8 .vt4d, decode the bytes, render every
+    target per variant.
 
     Returns (variant -> videos, file bytes, seconds spent, the decoder of the stored bytes).
     """
     t0 = time.perf_counter()
-    scene = codec.encode(sc.capture, net, ENCODING, camera=source, seed=settings.seed)
+    picked = {"camera": sources[0]} if len(sources) == 1 else {"cameras": list(sources)}
+    scene = codec.encode(sc.capture, net, ENCODING, seed=settings.seed, **picked)
     blob = dumps(scene)
     decoder = codec.SceneDecoder.open(blob, model=net)
     trajectories = [sc.capture.cameras[k] for k in targets]
@@ -218,13 +237,14 @@ def predict_scene(sc: SynthScene, settings: EvalSettings, methods: Sequence[str]
     model's decoder of the stored bytes (model key -> decoder), for the token-health report.
     """
     source, targets = set_targets(sc, settings, view_set)
-    if view_set == "source":
+    sources = set_sources(sc, view_set)
+    if view_set == "source" or view_set in MULTI_SETS:
         methods = [m for m in methods if m not in SKIPPED_ON_SOURCE]
     src_frames, src_traj = sc.capture.frames[source], sc.capture.cameras[source]
     out: dict[str, dict[str, Any]] = {}
     for key in sorted({TOKEN_METHODS[m][1][0] for m in methods if m in TOKEN_METHODS}):
         variants = {m: TOKEN_METHODS[m][1][1:] for m in methods if m in TOKEN_METHODS and TOKEN_METHODS[m][1][0] == key}
-        videos, nbytes, seconds, decoder = _render_tokens(models[key], sc, source, targets, settings, variants)
+        videos, nbytes, seconds, decoder = _render_tokens(models[key], sc, sources, targets, settings, variants)
         if decoders is not None:
             decoders[key] = decoder
         for m, vids in videos.items():
@@ -237,7 +257,7 @@ def predict_scene(sc: SynthScene, settings: EvalSettings, methods: Sequence[str]
                                 "bytes": None, "seconds": time.perf_counter() - t0}
     if "mean_colour" in methods:
         t0 = time.perf_counter()
-        flat = baselines.mean_colour(src_frames)
+        flat = baselines.mean_colour(np.concatenate([sc.capture.frames[k] for k in sources]))[:len(src_frames)]
         out["mean_colour"] = {"videos": [flat] * len(targets), "extra": [{} for _ in targets], "bytes": None,
                               "seconds": time.perf_counter() - t0}
     if "depth_warp" in methods:

@@ -1,0 +1,142 @@
+"""Multi-camera encoding: several synchronized cameras of one event -> one token set."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.train.data import PairDataset, ViewsBatchSampler, axis_angles_deg, collate_pairs
+
+from network_fixtures import random_batch
+
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=8, n_dynamic=4, token_dim=8, n_tracks=8)
+
+
+def small_model(seed: int = 0, **overrides) -> VideoTok4D:
+    torch.manual_seed(seed)
+    return VideoTok4D(get_config("tiny", **{**SMALL, **overrides})).eval()
+
+
+def _take(batch, index, views=1):
+    return dataclasses.replace(batch, **{f.name: getattr(batch, f.name)[index] for f in dataclasses.fields(batch)
+                                         if isinstance(getattr(batch, f.name), torch.Tensor)}, views=views)
+
+
+def test_one_token_set_per_scene_and_a_repeated_camera_adds_nothing():
+    model = small_model()
+    batch = random_batch(model.config, B=4)
+    with torch.no_grad():
+        single = model.encode(batch)
+        fused = model.encode(dataclasses.replace(batch, views=2))
+        repeated = model.encode(_take(batch, [0, 0, 3, 3, 3], views=1))
+        twice = model.encode(_take(batch, [0, 0, 3, 3], views=2))
+    assert single[0].shape[0] == 4 and fused[0].shape[0] == 2 and fused[1].shape[0] == 2
+    # attention over a camera's keys given twice is attention over them once
+    for z_one, z_two in zip(single, twice):
+        torch.testing.assert_close(z_two[0], z_one[0], atol=1e-5, rtol=0)
+        torch.testing.assert_close(z_two[1], z_one[3], atol=1e-5, rtol=0)
+    assert repeated[0].shape[0] == 5
+    # a second, different camera changes the tokens
+    assert (fused[0][0] - single[0][0]).abs().max() > 1e-3
+
+
+def test_encoded_camera_order_within_a_scene_does_not_matter_much_but_scenes_stay_apart():
+    model = small_model()
+    batch = random_batch(model.config, B=4)
+    with torch.no_grad():
+        ab = model.encode(_take(batch, [0, 1, 2, 3], views=2))
+        ba = model.encode(_take(batch, [1, 0, 3, 2], views=2))
+        ac = model.encode(_take(batch, [0, 2, 1, 3], views=2))
+    # the queries read the cameras as one set of keys: swapping cameras within a scene keeps the tokens
+    torch.testing.assert_close(ab[0], ba[0], atol=1e-5, rtol=0)
+    torch.testing.assert_close(ab[1], ba[1], atol=1e-5, rtol=0)
+    assert (ab[0] - ac[0]).abs().max() > 1e-3
+
+
+def test_bad_view_counts_are_refused():
+    model = small_model()
+    batch = random_batch(model.config, B=3)
+    for views in (2, 0, True):
+        with pytest.raises(ModelError):
+            model.encode(dataclasses.replace(batch, views=views))
+    with pytest.raises(ModelError):  # 2 scenes of 2 views, 3 targets
+        model.rectified_flow_loss(dataclasses.replace(random_batch(model.config, B=4), views=2),
+                                  torch.rand(3, 4, 3, 32, 32), batch.K, batch.w2c)
+
+
+def test_multi_camera_loss_trains_every_encoded_camera_path():
+    model = small_model(prediction="x0").train()
+    for name, p in model.renderer.named_parameters():  # zero-initialised gates and head pass no gradient
+        if "modulation" in name or "final_mod" in name or name.startswith("out."):
+            torch.nn.init.normal_(p, std=0.1)
+    batch = dataclasses.replace(random_batch(model.config, B=4), views=2)
+    cfg = model.config
+    latents = torch.randn(4, cfg.frames, cfg.latent_channels, cfg.latent_size, cfg.latent_size, requires_grad=True)
+    batch.latents = latents
+    batch.motion_mask = torch.ones_like(batch.motion_mask)
+    target = random_batch(model.config, B=2, seed=5)
+    loss, logs = model.rectified_flow_loss(batch, target.frames, target.K, target.w2c, tau=torch.ones(2))
+    loss.backward()
+    assert np.isfinite(logs["loss"])
+    per_clip = latents.grad.abs().flatten(1).sum(dim=1)
+    assert bool((per_clip > 0).all())  # every encoded camera of both scenes reaches the loss
+
+
+@pytest.fixture(scope="module")
+def pool(tmp_path_factory):
+    from vt4dcodec.model.train.data import ScenePool
+
+    return ScenePool.for_config(get_config("tiny", **SMALL), tmp_path_factory.mktemp("cache"), cameras=4)
+
+
+def test_multi_camera_items_encode_distinct_cameras_and_target_held_out_ones(pool):
+    held_out = PairDataset(pool, [0], recon_share=0.0, neighbour_sigma_deg=30.0)
+    scene = pool.scene(0)
+    torch.manual_seed(0)
+    for i in range(4):
+        sources, target, _, _ = held_out[(i, 3)]
+        encoded = [int(np.flatnonzero([np.array_equal(s.frames, f) for f in scene["frames"]])[0]) for s in sources]
+        assert len(set(encoded)) == 3 and encoded[0] == i
+        assert not any(np.array_equal(target, scene["frames"][c]) for c in encoded)
+    recon = PairDataset(pool, [0], recon_share=1.0)
+    sources, target, _, _ = recon[(1, 2)]
+    assert any(np.array_equal(target, s.frames) for s in sources)
+    # every camera encoded: the target must be one of them
+    sources, target, _, _ = held_out[(2, 4)]
+    assert any(np.array_equal(target, s.frames) for s in sources)
+    nearest = PairDataset(pool, [0], neighbour_sigma_deg=1e-3)
+    angles = axis_angles_deg(scene["w2c"])
+    torch.manual_seed(1)
+    sources, target, _, _ = nearest[(0, 2)]
+    encoded = [int(np.flatnonzero([np.array_equal(s.frames, f) for f in scene["frames"]])[0]) for s in sources]
+    rest = [c for c in range(4) if c not in encoded]
+    want = min(rest, key=lambda c: angles[encoded, c].min())
+    assert np.array_equal(target, scene["frames"][want])
+
+
+def test_views_batch_sampler_and_collate(pool):
+    dataset = PairDataset(pool, [0, 1], recon_share=0.5)
+    sampler = ViewsBatchSampler(len(dataset), 2, multi_share=0.5, multi_views=(2, 3),
+                                generator=torch.Generator().manual_seed(0))
+    batches = list(sampler)
+    assert len(batches) == len(sampler) == 4
+    assert sorted(i for b in batches for i, _ in b) == list(range(8))
+    assert all(len({v for _, v in b}) == 1 for b in batches)
+    assert {b[0][1] for b in batches} <= {1, 2, 3}
+    many = [b[0][1] for _ in range(20) for b in ViewsBatchSampler(8, 2, multi_share=0.5, multi_views=(3,),
+                                                                  generator=torch.Generator().manual_seed(_))]
+    assert 1 in many and 3 in many
+    batch = collate_pairs([dataset[(0, 3)], dataset[(5, 3)]])
+    assert batch.source.views == 3 and batch.source.batch_size == 6 and batch.target_frames.shape[0] == 2
+    with pytest.raises(ValueError):
+        collate_pairs([dataset[(0, 3)], dataset[(5, 2)]])
+    with pytest.raises(ValueError):
+        ViewsBatchSampler(8, 2, multi_share=0.5, multi_views=(1,), generator=torch.Generator())
+    with pytest.raises(ValueError):
+        PairDataset(pool, [0])[(0, 2)]  # all ordered pairs: no sampled target for a multi-camera item
