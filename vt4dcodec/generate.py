@@ -84,6 +84,7 @@ def generate(
     start: int = 0,
     encoding: str = "int8",
     metadata: dict[str, Any] | None = None,
+    source_capture_id: str | None = None,
 ) -> Scene:
     """Sample one joint token state Z^a ~ p(Z^a | V_c, P_c, P_a) and return it as a Scene.
 
@@ -99,6 +100,7 @@ def generate(
         start: first video frame of the clip.
         encoding: token encoding used when the scene is saved.
         metadata: user key/values stored in the file.
+        source_capture_id: the capture the video came from, recorded in the provenance (``vt4d info``).
     Returns:
         A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
         was trained on, and provenance kind "generated".
@@ -133,6 +135,6 @@ def generate(
         cameras=anchor,
         fingerprint=prior.tokenizer_fingerprint,
         metadata={**(metadata or {}), "co4dgen": info},
-        provenance=Provenance.now(None, "generated"),
+        provenance=Provenance.now(source_capture_id, "generated"),
         encoding=encoding,
     )
