@@ -8,11 +8,16 @@ tests/codec/test_shipped.py.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
+import threading
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -57,3 +62,23 @@ def save_small_model(directory: Path, seed: int = 0) -> Path:
     torch.manual_seed(seed)
     return save_pretrained(VideoTok4D(get_config("tiny", **SMALL)), directory / "cli-test", model_id="cli-test",
                            model_version="0")
+
+
+class _QuietHandler(SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@contextlib.contextmanager
+def serve_folder(folder: Path) -> Iterator[str]:
+    """Serve ``folder`` over HTTP on 127.0.0.1 with Python's plain file server, which ignores Range
+    requests (as many servers do); yields the root URL ending in '/'."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(_QuietHandler, directory=str(folder)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/"
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
