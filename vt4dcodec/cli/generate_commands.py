@@ -113,7 +113,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     from ..codec import DEFAULT_STEPS
     from ..format import ENCODINGS
-    from ..generate import DEFAULT_PRIOR_STEPS
+    from ..generate import DEFAULT_PRIOR_STEPS, GENERATED_ENCODING
     from ..media import VIDEO_FORMATS
 
     p = add_command(
@@ -133,6 +133,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--steps", type=positive_int, default=DEFAULT_PRIOR_STEPS, help="prior sampler steps")
     p.add_argument("--sampler", choices=("euler", "heun"), default="heun")
     p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view (default: the tokenizer's recorded decode_steps)")
-    p.add_argument("--encoding", choices=ENCODINGS, default="int8", help="token encoding of the saved scene")
+    p.add_argument("--encoding", choices=ENCODINGS, default=GENERATED_ENCODING,
+                   help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
+                        "0.07 dB of float32 tokens on generated scenes, half the bytes of int8)")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
     p.set_defaults(func=cmd_generate)
