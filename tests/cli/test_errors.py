@@ -77,6 +77,12 @@ def test_unknown_model_names_the_model_flag(capture_dir, tmp_path, scene_file):
     assert r.returncode == 1 and "--model PATH" in r.stderr and "model=" not in r.stderr, r.stderr
 
 
+def test_unknown_prior_names_the_prior_flag(capture_dir, tmp_path):
+    r = vt4d("generate", capture_dir, "--prior", "no-such-prior", "-o", tmp_path / "g")
+    assert r.returncode == 1 and "--prior PATH" in r.stderr, r.stderr
+    assert not (tmp_path / "g").exists()
+
+
 def test_a_different_model_names_force(encoded_file, tmp_path):
     other = save_small_model(tmp_path, seed=1)  # same id and shapes, other weights
     r = vt4d("decode", encoded_file, "--model", other, "-o", tmp_path / "v", "--steps", "1")

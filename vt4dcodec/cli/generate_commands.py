@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import CaptureError, TrajectoryError
+from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from . import add_command, emit, nonneg_int, positive_int, progress, say, trajectory_label, working
 
 __all__ = ["register", "split_view_specs"]
@@ -73,7 +73,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
                            f"{cap.camera_names}")
     loading = time.perf_counter()
     with working(args, "loading the prior and its tokenizer"):
-        prior = load_prior_model(args.prior or DEFAULT_PRIOR)
+        try:
+            prior = load_prior_model(args.prior or DEFAULT_PRIOR)
+        except ModelNotFoundError as exc:
+            raise ModelNotFoundError(f"{exc}; pass --prior PATH (a prior directory)") from None
         tokenizer = load_model(args.model or prior.tokenizer_fingerprint.model_id)
         check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
