@@ -25,6 +25,7 @@ __all__ = [
     "ArchiveError",
     "ArchiveLockedError",
     "SceneNotFoundError",
+    "RangeNotSupportedError",
     # cameras and captures
     "CameraError",
     "CaptureError",
@@ -84,6 +85,10 @@ class ArchiveError(FormatError):
 
 class ArchiveLockedError(ArchiveError, OSError):
     """Another writer holds the archive's lock."""
+
+
+class RangeNotSupportedError(Vt4dError, OSError):
+    """A remote server ignores byte-range requests (HTTP ``Range``), which random access needs."""
 
 
 class SceneNotFoundError(ArchiveError, KeyError):

@@ -59,9 +59,9 @@ def test_parallel_workers_match_serial_and_resume_skips(tmp_path):
 
 def test_cli_synth(tmp_path, capsys):
     rc = main(["synth", "-n", "2", "--split", "test", "-o", str(tmp_path), "--seed", "7", "--workers", "1",
-               "--cameras", "2", "--frames", "3", "--size", "24", "-q"])
+               "--cameras", "2", "--frames", "3", "--size", "24"])
     assert rc == 0
-    assert "2 test scenes" in capsys.readouterr().out
+    assert "2 test scenes" in capsys.readouterr().out  # -q would print nothing (tests/cli/test_output_options.py)
     cap = read_capture(tmp_path / "test-000008")
     assert cap.camera_names == ["cam00", "cam01"] and cap.num_frames == 3
     assert cap.frames["cam00"].shape == (3, 24, 24, 3)

@@ -14,7 +14,7 @@ import os
 import threading
 from typing import Any, Protocol
 
-from ..errors import TruncatedError
+from ..errors import RangeNotSupportedError, TruncatedError
 
 __all__ = ["ByteSource", "LocalSource", "FsspecSource", "BytesSource", "open_source", "is_url"]
 
@@ -40,6 +40,12 @@ class _Counting:
         with self._count_lock:
             self.reads += 1
             self.bytes_read += len(data)
+        if len(data) > length:  # only a remote source can do this: it sent more than the range asked for
+            raise RangeNotSupportedError(
+                f"{self.name}: asked for {length} bytes at offset {offset} and got {len(data)}: the server "
+                "ignores byte-range requests (HTTP Range), which reading an archive in place needs; download "
+                "the file and open the local copy, or serve it from a server that supports Range"
+            )
         if len(data) != length:
             raise TruncatedError(
                 f"{self.name}: wanted {length} bytes at offset {offset}, got {len(data)} (file shrank or truncated)"

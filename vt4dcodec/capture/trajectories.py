@@ -39,6 +39,10 @@ __all__ = [
     "PRESET_PARAMS",
     "make_trajectory",
     "parse_trajectory_spec",
+    "check_trajectory_spec",
+    "SPEC_PRESETS",
+    "PRESET_SUMMARY",
+    "describe_spec_presets",
     "save_trajectory",
     "load_trajectory",
     "trajectory_to_json",
@@ -59,6 +63,19 @@ PRESET_PARAMS: dict[str, dict[str, float]] = {
     "interpolate": {},
 }
 PRESETS: tuple[str, ...] = tuple(PRESET_PARAMS)
+# A spec string ("orbit:degrees=30") can name every preset but interpolate, which needs a target camera
+# (Python: make_trajectory("interpolate", ref, target=...); command line: a saved trajectory JSON).
+SPEC_PRESETS: tuple[str, ...] = tuple(p for p in PRESETS if p != "interpolate")
+# one line per preset for --help (the motion itself is described in the module docstring)
+PRESET_SUMMARY: dict[str, str] = {
+    "static": "the first source pose held still",
+    "orbit": "circle DISTANCE m ahead by DEGREES (positive: to the camera's right)",
+    "dolly_in": "move METRES forward along the optical axis",
+    "dolly_out": "move METRES backward along the optical axis",
+    "pan": "turn about the camera centre by DEGREES (positive: right)",
+    "tilt": "turn about the camera centre by DEGREES (positive: up)",
+    "crane": "rise METRES while looking at the point DISTANCE m ahead",
+}
 
 MAX_TRAJECTORY_FRAMES = 100_000
 MAX_TRAJECTORY_FILE_BYTES = 64 * 1024 * 1024
@@ -300,15 +317,19 @@ def _parse_number(text: str, key: str) -> float | int:
 def parse_trajectory_spec(spec: str) -> tuple[str, dict[str, float | int]]:
     """Parse ``"preset[:key=value,key=value]"`` (e.g. ``"orbit:degrees=30,distance=2"``).
 
-    Returns ``(preset, params)``; the preset and parameter names are checked against
-    :data:`PRESET_PARAMS` (``num_frames`` is also accepted and returned in ``params``).
+    Returns ``(preset, params)``; the preset (one of :data:`SPEC_PRESETS`) and parameter names are checked
+    against :data:`PRESET_PARAMS` (``num_frames`` is also accepted and returned in ``params``).
     """
     if not isinstance(spec, str) or not spec.strip():
         raise TrajectoryError("empty trajectory spec; expected e.g. 'orbit:degrees=30,distance=2'")
     preset, _, rest = spec.strip().partition(":")
     preset = preset.strip()
-    if preset not in PRESET_PARAMS:
-        raise TrajectoryError(f"unknown trajectory preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    if preset in PRESET_PARAMS and preset not in SPEC_PRESETS:
+        raise TrajectoryError(f"preset {preset!r} needs a target camera, which a spec cannot give: save the "
+                              "trajectory as JSON (save_trajectory) and pass its path")
+    if preset not in SPEC_PRESETS:
+        raise TrajectoryError(f"unknown trajectory preset {preset!r}; choose one of {', '.join(SPEC_PRESETS)} "
+                              "(their parameters: `vt4d decode --help`)")
     params: dict[str, float | int] = {}
     if rest.strip():
         for item in rest.split(","):
@@ -325,6 +346,37 @@ def parse_trajectory_spec(spec: str) -> tuple[str, dict[str, float | int]]:
                 )
             params[key] = _parse_number(value.strip(), key)
     return preset, params
+
+
+def _format_default(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else str(value)
+
+
+def describe_spec_presets(indent: str = "  ") -> str:
+    """The presets a spec string can name, each with its parameters and their defaults, one per line
+    (the ``--help`` of ``vt4d decode`` and ``vt4d generate``)."""
+    rows = []
+    for name in SPEC_PRESETS:
+        params = ",".join(f"{k}={_format_default(v)}" for k, v in PRESET_PARAMS[name].items())
+        rows.append((f"{name}:{params}" if params else name, PRESET_SUMMARY[name]))
+    width = max(len(spec) for spec, _ in rows) + 2
+    return "\n".join(f"{indent}{spec:<{width}}{text}" for spec, text in rows)
+
+
+def check_trajectory_spec(spec: str) -> None:
+    """Check a command-line trajectory spec without a reference camera, so that a bad spec fails before
+    any work: ``"source"``, an existing trajectory JSON file (read and checked), or a preset spec whose
+    name, parameter names and values are valid.  Raises :class:`TrajectoryError`."""
+    if spec == "source":
+        return
+    if spec.endswith(".json") or os.path.isfile(spec):
+        load_trajectory(spec)  # FileNotFoundError (exit 3) or TrajectoryError
+        return
+    preset, params = parse_trajectory_spec(spec)
+    frames = params.pop("num_frames", None)
+    if frames is not None and (not isinstance(frames, int) or not 1 <= frames <= MAX_TRAJECTORY_FRAMES):
+        raise TrajectoryError(f"num_frames must be an integer in [1, {MAX_TRAJECTORY_FRAMES}], got {frames!r}")
+    _check_params(preset, params)
 
 
 # --- files -------------------------------------------------------------------------------------------

@@ -11,16 +11,29 @@ Exit codes (stable, for scripts):
     2  wrong usage (unknown command, bad option)
     3  a file system error (missing file, permission denied)
     130  interrupted
+
+One meaning for the common options, on every command (:func:`add_command` adds them):
+    --json       print one JSON document on stdout (the command's result) instead of text
+    -q/--quiet   print nothing on stdout but what --json asks for, and no progress; errors still go
+                 to stderr
+Progress bars (stderr) appear only on a terminal.  Library errors name Python keywords
+(``replace=True``); :func:`cli_message` rewrites them into the flag that fixes them (``--replace``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import json
 import os
+import re
 import sys
+import textwrap
+import threading
+import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 from ..errors import Vt4dError
 
@@ -34,6 +47,11 @@ COMMAND_MODULES = (
     "vt4dcodec.cli.capture_commands",  # capture-info, contact-sheet, synth (synth_commands)
     "vt4dcodec.cli.generate_commands", # generate
 )
+
+
+# Packages of the optional extras (pyproject.toml), for the message a core install gets from codec commands.
+EXTRA_OF_MODULE = {name: "codec" for name in ("torch", "kornia", "cv2", "safetensors", "skimage", "matplotlib",
+                                               "tqdm")} | {"fsspec": "remote", "aiohttp": "remote"}
 
 
 def trajectory_label(spec: str, index: int) -> str:
@@ -66,6 +84,138 @@ positive_int = int_at_least(1)
 nonneg_int = int_at_least(0)
 
 
+# --- one shape for every command ----------------------------------------------------------------------
+def add_command(subparsers: Any, name: str, *, help: str, description: str, examples: Sequence[str],
+                notes: str = "", **kwargs: Any) -> argparse.ArgumentParser:
+    """Add subcommand ``name`` with a description, an ``examples:`` section and the common output options
+    (``--json``, ``-q/--quiet``), so that every command teaches by ``--help`` and speaks one dialect."""
+    epilog = (notes.rstrip() + "\n" if notes else "") + "examples:\n" + "\n".join(f"  {e}" for e in examples)
+    p = subparsers.add_parser(name, help=help, description=textwrap.fill(description, 100), epilog=epilog,
+                              formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
+    out = p.add_argument_group("output")
+    out.add_argument("--json", action="store_true", help="print one JSON document (the result) on stdout")
+    out.add_argument("-q", "--quiet", action="store_true",
+                     help="print nothing on stdout (except what --json asks for) and show no progress")
+    return p
+
+
+def emit(args: argparse.Namespace, result: Any, lines: Sequence[str] = ()) -> None:
+    """Print a command's result: JSON with --json, else the text ``lines`` unless --quiet."""
+    if getattr(args, "json", False):
+        print(json.dumps(result, indent=2, sort_keys=True, default=str))
+    elif not getattr(args, "quiet", False) and lines:
+        print("\n".join(lines))
+
+
+def say(args: argparse.Namespace, line: str) -> None:
+    """A progress line for people (stderr), silent with --quiet or --json."""
+    if not (getattr(args, "quiet", False) or getattr(args, "json", False)):
+        print(line, file=sys.stderr, flush=True)
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Progress bars are drawn on a terminal (stderr), never with --quiet."""
+    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+
+
+def progress(args: argparse.Namespace, iterable: Iterable, total: int | None, desc: str, unit: str) -> Iterable:
+    """``iterable`` with a tqdm bar on stderr when :func:`show_progress` (tqdm is optional: the core
+    install has none, and then no bar is drawn)."""
+    if not show_progress(args):
+        return iterable
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return iterable
+    return tqdm(iterable, total=total, desc=desc, unit=unit, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def working(args: argparse.Namespace, desc: str, interval: float = 0.5) -> Iterator[None]:
+    """Show ``desc`` with a running clock on stderr while the block runs (work with no steps to count,
+    e.g. sampling the prior or loading a model); nothing off a terminal or with --quiet."""
+    if not show_progress(args):
+        yield
+        return
+    started, done = time.perf_counter(), threading.Event()
+
+    def tick() -> None:
+        while not done.wait(interval):
+            print(f"\r{desc} ... {time.perf_counter() - started:.0f} s", end="", file=sys.stderr, flush=True)
+
+    thread = threading.Thread(target=tick, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+        print(f"\r{desc} ... done in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
+
+
+# --- sources: local paths and fsspec URLs --------------------------------------------------------------
+def storage_options(pairs: list[str] | None) -> dict[str, str]:
+    """``--storage-option KEY=VALUE`` (repeatable) as fsspec keyword arguments."""
+    from ..errors import FormatError
+
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise FormatError(f"--storage-option wants KEY=VALUE, got {pair!r}")
+        out[key] = value
+    return out
+
+
+def read_head(source: str, options: dict[str, str] | None = None, n: int = 16) -> bytes:
+    """The first ``n`` bytes of a local file or a URL (to tell a scene from an archive)."""
+    from ..format.reader import open_binary
+
+    with open_binary(source, **(options or {})) as fh:
+        return fh.read(n)
+
+
+# --- errors in the words of the command line -----------------------------------------------------------
+# The library's messages name the Python keyword that fixes a problem; on the command line the fix is a
+# flag.  KEYWORD_FLAGS maps each such keyword hint to its flag (tests/cli/test_errors.py checks that every
+# hint in the library's messages is listed here).
+KEYWORD_FLAGS: dict[str, str] = {
+    "replace=True": "--replace",
+    "overwrite=True": "--overwrite",
+    "force=True": "--force",
+    "allow_truncated=True": "--allow-truncated",
+    "model=<path to the model directory>": "--model PATH",
+    "on_uncommitted='recover'": "--recover",
+    "on_uncommitted='discard'": "--discard-uncommitted",
+}
+_HINT = re.compile("|".join(re.escape(k) for k in sorted(KEYWORD_FLAGS, key=len, reverse=True)))
+_ALREADY = re.compile(r" \((?:CLI: )?--[a-z][a-z-]*\)")  # "force=True (--force)": the flag is named already
+
+
+def cli_message(message: str, flags: set[str]) -> str:
+    """``message`` with every keyword hint replaced by its flag.  A parenthesised hint whose flag the
+    command lacks is an API-only alternative and is dropped; any other one stays as it is."""
+
+    def flag_of(hint: str) -> str | None:
+        flag = KEYWORD_FLAGS[hint]
+        return flag if flag.split()[0] in flags else None
+
+    def drop_api_only(m: re.Match) -> str:
+        hints = _HINT.findall(m.group(0))
+        return "" if hints and all(flag_of(h) is None for h in hints) else m.group(0)
+
+    message = re.sub(r" \([^()]*\)", drop_api_only, message)
+    message = re.sub("(" + _HINT.pattern + ")" + _ALREADY.pattern, lambda m: m.group(1), message)
+    return _HINT.sub(lambda m: flag_of(m.group(0)) or m.group(0), message)
+
+
+def _command_flags(parser: argparse.ArgumentParser, command: str | None) -> set[str]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return {s for a in action.choices[command]._actions for s in a.option_strings}
+    return set()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vt4d",
@@ -93,11 +243,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except Vt4dError as exc:
-        print(f"vt4d {args.command}: error: {exc}", file=sys.stderr)
+        print(f"vt4d {args.command}: error: {cli_message(str(exc), _command_flags(parser, args.command))}",
+              file=sys.stderr)
         return EXIT_INVALID
     except OSError as exc:
         print(f"vt4d {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_OS
+    except ModuleNotFoundError as exc:  # a command of the codec on the core install
+        extra = EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"vt4d {args.command}: error: this command needs {exc.name}, which the core install leaves out: "
+              f'pip install "vt4dcodec[{extra}]"', file=sys.stderr)
+        return EXIT_INVALID
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -10,71 +10,63 @@ import argparse
 import json
 import os
 import sys
-from typing import Any, Iterable
+from typing import Any
 
 from ..errors import ArchiveError
+from . import add_command, emit, positive_int, progress, storage_options
 
 __all__ = ["register"]
 
 
-def _progress(iterable: Iterable, total: int, desc: str, quiet: bool) -> Iterable:
-    from tqdm import tqdm
-
-    return tqdm(iterable, total=total, desc=desc, unit="scene", disable=quiet or not sys.stderr.isatty(),
-                file=sys.stderr)
-
-
-def _storage_options(pairs: list[str] | None) -> dict[str, str]:
-    out = {}
-    for pair in pairs or []:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise ArchiveError(f"--storage-option wants KEY=VALUE, got {pair!r}")
-        out[key] = value
-    return out
-
-
-def _scene_files(inputs: list[str]) -> list[str]:
-    files: list[str] = []
-    for item in inputs:
-        if os.path.isdir(item):
-            files.extend(sorted(os.path.join(item, n) for n in os.listdir(item) if n.endswith(".vt4d")))
-        else:
-            files.append(item)
-    return files
-
-
-def _key_for(path: str) -> str:
-    name = os.path.basename(path)
+def _strip_vt4d(name: str) -> str:
     return name[: -len(".vt4d")] if name.endswith(".vt4d") else name
 
 
-def cmd_pack(args: argparse.Namespace) -> int:
-    from ..archive import ArchiveWriter
+def _scene_files(inputs: list[str]) -> list[tuple[str, str]]:
+    """(key, path) of every input: a file's key is its name without .vt4d; a directory is walked and each
+    .vt4d file below it gets its path relative to the directory, '/'-separated, as key -- the inverse of
+    ``vt4d extract``, which writes key a/b/c as a/b/c.vt4d."""
+    pairs: list[tuple[str, str]] = []
+    for item in inputs:
+        if os.path.isdir(item):
+            found = []
+            for root, dirs, names in os.walk(item):
+                dirs.sort()
+                found += [os.path.join(root, n) for n in names if n.endswith(".vt4d")]
+            for path in sorted(found):
+                rel = os.path.relpath(path, item).replace(os.sep, "/")
+                pairs.append((_strip_vt4d(rel), path))
+        else:
+            pairs.append((_strip_vt4d(os.path.basename(item)), item))
+    return pairs
 
-    files = _scene_files(args.files)
-    if not files:
-        raise ArchiveError("no .vt4d files to pack")
-    keys = [_key_for(f) for f in files]
+
+def cmd_pack(args: argparse.Namespace) -> int:
+    from ..archive import ArchiveWriter, check_key
+
+    pairs = _scene_files(args.files)
+    if not pairs:
+        raise ArchiveError(f"no .vt4d files to pack in {', '.join(args.files)} (directories are searched recursively)")
     seen: dict[str, str] = {}
-    for key, path in zip(keys, files):
+    for key, path in pairs:
+        check_key(key)  # every key checked before the archive is touched
         if key in seen:
             raise ArchiveError(f"two inputs map to key {key!r}: {seen[key]} and {path}")
         seen[key] = path
     mode = "a" if args.append else "x"
     if args.force and not args.append:
         mode = "w"
-    policy = "recover" if args.recover else "error"
+    policy = "recover" if args.recover else "discard" if args.discard_uncommitted else "error"
     with ArchiveWriter(args.output, mode, on_uncommitted=policy) as writer:
-        for n, (key, path) in enumerate(_progress(zip(keys, files), len(files), "pack", args.quiet), 1):
+        for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
             with open(path, "rb") as f:
                 writer.append(key, f.read(), replace=args.replace)
             if args.commit_every and n % args.commit_every == 0:
                 writer.commit()
         writer.commit()
         total, generation = len(writer), writer.generation
-    if not args.quiet:
-        print(f"{args.output}: packed {len(files)} scenes ({total} in archive, generation {generation})")
+    emit(args, {"archive": args.output, "packed": [k for k, _ in pairs], "scenes": total, "generation": generation},
+         [f"{args.output}: packed {len(pairs)} scenes ({total} in archive, generation {generation})"])
     return 0
 
 
@@ -90,7 +82,7 @@ def cmd_ls(args: argparse.Namespace) -> int:
     from ..archive import open_archive
 
     with open_archive(args.archive, allow_truncated=args.allow_truncated,
-                      **_storage_options(args.storage_option)) as reader:
+                      **storage_options(args.storage_option)) as reader:
         rows = [(e.key, e.summary, e.length, e.offset) for e in reader.entries()]
         info = {"archive": reader.name, "generation": reader.generation, "scenes": len(reader),
                 "uncommitted_bytes": reader.uncommitted_bytes}
@@ -98,6 +90,8 @@ def cmd_ls(args: argparse.Namespace) -> int:
         info["entries"] = [{"key": k, "offset": off, "length": n, "summary": s} for k, s, n, off in rows]
         json.dump(info, sys.stdout, indent=1)
         print()
+        return 0
+    if args.quiet:
         return 0
     table = [["KEY", "FRAMES", "Z_s", "Z_d", "ENCODING", "MODEL", "BYTES"]]
     table += [_ls_row(k, {**s, "bytes": s.get("bytes", n)}) for k, s, n, _ in rows]
@@ -113,7 +107,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
     from ..archive import open_archive
 
     with open_archive(args.archive, allow_truncated=args.allow_truncated,
-                      **_storage_options(args.storage_option)) as reader:
+                      **storage_options(args.storage_option)) as reader:
         keys = args.keys or reader.keys()
         entries = [reader.entry(k) for k in keys]  # SceneNotFoundError before anything is written
         targets = [os.path.join(args.output, *e.key.split("/")) + ".vt4d" for e in entries]
@@ -121,15 +115,16 @@ def cmd_extract(args: argparse.Namespace) -> int:
             clash = [t for t in targets if os.path.exists(t)]
             if clash:
                 raise FileExistsError(f"{clash[0]} exists (use --force to overwrite)")
-        for entry, target in _progress(zip(entries, targets), len(entries), "extract", args.quiet):
+        for entry, target in progress(args, list(zip(entries, targets)), len(entries), "extract", "scene"):
             os.makedirs(os.path.dirname(target), exist_ok=True)
             data = reader.read_entry(entry)
             tmp = f"{target}.tmp-{os.getpid()}"
             with open(tmp, "wb") as f:
                 f.write(data)
             os.replace(tmp, target)
-    if not args.quiet:
-        print(f"extracted {len(entries)} scenes to {args.output}")
+    emit(args, {"output": args.output, "files": [{"key": e.key, "path": t} for e, t in zip(entries, targets)]},
+         [f"extracted {len(entries)} scenes to {args.output} (key a/b/c -> a/b/c.vt4d; `vt4d pack "
+          f"{args.output} -o NEW.vt4da` packs them back under the same keys)"])
     return 0
 
 
@@ -141,6 +136,9 @@ def cmd_repair(args: argparse.Namespace) -> int:
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
         print()
+        return status
+    if args.quiet:
+        _repair_errors(args, report)
         return status
     if report.last_generation is None:
         start = "no commit verifies; a full scan of the record frames"
@@ -167,13 +165,17 @@ def cmd_repair(args: argparse.Namespace) -> int:
     else:
         lines.append("nothing to repair")
     print("\n".join(lines))
+    _repair_errors(args, report)
+    return status
+
+
+def _repair_errors(args: argparse.Namespace, report: Any) -> None:
     if report.unrecoverable:
         print(f"{args.archive}: error: {len(report.unrecoverable)} committed scenes could not be recovered "
               f"(their records fail their checksum): {', '.join(report.unrecoverable)}", file=sys.stderr)
     elif not report.complete:
         print(f"{args.archive}: error: the truncated commit held {report.lost_scenes} scenes, "
               f"{report.scenes} could be recovered", file=sys.stderr)
-    return status
 
 
 def cmd_compact(args: argparse.Namespace) -> int:
@@ -181,12 +183,9 @@ def cmd_compact(args: argparse.Namespace) -> int:
 
     major, _, minor = args.format_version.partition(".")
     report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
-    if args.json:
-        json.dump(report.to_dict(), sys.stdout, indent=1)
-        print()
-    else:
-        print(f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
-              f"generation {report.generation}, format {report.version[0]}.{report.version[1]}")
+    emit(args, report.to_dict(),
+         [f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
+          f"generation {report.generation}, format {report.version[0]}.{report.version[1]}"])
     return 0
 
 
@@ -197,56 +196,74 @@ TRUNC_HELP = ("read the last intact commit of an archive whose newest commit was
 def register(subparsers: Any) -> None:
     so = dict(action="append", metavar="KEY=VALUE", help="fsspec storage option (repeatable)")
 
-    p = subparsers.add_parser("pack", help="pack .vt4d files into an archive (.vt4da)",
-                              description="Pack .vt4d scene files (or directories of them) into an archive; "
-                              "each scene's key is its file name without .vt4d.")
+    p = add_command(subparsers, "pack", help="pack .vt4d files into an archive (.vt4da)",
+                    description="Pack .vt4d scene files (or directories of them, searched recursively) into an "
+                    "archive.  A file's key is its name without .vt4d; below a directory, its path relative to "
+                    "that directory (a/b/c.vt4d -> key a/b/c), so `vt4d extract` output packs back unchanged.",
+                    examples=["vt4d pack scenes/ -o scenes.vt4da",
+                              "vt4d extract old.vt4da -o out/ && vt4d pack out/ -o new.vt4da    same keys",
+                              "vt4d pack more/*.vt4d -o scenes.vt4da --append --replace"])
     p.add_argument("files", nargs="+", help=".vt4d files or directories")
     p.add_argument("-o", "--output", required=True, help="archive path (.vt4da)")
     p.add_argument("--append", action="store_true", help="add to an existing archive")
     p.add_argument("--force", action="store_true", help="replace an existing archive")
     p.add_argument("--replace", action="store_true", help="replace scenes whose key exists")
-    p.add_argument("--recover", action="store_true", help="first recover records a crashed writer left")
-    p.add_argument("--commit-every", type=int, default=0, metavar="N", help="commit after every N scenes")
-    p.add_argument("-q", "--quiet", action="store_true")
+    uncommitted = p.add_mutually_exclusive_group()
+    uncommitted.add_argument("--recover", action="store_true",
+                             help="first keep the complete records a crashed writer left after the last commit")
+    uncommitted.add_argument("--discard-uncommitted", action="store_true",
+                             help="first drop the bytes a crashed writer left after the last commit")
+    p.add_argument("--commit-every", type=positive_int, default=0, metavar="N", help="commit after every N scenes")
     p.set_defaults(func=cmd_pack)
 
-    p = subparsers.add_parser("ls", help="list the scenes of an archive")
+    p = add_command(subparsers, "ls", help="list the scenes of an archive",
+                    description="List an archive's committed scenes: key, frames, token shapes, encoding, model "
+                    "and size.  Reads the footer and index only (local path or fsspec URL).",
+                    examples=["vt4d ls scenes.vt4da",
+                              "vt4d ls https://example.org/scenes.vt4da --json",
+                              "vt4d ls s3://bucket/scenes.vt4da --storage-option anon=true"])
     p.add_argument("archive", help="archive path or fsspec URL")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--storage-option", **so)
     p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.set_defaults(func=cmd_ls)
 
-    p = subparsers.add_parser("extract", help="extract scenes from an archive as standalone .vt4d files")
+    p = add_command(subparsers, "extract", help="extract scenes from an archive as standalone .vt4d files",
+                    description="Write scenes of an archive as standalone .vt4d files: key a/b/c becomes "
+                    "OUTPUT/a/b/c.vt4d.  Every key is checked, and no file overwritten without --force, before "
+                    "anything is written.",
+                    examples=["vt4d extract scenes.vt4da -o out/                 every scene",
+                              "vt4d extract scenes.vt4da cap-3/cam00/000000 -o out/",
+                              "vt4d extract https://example.org/scenes.vt4da -o out/ --json"])
     p.add_argument("archive", help="archive path or fsspec URL")
     p.add_argument("keys", nargs="*", help="scene keys (default: all)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.add_argument("--storage-option", **so)
     p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
-    p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_extract)
 
-    p = subparsers.add_parser("repair", help="recover an archive after a crashed writer or damage",
-                              description="Keep the last commit, add complete checksum-valid records written "
-                              "after it (skipping damaged bytes), cut off torn bytes after the last valid record, "
-                              "and commit.  A truncated archive, or one without a usable commit, gets a full "
-                              "scan.  Never drops a record that verifies; exits 1 if committed scenes could not "
-                              "be recovered (they are listed).")
+    p = add_command(subparsers, "repair", help="recover an archive after a crashed writer or damage",
+                    description="Keep the last commit, add complete checksum-valid records written "
+                    "after it (skipping damaged bytes), cut off torn bytes after the last valid record, "
+                    "and commit.  A truncated archive, or one without a usable commit, gets a full "
+                    "scan.  Never drops a record that verifies; exits 1 if committed scenes could not "
+                    "be recovered (they are listed).",
+                    examples=["vt4d repair scenes.vt4da --dry-run     print the plan, write nothing",
+                              "vt4d repair scenes.vt4da --full-scan   also check every record of the last commit"])
     p.add_argument("archive", help="local archive path")
     p.add_argument("--full-scan", action="store_true",
                    help="also check every record of the newest commit whose index verifies, and walk the whole "
                    "file for records written after it")
     p.add_argument("--dry-run", action="store_true", help="print the plan; change nothing")
-    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_repair)
 
-    p = subparsers.add_parser("compact", help="rewrite an archive with only its live records (atomic)",
-                              description="Copy every live record (CRC-checked) into a new file with one index, "
-                              "then rename it over the archive: replaced records and old indexes are reclaimed. "
-                              "Holds the writer lock; readers see the old or the new file, never a mix.")
+    p = add_command(subparsers, "compact", help="rewrite an archive with only its live records (atomic)",
+                    description="Copy every live record (CRC-checked) into a new file with one index, "
+                    "then rename it over the archive: replaced records and old indexes are reclaimed. "
+                    "Holds the writer lock; readers see the old or the new file, never a mix.",
+                    examples=["vt4d compact scenes.vt4da",
+                              "vt4d compact scenes.vt4da --format-version 1.0   readable by 1.0 readers"])
     p.add_argument("archive", help="local archive path")
     p.add_argument("--format-version", default="1.1", choices=["1.0", "1.1"],
                    help="1.1 (default: segmented indexes) or 1.0 (readable by 1.0 readers)")
-    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_compact)

@@ -7,12 +7,11 @@ is one function plus one entry there.
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any, Callable
 
 import numpy as np
 
-from . import positive_int
+from . import add_command, emit, positive_int
 
 __all__ = ["register", "capture_info", "REGISTER"]
 
@@ -56,26 +55,24 @@ def capture_info(directory: str) -> dict[str, Any]:
     }
 
 
-def _print_info(info: dict[str, Any]) -> None:
-    print(f"capture {info['capture_id']!r} in {info['directory']}")
-    print(f"  {info['num_cameras']} cameras, {info['num_frames']} frames at {info['fps']:.3f} fps")
+def _info_lines(info: dict[str, Any]) -> list[str]:
+    lines = [f"capture {info['capture_id']!r} in {info['directory']}",
+             f"  {info['num_cameras']} cameras, {info['num_frames']} frames at {info['fps']:.3f} fps"]
     for c in info["cameras"]:
         depth = c["depth"]["type"] if c["depth"] else "no depth"
         motion = "static" if c["static"] else f"moving, path {c['path_length_m']:.3f} m"
         dist = "distorted" if c["distortion"] else "pinhole"
         missing = "" if c["media"]["exists"] else "  [MEDIA MISSING]"
-        print(
+        lines.append(
             f"  {c['name']:<12} {c['width']}x{c['height']}  fx={c['fx']:.1f} fy={c['fy']:.1f} "
             f"cx={c['cx']:.1f} cy={c['cy']:.1f}  {dist}, {motion}, {c['media']['type']}, {depth}{missing}"
         )
+    return lines
 
 
 def _run_capture_info(args: argparse.Namespace) -> int:
     info = capture_info(args.directory)
-    if args.json:
-        print(json.dumps(info, indent=1))
-    else:
-        _print_info(info)
+    emit(args, info, _info_lines(info))
     return 0
 
 
@@ -85,23 +82,28 @@ def _run_contact_sheet(args: argparse.Namespace) -> int:
 
     capture = read_capture(args.directory)
     w, h = write_contact_sheet(capture, args.output, max_frames=args.frames, thumb_height=args.thumb_height)
-    print(f"wrote {args.output} ({w}x{h}, {len(capture.cameras)} cameras)")
+    emit(args, {"output": args.output, "width": w, "height": h, "cameras": len(capture.cameras)},
+         [f"wrote {args.output} ({w}x{h}, {len(capture.cameras)} cameras)"])
     return 0
 
 
 
 
 def _register_capture_info(sub: Any) -> None:
-    p = sub.add_parser("capture-info", help="summarize a capture directory (cameras, frames, media)",
-                       description="Print a capture directory's cameras, frame count, fps and media.")
+    p = add_command(sub, "capture-info", help="summarize a capture directory (cameras, frames, media)",
+                    description="Print a capture directory's cameras (intrinsics, motion, distortion), frame "
+                                "count, fps and media, and whether the media files exist.  Reads the manifest only.",
+                    examples=["vt4d capture-info demo_out/capture",
+                              "vt4d capture-info captures/test-000000 --json"])
     p.add_argument("directory", help="capture directory (holds capture.json)")
-    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=_run_capture_info)
 
 
 def _register_contact_sheet(sub: Any) -> None:
-    p = sub.add_parser("contact-sheet", help="write a PNG grid of a capture (cameras x frames)",
-                       description="Write a PNG contact sheet: one row per camera, evenly spaced frames.")
+    p = add_command(sub, "contact-sheet", help="write a PNG grid of a capture (cameras x frames)",
+                    description="Write a PNG contact sheet: one row per camera, evenly spaced frames.",
+                    examples=["vt4d contact-sheet demo_out/capture -o sheet.png",
+                              "vt4d contact-sheet captures/test-000000 -o sheet.png --frames 4 --thumb-height 64"])
     p.add_argument("directory", help="capture directory (holds capture.json)")
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
     p.add_argument("--frames", type=positive_int, default=8, help="frame columns (default 8)")

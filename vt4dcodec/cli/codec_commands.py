@@ -3,57 +3,53 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import sys
 import time
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from ..errors import CaptureError
-from . import nonneg_int, positive_int, trajectory_label
+from . import add_command, emit, nonneg_int, positive_int, progress, trajectory_label, working
 
 __all__ = ["register"]
 
-ENCODE_EPILOG = """\
-examples:
-  vt4d encode demo_out/capture -o scene.vt4d                 one capture -> one scene file
-  vt4d encode demo_out/capture --camera cam03 --start 0 -o s.vt4d
-  vt4d encode demo_out/capture --cameras cam00,cam02,cam04 -o multi.vt4d   one scene from 3 cameras
-  vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive
-  vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips
-  torchrun --nproc_per_node=4 -m vt4dcodec encode captures/ --archive shards/train.vt4da
-                                                             each rank encodes its share into its own shard
-                                                             (train-rank00000-of-00004.vt4da, ...)
+ENCODE_EXAMPLES = [
+    "vt4d encode demo_out/capture -o scene.vt4d                 one capture -> one scene file",
+    "vt4d encode demo_out/capture --camera cam03 --start 0 -o s.vt4d",
+    "vt4d encode demo_out/capture --cameras cam00,cam02,cam04 -o multi.vt4d   one scene from 3 cameras",
+    "vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive",
+    "vt4d encode captures/ --archive train.vt4da --replace      again, replacing the scenes already there",
+    "vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips",
+    "torchrun --nproc_per_node=4 -m vt4dcodec encode captures/ --archive shards/train.vt4da",
+    "                                                           each rank encodes its share into its own shard",
+    "                                                           (train-rank00000-of-00004.vt4da, ...)",
+]
+ENCODE_NOTES = """\
 A model encodes clips of exactly its frame count (vt4d-tiny: 8 frames at 64x64).  Larger frames are
 undistorted, resized and centre-cropped with the intrinsics updated; longer captures take the clip at
---start, or all consecutive clips with --split (a shorter tail is dropped).
-"""
-
-DECODE_EPILOG = """\
-trajectories (-t, repeatable; one output per trajectory):
-  source                        the scene's own source cameras
-  orbit:degrees=30,distance=2   a preset built from the first source camera; presets: static, orbit,
-                                dolly_in, dolly_out, pan, tilt, crane (see vt4dcodec.capture.trajectories)
-  path/to/trajectory.json       a saved trajectory (vt4dcodec.capture.trajectories.save_trajectory)
-examples:
-  vt4d decode scene.vt4d -t source -t orbit:degrees=30 -o out/
-  vt4d decode train.vt4da --key scene-000042 -t dolly_in:metres=0.5 --format png -o out/
+--start, or all consecutive clips with --split (a shorter tail is dropped).  Archive keys are
+CAPTURE_ID/CAMERA/CLIP_START (CAMERA: the encoded cameras joined by '.', or 'all').  The time printed is the encoding alone; loading the model is timed apart.
 """
 
 
-def _progress(iterable: Iterable, total: int, desc: str, quiet: bool) -> Iterable:
-    from tqdm import tqdm
+def _decode_notes() -> str:
+    from ..capture.trajectories import describe_spec_presets
 
-    return tqdm(iterable, total=total, desc=desc, unit="clip", disable=quiet or not sys.stderr.isatty(),
-                file=sys.stderr)
+    return ("trajectories (-t, repeatable; one output per trajectory):\n"
+            "  source                       the scene's own source cameras\n"
+            "  path/to/trajectory.json      a saved trajectory (vt4dcodec.capture.trajectories.save_trajectory)\n"
+            "  PRESET[:KEY=VALUE,...]       built from the first source camera; presets with their parameters\n"
+            "                               and defaults (metres, degrees; num_frames=N sets the length):\n"
+            + describe_spec_presets("    ") + "\n"
+            "  (interpolate, which needs a target camera, is for Python or a saved JSON.)\n"
+            "SOURCE may be a local path or a URL (http://, s3://, memory://...; fsspec).\n")
 
 
-def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) -> None:
-    if args.json:
-        print(json.dumps(result, indent=2, sort_keys=True))
-    else:
-        print("\n".join(lines))
+DECODE_EXAMPLES = [
+    "vt4d decode scene.vt4d -t source -t orbit:degrees=30 -o out/",
+    "vt4d decode train.vt4da --key scene-000042 -t dolly_in:metres=0.5 --format png -o out/",
+    "vt4d decode https://example.org/scene.vt4d -t pan:degrees=15 -o out/",
+]
 
 
 def _dist_rank() -> tuple[int, int]:
@@ -92,19 +88,49 @@ def _captures(inputs: list[str]) -> list[Path]:
     return found
 
 
+def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None = None) -> None:
+    """--camera / --cameras name cameras of every capture (read from the manifests: cheap)."""
+    if camera is not None and cameras is not None:
+        raise CaptureError("give --camera (one camera) or --cameras (several), not both")
+    if camera is None and cameras is None:
+        return
+    from ..capture.io import read_manifest
+
+    wanted = [camera] if camera is not None else [c.strip() for c in cameras.split(",")] if cameras != "all" else []
+    flag = "--camera" if camera is not None else "--cameras"
+    if any(not c for c in wanted) or (cameras is not None and cameras != "all" and not wanted):
+        raise CaptureError(f"--cameras takes 'all' or comma-separated camera names, got {cameras!r}")
+    if len(set(wanted)) != len(wanted):
+        raise CaptureError(f"--cameras names a camera twice: {wanted}")
+    for cap_dir in captures:
+        names = [e.name for e in read_manifest(cap_dir).cameras]
+        missing = [c for c in wanted if c not in names]
+        if missing:
+            raise CaptureError(f"{cap_dir} has no camera {missing[0]!r} ({flag}); it has {names}")
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
     from .. import codec
     from ..capture.io import read_capture
     from ..format import dumps, save
 
-    captures = _captures(args.captures)
     if args.output is None and args.archive is None:
         raise CaptureError("give -o FILE.vt4d (one scene) or --archive FILE.vt4da (many scenes)")
+    if args.output is not None and args.archive is not None:
+        raise CaptureError("give -o FILE.vt4d or --archive FILE.vt4da, not both")
+    if args.replace and args.archive is None:
+        raise CaptureError("--replace applies to --archive (-o FILE.vt4d is always replaced)")
+    captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
+    _check_cameras(captures, args.camera, args.cameras)  # before the model loads
     rank, world = _dist_rank()
     mine = captures[rank::world]
-    model = codec.load_model(args.model or codec.DEFAULT_MODEL)
+    if args.output is not None:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # like --archive: the folder is made
+    loading = time.perf_counter()
+    with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
+        model = codec.load_model(args.model or codec.DEFAULT_MODEL)
     started = time.perf_counter()
     results: list[dict[str, Any]] = []
     writer = None
@@ -115,7 +141,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
         shard.parent.mkdir(parents=True, exist_ok=True)  # e.g. shards/ on a fresh cluster job
         writer = ArchiveWriter(shard)
     try:
-        for cap_dir in _progress(mine, len(mine), "encode", args.quiet):
+        for cap_dir in progress(args, mine, len(mine), "encode", "capture"):
             cap = read_capture(cap_dir)
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
@@ -130,7 +156,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                     encoded = "all" if len(names) > 1 and len(names) == len(cap.camera_names) else ".".join(names)
                     key = f"{cap.capture_id}/{encoded}/{info['clip_start']:06d}"
                     data = dumps(scene)
-                    writer.append(key, data)
+                    writer.append(key, data, replace=args.replace)
                     results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
                 else:
                     n = save(scene, args.output)
@@ -142,58 +168,69 @@ def cmd_encode(args: argparse.Namespace) -> int:
             writer.close(commit=False)
     elapsed = time.perf_counter() - started
     fp = codec.model_fingerprint(model)
-    summary = {"scenes": results, "seconds": round(elapsed, 3), "model": fp.to_dict(), "encoding": args.encoding,
-               "rank": rank, "world_size": world,
+    load_s = started - loading
+    summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
+               "model": fp.to_dict(), "encoding": args.encoding, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
-    lines.append(f"encoded {len(results)} scene(s) with {fp.short()} in {elapsed:.1f} s")
-    _emit(args, summary, lines)
+    lines.append(f"encoded {len(results)} scene(s) with {fp.short()} in {elapsed:.1f} s "
+                 f"(model loaded in {load_s:.1f} s before that)")
+    emit(args, summary, lines)
     return 0
 
 
-def _open_scene_source(source: str, key: str | None):
+def _open_scene_source(args: argparse.Namespace):
+    """(scene, file-name stem) from a local path or URL: a scene file, or an archive with --key."""
     from ..archive import is_archive, open_archive
+    from ..format import load
+    from . import read_head, storage_options
 
+    source, key = args.source, args.key
     if "::" in source and key is None:
         source, key = source.split("::", 1)
-    with open(source, "rb") as fh:
-        head = fh.read(16)
-    if is_archive(head):
+    options = storage_options(args.storage_option)
+    stem = Path(source.split("?")[0].rstrip("/")).stem
+    if is_archive(read_head(source, options)):
         if key is None:
             raise CaptureError(f"{source} is an archive: pick a scene with --key KEY (see `vt4d ls {source}`)")
-        with open_archive(source) as ar:
-            return ar.load(key), f"{Path(source).stem}_{key.replace('/', '_')}"
+        with open_archive(source, allow_truncated=args.allow_truncated, **options) as ar:
+            return ar.load(key), f"{stem}_{key.replace('/', '_')}"
     if key is not None:
         raise CaptureError(f"{source} is a single scene file; --key applies to archives only")
-    from ..format import load
-
-    return load(source), Path(source).stem
+    return load(source, **options), stem
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
+    from ..capture.trajectories import check_trajectory_spec
     from ..codec import SceneDecoder, model_fingerprint
     from ..media import write_frames
 
-    scene, stem = _open_scene_source(args.source, args.key)
-    decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
     specs = args.trajectory or ["source"]
+    for spec in specs:  # every spec checked before the scene is read or a model loaded
+        check_trajectory_spec(spec)
+    scene, stem = _open_scene_source(args)
+    loading = time.perf_counter()
+    with working(args, "loading the model"):
+        decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
     trajectories = [decoder.trajectory(s) for s in specs]  # fail on a bad spec before any rendering
     out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     outputs = []
-    for i, (spec, traj) in enumerate(_progress(list(zip(specs, trajectories)), len(specs), "decode", args.quiet)):
+    for i, (spec, traj) in enumerate(progress(args, list(zip(specs, trajectories)), len(specs), "decode",
+                                              "trajectory")):
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
         path = write_frames(out_dir / f"{stem}_{trajectory_label(spec, i)}", frames, args.format,
                             extra={"K": traj.K, "w2c": traj.w2c})
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
-    result = {"outputs": outputs, "seconds": round(elapsed, 3),
+    load_s = started - loading
+    result = {"outputs": outputs, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
               "steps": decoder.model.decode_steps if args.steps is None else args.steps, "seed": args.seed,
               "model": model_fingerprint(decoder.model).to_dict()}
-    _emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
-          + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s"])
+    emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
+         + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s (model loaded in {load_s:.1f} s before that)"])
     return 0
 
 
@@ -202,9 +239,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..demo import run_demo
 
     result = run_demo(args.output, model=args.model or DEFAULT_MODEL, seed=args.seed, steps=args.steps,
-                      overwrite=args.overwrite, log=None if args.json else print)
-    if args.json:
-        print(json.dumps(result, indent=2, sort_keys=True))
+                      overwrite=args.overwrite, log=None if args.json or args.quiet else print)
+    emit(args, result)
     return 0
 
 
@@ -220,17 +256,16 @@ def register(subparsers: Any) -> None:
                         help="model id or model directory (encode default: vt4d-tiny; decode default: the "
                              "model named by the file's fingerprint)")
     common.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
-    common.add_argument("--json", action="store_true", help="print a JSON result for scripts")
-    common.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    p = subparsers.add_parser(
-        "encode", parents=[common], help="compress capture directories into .vt4d scenes or an archive",
+    p = add_command(
+        subparsers, "encode", parents=[common], help="compress capture directories into .vt4d scenes or an archive",
         description="Encode one camera, or several synchronized cameras, of a capture (a clip of the model's "
                     "frame count) into a .vt4d scene: one token set per scene, whatever the number of cameras.",
-        epilog=ENCODE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=ENCODE_EXAMPLES, notes=ENCODE_NOTES)
     p.add_argument("captures", nargs="+", help="capture directories, or directories holding capture directories")
-    p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip)")
+    p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip); its folder is created")
     p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
+    p.add_argument("--replace", action="store_true", help="replace scenes whose key is already in --archive")
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
     p.add_argument("--cameras", metavar="all|CAM,CAM,...",
                    help="encode several cameras into one scene: 'all' or a comma-separated list (the first is the "
@@ -242,12 +277,16 @@ def register(subparsers: Any) -> None:
                         "tokens on held-out views, see docs/BENCHMARKS.md)")
     p.set_defaults(func=cmd_encode)
 
-    p = subparsers.add_parser(
-        "decode", parents=[common], help="render camera trajectories from a .vt4d scene or an archive key",
+    p = add_command(
+        subparsers, "decode", parents=[common], help="render camera trajectories from a .vt4d scene or an archive key",
         description="Render a stored scene along one or more camera trajectories (no re-encoding).",
-        epilog=DECODE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", help="a .vt4d file, an archive (.vt4da) with --key, or ARCHIVE::KEY")
+        examples=DECODE_EXAMPLES, notes=_decode_notes())
+    p.add_argument("source", help="a .vt4d file, an archive (.vt4da) with --key, or ARCHIVE::KEY (path or URL)")
     p.add_argument("--key", help="scene key inside an archive")
+    p.add_argument("--storage-option", action="append", metavar="KEY=VALUE",
+                   help="fsspec storage option for a URL (repeatable)")
+    p.add_argument("--allow-truncated", action="store_true",
+                   help="read the last intact commit of an archive whose newest commit was cut off")
     p.add_argument("-t", "--trajectory", action="append",
                    help="trajectory: 'source', a preset spec, or a JSON file (repeatable; default source)")
     p.add_argument("-o", "--output", required=True, help="output directory")
@@ -259,10 +298,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
     p.set_defaults(func=cmd_decode)
 
-    p = subparsers.add_parser(
-        "demo", parents=[common], help="make a synthetic capture, encode it, render views, write videos + a picture",
+    p = add_command(
+        subparsers, "demo", parents=[common],
+        help="make a synthetic capture, encode it, render views, write videos + a picture",
         description="End-to-end demo on a held-out synthetic scene: encode one camera, decode the source view and "
-                    "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.")
+                    "two other cameras' trajectories, write mp4s and a PNG contact sheet, print size and PSNR.",
+        examples=["vt4d demo -o demo_out                 run it (again: an earlier demo's output is replaced)",
+                  "vt4d demo -o demo_out --steps 4 --json"])
     p.add_argument("-o", "--output", default="demo_out",
                    help="output directory (default demo_out); an earlier demo's output there is replaced")
     p.add_argument("--overwrite", action="store_true",

@@ -1,4 +1,5 @@
-"""`vt4d info FILE` and `vt4d verify FILE...`: inspect and check .vt4d files without torch."""
+"""`vt4d info FILE` and `vt4d verify FILE...`: inspect and check .vt4d files without torch (local paths
+or fsspec URLs)."""
 
 from __future__ import annotations
 
@@ -8,33 +9,37 @@ import sys
 from typing import Any
 
 from ..errors import Vt4dError
+from . import add_command, emit, read_head, storage_options
 
 EXIT_OK, EXIT_INVALID, EXIT_OS = 0, 1, 3
 ARCHIVES_UNSUPPORTED = "archives not supported by this build"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    info = subparsers.add_parser("info", help="show what a .vt4d scene file holds",
-                                 description="Print the header of a .vt4d scene: model fingerprint, token "
-                                             "shapes, encoding, cameras, provenance and sections.")
-    info.add_argument("file", help="a .vt4d scene file")
-    info.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    so = dict(action="append", metavar="KEY=VALUE", help="fsspec storage option for a URL (repeatable)")
+    info = add_command(subparsers, "info", help="show what a .vt4d scene file holds",
+                       description="Print the header of a .vt4d scene: model fingerprint, token shapes, encoding, "
+                                   "cameras, provenance and sections.  Reads the header only; no torch.",
+                       examples=["vt4d info scene.vt4d",
+                                 "vt4d info https://example.org/scene.vt4d --json"])
+    info.add_argument("file", help="a .vt4d scene file (path or fsspec URL)")
+    info.add_argument("--storage-option", **so)
     info.set_defaults(func=run_info)
-    verify = subparsers.add_parser("verify", help="check .vt4d files (scenes or archives) byte by byte",
-                                   description="Verify every checksum, size and section of each file. Exit "
-                                               "code 0 when all are valid, 1 if any is invalid, 3 if any "
-                                               "cannot be read.")
-    verify.add_argument("files", nargs="+", metavar="FILE", help=".vt4d scene or archive files")
-    verify.add_argument("--json", action="store_true", help="print a JSON list of per-file results")
+    verify = add_command(subparsers, "verify", help="check .vt4d files (scenes or archives) byte by byte",
+                         description="Verify every checksum, size and section of each file. Exit code 0 when all "
+                                     "are valid, 1 if any is invalid, 3 if any cannot be read.",
+                         examples=["vt4d verify scene.vt4d scenes.vt4da",
+                                   "vt4d verify s3://bucket/scenes.vt4da --storage-option anon=true --json"])
+    verify.add_argument("files", nargs="+", metavar="FILE", help=".vt4d scene or archive files (paths or URLs)")
+    verify.add_argument("--storage-option", **so)
     verify.set_defaults(func=run_verify)
 
 
-def _is_archive(path: str) -> bool:
+def _is_archive(path: str, options: dict[str, str] | None = None) -> bool:
     """True if the file starts with the archive signature (known only when the archive module exists)."""
     from ..format import SCENE_MAGIC
 
-    with open(path, "rb") as fh:
-        head = fh.read(16)
+    head = read_head(path, options)
     if head.startswith(SCENE_MAGIC):
         return False
     try:
@@ -46,38 +51,39 @@ def _is_archive(path: str) -> bool:
     return head.startswith(ARCHIVE_MAGIC)
 
 
-def _verify_archive(path: str) -> None:
+def _verify_archive(path: str, options: dict[str, str]) -> None:
     try:
         from ..archive import verify_archive  # type: ignore[attr-defined]
     except ImportError:
         from ..errors import UnsupportedFeatureError
 
         raise UnsupportedFeatureError(f"{path}: {ARCHIVES_UNSUPPORTED}") from None
-    verify_archive(path)
+    verify_archive(path, **options)
 
 
 def run_verify(args: argparse.Namespace) -> int:
     from ..format import verify
 
+    options = storage_options(args.storage_option)
     results: list[dict[str, Any]] = []
     for path in args.files:
         result: dict[str, Any] = {"file": path, "ok": True, "kind": "scene", "error": None, "message": None}
         try:
-            if _is_archive(path):
+            if _is_archive(path, options):
                 result["kind"] = "archive"
-                _verify_archive(path)
+                _verify_archive(path, options)
             else:
-                verify(path)
+                verify(path, **options)
         except Vt4dError as exc:
             result.update(ok=False, error=type(exc).__name__, message=str(exc), exit=EXIT_INVALID)
         except OSError as exc:
             result.update(ok=False, error=type(exc).__name__, message=str(exc), exit=EXIT_OS)
         results.append(result)
         if not args.json:
-            if result["ok"]:
-                print(f"OK    {path} ({result['kind']})")
-            else:
+            if not result["ok"]:
                 print(f"FAIL  {path}: {result['error']}: {result['message']}", file=sys.stderr)
+            elif not args.quiet:
+                print(f"OK    {path} ({result['kind']})")
     codes = {r.pop("exit", EXIT_OK) for r in results}
     if args.json:
         print(json.dumps(results, indent=2))
@@ -86,15 +92,39 @@ def run_verify(args: argparse.Namespace) -> int:
     return EXIT_OS if EXIT_OS in codes else EXIT_OK
 
 
+def _provenance(summary: dict[str, Any], metadata: dict[str, Any]) -> str:
+    """How the tokens came to be, in words: encoded from a capture, or sampled by a prior (and from what)."""
+    kind, capture, when = summary["kind"], summary["source_capture_id"], summary["created_utc"] or "unknown time"
+    if kind is None:
+        return "not recorded"
+    text = kind
+    if kind == "generated":
+        gen = metadata.get("co4dgen") if isinstance(metadata.get("co4dgen"), dict) else {}
+        if gen.get("prior_id"):
+            text += f" by {gen['prior_id']} {gen.get('prior_version', '')}".rstrip()
+            text += f" (seed {gen.get('seed', '-')}, {gen.get('steps', '-')} {gen.get('method', '')} steps)"
+        cond = metadata.get("conditioning") if isinstance(metadata.get("conditioning"), dict) else {}
+        if capture or cond.get("capture_id"):
+            text += f", conditioned on capture {capture or cond.get('capture_id')}"
+            text += f" camera {cond['camera']}" if cond.get("camera") else ""
+        else:
+            text += ", from a video given directly (no capture id recorded)"
+    else:
+        text += f" from capture {capture}" if capture else " (no source capture recorded)"
+    return f"{text}, at {when}"
+
+
 def run_info(args: argparse.Namespace) -> int:
     from ..format import open_scene
 
-    if _is_archive(args.file):
+    options = storage_options(args.storage_option)
+    if _is_archive(args.file, options):
         print(f"{args.file} is an archive; list its scenes with `vt4d ls {args.file}`", file=sys.stderr)
         return EXIT_INVALID
-    summary = open_scene(args.file).summary()
-    if args.json:
-        print(json.dumps(summary, indent=2))
+    scene = open_scene(args.file, **options)
+    summary = scene.summary()
+    if args.json or args.quiet:
+        emit(args, summary)
         return EXIT_OK
     fp = summary["fingerprint"]
     lines = [
@@ -106,8 +136,7 @@ def run_info(args: argparse.Namespace) -> int:
         f"model           {fp['model_id']} {fp['model_version']} ({fp['token_dtype']})",
         f"  config sha256 {fp['config_sha256']}",
         f"  weights sha256 {fp['weights_sha256']}",
-        f"provenance      {summary['kind'] or '-'} from capture {summary['source_capture_id'] or '-'} "
-        f"at {summary['created_utc'] or '-'}",
+        f"provenance      {_provenance(summary, scene.metadata)}",
         f"metadata keys   {', '.join(summary['metadata_keys']) or '-'}",
         "sections",
     ]

@@ -9,7 +9,7 @@ import argparse
 import time
 from typing import Any
 
-from . import int_at_least
+from . import add_command, emit, int_at_least, show_progress
 
 __all__ = ["add_synth_parser", "run_synth"]
 
@@ -28,16 +28,20 @@ def run_synth(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     paths = write_dataset(args.output, num_scenes=args.num_scenes, split=args.split, seed=args.seed,
                           config=config, workers=args.workers, overwrite=args.overwrite,
-                          progress=not args.quiet)
+                          progress=show_progress(args))
     elapsed = time.perf_counter() - start
-    print(f"{len(paths)} {args.split} scenes (seeds {args.seed}..{args.seed + len(paths) - 1}) in "
-          f"{args.output} [{elapsed:.1f} s]")
+    emit(args, {"output": args.output, "split": args.split, "scenes": [str(p) for p in paths],
+                "seconds": round(elapsed, 3)},
+         [f"{len(paths)} {args.split} scenes (seeds {args.seed}..{args.seed + len(paths) - 1}) in "
+          f"{args.output} [{elapsed:.1f} s]"])
     return 0
 
 
 def add_synth_parser(sub: Any) -> None:
-    p = sub.add_parser(
-        "synth", help="generate synthetic multi-camera dynamic scenes as capture directories",
+    p = add_command(
+        sub, "synth", help="generate synthetic multi-camera dynamic scenes as capture directories",
+        examples=["vt4d synth -n 4 --split test -o captures/",
+                  "vt4d synth -n 100 --cameras 4 --frames 16 --size 128 --workers 2 -o train_caps/"],
         description=(
             "Generate N synthetic scenes (textured room, moving rigid objects, K synchronized moving "
             "cameras) as capture directories OUT/<split>-<seed>/ with PNG frames, 16-bit PNG depth "
@@ -60,5 +64,4 @@ def add_synth_parser(sub: Any) -> None:
     p.add_argument("--static", action="store_true", help="objects stand still (nothing moves)")
     p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
     p.add_argument("--overwrite", action="store_true", help="regenerate scenes that already exist")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run_synth)

@@ -21,20 +21,48 @@ from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, section_payload, unpack_cameras)
 
-__all__ = ["SceneFile", "open_scene", "load", "loads", "verify", "read_container_bytes"]
+__all__ = ["SceneFile", "open_scene", "load", "loads", "verify", "read_container_bytes", "open_binary", "is_url"]
 
 _TOKENS = {"static": (SECTION_STATIC, SECTION_STATIC_QUANT), "dynamic": (SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)}
 
 
-def read_container_bytes(source: Any):
-    """The container bytes of ``source`` (a path, a bytes-like object, or a binary file object).
+def is_url(source: Any) -> bool:
+    """True for an fsspec URL (``http://``, ``s3://``, ``memory://``...); ``file://`` counts as a path."""
+    return isinstance(source, str) and "://" in source and not source.startswith("file://")
 
-    A path or bytes must hold exactly one container.  A file object is read from its current position for
-    the container's declared length only.  Nothing is read or allocated beyond what the preamble declares
-    and the real data holds, so a wrong or hostile file costs at most its own size.
+
+def open_binary(source: "str | os.PathLike", **storage_options: Any) -> BinaryIO:
+    """A binary file object for a local path, a ``file://`` path or an fsspec URL (fsspec is needed for
+    URLs only: ``pip install "vt4dcodec[remote]"``).  ``storage_options`` go to fsspec."""
+    if isinstance(source, str) and source.startswith("file://"):
+        source = source[len("file://"):]
+    if not is_url(source):
+        return open(source, "rb")
+    try:
+        import fsspec
+    except ImportError:
+        raise UnsupportedFeatureError(f"reading {source} needs fsspec: pip install \"vt4dcodec[remote]\"") from None
+    return fsspec.open(source, "rb", **storage_options).open()
+
+
+def read_container_bytes(source: Any, **storage_options: Any):
+    """The container bytes of ``source`` (a path, an fsspec URL, a bytes-like object, or a binary file
+    object; ``storage_options`` go to fsspec for a URL).
+
+    A path, URL or bytes must hold exactly one container.  A file object is read from its current position
+    for the container's declared length only.  Nothing is read or allocated beyond what the preamble
+    declares and the real data holds, so a wrong or hostile file costs at most its own size.
     """
     if isinstance(source, (bytes, bytearray, memoryview)):
         return source
+    if is_url(source):
+        with open_binary(source, **storage_options) as fh:
+            data = read_container_bytes(fh)
+            if fh.read(1):
+                raise MalformedSectionError(f"unexpected bytes follow the container's declared end in {source}")
+            return data
+    if isinstance(source, str) and source.startswith("file://"):
+        source = source[len("file://"):]
     if isinstance(source, (str, os.PathLike)):
         with open(source, "rb") as fh:
             head = fh.read(PREAMBLE_SIZE)
@@ -315,15 +343,17 @@ class SceneFile:
                 f"Z_s {self.static_shape}, Z_d {self.dynamic_shape}, {self.num_frames} frames>")
 
 
-def open_scene(source: Any) -> SceneFile:
-    """Open a scene lazily from a path, bytes-like object or binary file: the preamble, header and section
-    table are parsed and checked now; sections are decoded on access."""
-    return SceneFile(read_container_bytes(source))
+def open_scene(source: Any, **storage_options: Any) -> SceneFile:
+    """Open a scene lazily from a path, fsspec URL, bytes-like object or binary file: the preamble, header
+    and section table are parsed and checked now; sections are decoded on access.  ``storage_options``
+    go to fsspec for a URL."""
+    return SceneFile(read_container_bytes(source, **storage_options))
 
 
-def load(source: Any) -> Scene:
-    """Read and fully validate a scene: everything :meth:`SceneFile.verify` checks, then decode."""
-    f = open_scene(source)
+def load(source: Any, **storage_options: Any) -> Scene:
+    """Read and fully validate a scene (path, URL, bytes or binary file): everything
+    :meth:`SceneFile.verify` checks, then decode."""
+    f = open_scene(source, **storage_options)
     f.verify()
     return f._verified_scene
 
@@ -335,7 +365,8 @@ def loads(data: bytes) -> Scene:
     return load(data)
 
 
-def verify(source: Any) -> None:
-    """Check a whole scene file; raises the FormatError subclass describing the first problem."""
-    open_scene(source).verify()
+def verify(source: Any, **storage_options: Any) -> None:
+    """Check a whole scene file (path, URL, bytes or binary file); raises the FormatError subclass
+    describing the first problem."""
+    open_scene(source, **storage_options).verify()
 

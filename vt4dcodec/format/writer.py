@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from typing import BinaryIO
 
@@ -97,6 +98,9 @@ def save(scene: Scene, path_or_file: str | os.PathLike | BinaryIO, *, encoding: 
         path_or_file.write(data)
         return len(data)
     path = os.fspath(path_or_file)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):  # name the folder, not the temp file the write would have failed on
+        raise FileNotFoundError(errno.ENOENT, f"cannot write {path}: no such folder (create it first)", folder)
     tmp = f"{path}.tmp-{os.getpid()}"
     try:
         with open(tmp, "wb") as fh:

@@ -1,0 +1,84 @@
+"""Helpers of the command-line tests: the `vt4d` command run as a new user runs it (a subprocess), a
+torch-free scene, and a small random model saved as a model directory.
+
+The CLI's contract (flags, messages, exit codes, JSON, round trips) does not depend on trained weights,
+so the codec commands here run a reduced random model; the shipped weights are exercised in
+tests/codec/test_shipped.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import threading
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from vt4dcodec import ModelFingerprint, Provenance, Scene
+from vt4dcodec.cameras import Trajectory
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def vt4d(*args, cwd=None, env=None, timeout=300) -> subprocess.CompletedProcess:
+    """Run `python -m vt4dcodec ARGS` from the repository root (so this tree's vt4dcodec is imported)."""
+    full_env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT), **(env or {})}
+    return subprocess.run([sys.executable, "-m", "vt4dcodec", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd or ROOT, env=full_env, timeout=timeout)
+
+
+def vt4d_json(*args, **kwargs):
+    r = vt4d(*args, "--json", **kwargs)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def make_scene(*, kind: str | None = None, capture: str | None = None, metadata=None) -> Scene:
+    fp = ModelFingerprint("m", "1", "a" * 64, "b" * 64, (4, 8), (2, 8))
+    cams = Trajectory(np.array([[9.0, 0, 2], [0, 9.0, 2], [0, 0, 1]]), np.tile(np.eye(4), (3, 1, 1)), 4, 4)
+    rng = np.random.default_rng(0)
+    return Scene(rng.normal(size=(4, 8)).astype(np.float32), rng.normal(size=(2, 8)).astype(np.float32), cams, fp,
+                 metadata=metadata or {}, provenance=None if kind is None else Provenance.now(capture, kind))
+
+
+SMALL = dict(width=64, heads=2, renderer_layers=1, spatial_layers=1, static_query_layers=1, track_layers=1,
+             dynamic_spatial_layers=1, n_tracks=16)
+
+
+def save_small_model(directory: Path, seed: int = 0) -> Path:
+    """A random reduced vt4d model saved as model directory ``directory/cli-test`` (id cli-test, version 0):
+    two seeds give the same id and shapes but different weights, hence different fingerprints."""
+    import torch
+
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+
+    torch.manual_seed(seed)
+    return save_pretrained(VideoTok4D(get_config("tiny", **SMALL)), directory / "cli-test", model_id="cli-test",
+                           model_version="0")
+
+
+class _QuietHandler(SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@contextlib.contextmanager
+def serve_folder(folder: Path) -> Iterator[str]:
+    """Serve ``folder`` over HTTP on 127.0.0.1 with Python's plain file server, which ignores Range
+    requests (as many servers do); yields the root URL ending in '/'."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(_QuietHandler, directory=str(folder)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/"
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
