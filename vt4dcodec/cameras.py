@@ -155,7 +155,8 @@ class Trajectory:
     def centers(self) -> np.ndarray:
         """(T, 3) camera centres in world coordinates (metres)."""
         R, t = self.w2c[:, :3, :3], self.w2c[:, :3, 3]
-        return -np.einsum("tji,tj->ti", R, t)
+        centers: np.ndarray = -np.einsum("tji,tj->ti", R, t)
+        return centers
 
     def __getitem__(self, idx: Any) -> "Trajectory":
         """Frames ``idx`` (an int, slice or index array) as a new trajectory."""
@@ -169,7 +170,7 @@ class Trajectory:
 
     def equals(self, other: "Trajectory", atol: float = 0.0) -> bool:
         """True when both describe the same cameras (within ``atol``)."""
-        def close(a, b):
+        def close(a: np.ndarray | None, b: np.ndarray | None) -> bool:
             if a is None or b is None:
                 return a is None and b is None
             return a.shape == b.shape and bool(np.allclose(a, b, atol=atol, rtol=0))
