@@ -10,7 +10,7 @@ import numpy as np
 from ..cameras import Trajectory
 from ..errors import (ChecksumError, FormatError, MalformedHeaderError, MalformedSectionError, TruncatedError,
                       UnsupportedFeatureError)
-from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant
+from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant, payload_size
 from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
@@ -175,8 +175,6 @@ class SceneFile:
         """Every known section's ``raw_length`` against what the header implies, *before* anything is
         decompressed (FORMAT.md I.11): a tiny file cannot make a reader allocate more than its tokens,
         cameras and quantization need (issue 15: an 18 KB scene declaring two 256 MiB zstd sections)."""
-        from .encodings import payload_size
-
         d = self._info.static_shape[1]
         limits = {SECTION_CAMERAS: self._info.cameras.raw_length}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
