@@ -174,7 +174,7 @@ class SceneFile:
     def _check_raw_lengths(self) -> None:
         """Every known section's ``raw_length`` against what the header implies, *before* anything is
         decompressed (FORMAT.md I.11): a tiny file cannot make a reader allocate more than its tokens,
-        cameras and quantization need (issue 15: an 18 KB scene declaring two 256 MiB zstd sections)."""
+        cameras and quantization need (an 18 KB scene must not make it allocate two declared 256 MiB sections)."""
         d = self._info.static_shape[1]
         limits = {SECTION_CAMERAS: self._info.cameras.raw_length}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
