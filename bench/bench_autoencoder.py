@@ -7,7 +7,7 @@ by side, on held-out synthetic frames and on the real caliscope frames.
 A candidate is a shipped model id or model directory (its ``autoencoder.*`` tensors), a stage-1
 ``autoencoder.safetensors``, or a stage-1 ``checkpoint/model.safetensors``; its config is read from
 the file's shapes (latent channels, width). Every render the codec makes goes through this decoder,
-so this PSNR is a ceiling for the codec's: issue 12 asks >= 31 dB on held-out synthetic frames and
+so this PSNR is a ceiling for the codec's; the targets are >= 31 dB on held-out synthetic frames and
 >= 28 dB on the caliscope frames. Frames: every camera and frame of ``--scenes`` 10-camera test-split
 scenes (textures no training scene uses) and all 4 x 48 caliscope frames at 64x64 (never trained on).
 """

@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from vt4dcodec.cameras import Trajectory
-from vt4dcodec.errors import CameraError
+from vt4dcodec.cameras import Trajectory, look_at, validate_w2c
+from vt4dcodec.errors import CameraError, TrajectoryError
 
 K0 = np.array([[50.0, 0.0, 31.5], [0.0, 50.0, 31.5], [0.0, 0.0, 1.0]])
 
@@ -68,3 +68,22 @@ def test_bad_sizes_distortion_and_timestamps(kwargs, message):
     base = dict(K=K0, w2c=np.eye(4), width=64, height=64)
     with pytest.raises(CameraError, match=message):
         Trajectory(**{**base, **kwargs})
+
+
+def test_look_at_puts_the_target_on_the_axis_and_up_upwards_for_one_camera_or_many():
+    rng = np.random.default_rng(0)
+    eye, target = rng.uniform(-3, 3, (5, 3)), rng.uniform(-1, 1, (5, 3))
+    up = np.array([0.0, 0.0, 1.0])
+    w2c = look_at(eye, target, up)
+    for i in range(5):
+        one = look_at(eye[i], target[i], up)
+        np.testing.assert_array_equal(one, w2c[i])  # a batch is its cameras, one by one
+        validate_w2c(one)
+        cam = one[:3, :3] @ target[i] + one[:3, 3]
+        np.testing.assert_allclose(cam[:2], 0.0, atol=1e-12)  # on the optical axis, in front
+        assert cam[2] > 0
+        assert (one[:3, :3] @ up)[1] < 0  # world up points up the image (y down)
+    with pytest.raises(TrajectoryError, match="coincides"):
+        look_at(eye[0], eye[0], up)
+    with pytest.raises(TrajectoryError, match="parallel"):
+        look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]), up)

@@ -6,6 +6,9 @@ import torch lazily, on first use.
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 from .version import __version__  # noqa: F401
 
 from .errors import *  # noqa: F401,F403  (the exception family is part of the public API)
@@ -20,9 +23,7 @@ from .generate import generate  # noqa: F401,E402  (eager: the submodule shares 
 _LAZY = {"encode": "codec", "encode_clips": "codec", "decode": "codec", "SceneDecoder": "codec"}
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(f"module 'vt4dcodec' has no attribute {name!r}")

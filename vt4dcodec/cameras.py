@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import CameraError
+from .errors import CameraError, TrajectoryError
 
-__all__ = ["Trajectory", "validate_intrinsics", "validate_w2c", "parse_numbers", "DISTORTION_LENGTHS"]
+__all__ = ["Trajectory", "validate_intrinsics", "validate_w2c", "look_at", "parse_numbers", "DISTORTION_LENGTHS"]
 
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| entry accepted as orthonormal
@@ -77,6 +77,34 @@ def validate_w2c(w2c: np.ndarray, *, what: str = "w2c") -> np.ndarray:
         )
     if (np.linalg.det(R) < 0).any():
         raise CameraError(f"{what}: rotation has determinant -1 (a reflection), not a rotation")
+    return w2c
+
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """World-to-camera poses (..., 4, 4) of cameras at ``eye`` (..., 3) looking at ``target`` (..., 3), the
+    image's up along ``up`` ((3,) or (..., 3)): z towards the target, y down (opposite ``up``), x right.
+
+    Raises TrajectoryError where a target is its camera's centre or a camera looks along ``up``.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye
+    eye = np.broadcast_to(eye, forward.shape)
+    distance = np.linalg.norm(forward, axis=-1, keepdims=True)
+    if np.any(distance < 1e-12):
+        raise TrajectoryError("look-at target coincides with the camera centre")
+    forward = forward / distance
+    right = np.cross(forward, np.broadcast_to(np.asarray(up, dtype=np.float64), forward.shape))
+    norm = np.linalg.norm(right, axis=-1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise TrajectoryError("look-at direction is parallel to the up vector")
+    right = right / norm
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward], axis=-2)  # rows: camera axes in world coordinates
+    w2c = np.zeros(forward.shape[:-1] + (4, 4))
+    w2c[..., :3, :3] = R
+    w2c[..., :3, 3] = -np.einsum("...ij,...j->...i", R, eye)
+    w2c[..., 3, 3] = 1.0
     return w2c
 
 
@@ -155,7 +183,8 @@ class Trajectory:
     def centers(self) -> np.ndarray:
         """(T, 3) camera centres in world coordinates (metres)."""
         R, t = self.w2c[:, :3, :3], self.w2c[:, :3, 3]
-        return -np.einsum("tji,tj->ti", R, t)
+        centers: np.ndarray = -np.einsum("tji,tj->ti", R, t)
+        return centers
 
     def __getitem__(self, idx: Any) -> "Trajectory":
         """Frames ``idx`` (an int, slice or index array) as a new trajectory."""
@@ -169,7 +198,7 @@ class Trajectory:
 
     def equals(self, other: "Trajectory", atol: float = 0.0) -> bool:
         """True when both describe the same cameras (within ``atol``)."""
-        def close(a, b):
+        def close(a: np.ndarray | None, b: np.ndarray | None) -> bool:
             if a is None or b is None:
                 return a is None and b is None
             return a.shape == b.shape and bool(np.allclose(a, b, atol=atol, rtol=0))

@@ -14,7 +14,14 @@ from typing import Any, Callable
 
 import numpy as np
 
+from . import codec
+from .capture import Capture
+from .capture.contact_sheet import write_contact_sheet
+from .capture.io import MANIFEST_NAME, write_capture
 from .errors import CaptureError
+from .format import save
+from .media import psnr, write_mp4
+from .synth import SynthConfig, generate_scene
 
 __all__ = ["run_demo", "REPORT_FILE"]
 
@@ -28,14 +35,6 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
 
     A directory that holds an earlier demo's report is the demo's own and is rewritten; a capture the
     demo did not write is replaced only with ``overwrite=True`` (``vt4d demo --overwrite``)."""
-    from . import codec
-    from .capture import Capture
-    from .capture.contact_sheet import write_contact_sheet
-    from .capture.io import MANIFEST_NAME, write_capture
-    from .format import save
-    from .media import psnr, write_mp4
-    from .synth import SynthConfig, generate_scene
-
     say = log or (lambda *_: None)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ import numpy as np
 
 from .cameras import Trajectory
 from .capture.capture import Capture
+from .capture.resample import fit_capture
 from .errors import CaptureError, ModelError, TrajectoryError
 from .format import Provenance, Scene
 
@@ -61,8 +62,6 @@ def fit_conditioning(video: np.ndarray, cameras: Trajectory, *, size: int, frame
                      ) -> tuple[np.ndarray, Trajectory]:
     """The conditioning clip as the prior takes it: ``frames`` frames from ``start``, undistorted,
     resized and centre-cropped to ``size`` x ``size`` with the intrinsics updated (like ``encode``)."""
-    from .capture.resample import fit_capture
-
     if not isinstance(cameras, Trajectory):
         raise TrajectoryError("cameras must be a vt4dcodec.cameras.Trajectory (one pose per video frame)")
     if not isinstance(video, np.ndarray) or video.dtype != np.uint8 or video.ndim != 4 or video.shape[-1] != 3:
@@ -111,9 +110,9 @@ def generate(
         A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
         was trained on, and provenance kind "generated".
     """
-    import torch
+    import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
 
-    from .codec import resolve_trajectory
+    from .codec import resolve_trajectory  # (the package root loads the codec on first use too)
     from .model.prior import PriorCondition
 
     prior = load_prior_model(model)

@@ -1,6 +1,6 @@
 """Repair never loses a committed scene that still verifies; truncation is never served silently.
 
-Regression tests for issue 15 (each builds the reproducing file), and a property test: over random
+Regression tests for the damage an independent review found (each builds the reproducing file), and a property test: over random
 damage, ``repair`` never reduces the set of committed scenes whose record is still intact.
 """
 

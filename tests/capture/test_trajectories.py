@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vt4dcodec.cameras import Trajectory
+from vt4dcodec.cameras import Trajectory, look_at
 from vt4dcodec.capture.trajectories import (
-    PRESETS, load_trajectory, look_at_w2c, make_trajectory, parse_trajectory_spec, save_trajectory,
+    PRESETS, load_trajectory, make_trajectory, parse_trajectory_spec, save_trajectory,
     slerp_rotation,
 )
 from vt4dcodec.errors import CameraError, TrajectoryError
@@ -23,7 +23,7 @@ def reference(seed=0, T=6):
     rng = np.random.default_rng(seed)
     center = rng.uniform(-3, 3, 3)
     target = center + rng.normal(size=3)
-    w2c = look_at_w2c(center, target, up=np.array([0.0, -1.0, 0.1]))
+    w2c = look_at(center, target, up=np.array([0.0, -1.0, 0.1]))
     K = np.array([[60.0, 0, 31.5], [0, 62.0, 23.5], [0, 0, 1]])
     return Trajectory(K=np.stack([K] * T), w2c=np.stack([w2c] * T), width=64, height=48,
                       timestamps=np.arange(T) / 8.0)
@@ -138,7 +138,7 @@ def test_interpolate_hits_both_ends_and_moves_smoothly(seed):
 
 def test_slerp_takes_the_short_way():
     R0 = np.eye(3)
-    R1 = look_at_w2c(np.zeros(3), np.array([1.0, 0, 0.2]), np.array([0, -1.0, 0]))[:3, :3]
+    R1 = look_at(np.zeros(3), np.array([1.0, 0, 0.2]), np.array([0, -1.0, 0]))[:3, :3]
     mid = slerp_rotation(R0, R1, 0.5)
     a01 = np.arccos((np.trace(R1 @ R0.T) - 1) / 2)
     a0m = np.arccos((np.trace(mid @ R0.T) - 1) / 2)

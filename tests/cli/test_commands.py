@@ -1,4 +1,4 @@
-"""Issue 16, items 3 and 4: every command takes --json and -q with one meaning, and its --help teaches
+"""Every command takes --json and -q with one meaning, and its --help teaches
 (a description and examples; decode and generate list the trajectory presets with their parameters)."""
 
 from __future__ import annotations

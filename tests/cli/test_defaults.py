@@ -1,4 +1,4 @@
-"""Issue 16, item 8: one default token encoding for encode and generate; info says what a generated scene
+"""One default token encoding for encode and generate; info says what a generated scene
 came from; the time printed for the work excludes loading the model, which is printed apart."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 16, item 2: every error of the `vt4d` command names the flag that fixes it, never a Python keyword."""
+"""Every error of the `vt4d` command names the flag that fixes it, never a Python keyword."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 16, item 11: a core install without torch reads and writes scenes and archives; the extras and the
+"""Packaging: a core install without torch reads and writes scenes and archives; the extras and the
 README's commands bring the rest; one version; type hints shipped; no fcntl.
 
 The real core install (a fresh venv with `pip install .` alone) is .ci/run's last step; here the same

@@ -1,4 +1,4 @@
-"""Issue 16, item 10: long commands show progress on a terminal (stderr), none off a terminal or with -q.
+"""Long commands show progress on a terminal (stderr), none off a terminal or with -q.
 
 The commands run under a pseudo-terminal, as in a shell."""
 

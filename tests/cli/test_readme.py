@@ -1,4 +1,4 @@
-"""Issue 16, item 9: every code block of README.md runs (the shipped models; no training; ~30 s).
+"""Every code block of README.md runs (the shipped models; no training; ~30 s).
 
 Python blocks run in order, in one namespace, in a folder holding the demo's capture (demo_out/capture,
 made as `vt4d demo` makes it).  The `vt4d` block runs line by line through the command's entry point,

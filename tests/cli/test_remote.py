@@ -1,4 +1,4 @@
-"""Issue 16, item 7: decode, info, verify and open_scene read scenes at URLs (fsspec) as the archive
+"""Decode, info, verify and open_scene read scenes at URLs (fsspec) as the archive
 commands read archives; a server without Range support gets that message."""
 
 from __future__ import annotations

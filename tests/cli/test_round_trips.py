@@ -1,4 +1,4 @@
-"""Issue 16, item 6: extract then pack gives back the same keys and bytes, also for keys with '/'; encode
+"""Round trips: extract then pack gives back the same keys and bytes, also for keys with '/'; encode
 -o into a folder that does not exist yet creates it; the library names a missing folder."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 16, item 5: every argument is checked before work starts (nothing loaded, sampled or written)."""
+"""Every argument is checked before work starts (nothing loaded, sampled or written)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""FORMAT.md Part I points an independent reader tripped on (issue 15): the text now says what the
+"""FORMAT.md Part I points an independent reader tripped on: the text now says what the
 reference does, and these tests pin the reference to the text."""
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def test_no_control_characters_means_c0_and_del(text, ok):
 
 
 def test_declared_raw_lengths_are_bounded_by_the_header_before_decompression():
-    """Issue 15 defect 8: an 18 KB scene with two zstd sections of zeros declaring 256 MiB each made
+    """An 18 KB scene with two zstd sections of zeros declaring 256 MiB each made
     `load` allocate ~1 GB.  Now raw lengths are checked against the header before decompressing."""
     import tracemalloc
 

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Any
 
 from ..errors import ArchiveError
 from .layout import MAX_GENERATION, VERSION_MINOR
 from .lock import WriterLock
 from .reader import open_archive
 from .verify import UncommittedTailError
+from .writer import ArchiveWriter, _check_version, _fsync_dir
 
 __all__ = ["CompactReport", "compact_archive"]
 
@@ -30,15 +32,13 @@ class CompactReport:
     generation: int  # of the compacted archive (the old generation + 1, so it never repeats)
     version: tuple[int, int]
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
 
-def compact_archive(path: str | os.PathLike, *, version: tuple[int, int] = (1, VERSION_MINOR),
+def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = (1, VERSION_MINOR),
                     durable: bool = True) -> CompactReport:
     """Rewrite ``path`` with only its live records and one index (see the module docstring)."""
-    from .writer import ArchiveWriter, _check_version, _fsync_dir
-
     path = os.fspath(path)
     _check_version(version)
     if not os.path.exists(path):
@@ -68,7 +68,8 @@ def compact_archive(path: str | os.PathLike, *, version: tuple[int, int] = (1, V
         os.replace(tmp, path)
         if durable:
             _fsync_dir(path)
-        return CompactReport(path, len(entries), before, os.path.getsize(path), generation, tuple(version))
+        return CompactReport(path, len(entries), before, os.path.getsize(path), generation,
+                             (version[0], version[1]))
     except BaseException:
         for leftover in (tmp, tmp + ".lock"):
             try:

@@ -8,24 +8,24 @@ container end to end.
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
 
 from ..cameras import Trajectory
+from ..format import ModelFingerprint, Provenance, Scene, dumps
 
 __all__ = ["example_scene", "example_record"]
 
 
 def example_scene(seed: int, *, static_shape: tuple[int, int] = (96, 64),
                   dynamic_shape: tuple[int, int] = (48, 64), frames: int = 4, encoding: str = "int8",
-                  capture_id: str | None = None):
+                  capture_id: str | None = None) -> Scene:
     """A valid ``vt4dcodec.format.Scene`` whose content is a pure function of the arguments.
 
     Tokens are float32 N(0, 1) draws; the camera moves 5 cm per frame along +x (w2c in metres,
     K in pixels for a 64x48 image).
     """
-    from ..format import ModelFingerprint, Provenance, Scene
-
     rng = np.random.default_rng(seed)
     static = rng.standard_normal(static_shape).astype(np.float32)
     dynamic = rng.standard_normal(dynamic_shape).astype(np.float32)
@@ -36,7 +36,7 @@ def example_scene(seed: int, *, static_shape: tuple[int, int] = (96, 64),
         model_id="vt4d-example", model_version="1.0",
         config_sha256=hashlib.sha256(b"example-config").hexdigest(),
         weights_sha256=hashlib.sha256(b"example-weights").hexdigest(),
-        static_shape=tuple(static_shape), dynamic_shape=tuple(dynamic_shape),
+        static_shape=(static_shape[0], static_shape[1]), dynamic_shape=(dynamic_shape[0], dynamic_shape[1]),
     )
     provenance = Provenance(library_version="0.1.0", created_utc="2026-01-01T00:00:00Z",
                             source_capture_id=capture_id or f"example-{seed}", kind="encoded")
@@ -44,8 +44,6 @@ def example_scene(seed: int, *, static_shape: tuple[int, int] = (96, 64),
                  provenance=provenance, encoding=encoding)
 
 
-def example_record(seed: int, **kwargs) -> bytes:
+def example_record(seed: int, **kwargs: Any) -> bytes:
     """``.vt4d`` bytes of :func:`example_scene` (deterministic)."""
-    from ..format import dumps
-
     return dumps(example_scene(seed, **kwargs))

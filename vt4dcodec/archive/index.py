@@ -49,7 +49,7 @@ MIN_PREFIX = 8
 PER_SCENE_FIELDS = ("source_capture_id", "created_utc", "bytes")
 
 
-def shared_first(summary: dict) -> dict:
+def shared_first(summary: dict[str, Any]) -> dict[str, Any]:
     """The same summary with the per-scene fields moved to the end (prefix coding shares more)."""
     return {**{k: v for k, v in summary.items() if k not in PER_SCENE_FIELDS},
             **{k: summary[k] for k in PER_SCENE_FIELDS if k in summary}}
@@ -81,12 +81,12 @@ def _no_ext(code: int, data: bytes) -> Any:
     raise ArchiveError(f"record summary uses msgpack extension type {code}; not allowed")
 
 
-def encode_summary(summary: dict) -> bytes:
+def encode_summary(summary: dict[str, Any]) -> bytes:
     """msgpack bytes of a JSON-like summary dict (str keys), bounded by MAX_SUMMARY_BYTES."""
     if not isinstance(summary, dict):
         raise ArchiveError(f"record summary must be a dict, got {type(summary).__name__}")
     try:
-        raw = msgpack.packb(summary, use_bin_type=True, strict_types=False)
+        raw: bytes = msgpack.packb(summary, use_bin_type=True, strict_types=False)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ArchiveError(f"record summary is not msgpack-serialisable: {exc}") from None
     if len(raw) > MAX_SUMMARY_BYTES:
@@ -94,7 +94,7 @@ def encode_summary(summary: dict) -> bytes:
     return raw
 
 
-def decode_summary(raw: bytes) -> dict:
+def decode_summary(raw: bytes) -> dict[str, Any]:
     """Inverse of :func:`encode_summary`; rejects non-maps, ext types and absurd nesting."""
     try:
         value = msgpack.unpackb(raw, raw=False, strict_map_key=True, ext_hook=_no_ext,
@@ -119,7 +119,7 @@ class IndexEntry:
     summary_bytes: bytes = field(repr=False, default=b"\x80")
 
     @property
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         return decode_summary(self.summary_bytes)
 
     @property
@@ -216,7 +216,7 @@ class ArchiveIndex:
         return cls(table, keys_blob, summaries_blob)
 
     @staticmethod
-    def _validate(t: np.ndarray, keys: bytes, summaries: bytes, index_offset: int, prefix: bool = False) -> None:
+    def _validate(t: np.ndarray, keys: bytes, summaries: bytes | memoryview, index_offset: int, prefix: bool = False) -> None:
         n = len(t)
         if n == 0:
             return

@@ -107,7 +107,7 @@ def pack_preamble(minor: int = VERSION_MINOR) -> bytes:
 
 def preamble_minor(data: bytes) -> int:
     """The minor version a (checked) preamble declares."""
-    return _PREAMBLE.unpack_from(data)[2]
+    return int(_PREAMBLE.unpack_from(data)[2])
 
 
 def parse_preamble(data: bytes) -> int:
@@ -123,7 +123,7 @@ def parse_preamble(data: bytes) -> int:
         raise UnsupportedVersionError(f"archive major version {major}; this reader reads {VERSION_MAJOR}")
     if flags & ~KNOWN_FLAGS:
         raise UnsupportedVersionError(f"archive sets unknown required flags 0x{flags & ~KNOWN_FLAGS:08x}")
-    return flags
+    return int(flags)
 
 
 # --- commits (footer and the two header slots hold the same fields) -----------------------------

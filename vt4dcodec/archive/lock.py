@@ -17,7 +17,7 @@ from ..errors import ArchiveLockedError
 __all__ = ["WriterLock", "lock_path"]
 
 
-def lock_path(archive_path: str | os.PathLike) -> str:
+def lock_path(archive_path: str | os.PathLike[str]) -> str:
     return os.fspath(archive_path) + ".lock"
 
 
@@ -46,7 +46,7 @@ def _read_pid(path: str) -> str:
 class WriterLock:
     """Non-blocking exclusive lock; raises :class:`ArchiveLockedError` naming the holder's pid."""
 
-    def __init__(self, archive_path: str | os.PathLike):
+    def __init__(self, archive_path: str | os.PathLike[str]):
         self.path = lock_path(archive_path)
         self._lock: FileLock | None = None
         self.created = False  #: this lock created the lock file (so it may remove it again)

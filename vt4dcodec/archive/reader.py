@@ -12,6 +12,7 @@ import os
 from typing import Any, Iterator
 
 from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
+from ..format import Scene, SceneFile, loads, open_scene
 from .index import IndexEntry
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
                      parse_footer, parse_preamble, parse_slot)
@@ -166,7 +167,7 @@ class ArchiveReader:
     def entries(self) -> Iterator[IndexEntry]:
         return self.index.entries()
 
-    def summary(self, key: str) -> dict:
+    def summary(self, key: str) -> dict[str, Any]:
         """The summary stored in the index (frames, shapes, encoding, fingerprint... as packed)."""
         return self.entry(key).summary
 
@@ -182,17 +183,13 @@ class ArchiveReader:
         """The scene's complete ``.vt4d`` bytes (byte-for-byte what was archived)."""
         return self.read_entry(self.entry(key), check=check)
 
-    def open_scene(self, key: str) -> Any:
+    def open_scene(self, key: str) -> SceneFile:
         """A lazy ``vt4dcodec.format.SceneFile`` over the record."""
-        from .records import format_module
+        return open_scene(self.read_bytes(key))
 
-        return format_module().open_scene(self.read_bytes(key))
-
-    def load(self, key: str) -> Any:
+    def load(self, key: str) -> Scene:
         """The fully validated ``vt4dcodec.format.Scene``."""
-        from .records import format_module
-
-        return format_module().loads(self.read_bytes(key))
+        return loads(self.read_bytes(key))
 
     def iter_records(self, *, check: bool = True, chunk_bytes: int = 8 << 20) -> Iterator[tuple[str, bytes]]:
         """(key, payload) for every scene in file order.

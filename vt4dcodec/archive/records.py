@@ -2,7 +2,6 @@
 
 A record payload is a complete ``.vt4d`` byte string.  The archive core treats it as opaque bytes
 plus a summary dict; this module turns a Scene (or ``.vt4d`` bytes) into that pair and back.
-The container is imported lazily so the archive machinery stays usable on its own.
 """
 
 from __future__ import annotations
@@ -10,18 +9,9 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ArchiveError
+from ..format import Scene, dumps, open_scene, verify
 
-__all__ = ["record_from", "summarize_payload", "verify_payload", "format_module", "SUMMARY_FIELDS"]
-
-
-def format_module() -> Any:
-    """``vt4dcodec.format`` with its contract names, or an ArchiveError if this build lacks them."""
-    from .. import format as fmt
-
-    for name in ("dumps", "open_scene", "verify"):
-        if not hasattr(fmt, name):
-            raise ArchiveError(f"vt4dcodec.format.{name} is not available in this build")
-    return fmt
+__all__ = ["record_from", "summarize_payload", "verify_payload", "SUMMARY_FIELDS"]
 
 
 def _jsonable(value: Any) -> Any:
@@ -40,10 +30,9 @@ SUMMARY_FIELDS = ("bytes", "frames", "width", "height", "static_shape", "dynamic
                   "fingerprint", "source_capture_id", "kind", "created_utc")
 
 
-def summarize_payload(payload: bytes) -> dict:
+def summarize_payload(payload: bytes) -> dict[str, Any]:
     """The index summary of a ``.vt4d`` payload: :data:`SUMMARY_FIELDS` of ``SceneFile.summary()``."""
-    fmt = format_module()
-    full = fmt.open_scene(payload).summary()
+    full = open_scene(payload).summary()
     summary = {k: _jsonable(full[k]) for k in SUMMARY_FIELDS if k in full}
     summary["bytes"] = len(payload)
     return summary
@@ -51,7 +40,7 @@ def summarize_payload(payload: bytes) -> dict:
 
 def verify_payload(payload: bytes) -> None:
     """Full container validation of one record (raises a FormatError subclass)."""
-    format_module().verify(payload)
+    verify(payload)
 
 
 def record_from(obj: Any, *, validate: bool = True) -> bytes:
@@ -64,7 +53,6 @@ def record_from(obj: Any, *, validate: bool = True) -> bytes:
         if validate:
             verify_payload(payload)
         return payload
-    fmt = format_module()
-    if isinstance(obj, getattr(fmt, "Scene", ())):
-        return fmt.dumps(obj)
+    if isinstance(obj, Scene):
+        return dumps(obj)
     raise ArchiveError(f"cannot archive a {type(obj).__name__}: pass a Scene or .vt4d bytes")

@@ -134,7 +134,7 @@ def _segment_length(source: ByteSource, pos: int, size: int) -> int | None:
     magic, esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", source.read(pos, INDEX_HEADER_SIZE))
     if magic != INDEX_MAGIC or esize != INDEX_ENTRY_SIZE or count > MAX_SCENES:
         return None
-    return INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len
+    return int(INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len)
 
 
 def _next_magic(source: ByteSource, pos: int, size: int) -> int | None:
@@ -273,7 +273,7 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
     copies: dict[str, IndexEntry] = {}
     unrecoverable: list[str] = []
     checked = index is not None  # the full path: every record the base names is checked
-    if checked:
+    if index is not None:
         for e in index.entries():
             if _payload_crc(source, e.offset, e.length) != e.crc32:
                 unrecoverable.append(e.key)

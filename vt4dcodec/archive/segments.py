@@ -28,7 +28,7 @@ from __future__ import annotations
 import heapq
 import struct
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Callable, Iterator
 
 from ..errors import ArchiveError, LimitExceededError
 from .index import ArchiveIndex, IndexChecksumError, IndexEntry
@@ -110,7 +110,7 @@ class IndexView:
     def __init__(self, segments: list[ArchiveIndex], expected: int | None = None,
                  refs: list[SegmentRef] | None = None):
         self.segments = segments
-        self.refs = refs
+        self.refs: list[SegmentRef] = refs or []  # a segmented commit's manifest (empty: one whole index)
         self._dead: list[set[int]] = [set() for _ in segments]
         if len(segments) > 1:
             seen: set[bytes] = set()
@@ -161,7 +161,7 @@ class IndexView:
 
     def layout_columns(self) -> tuple[list[tuple[int, int]], list[int], list[int], list[int]]:
         """((segment, position), payload offsets, lengths, CRCs) of live entries sorted by offset."""
-        rows = []
+        rows: list[tuple[tuple[int, int], int, int, int]] = []
         for s, seg in enumerate(self.segments):
             pos, off, length, crc = seg.layout_columns()
             dead = self._dead[s]
@@ -178,7 +178,7 @@ class IndexView:
         return sum(e.length for e in self.entries()) if len(self.segments) > 1 else self.segments[0].payload_bytes
 
 
-def load_index(read, commit: Commit) -> IndexView:
+def load_index(read: Callable[[int, int], bytes], commit: Commit) -> IndexView:
     """The validated index of ``commit``; ``read(offset, length)`` fetches bytes.
 
     Version 1.0 commits: 1 read.  Segmented commits: 1 read (manifest + newest segment), then one

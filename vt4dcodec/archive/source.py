@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import os
 import threading
-from typing import Any, Protocol
+from abc import ABC, abstractmethod
+from typing import Any, Protocol, Self
 
 from ..errors import RangeNotSupportedError, TruncatedError
 
@@ -29,7 +30,7 @@ class ByteSource(Protocol):
     def close(self) -> None: ...
 
 
-class _Counting:
+class _Counting(ABC):
     def __init__(self, name: str):
         self.name = name
         self.reads = 0
@@ -52,17 +53,20 @@ class _Counting:
             )
         return data
 
-    def __enter__(self):
+    @abstractmethod
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()  # type: ignore[attr-defined]
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 class LocalSource(_Counting):
     """A local file read with ``os.pread``; the descriptor is reopened after ``fork``."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike[str]):
         super().__init__(os.fspath(path))
         self.path = os.fspath(path)
         self._fd: int | None = None
@@ -94,12 +98,12 @@ class LocalSource(_Counting):
             os.close(self._fd)
         self._fd = None
 
-    def __getstate__(self) -> dict:  # picklable for DataLoader spawn: never ship a descriptor
+    def __getstate__(self) -> dict[str, Any]:  # picklable for DataLoader spawn: never ship a descriptor
         state = self.__dict__.copy()
         state.update(_fd=None, _pid=-1, _count_lock=None)
         return state
 
-    def __setstate__(self, state: dict) -> None:
+    def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._count_lock = threading.Lock()
 
@@ -158,7 +162,8 @@ def is_url(path: Any) -> bool:
 def open_source(path_or_url: Any, **storage_options: Any) -> ByteSource:
     """A ByteSource for a local path, a ``file://`` / fsspec URL, raw bytes, or an existing source."""
     if hasattr(path_or_url, "read") and hasattr(path_or_url, "size") and hasattr(path_or_url, "bytes_read"):
-        return path_or_url
+        source: ByteSource = path_or_url  # already a source (duck-typed)
+        return source
     if isinstance(path_or_url, (bytes, bytearray, memoryview)):
         return BytesSource(bytes(path_or_url))
     if isinstance(path_or_url, str) and path_or_url.startswith("file://"):

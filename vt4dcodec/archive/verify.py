@@ -8,6 +8,7 @@ from ..errors import ArchiveError, FormatError
 from .layout import (FOOTER_SIZE, FRAME_HEADER_SIZE, HEADER_SIZE, crc32, frame_meta_crc, parse_footer,
                      parse_frame_header, parse_preamble)
 from .reader import ArchiveReader, RecordChecksumError, open_archive
+from .records import verify_payload
 
 __all__ = ["verify_archive", "UncommittedTailError"]
 
@@ -41,8 +42,6 @@ def verify_archive(path_or_url: Any, *, records: bool = True, allow_uncommitted:
 
 
 def _verify_records(reader: ArchiveReader, progress: Callable[[int], None] | None, containers: bool) -> None:
-    from .records import verify_payload
-
     for n, entry in enumerate(sorted(reader.entries(), key=lambda e: e.offset), 1):
         key_raw = entry.key.encode()
         start = entry.frame_offset

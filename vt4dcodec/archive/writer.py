@@ -31,7 +31,7 @@ from .lock import WriterLock
 from .reader import best_slot, find_commit
 from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
-from .segments import SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
+from .segments import IndexView, SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
 __all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive"]
@@ -72,7 +72,7 @@ def _check_version(version: tuple[int, int]) -> int:
     return version[1]
 
 
-def create_archive(path: str | os.PathLike, *, exist_ok: bool = False, version: tuple[int, int] = (1, VERSION_MINOR)) -> None:
+def create_archive(path: str | os.PathLike[str], *, exist_ok: bool = False, version: tuple[int, int] = (1, VERSION_MINOR)) -> None:
     """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename.
 
     ``version`` (1, 1) (default) lets commits use segmented indexes; (1, 0) writes a whole index per
@@ -106,7 +106,7 @@ class ArchiveWriter:
     As a context manager it commits on normal exit and aborts (drops pending records) on error.
     """
 
-    def __init__(self, path: str | os.PathLike, mode: str = "a", *, on_uncommitted: Policy = "error",
+    def __init__(self, path: str | os.PathLike[str], mode: str = "a", *, on_uncommitted: Policy = "error",
                  durable: bool = True, full_scan: bool = False, dry_run: bool = False,
                  allow_truncated: bool = False, version: tuple[int, int] = (1, VERSION_MINOR),
                  _repair: bool = False):
@@ -200,16 +200,16 @@ class ArchiveWriter:
                 copy_payloads = {k: source.read(e.offset, e.length) for k, e in plan.copies.items()}
         finally:
             source.close()
-        if plan is None:
+        if plan is None:  # the last commit stands (``commit``, read above)
             self._check_generation()
-            self.repair_report = RepairReport(self.path, self._commit.generation, len(self._entries), [],
+            self.repair_report = RepairReport(self.path, commit.generation, len(self._entries), [],
                                               discarded, None, False, scenes=len(self._entries), dry_run=dry_run)
             if dry_run:
                 self._dry_run = True
                 return
             if discarded:
-                os.ftruncate(self._fd, self._end)
-            self._ensure_slot(self._commit)
+                os.ftruncate(self._handle, self._end)
+            self._ensure_slot(commit)
             return
         self._apply_plan(plan, copy_payloads, dry_run)
 
@@ -227,28 +227,28 @@ class ArchiveWriter:
         if dry_run:
             self._dry_run = True
             return
-        if not plan.needs_commit:  # a plain writer over the intact base
+        # a plain writer over the intact base (a plan needs no commit only where it has a base, with its index)
+        if not plan.needs_commit and base is not None and plan.view is not None:
             self._segments = self._segments_of(base, plan.view)
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
             return
         if not plan.preamble_ok:  # a damaged preamble is mended (magic, version, flags)
-            os.pwrite(self._fd, pack_preamble(), 0)
+            os.pwrite(self._handle, pack_preamble(), 0)
         if base is not None:  # step 2: a slot names the base before anything follows it
-            header = os.pread(self._fd, HEADER_SIZE, 0)
+            header = os.pread(self._handle, HEADER_SIZE, 0)
             if best_slot(header, plan.cut) != base:
                 self._write_slot(base)
         if plan.size != plan.cut:
-            os.ftruncate(self._fd, plan.cut)
+            os.ftruncate(self._handle, plan.cut)
         self._sync()
         self._pending = dict(plan.entries)
         for key, entry in plan.copies.items():
             self._append_raw(key, copy_payloads[key], entry.summary_bytes)
         self._next_generation = plan.new_generation
-        self._write_commit()
-        self.repair_report.new_generation = self._commit.generation
+        self.repair_report.new_generation = self._write_commit()
 
-    def _segments_of(self, commit: Commit, view) -> list[tuple[SegmentRef, list[str]]]:
+    def _segments_of(self, commit: Commit, view: IndexView) -> list[tuple[SegmentRef, list[str]]]:
         """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment)."""
         if commit.segmented:
             return [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
@@ -260,7 +260,7 @@ class ArchiveWriter:
     def _find_commit(self, source: LocalSource, allow_truncated: bool) -> Commit:
         commit, at_tail = find_commit(source, allow_truncated=allow_truncated)
         if not at_tail and source.size() == commit.end:  # damaged last footer, intact slot: mend it
-            os.pwrite(self._fd, pack_footer(commit), commit.footer_offset)
+            os.pwrite(self._handle, pack_footer(commit), commit.footer_offset)
             self._sync()
         return commit
 
@@ -276,24 +276,31 @@ class ArchiveWriter:
         Slots claiming a *newer* generation than the last commit (left by a file truncated back to
         an older footer) are cleared, so they can never outrank it once the file grows again.
         """
-        header = os.pread(self._fd, HEADER_SIZE, 0)
+        header = os.pread(self._handle, HEADER_SIZE, 0)
         parse_preamble(header)
         for off in SLOT_OFFSETS:
             stale = parse_slot(header[off: off + SLOT_SIZE])
             if stale is not None and stale.generation > commit.generation:
-                os.pwrite(self._fd, bytes(SLOT_SIZE), off)
+                os.pwrite(self._handle, bytes(SLOT_SIZE), off)
         if best_slot(header, commit.end) != commit:
             self._write_slot(commit)
         else:
             self._sync()
 
     def _write_slot(self, commit: Commit) -> None:
-        os.pwrite(self._fd, pack_slot(commit), SLOT_OFFSETS[commit.generation % 2])
+        os.pwrite(self._handle, pack_slot(commit), SLOT_OFFSETS[commit.generation % 2])
         self._sync()
+
+    @property
+    def _handle(self) -> int:
+        """The archive's open descriptor (every write goes through it)."""
+        if self._fd is None:
+            raise ArchiveError(f"{self.path}: the writer is closed")
+        return self._fd
 
     def _sync(self) -> None:
         if self.durable:
-            os.fdatasync(self._fd)
+            os.fdatasync(self._handle)
 
     # -- appending ---------------------------------------------------------------------------------
     @property
@@ -310,7 +317,7 @@ class ArchiveWriter:
     def __len__(self) -> int:
         return len(self._entries.keys() | self._pending.keys())
 
-    def append(self, key: str, record: Any, *, summary: dict | None = None, replace: bool = False,
+    def append(self, key: str, record: Any, *, summary: dict[str, Any] | None = None, replace: bool = False,
                validate: bool = True) -> IndexEntry:
         """Write one scene (a Scene or complete ``.vt4d`` bytes); visible to readers after commit().
 
@@ -346,7 +353,7 @@ class ArchiveWriter:
     def _pwrite_all(self, data: bytes, offset: int) -> None:
         view = memoryview(data)
         while view:
-            n = os.pwrite(self._fd, view, offset)
+            n = os.pwrite(self._handle, view, offset)
             view, offset = view[n:], offset + n
 
     def commit(self) -> int:
@@ -384,7 +391,7 @@ class ArchiveWriter:
             segments = []
         self._pwrite_all(index, self._end)
         self._sync()  # records + index durable before the footer can be
-        os.pwrite(self._fd, pack_footer(new), new.footer_offset)
+        os.pwrite(self._handle, pack_footer(new), new.footer_offset)
         self._sync()  # <- the commit point
         committed.update(pending)
         self._pending, self._commit, self._end = {}, new, new.end
@@ -396,7 +403,7 @@ class ArchiveWriter:
     def abort(self) -> None:
         """Drop pending scenes: truncate the file back to the last commit."""
         if self._fd is not None and self._pending and not self._dry_run and self._commit is not None:
-            os.ftruncate(self._fd, self._commit.end)
+            os.ftruncate(self._handle, self._commit.end)
             self._end = self._commit.end
         self._pending = {}
 
@@ -447,7 +454,7 @@ def _check_repairable(path: str, full_scan: bool) -> None:
                            "run `vt4d repair --full-scan --dry-run` to see what can be recovered")
 
 
-def repair_archive(path: str | os.PathLike, *, full_scan: bool = False, dry_run: bool = False) -> RepairReport:
+def repair_archive(path: str | os.PathLike[str], *, full_scan: bool = False, dry_run: bool = False) -> RepairReport:
     """Make an archive end in a valid commit again, never dropping a record that verifies.
 
     The last commit is kept; complete, checksum-valid records written after it (damaged bytes

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..cameras import Trajectory, parse_numbers
 from ..errors import CameraError, CaptureError
+from ..media import write_mp4
 from .capture import Capture
 
 __all__ = [
@@ -340,8 +341,6 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
-    from ..media import write_mp4
-
     try:
         write_mp4(path, frames, fps)
     except OSError as exc:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import Trajectory, parse_numbers
+from ..cameras import Trajectory, look_at, parse_numbers
 from ..errors import CameraError, TrajectoryError
 
 __all__ = [
@@ -47,7 +47,6 @@ __all__ = [
     "load_trajectory",
     "trajectory_to_json",
     "trajectory_from_json",
-    "look_at_w2c",
     "slerp_rotation",
 ]
 
@@ -132,30 +131,6 @@ def slerp_rotation(R0: np.ndarray, R1: np.ndarray, s: float) -> np.ndarray:
         theta = math.acos(min(dot, 1.0))
         q = (math.sin((1 - s) * theta) * q0 + math.sin(s * theta) * q1) / math.sin(theta)
     return _quaternion_to_rotation(q)
-
-
-def look_at_w2c(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """World-to-camera pose of a camera at ``center`` looking at ``target`` with image-up along ``up``.
-
-    OpenCV axes: z towards the target, y down (opposite ``up``), x right.
-    """
-    center, target, up = (np.asarray(v, dtype=np.float64) for v in (center, target, up))
-    z = target - center
-    nz = np.linalg.norm(z)
-    if nz < 1e-12:
-        raise TrajectoryError("look-at target coincides with the camera centre")
-    z = z / nz
-    x = np.cross(-up, z)  # right = down x forward (x = y cross z in a right-handed frame)
-    nx = np.linalg.norm(x)
-    if nx < 1e-9:
-        raise TrajectoryError("look-at direction is parallel to the up vector")
-    x = x / nx
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])  # rows: camera axes in world coordinates
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ center
-    return w2c
 
 
 def _w2c_from_c2w(c2w: np.ndarray) -> np.ndarray:
@@ -284,7 +259,7 @@ def make_trajectory(
             pose = _w2c_from_c2w(c2w)
         elif preset == "crane":
             look = center0 + p["distance"] * forward
-            pose = look_at_w2c(center0 - p["metres"] * s * down, look, -down)
+            pose = look_at(center0 - p["metres"] * s * down, look, -down)
         else:  # interpolate
             R = slerp_rotation(R0, R1, float(s))
             c = (1 - s) * center0 + s * c1

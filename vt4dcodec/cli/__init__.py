@@ -2,8 +2,9 @@
 
 Each group of subcommands lives in its own module of this package and exposes
 ``register(subparsers) -> None``; the module adds its subparsers and sets ``func`` on each, a callable
-``func(args) -> int`` returning the exit code.  Modules are imported lazily so that ``vt4d info`` never
-imports torch.
+``func(args) -> int`` returning the exit code.  The command modules import the library at module level,
+which loads no torch (the codec loads the networks when a command runs them), so ``vt4d info`` never
+imports torch and runs on the core install (tests/test_no_torch_import.py, .ci/core_check.py).
 
 Exit codes (stable, for scripts):
     0  success
@@ -35,7 +36,9 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Sequence
 
-from ..errors import Vt4dError
+from ..errors import FormatError, Vt4dError
+from ..format.reader import open_binary
+from ..version import __version__
 
 EXIT_OK, EXIT_INVALID, EXIT_USAGE, EXIT_OS, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
@@ -156,8 +159,6 @@ def working(args: argparse.Namespace, desc: str, interval: float = 0.5) -> Itera
 # --- sources: local paths and fsspec URLs --------------------------------------------------------------
 def storage_options(pairs: list[str] | None) -> dict[str, str]:
     """``--storage-option KEY=VALUE`` (repeatable) as fsspec keyword arguments."""
-    from ..errors import FormatError
-
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
@@ -169,8 +170,6 @@ def storage_options(pairs: list[str] | None) -> dict[str, str]:
 
 def read_head(source: str, options: dict[str, str] | None = None, n: int = 16) -> bytes:
     """The first ``n`` bytes of a local file or a URL (to tell a scene from an archive)."""
-    from ..format.reader import open_binary
-
     with open_binary(source, **(options or {})) as fh:
         return fh.read(n)
 
@@ -225,7 +224,6 @@ def build_parser() -> argparse.ArgumentParser:
         ),
         epilog="Exit codes: 0 ok, 1 invalid input or failed verification, 2 usage, 3 file system error.",
     )
-    from ..version import __version__
 
     parser.add_argument("--version", action="version", version=f"vt4dcodec {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -12,6 +12,7 @@ import os
 import sys
 from typing import Any
 
+from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
 from . import add_command, emit, positive_int, progress, storage_options
 
@@ -42,8 +43,6 @@ def _scene_files(inputs: list[str]) -> list[tuple[str, str]]:
 
 
 def cmd_pack(args: argparse.Namespace) -> int:
-    from ..archive import ArchiveWriter, check_key
-
     pairs = _scene_files(args.files)
     if not pairs:
         raise ArchiveError(f"no .vt4d files to pack in {', '.join(args.files)} (directories are searched recursively)")
@@ -79,8 +78,6 @@ def _ls_row(key: str, s: dict[str, Any]) -> list[str]:
 
 
 def cmd_ls(args: argparse.Namespace) -> int:
-    from ..archive import open_archive
-
     with open_archive(args.archive, allow_truncated=args.allow_truncated,
                       **storage_options(args.storage_option)) as reader:
         rows = [(e.key, e.summary, e.length, e.offset) for e in reader.entries()]
@@ -104,8 +101,6 @@ def cmd_ls(args: argparse.Namespace) -> int:
 
 
 def cmd_extract(args: argparse.Namespace) -> int:
-    from ..archive import open_archive
-
     with open_archive(args.archive, allow_truncated=args.allow_truncated,
                       **storage_options(args.storage_option)) as reader:
         keys = args.keys or reader.keys()
@@ -129,8 +124,6 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
 
 def cmd_repair(args: argparse.Namespace) -> int:
-    from ..archive import repair_archive
-
     report = repair_archive(args.archive, full_scan=args.full_scan, dry_run=args.dry_run)
     status = 0 if report.complete else 1  # never report success when committed scenes were lost
     if args.json:
@@ -179,8 +172,6 @@ def _repair_errors(args: argparse.Namespace, report: Any) -> None:
 
 
 def cmd_compact(args: argparse.Namespace) -> int:
-    from ..archive import compact_archive
-
     major, _, minor = args.format_version.partition(".")
     report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
     emit(args, report.to_dict(),

@@ -1,4 +1,5 @@
-"""`vt4d capture-info` and `vt4d contact-sheet`: look at capture directories.
+"""`vt4d capture-info` and `vt4d contact-sheet`: look at capture directories (and `vt4d synth`, which
+makes them; defined in :mod:`vt4dcodec.cli.synth_commands`).
 
 Each command is one ``_register_*`` helper listed in :data:`REGISTER`; adding a command to this group
 is one function plus one entry there.
@@ -11,15 +12,16 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..capture.contact_sheet import write_contact_sheet
+from ..capture.io import read_capture, read_manifest
 from . import add_command, emit, positive_int
+from .synth_commands import add_synth_parser
 
 __all__ = ["register", "capture_info", "REGISTER"]
 
 
 def capture_info(directory: str) -> dict[str, Any]:
     """A JSON-ready summary of a capture directory (reads the manifest only, checks media exist)."""
-    from ..capture.io import read_manifest
-
     m = read_manifest(directory)
     cams = []
     for e in m.cameras:
@@ -77,9 +79,6 @@ def _run_capture_info(args: argparse.Namespace) -> int:
 
 
 def _run_contact_sheet(args: argparse.Namespace) -> int:
-    from ..capture.contact_sheet import write_contact_sheet
-    from ..capture.io import read_capture
-
     capture = read_capture(args.directory)
     w, h = write_contact_sheet(capture, args.output, max_frames=args.frames, thumb_height=args.thumb_height)
     emit(args, {"output": args.output, "width": w, "height": h, "cameras": len(capture.cameras)},
@@ -111,10 +110,11 @@ def _register_contact_sheet(sub: Any) -> None:
     p.set_defaults(func=_run_contact_sheet)
 
 
-# One entry per command of this group, in --help order.
+# One entry per command of this group, in --help order (`vt4d synth` is defined in synth_commands).
 REGISTER: list[Callable[[Any], None]] = [
     _register_capture_info,
     _register_contact_sheet,
+    add_synth_parser,
 ]
 
 
@@ -123,11 +123,3 @@ def register(subparsers: Any) -> None:
     for add in REGISTER:
         add(subparsers)
 
-
-def _register_synth(sub: Any) -> None:
-    from .synth_commands import add_synth_parser  # numpy-only at import: no torch, no cv2
-
-    add_synth_parser(sub)
-
-
-REGISTER.append(_register_synth)

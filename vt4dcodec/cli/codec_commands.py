@@ -8,8 +8,17 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .. import codec
+from ..archive import ArchiveWriter, is_archive, open_archive
+from ..capture.io import MANIFEST_NAME, read_capture, read_manifest
+from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
+from ..codec import DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint
+from ..demo import run_demo
 from ..errors import CaptureError
-from . import add_command, emit, nonneg_int, positive_int, progress, trajectory_label, working
+from ..format import ENCODINGS, dumps, load, save
+from ..media import VIDEO_FORMATS, write_frames
+from . import (add_command, emit, nonneg_int, positive_int, progress, read_head, storage_options, trajectory_label,
+               working)
 
 __all__ = ["register"]
 
@@ -33,8 +42,6 @@ CAPTURE_ID/CAMERA/CLIP_START (CAMERA: the encoded cameras joined by '.', or 'all
 
 
 def _decode_notes() -> str:
-    from ..capture.trajectories import describe_spec_presets
-
     return ("trajectories (-t, repeatable; one output per trajectory):\n"
             "  source                       the scene's own source cameras\n"
             "  path/to/trajectory.json      a saved trajectory (vt4dcodec.capture.trajectories.save_trajectory)\n"
@@ -71,9 +78,6 @@ def _shard_path(path: str, rank: int, world: int) -> str:
 
 
 def _captures(inputs: list[str]) -> list[Path]:
-    from ..codec import iter_capture_dirs
-    from ..capture.io import MANIFEST_NAME
-
     found: list[Path] = []
     for item in inputs:
         p = Path(item)
@@ -94,7 +98,6 @@ def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None
         raise CaptureError("give --camera (one camera) or --cameras (several), not both")
     if camera is None and cameras is None:
         return
-    from ..capture.io import read_manifest
 
     wanted = [camera] if camera is not None else [c.strip() for c in cameras.split(",")] if cameras != "all" else []
     flag = "--camera" if camera is not None else "--cameras"
@@ -110,10 +113,6 @@ def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
-    from .. import codec
-    from ..capture.io import read_capture
-    from ..format import dumps, save
-
     if args.output is None and args.archive is None:
         raise CaptureError("give -o FILE.vt4d (one scene) or --archive FILE.vt4da (many scenes)")
     if args.output is not None and args.archive is not None:
@@ -135,8 +134,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
     results: list[dict[str, Any]] = []
     writer = None
     if args.archive is not None:
-        from ..archive import ArchiveWriter
-
         shard = Path(_shard_path(args.archive, rank, world))
         shard.parent.mkdir(parents=True, exist_ok=True)  # e.g. shards/ on a fresh cluster job
         writer = ArchiveWriter(shard)
@@ -181,10 +178,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
 def _open_scene_source(args: argparse.Namespace):
     """(scene, file-name stem) from a local path or URL: a scene file, or an archive with --key."""
-    from ..archive import is_archive, open_archive
-    from ..format import load
-    from . import read_head, storage_options
-
     source, key = args.source, args.key
     if "::" in source and key is None:
         source, key = source.split("::", 1)
@@ -201,10 +194,6 @@ def _open_scene_source(args: argparse.Namespace):
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    from ..capture.trajectories import check_trajectory_spec
-    from ..codec import SceneDecoder, model_fingerprint
-    from ..media import write_frames
-
     specs = args.trajectory or ["source"]
     for spec in specs:  # every spec checked before the scene is read or a model loaded
         check_trajectory_spec(spec)
@@ -235,9 +224,6 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from ..codec import DEFAULT_MODEL
-    from ..demo import run_demo
-
     result = run_demo(args.output, model=args.model or DEFAULT_MODEL, seed=args.seed, steps=args.steps,
                       overwrite=args.overwrite, log=None if args.json or args.quiet else print)
     emit(args, result)
@@ -247,10 +233,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    from ..codec import DEFAULT_ENCODING, DEFAULT_STEPS
-    from ..format import ENCODINGS
-    from ..media import VIDEO_FORMATS
-
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--model", default=None,
                         help="model id or model directory (encode default: vt4d-tiny; decode default: the "

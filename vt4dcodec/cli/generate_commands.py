@@ -8,15 +8,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..capture.io import read_capture
+from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
+from ..codec import DEFAULT_STEPS, SceneDecoder, load_model, model_fingerprint
 from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
+from ..format import ENCODINGS, save
+from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
+from ..media import VIDEO_FORMATS, write_frames
 from . import add_command, emit, nonneg_int, positive_int, progress, say, trajectory_label, working
 
 __all__ = ["register", "split_view_specs"]
 
 
 def _generate_notes() -> str:
-    from ..capture.trajectories import describe_spec_presets
-
     return ("The anchor (--anchor) is the camera whose 4D token state the prior samples; presets are built from\n"
             "the conditioning camera's first pose.  Views (--views, comma-separated, or --views repeated) are\n"
             "rendered from the one sample; presets there are built from the anchor's first pose, \"source\" is\n"
@@ -48,13 +52,7 @@ def split_view_specs(values: list[str]) -> list[str]:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from ..capture.io import read_capture
-    from ..capture.trajectories import check_trajectory_spec
-    from ..codec import SceneDecoder, load_model, model_fingerprint
-    from ..format import save
-    from ..generate import DEFAULT_PRIOR, generate, load_prior_model
-    from ..media import write_frames
-    from ..model.prior import check_tokenizer
+    from ..model.prior import check_tokenizer  # the networks (torch): loaded by the command that needs them
 
     # every argument is checked before anything is loaded, sampled or written
     views = split_view_specs(args.views) or ["source"]
@@ -114,11 +112,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    from ..codec import DEFAULT_STEPS
-    from ..format import ENCODINGS
-    from ..generate import DEFAULT_PRIOR_STEPS, GENERATED_ENCODING
-    from ..media import VIDEO_FORMATS
-
     p = add_command(
         subparsers, "generate", help="sample a 4D token state from one video (Co4DGen) and render views from it",
         description="Condition the Co4DGen prior on one camera of a capture, sample the anchor camera's 4D token "

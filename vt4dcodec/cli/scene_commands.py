@@ -8,11 +8,12 @@ import json
 import sys
 from typing import Any
 
+from ..archive import is_archive, verify_archive
 from ..errors import Vt4dError
+from ..format import open_scene, verify
 from . import add_command, emit, read_head, storage_options
 
 EXIT_OK, EXIT_INVALID, EXIT_OS = 0, 1, 3
-ARCHIVES_UNSUPPORTED = "archives not supported by this build"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,34 +37,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _is_archive(path: str, options: dict[str, str] | None = None) -> bool:
-    """True if the file starts with the archive signature (known only when the archive module exists)."""
-    from ..format import SCENE_MAGIC
-
-    head = read_head(path, options)
-    if head.startswith(SCENE_MAGIC):
-        return False
-    try:
-        from ..archive import ARCHIVE_MAGIC  # type: ignore[attr-defined]
-    except ImportError:
-        # No archive support in this build: anything with the vt4d family prefix that is not a scene is
-        # treated as an archive so the user gets a clear message.
-        return head.startswith((b"\x89V4", b"\x89VT4"))
-    return head.startswith(ARCHIVE_MAGIC)
-
-
-def _verify_archive(path: str, options: dict[str, str]) -> None:
-    try:
-        from ..archive import verify_archive  # type: ignore[attr-defined]
-    except ImportError:
-        from ..errors import UnsupportedFeatureError
-
-        raise UnsupportedFeatureError(f"{path}: {ARCHIVES_UNSUPPORTED}") from None
-    verify_archive(path, **options)
+    """True if the file starts with the archive signature."""
+    return is_archive(read_head(path, options))
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from ..format import verify
-
     options = storage_options(args.storage_option)
     results: list[dict[str, Any]] = []
     for path in args.files:
@@ -71,7 +49,7 @@ def run_verify(args: argparse.Namespace) -> int:
         try:
             if _is_archive(path, options):
                 result["kind"] = "archive"
-                _verify_archive(path, options)
+                verify_archive(path, **options)
             else:
                 verify(path, **options)
         except Vt4dError as exc:
@@ -115,8 +93,6 @@ def _provenance(summary: dict[str, Any], metadata: dict[str, Any]) -> str:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    from ..format import open_scene
-
     options = storage_options(args.storage_option)
     if _is_archive(args.file, options):
         print(f"{args.file} is an archive; list its scenes with `vt4d ls {args.file}`", file=sys.stderr)

@@ -9,6 +9,8 @@ import argparse
 import time
 from typing import Any
 
+from ..synth.dataset_writer import write_dataset
+from ..synth.generator import SynthConfig
 from . import add_command, emit, int_at_least, show_progress
 
 __all__ = ["add_synth_parser", "run_synth"]
@@ -17,9 +19,6 @@ __all__ = ["add_synth_parser", "run_synth"]
 
 
 def run_synth(args: argparse.Namespace) -> int:
-    from ..synth.dataset_writer import write_dataset
-    from ..synth.generator import SynthConfig
-
     config = SynthConfig(
         num_cameras=args.cameras, num_frames=args.frames, height=args.size, width=args.size,
         num_objects=(args.min_objects, args.max_objects), static=args.static,

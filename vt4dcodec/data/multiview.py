@@ -21,6 +21,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from ..capture import io as capture_io
+from ..capture.io import read_manifest
 from ..errors import CaptureError
 from ..synth import SynthConfig, generate_scene
 from ..synth.assets import SynthError
@@ -94,16 +96,12 @@ class _DiskScene:
     """A capture directory read one camera at a time (only the cameras a pair needs)."""
 
     def __init__(self, path: Path):
-        from ..capture.io import read_manifest
-
         self.manifest = read_manifest(path)
         self.path = path
         self.names = [e.name for e in self.manifest.cameras]
         self.scene_id = self.manifest.capture_id
 
     def camera(self, name: str, *, depth: bool, mask: bool) -> dict[str, Any]:
-        from ..capture import io as capture_io
-
         entry = self.manifest.camera(name)
         out: dict[str, Any] = {"frames": capture_io.read_camera_frames(self.manifest, name),
                                "K": entry.trajectory.K, "w2c": entry.trajectory.w2c}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from ..errors import MalformedHeaderError
+from ..errors import FormatError, MalformedHeaderError
 
 __all__ = ["require_map", "require_int", "require_str", "require_bool", "require_shape", "require_sha256",
            "exact_keys"]
@@ -13,13 +13,13 @@ __all__ = ["require_map", "require_int", "require_str", "require_bool", "require
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 
 
-def require_map(value: Any, what: str) -> dict:
+def require_map(value: Any, what: str) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise MalformedHeaderError(f"{what} must be a map, got {type(value).__name__}")
     return value
 
 
-def exact_keys(value: dict, required: set[str], what: str, *, allow_extra: bool = False) -> None:
+def exact_keys(value: dict[str, Any], required: set[str], what: str, *, allow_extra: bool = False) -> None:
     """Check a map holds exactly ``required`` keys (extra keys allowed only for newer minor versions)."""
     keys = set(value)
     missing = required - keys
@@ -32,7 +32,7 @@ def exact_keys(value: dict, required: set[str], what: str, *, allow_extra: bool 
         )
 
 
-def require_int(value: Any, what: str, lo: int, hi: int, error: type = MalformedHeaderError) -> int:
+def require_int(value: Any, what: str, lo: int, hi: int, error: type[FormatError] = MalformedHeaderError) -> int:
     if type(value) is not int:  # bool is an int subclass: refuse it here
         raise MalformedHeaderError(f"{what} must be an integer, got {type(value).__name__}")
     if not lo <= value <= hi:
@@ -47,7 +47,7 @@ def require_bool(value: Any, what: str) -> bool:
 
 
 def require_str(value: Any, what: str, *, max_chars: int = 256, min_chars: int = 1,
-                pattern: re.Pattern | None = None, hint: str = "") -> str:
+                pattern: re.Pattern[str] | None = None, hint: str = "") -> str:
     if not isinstance(value, str):
         raise MalformedHeaderError(f"{what} must be a string, got {type(value).__name__}")
     if not min_chars <= len(value) <= max_chars:
@@ -63,7 +63,7 @@ def require_sha256(value: Any, what: str) -> str:
 
 
 def require_shape(value: Any, what: str, max_rows: int, max_cols: int, max_values: int,
-                  error: type = MalformedHeaderError) -> tuple[int, int]:
+                  error: type[FormatError] = MalformedHeaderError) -> tuple[int, int]:
     """A ``[rows, cols]`` pair with 1 <= rows <= max_rows, 1 <= cols <= max_cols, rows*cols <= max_values."""
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise MalformedHeaderError(f"{what} must be a pair [rows, cols], got {value!r:.80}")

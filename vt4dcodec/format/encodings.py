@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import FormatError, MalformedSectionError
 from .affine import affine_codes, group_params
+from .layout import BytesLike
 from .rans_tokens import (RANS_BITS, RANS_ENCODINGS, check_groups, decode_rans_codes, decode_rans_tokens,
                           encode_rans_tokens)
 
@@ -104,7 +105,7 @@ def encode_tokens(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> Enco
     return EncodedTokens(packed.tobytes(), quant)
 
 
-def codes_from_payload(payload, encoding: str, rows: int, cols: int) -> np.ndarray:
+def codes_from_payload(payload: BytesLike, encoding: str, rows: int, cols: int) -> np.ndarray:
     """The stored values as an (rows, cols) array without dequantizing.
 
     float32 / float16 / int8 payloads are returned as zero-copy read-only views of ``payload``; int4
@@ -119,7 +120,7 @@ def codes_from_payload(payload, encoding: str, rows: int, cols: int) -> np.ndarr
             f"{encoding} token payload is {len(payload)} bytes; a {rows}x{cols} matrix needs {expected}"
         )
     if encoding in ("float32", "float16", "int8"):
-        dtype = {"float32": "<f4", "float16": "<f2", "int8": np.uint8}[encoding]
+        dtype = {"float32": "<f4", "float16": "<f2", "int8": "u1"}[encoding]
         return np.frombuffer(payload, dtype=dtype).reshape(rows, cols)
     packed = np.frombuffer(payload, dtype=np.uint8)
     n = rows * cols
@@ -143,7 +144,7 @@ def float16_to_float32(half: np.ndarray) -> np.ndarray:
     return (mag.view(np.uint32) | ((bits & 0x8000).astype(np.uint32) << 16)).view(np.float32)
 
 
-def parse_quant(payload, cols: int) -> tuple[np.ndarray, np.ndarray]:
+def parse_quant(payload: BytesLike, cols: int) -> tuple[np.ndarray, np.ndarray]:
     """(scale, offset) float32 (cols,) arrays from a quantization payload; both finite, scale >= 0."""
     if len(payload) != 8 * cols:
         raise MalformedSectionError(
@@ -156,7 +157,7 @@ def parse_quant(payload, cols: int) -> tuple[np.ndarray, np.ndarray]:
     return scale, offset
 
 
-def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.ndarray:
+def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, rows: int, cols: int) -> np.ndarray:
     """Decode a token payload into (rows, cols) float32 values.
 
     float32 payloads come back as zero-copy read-only views.  Every decoded value must be finite,
@@ -170,6 +171,8 @@ def decode_tokens(payload, quant, encoding: str, rows: int, cols: int) -> np.nda
         return out
     codes = codes_from_payload(payload, encoding, rows, cols)
     if encoding in _BITS:
+        if quant is None:
+            raise FormatError(f"{encoding} tokens cannot be decoded without their quantization section")
         scale, offset = parse_quant(quant, cols)
         return dequantize(codes, scale, offset, _BITS[encoding], encoding)
     if encoding == "float32":

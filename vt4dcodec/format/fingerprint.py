@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -20,8 +21,6 @@ _UTC = re.compile(r"\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z")
 
 def _check_calendar(stamp: str) -> None:
     """``created_utc`` must name a real UTC instant (FORMAT.md "Text"): 2026-02-30 and 24:00 are out."""
-    import datetime
-
     try:
         datetime.datetime.strptime(stamp[:19], "%Y-%m-%dT%H:%M:%S")
     except ValueError:
@@ -128,8 +127,6 @@ class Provenance:
     @classmethod
     def now(cls, source_capture_id: str | None, kind: str = "encoded") -> "Provenance":
         """Provenance stamped with this library's version and the current UTC time (whole seconds)."""
-        import datetime
-
         created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
         return cls(__version__, created, source_capture_id, kind)
 

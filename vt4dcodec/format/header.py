@@ -28,6 +28,7 @@ from .checks import exact_keys, require_bool, require_int, require_map, require_
 from .encodings import ENCODINGS
 from .rans_tokens import MAX_RANS_VALUES, RANS_BITS
 from .fingerprint import ModelFingerprint, Provenance
+from .layout import BytesLike
 from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEADER_DEPTH, MAX_IMAGE_SIDE,
                      MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
 from .metadata import normalize_metadata
@@ -84,7 +85,7 @@ class HeaderInfo:
 
 def pack_header(info: HeaderInfo) -> bytes:
     """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above)."""
-    data = msgpack.packb(info.to_dict(), use_bin_type=True)
+    data: bytes = msgpack.packb(info.to_dict(), use_bin_type=True)
     if len(data) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"the header would be {len(data)} bytes, over the {MAX_HEADER_BYTES} limit")
     return data
@@ -94,14 +95,14 @@ def _refuse_ext(code: int, data: bytes) -> Any:
     raise MalformedHeaderError(f"the header uses msgpack extension type {code}; extension types are not allowed")
 
 
-def _pairs_no_duplicates(pairs: list) -> dict:
+def _pairs_no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out = dict(pairs)
     if len(out) != len(pairs):
         raise MalformedHeaderError("the header has a map with a duplicated key")
     return out
 
 
-def unpack_header(raw) -> dict[str, Any]:
+def unpack_header(raw: BytesLike) -> dict[str, Any]:
     """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth."""
     if len(raw) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"header is {len(raw)} bytes; the limit is {MAX_HEADER_BYTES}")
@@ -132,7 +133,7 @@ def _check_depth(value: Any) -> None:
             stack.extend((c, depth + 1) for c in children)
 
 
-def parse_header(raw, *, newer_minor: bool = False) -> HeaderInfo:
+def parse_header(raw: BytesLike, *, newer_minor: bool = False) -> HeaderInfo:
     """Decode and validate a header.  ``newer_minor``: the file's minor version is newer than this
     reader's, so unknown keys are tolerated (known keys are still checked exactly)."""
     h = unpack_header(raw)

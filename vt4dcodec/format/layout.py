@@ -50,7 +50,10 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
-           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS"]
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "BytesLike"]
+
+# What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
+BytesLike = bytes | bytearray | memoryview
 
 SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
 FORMAT_MAJOR = 1
@@ -66,7 +69,7 @@ _TYPE = re.compile(rb"[A-Za-z0-9]{4}")
 assert _PREAMBLE.size == PREAMBLE_SIZE and _ENTRY.size == SECTION_ENTRY_SIZE
 
 
-def crc32(data) -> int:
+def crc32(data: BytesLike) -> int:
     return zlib.crc32(data) & 0xFFFFFFFF
 
 
@@ -105,7 +108,7 @@ def pack_preamble(p: Preamble) -> bytes:
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
 
 
-def check_magic(data) -> None:
+def check_magic(data: BytesLike) -> None:
     """Raise BadMagicError (with a diagnosis) unless ``data`` starts with the scene signature."""
     head = bytes(data[:len(SCENE_MAGIC)])
     if head == SCENE_MAGIC:
@@ -128,7 +131,7 @@ def check_magic(data) -> None:
     raise BadMagicError(f"not a .vt4d scene: the file starts with {first!r}, expected {SCENE_MAGIC!r}")
 
 
-def parse_preamble(data) -> Preamble:
+def parse_preamble(data: BytesLike) -> Preamble:
     """Parse and check the 64-byte preamble (signature, CRC, version, flags, declared sizes)."""
     check_magic(data)
     if len(data) < PREAMBLE_SIZE:
@@ -170,7 +173,7 @@ def pack_table(entries: list[SectionEntry]) -> bytes:
     )
 
 
-def parse_table(raw, count: int, table_end: int, file_length: int) -> list[SectionEntry]:
+def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int) -> list[SectionEntry]:
     """Parse ``count`` entries and check the canonical layout: each payload starts at the 64-aligned end
     of the previous one (the first after the table), no overlap, and the last one ends the container."""
     entries: list[SectionEntry] = []

@@ -7,7 +7,7 @@ at most MAX_METADATA_DEPTH levels deep (the top map counts as 1) and MAX_METADAT
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeAlias
 
 import msgpack
 import numpy as np
@@ -19,6 +19,9 @@ __all__ = ["normalize_metadata", "packed_metadata_size"]
 
 _INT64 = (-(1 << 63), (1 << 63) - 1)
 
+# A metadata value once normalized.
+MetadataValue: TypeAlias = "str | int | float | bool | None | list[MetadataValue] | dict[str, MetadataValue]"
+
 
 def normalize_metadata(value: Any) -> dict[str, Any]:
     """Validate user metadata and return a plain copy (tuples become lists).
@@ -27,7 +30,7 @@ def normalize_metadata(value: Any) -> dict[str, Any]:
     """
     if not isinstance(value, dict):
         raise MalformedHeaderError(f"metadata must be a map of str keys, got {type(value).__name__}")
-    out = _normalize(value, "metadata", 1)
+    out = _normalize_map(value, "metadata", 1)
     size = packed_metadata_size(out)
     if size > MAX_METADATA_BYTES:
         raise LimitExceededError(
@@ -40,19 +43,23 @@ def packed_metadata_size(value: dict[str, Any]) -> int:
     return len(msgpack.packb(value, use_bin_type=True))
 
 
-def _normalize(value: Any, path: str, depth: int) -> Any:
+def _normalize_map(value: dict[Any, Any], path: str, depth: int) -> dict[str, MetadataValue]:
+    out = {}
+    for k, v in value.items():
+        if not isinstance(k, str):
+            raise MalformedHeaderError(f"{path} has a non-string key {k!r:.40}; keys must be str")
+        _check_str(k, f"{path} key")
+        out[k] = _normalize(v, f"{path}.{k[:40]}", depth + 1)
+    return out
+
+
+def _normalize(value: Any, path: str, depth: int) -> MetadataValue:
     # Iterative depth is bounded by MAX_METADATA_DEPTH, so recursion here is at most 8 deep.
-    if isinstance(value, (dict, list, tuple)):
-        if depth > MAX_METADATA_DEPTH:
-            raise LimitExceededError(f"{path} nests deeper than {MAX_METADATA_DEPTH} levels")
-        if isinstance(value, dict):
-            out = {}
-            for k, v in value.items():
-                if not isinstance(k, str):
-                    raise MalformedHeaderError(f"{path} has a non-string key {k!r:.40}; keys must be str")
-                _check_str(k, f"{path} key")
-                out[k] = _normalize(v, f"{path}.{k[:40]}", depth + 1)
-            return out
+    if isinstance(value, (dict, list, tuple)) and depth > MAX_METADATA_DEPTH:
+        raise LimitExceededError(f"{path} nests deeper than {MAX_METADATA_DEPTH} levels")
+    if isinstance(value, dict):
+        return _normalize_map(value, path, depth)
+    if isinstance(value, (list, tuple)):
         return [_normalize(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(value)]
     if value is None or isinstance(value, (bool, np.bool_)):
         return None if value is None else bool(value)

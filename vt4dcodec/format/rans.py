@@ -30,19 +30,21 @@ the C code to, byte for byte).  :data:`NATIVE` says which one :func:`rans_encode
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
 from ..errors import MalformedSectionError, TruncatedError
+from .layout import BytesLike
 
 try:
-    from . import _rans_native
+    from . import _rans_native as _rans_native  # (re-exported: rans_tokens counts codes with it)
+    NATIVE = True
 except ImportError:  # built without a C compiler: the pure-Python coder below does the work
-    _rans_native = None
+    NATIVE = False
 
 __all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "NATIVE", "normalize_counts", "pack_table", "parse_table",
            "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped"]
-
-NATIVE = _rans_native is not None
 
 PROB_BITS = 14
 PROB_SCALE = 1 << PROB_BITS          # M: frequencies sum to this
@@ -76,17 +78,17 @@ def normalize_counts(counts: np.ndarray) -> list[int]:
     return freqs.tolist()
 
 
-def _normalize_counts_py(counts) -> list[int]:
+def _normalize_counts_py(counts: np.ndarray | Sequence[int]) -> list[int]:
     """The plain-loop :func:`normalize_counts` (the reference the tests compare it with)."""
-    counts = [int(c) for c in counts]
-    total = sum(counts)
+    ints = [int(c) for c in counts]
+    total = sum(ints)
     if total <= 0:
         raise ValueError("cannot build a frequency table from zero symbols")
-    freqs = [c * PROB_SCALE // total for c in counts]
-    rema = sorted(range(len(counts)), key=lambda i: (-(counts[i] * PROB_SCALE % total), i))
+    freqs = [c * PROB_SCALE // total for c in ints]
+    rema = sorted(range(len(ints)), key=lambda i: (-(ints[i] * PROB_SCALE % total), i))
     for i in rema[: PROB_SCALE - sum(freqs)]:
         freqs[i] += 1
-    for i, c in enumerate(counts):
+    for i, c in enumerate(ints):
         if c and not freqs[i]:
             freqs[i] = 1
             big = max(range(len(freqs)), key=lambda j: (freqs[j], -j))
@@ -123,7 +125,7 @@ def _pack_table_py(freqs: list[int]) -> bytes:
     return bytes(out)
 
 
-def parse_table(data, alphabet: int) -> tuple[list[int], int]:
+def parse_table(data: BytesLike, alphabet: int) -> tuple[list[int], int]:
     """(freqs of length ``alphabet``, bytes consumed) from table bytes at the start of ``data``.
 
     Raises MalformedSectionError for a table that is cut short, overlong, names symbols outside
@@ -173,10 +175,10 @@ def rans_encode(symbols: np.ndarray, freqs: list[int]) -> bytes:
     return rans_encode_many([(symbols, freqs)])[0]
 
 
-def rans_encode_many(jobs) -> list[bytes]:
+def rans_encode_many(jobs: Sequence[tuple[np.ndarray, list[int]]]) -> list[bytes]:
     """:func:`rans_encode` of 1 or 2 ``(symbols, freqs)``; the compiled coder encodes two streams in one
     interleaved loop (each is a chain of dependent steps, so two keep the core busier than one)."""
-    if _rans_native is None:
+    if not NATIVE:
         return [_encode_py(symbols, freqs) for symbols, freqs in jobs]
     specs = []
     for symbols, freqs in jobs:
@@ -184,10 +186,12 @@ def rans_encode_many(jobs) -> list[bytes]:
         if syms.dtype != np.uint16 and syms.size and (syms.min() < 0 or syms.max() >= len(freqs)):
             raise ValueError("symbols outside the frequency table")  # (the C code checks every uint16 symbol)
         specs.append((np.ascontiguousarray(syms, dtype=np.uint16).reshape(-1), np.asarray(freqs, dtype=np.uint32)))
-    out = _rans_native.encode(tuple(specs))
-    if any(stream is None for stream in out):
-        raise ValueError("a symbol to encode has frequency 0")
-    return out
+    streams = []
+    for stream in _rans_native.encode(tuple(specs)):
+        if stream is None:
+            raise ValueError("a symbol to encode has frequency 0")
+        streams.append(stream)
+    return streams
 
 
 def _encode_py(symbols: np.ndarray, freqs: list[int]) -> bytes:
@@ -205,7 +209,7 @@ def _encode_py(symbols: np.ndarray, freqs: list[int]) -> bytes:
     return x.to_bytes(4, "little") + bytes(out)
 
 
-def _opened(stream) -> tuple[bytes, int]:
+def _opened(stream: BytesLike) -> tuple[bytes, int]:
     """(stream bytes, initial state) after the checks every decode starts with."""
     data = bytes(stream)
     if len(data) < 4:
@@ -216,7 +220,7 @@ def _opened(stream) -> tuple[bytes, int]:
     return data, x
 
 
-def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
+def rans_decode(stream: BytesLike, freqs: list[int], count: int) -> np.ndarray:
     """Decode ``count`` symbols (uint16 array) from ``stream`` under ``freqs`` (validated by parse_table).
 
     Raises TruncatedError if the stream ends early, MalformedSectionError if bytes are left over or the
@@ -228,7 +232,7 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     if len(nonzero) == 1:  # one symbol of probability 1: the stream carries no information
         _check_end(data, 4, x)
         return np.full(count, nonzero[0], np.uint16)
-    if _rans_native is None:
+    if not NATIVE:
         return _decode_py(data, x, freqs, count)
     out = np.empty(count, np.uint16)
     done, pos, x = _rans_native.decode(data, np.asarray(freqs, dtype=np.uint32), out)
@@ -238,7 +242,11 @@ def rans_decode(stream, freqs: list[int], count: int) -> np.ndarray:
     return out
 
 
-def rans_decode_mapped(jobs) -> list[tuple[np.ndarray, bool]] | None:
+# One stream of :func:`rans_decode_mapped`: (stream, freqs, rows, cols, colbase, lut, centre, top).
+MappedJob = tuple[BytesLike, list[int], int, int, np.ndarray, np.ndarray, np.ndarray | None, int]
+
+
+def rans_decode_mapped(jobs: Sequence[MappedJob]) -> list[tuple[np.ndarray, bool]] | None:
     """Decode 1 or 2 independent streams, mapping each symbol through a table as it is decoded (compiled
     coder only).  ``jobs``: ``(stream, freqs, rows, cols, colbase, lut, centre, top)`` each; symbol ``s``
     of column ``c`` becomes ``code = s`` (``centre`` None) or ``s + centre[c] - top``, and
@@ -249,7 +257,7 @@ def rans_decode_mapped(jobs) -> list[tuple[np.ndarray, bool]] | None:
     pure-Python coder runs or a table has one symbol (callers then use :func:`rans_decode`).  Stream
     errors raise as in :func:`rans_decode`.
     """
-    if _rans_native is None or any(sum(1 for f in job[1] if f) == 1 for job in jobs):
+    if not NATIVE or any(sum(1 for f in job[1] if f) == 1 for job in jobs):
         return None
     specs, outs = [], []
     for stream, freqs, rows, cols, colbase, lut, centre, top in jobs:

@@ -25,12 +25,14 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from ..errors import FormatError, LimitExceededError, MalformedSectionError, TruncatedError
 from . import rans
 from .affine import affine_codes, group_params
+from .layout import BytesLike
 
 __all__ = ["RANS_ENCODINGS", "RANS_BITS", "MAX_RANS_VALUES", "encode_rans_tokens", "decode_rans_codes",
            "decode_rans_tokens", "decode_rans_token_pair",
@@ -70,7 +72,8 @@ def lower_median_codes(codes: np.ndarray, bits: int, hist: np.ndarray | None = N
     """uint8 (d,): element ``(N - 1) // 2`` of each sorted column of ``codes`` (N, d), in O(N d) from the
     column histograms (the smallest ``v`` with more than ``(N - 1) // 2`` codes ``<= v``)."""
     hist = column_histograms(codes, bits) if hist is None else hist
-    return (np.cumsum(hist, axis=1) <= (codes.shape[0] - 1) // 2).sum(axis=1).astype(np.uint8)
+    at_or_below: np.ndarray = (np.cumsum(hist, axis=1) <= (codes.shape[0] - 1) // 2).sum(axis=1)
+    return at_or_below.astype(np.uint8)
 
 
 def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1, *, _shortcut: bool = True) -> bytes:
@@ -119,7 +122,7 @@ class _Payload:
     stream: memoryview
 
 
-def _parse_payload(payload, encoding: str, rows: int, cols: int) -> _Payload:
+def _parse_payload(payload: BytesLike, encoding: str, rows: int, cols: int) -> _Payload:
     bits = RANS_BITS[encoding]
     top = (1 << bits) - 1
     data = bytes(payload)
@@ -156,7 +159,7 @@ def _residual_error(encoding: str, top: int) -> MalformedSectionError:
     return MalformedSectionError(f"{encoding} residuals decode to codes outside 0..{top}")
 
 
-def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def decode_rans_codes(payload: BytesLike, encoding: str, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(codes uint8 (rows, cols), scale float32 (cols,), offset float32 (cols,)) of a token payload.
 
     Every field is checked before use: group count, parameters finite with scale >= 0, prediction mode and
@@ -176,7 +179,7 @@ def decode_rans_codes(payload, encoding: str, rows: int, cols: int) -> tuple[np.
             np.repeat(p.offset, width).astype(np.float32))
 
 
-def decode_rans_tokens(payload, encoding: str, rows: int, cols: int) -> np.ndarray | None:
+def decode_rans_tokens(payload: BytesLike, encoding: str, rows: int, cols: int) -> np.ndarray | None:
     """The float32 (rows, cols) tokens of a payload, decoded, mapped to codes and dequantized in one pass
     by the compiled coder through a table ``lut[g, q] = f32(f64(offset_g) + f64(scale_g) * q)`` (the
     decoding formula, evaluated once per group and code); non-finite values raise MalformedSectionError.
@@ -185,12 +188,13 @@ def decode_rans_tokens(payload, encoding: str, rows: int, cols: int) -> np.ndarr
     return None if out is None else out[0]
 
 
-def decode_rans_token_pair(sections, encoding: str) -> list[np.ndarray] | None:
+def decode_rans_token_pair(sections: Sequence[tuple[BytesLike, int, int]], encoding: str) -> list[np.ndarray] | None:
     """:func:`decode_rans_tokens` of 1 or 2 ``(payload, rows, cols)`` (a scene's static and dynamic
     sections), both streams decoded in one interleaved pass.  Errors are those of decoding the sections
     one after the other, in order (on any error the sections are decoded again one by one to say which)."""
     try:
-        jobs, parsed = [], []
+        jobs: list[rans.MappedJob] = []
+        parsed = []
         for payload, rows, cols in sections:
             p = _parse_payload(payload, encoding, rows, cols)
             q = np.arange(p.top + 1, dtype=np.float64)

@@ -10,13 +10,13 @@ import numpy as np
 from ..cameras import Trajectory
 from ..errors import (ChecksumError, FormatError, MalformedHeaderError, MalformedSectionError, TruncatedError,
                       UnsupportedFeatureError)
-from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant
+from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant, payload_size
 from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
-from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE, Preamble,
-                     SectionEntry, crc32, parse_preamble)
-from .layout import parse_table
+from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32,
+                     parse_preamble, parse_table)
+from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, section_payload, unpack_cameras)
@@ -31,7 +31,7 @@ def is_url(source: Any) -> bool:
     return isinstance(source, str) and "://" in source and not source.startswith("file://")
 
 
-def open_binary(source: "str | os.PathLike", **storage_options: Any) -> BinaryIO:
+def open_binary(source: "str | os.PathLike[str]", **storage_options: Any) -> BinaryIO:
     """A binary file object for a local path, a ``file://`` path or an fsspec URL (fsspec is needed for
     URLs only: ``pip install "vt4dcodec[remote]"``).  ``storage_options`` go to fsspec."""
     if isinstance(source, str) and source.startswith("file://"):
@@ -42,10 +42,11 @@ def open_binary(source: "str | os.PathLike", **storage_options: Any) -> BinaryIO
         import fsspec
     except ImportError:
         raise UnsupportedFeatureError(f"reading {source} needs fsspec: pip install \"vt4dcodec[remote]\"") from None
-    return fsspec.open(source, "rb", **storage_options).open()
+    fh: BinaryIO = fsspec.open(source, "rb", **storage_options).open()
+    return fh
 
 
-def read_container_bytes(source: Any, **storage_options: Any):
+def read_container_bytes(source: Any, **storage_options: Any) -> BytesLike:
     """The container bytes of ``source`` (a path, an fsspec URL, a bytes-like object, or a binary file
     object; ``storage_options`` go to fsspec for a URL).
 
@@ -103,7 +104,7 @@ class SceneFile:
         sections: the section table entries in file order.
     """
 
-    def __init__(self, data) -> None:
+    def __init__(self, data: BytesLike) -> None:
         if not isinstance(data, bytes):
             try:
                 data = memoryview(data).cast("B")
@@ -173,9 +174,7 @@ class SceneFile:
     def _check_raw_lengths(self) -> None:
         """Every known section's ``raw_length`` against what the header implies, *before* anything is
         decompressed (FORMAT.md I.11): a tiny file cannot make a reader allocate more than its tokens,
-        cameras and quantization need (issue 15: an 18 KB scene declaring two 256 MiB zstd sections)."""
-        from .encodings import payload_size
-
+        cameras and quantization need (an 18 KB scene must not make it allocate two declared 256 MiB sections)."""
         d = self._info.static_shape[1]
         limits = {SECTION_CAMERAS: self._info.cameras.raw_length}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
@@ -194,7 +193,7 @@ class SceneFile:
                     f"{'at most ' if entry.type in (SECTION_STATIC, SECTION_DYNAMIC) and is_entropy_coded(self._info.encoding) else ''}"
                     f"{limit}")
 
-    def raw_section(self, name: str):
+    def raw_section(self, name: str) -> bytes | memoryview:
         """The decompressed, checksum-verified bytes of section ``name`` (a zero-copy view when stored raw)."""
         entry = self._by_type.get(name)
         if entry is None:

@@ -92,14 +92,15 @@ class Scene:
 
     @property
     def static_shape(self) -> tuple[int, int]:
-        return tuple(self.static_tokens.shape)  # type: ignore[return-value]
+        return tuple(self.static_tokens.shape)
 
     @property
     def dynamic_shape(self) -> tuple[int, int]:
-        return tuple(self.dynamic_tokens.shape)  # type: ignore[return-value]
+        return tuple(self.dynamic_tokens.shape)
 
     def __eq__(self, other: object) -> bool:
-        """Equal when every field is equal (tokens and cameras exactly)."""
+        """Equal when every field is equal (tokens and cameras exactly).  Defining ``__eq__`` leaves the class
+        unhashable (``__hash__`` is None): a scene is mutable."""
         if not isinstance(other, Scene):
             return NotImplemented
         return (self.encoding == other.encoding and self.fingerprint == other.fingerprint
@@ -107,8 +108,6 @@ class Scene:
                 and self.cameras.equals(other.cameras)
                 and np.array_equal(self.static_tokens, other.static_tokens)
                 and np.array_equal(self.dynamic_tokens, other.dynamic_tokens))
-
-    __hash__ = None  # mutable
 
     def __repr__(self) -> str:
         return (f"Scene(Z_s {self.static_shape[0]}x{self.static_shape[1]}, Z_d {self.dynamic_shape[0]}x"

@@ -12,7 +12,7 @@ import zstandard
 from ..cameras import Trajectory
 from ..errors import CameraError, ChecksumError, MalformedSectionError, UnsupportedFeatureError
 from .header import CameraLayout
-from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, SectionEntry, crc32
+from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, BytesLike, SectionEntry, crc32
 
 __all__ = ["SECTION_CAMERAS", "SECTION_STATIC", "SECTION_DYNAMIC", "SECTION_STATIC_QUANT",
            "SECTION_DYNAMIC_QUANT", "KNOWN_SECTIONS", "compress_payload", "section_payload",
@@ -37,7 +37,7 @@ def compress_payload(raw: bytes, level: int | None) -> tuple[int, bytes]:
     return COMPRESSION_ZSTD, packed
 
 
-def section_payload(container, entry: SectionEntry, *, check_crc: bool = True):
+def section_payload(container: BytesLike, entry: SectionEntry, *, check_crc: bool = True) -> bytes | memoryview:
     """The raw (decompressed) bytes of a section, as a zero-copy memoryview when stored raw.
 
     Checks the CRC-32 of the stored bytes first, then decompresses at most ``raw_length`` bytes, so a
@@ -59,8 +59,9 @@ _local = threading.local()
 
 
 def _new_dctx() -> zstandard.ZstdDecompressor:
-    _local.dctx = zstandard.ZstdDecompressor()
-    return _local.dctx
+    dctx = zstandard.ZstdDecompressor()
+    _local.dctx = dctx
+    return dctx
 
 
 def _bounded_zstd(stored: memoryview, entry: SectionEntry) -> bytes:
@@ -136,7 +137,7 @@ def pack_cameras(traj: Trajectory) -> tuple[CameraLayout, bytes]:
     return layout, raw
 
 
-def unpack_cameras(raw, layout: CameraLayout) -> Trajectory:
+def unpack_cameras(raw: BytesLike, layout: CameraLayout) -> Trajectory:
     """Rebuild the trajectory; any convention violation becomes MalformedSectionError."""
     if len(raw) != layout.raw_length:
         raise MalformedSectionError(

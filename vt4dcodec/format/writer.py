@@ -10,8 +10,8 @@ from ..errors import FormatError
 from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, pack_header
 from .encodings import is_entropy_coded
-from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, PREAMBLE_SIZE, SECTION_ENTRY_SIZE,
-                     Preamble, SectionEntry, align, crc32, pack_preamble, pack_table)
+from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32, pack_preamble, pack_table)
+from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
 from .scene import Scene
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, compress_payload, pack_cameras)
@@ -87,7 +87,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     return build_container(header, sections, minor=0)
 
 
-def save(scene: Scene, path_or_file: str | os.PathLike | BinaryIO, *, encoding: str | None = None,
+def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..capture.io import write_capture
 from .assets import SynthError, check_split
 from .generator import SynthConfig, SynthScene, generate_scene
 
@@ -49,8 +50,6 @@ def _save_npz(path: Path, arrays: dict[str, np.ndarray], level: int = 1) -> None
 
 def write_scene(scene: SynthScene, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write one generated scene (capture + ``synth_gt.npz``) into ``directory``; returns its path."""
-    from ..capture.io import write_capture
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     names = scene.capture.camera_names

@@ -12,27 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..cameras import Trajectory
+from ..cameras import Trajectory, look_at
 
-__all__ = ["look_at", "sample_rig"]
+__all__ = ["sample_rig"]
 
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """World-to-camera (..., 4, 4) for cameras at ``eye`` (..., 3) looking at ``target`` (..., 3), z up."""
-    eye = np.asarray(eye, dtype=np.float64)
-    fwd = np.asarray(target, dtype=np.float64) - eye
-    fwd = fwd / np.linalg.norm(fwd, axis=-1, keepdims=True)
-    up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), fwd.shape)
-    right = np.cross(fwd, up)
-    right = right / np.linalg.norm(right, axis=-1, keepdims=True)
-    down = np.cross(fwd, right)
-    R = np.stack([right, down, fwd], axis=-2)            # rows: camera axes in world coordinates
-    w2c = np.zeros(eye.shape[:-1] + (4, 4))
-    w2c[..., :3, :3] = R
-    w2c[..., :3, 3] = -np.einsum("...ij,...j->...i", R, eye)
-    w2c[..., 3, 3] = 1.0
-    return w2c
+_Z_UP = np.array([0.0, 0.0, 1.0])  # the world's up: image up is towards +z
 
 
 def sample_rig(
@@ -67,7 +51,7 @@ def sample_rig(
         z = height0[i] + bob_amp[i] * np.sin(2 * np.pi * bob_freq[i] * t[:, 0])
         eye = np.stack([rad * np.cos(az), rad * np.sin(az), z], -1)
         target = target0[i][None] + target_vel[i][None] * t
-        w2c = look_at(eye, target)
+        w2c = look_at(eye, target, _Z_UP)
         f = 0.5 * width / np.tan(0.5 * fov[i])
         K = np.array([[f, 0.0, 0.5 * (width - 1)], [0.0, f, 0.5 * (height - 1)], [0.0, 0.0, 1.0]])
         cams[f"cam{i:02d}"] = Trajectory(

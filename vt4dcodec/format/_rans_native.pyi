@@ -1,0 +1,13 @@
+"""Type hints of the compiled rANS coder (_rans_native.c); rans.py says what each function does."""
+
+import numpy as np
+
+# what the C code reads and writes through the buffer protocol (numpy arrays contiguous, of the dtype named)
+_Buffer = bytes | bytearray | memoryview | np.ndarray
+
+def decode(stream: _Buffer, freqs_u32: _Buffer, out_u16: _Buffer, /) -> tuple[int, int, int]: ...
+def decode_mapped(
+    jobs: tuple[tuple[_Buffer, _Buffer, _Buffer, int, _Buffer, _Buffer, _Buffer, int], ...], /
+) -> list[tuple[int, int, int, int]]: ...
+def encode(jobs: tuple[tuple[_Buffer, _Buffer], ...], /) -> list[bytes | None]: ...
+def column_histograms(codes_u8: _Buffer, cols: int, size: int, out_i64: _Buffer, /) -> None: ...
