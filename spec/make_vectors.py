@@ -33,8 +33,8 @@ sys.path.insert(0, str(ROOT.parent))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
-from vt4dcodec.format.layout import (PREAMBLE_SIZE, SECTION_ENTRY_SIZE, crc32, parse_preamble,  # noqa: E402
-                                     parse_table)
+from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE,  # noqa: E402
+                                     SECTION_ENTRY_SIZE, crc32, parse_preamble, parse_table)
 from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
@@ -42,6 +42,11 @@ VECTORS = ROOT / "vectors"
 
 
 # --- deterministic scene content ---------------------------------------------------------------------
+def dumps_1_1(*args: Any, **kw: Any) -> bytes:
+    """The writer with the 1.0 cameras section: the vectors made before format 1.2 keep their bytes."""
+    return dumps(*args, cameras="legacy", **kw)
+
+
 def tokens(rows: int, cols: int, salt: int) -> np.ndarray:
     """Exact dyadic values in [-4, 4): ((7i + 13j + salt) mod 32 - 16) / 4."""
     i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
@@ -84,9 +89,37 @@ def split(data: bytes) -> tuple[dict, list[list]]:
 
 
 def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
-    """A container with correct checksums from a header (map or raw msgpack bytes) and sections."""
+    """A container with correct checksums from a header (map or raw msgpack bytes) and sections.
+
+    Without ``minor`` / ``required_flags`` the preamble says 1.0 with no flags, unless the sections came
+    from a 1.2 file with compact cameras (a ``CAMS`` raw length below the 1.0 length the header implies,
+    which only the compact encoding has): then 1.2 with flag bit 1 (and bit 0 for an ``-rans`` encoding),
+    as the writer would say."""
     raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
+    if "minor" not in kw and "required_flags" not in kw and _compact_cameras(header, sections):
+        rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
+        kw = dict(kw, minor=2, required_flags=FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0))
     return build_container(raw, [tuple(s) for s in sections], **kw)
+
+
+def _header_map(header: dict | bytes) -> dict:
+    if isinstance(header, dict):
+        return header
+    try:
+        value = msgpack.unpackb(header, raw=False, strict_map_key=False)
+    except Exception:  # a deliberately broken header: no version to infer
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _compact_cameras(header: dict | bytes, sections: list[list]) -> bool:
+    try:
+        cams = _header_map(header)["cameras"]
+        t = cams["num_frames"]
+        legacy = 8 * (25 * t + cams["distortion_terms"] + (t if cams["has_timestamps"] else 0))
+        return find(sections, "CAMS")[4] < legacy
+    except (KeyError, TypeError, StopIteration):
+        return False
 
 
 def patch_preamble(data: bytes, offset: int, fmt: str, value: int, *, fix_crc: bool = True) -> bytes:
@@ -115,24 +148,24 @@ def find(sections: list[list], name: str) -> list:
 # --- the vectors -------------------------------------------------------------------------------------
 def valid_vectors() -> dict[str, tuple[bytes, str]]:
     out = {
-        "float32_raw_minimal": (dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+        "float32_raw_minimal": (dumps_1_1(scene(2, 1, 3), encoding="float32", compression_level=None),
                                 "smallest useful file: float32 tokens, every section stored raw (the "
                                 "FORMAT.md hex dump)"),
-        "float16_zstd_timestamps": (dumps(scene(8, 4, 4, frames=3, timestamps=True), encoding="float16"),
+        "float16_zstd_timestamps": (dumps_1_1(scene(8, 4, 4, frames=3, timestamps=True), encoding="float16"),
                                     "float16 tokens, zstd sections, three frames with timestamps"),
         "int8_distortion_metadata": (
-            dumps(scene(16, 8, 4, frames=2, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001],
+            dumps_1_1(scene(16, 8, 4, frames=2, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001],
                         metadata={"scene": "ramp", "tags": ["a", "b"], "nested": {"n": 3, "x": 0.5, "ok": True,
                                                                              "none": None}},
                         provenance=PROVENANCE), encoding="int8"),
             "int8 per-channel affine tokens, 5 OpenCV distortion terms, metadata and provenance"),
-        "int4_odd_count": (dumps(scene(3, 1, 3, frames=2, provenance=Provenance(
+        "int4_odd_count": (dumps_1_1(scene(3, 1, 3, frames=2, provenance=Provenance(
             "0.1.0", "2026-01-01T00:00:00.5Z", None, "generated")), encoding="int4"),
                            "int4 with an odd number of codes per section (last high nibble is padding)"),
     }
     # A newer minor version (1.7) with an unknown optional flag, an unknown header key and an unknown
     # ancillary section: a 1.0 reader MUST read it and ignore all three.
-    base = dumps(scene(4, 2, 2, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    base = dumps_1_1(scene(4, 2, 2, provenance=PROVENANCE), encoding="int8", compression_level=None)
     header, sections = split(base)
     header["future_key"] = {"anything": [1, 2]}
     sections.insert(2, ["xTRA", False, 0, b"ancillary bytes a 1.0 reader skips", 34])
@@ -141,6 +174,121 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
                                      "minor version 7, unknown optional flag, unknown header key and two "
                                      "unknown ancillary sections (one with an unknown compression code)")
     out.update(rans_valid_vectors())
+    out.update(compact_valid_vectors())
+    return out
+
+
+# --- format 1.2: compact cameras (FORMAT.md I.5.1) -----------------------------------------------------
+def orbit(frames: int, *, zoom: bool = False, timestamps: bool = True) -> Trajectory:
+    """A camera turning about y through rotations with exact rational entries (Pythagorean triples, so
+    every platform computes the same float64 values) while it backs away: some values fall from frame to
+    frame, so the predicted differences wrap modulo 2^32.  ``zoom``: fx and fy change every frame."""
+    triples = [(1, 0, 1), (4, 3, 5), (12, 5, 13), (15, 8, 17), (24, 7, 25), (21, 20, 29), (40, 9, 41), (35, 12, 37)]
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    K = np.tile(np.array([[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
+    for i in range(frames):
+        a, b, c = triples[i % len(triples)]
+        cos, sin = a / c, b / c
+        w2c[i, :3, :3] = [[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]]
+        w2c[i, :3, 3] = [0.1 * i, -0.05 * i, 3.0 - 0.25 * i]
+        if zoom:
+            K[i, 0, 0] = K[i, 1, 1] = 100.0 + 7.25 * i
+    return Trajectory(K=K, w2c=w2c, width=64, height=48, timestamps=np.arange(frames) / 30.0 if timestamps else None)
+
+
+def with_cameras(s: Scene, traj: Trajectory) -> Scene:
+    return Scene(s.static_tokens, s.dynamic_tokens, traj, s.fingerprint, s.metadata, s.provenance, s.encoding)
+
+
+def compact_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    return {
+        "compact_cameras_static_f32": (
+            dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+            "1.2: compact cameras, one frame (constant K and static pose, P = 4), every section raw (the "
+            "FORMAT.md I.5.1 example)"),
+        "compact_cameras_orbit_f32_zstd": (
+            dumps(with_cameras(scene(8, 4, 4, provenance=PROVENANCE), orbit(8)), encoding="int8"),
+            "1.2: compact cameras, 8 frames of an orbit rounded to float32 (constant K, moving pose, "
+            "timestamps), zstd sections"),
+        "compact_cameras_orbit_f32_raw": (
+            dumps(with_cameras(scene(8, 4, 4), orbit(8)), encoding="int8", compression_level=None),
+            "1.2: the same orbit with every section raw: the byte planes of the predicted records are "
+            "readable in the file"),
+        "compact_cameras_zoom_exact_f64": (
+            dumps(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
+            "1.2: compact cameras in float64 (P = 8, bit-exact), per-frame intrinsics (zoom), moving pose"),
+        "compact_cameras_distortion_timestamps": (
+            dumps(scene(4, 2, 4, frames=3, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001], timestamps=True),
+                  encoding="int4", compression_level=None),
+            "1.2: compact cameras with 5 distortion terms and timestamps stored as float64 after the blocks"),
+        "compact_cameras_with_rans": (
+            dumps(with_cameras(scene(16, 8, 4, provenance=PROVENANCE), orbit(4)), encoding="int4-rans"),
+            "1.2: compact cameras and entropy-coded tokens: required flags 3"),
+    }
+
+
+def compact_block(values: np.ndarray, width: int) -> bytes:
+    """FORMAT.md I.5.1, written from the text: predicted records, then byte planes."""
+    u = np.ascontiguousarray(values, dtype={4: "<f4", 8: "<f8"}[width]).view({4: "<u4", 8: "<u8"}[width])
+    e = u.copy()
+    e[1:] = u[1:] - u[:-1]
+    return np.ascontiguousarray(e.reshape(-1).view(np.uint8).reshape(-1, width).T).tobytes()
+
+
+def compact_payload(width: int, flags: int, k: list[list[float]], poses: list[list[float]],
+                    tail: list[float] = ()) -> bytes:
+    return (bytes([width, flags]) + compact_block(np.array(k, np.float64), width)
+            + compact_block(np.array(poses, np.float64), width) + np.array(tail, "<f8").tobytes())
+
+
+def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    header, sections = split(good)
+    out: dict[str, tuple[bytes, str, str]] = {}
+    K = [100.0, 0.0, 31.5, 100.0, 23.5]
+    pose = [[1.0, 0.0, 0.0, 0.25 * i, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 2.0] for i in range(2)]
+
+    def with_cams(name: str, payload: bytes, error: str, why: str, **kw: Any) -> None:
+        bad = [list(s) for s in sections]
+        cams = find(bad, "CAMS")
+        cams[3], cams[4] = payload, len(payload)
+        out[f"compact_cameras_{name}"] = (rebuild(header, bad, **kw), error, why)
+
+    assert find(sections, "CAMS")[3] == compact_payload(4, 1, [K], pose)  # the writer and the text agree
+    with_cams("precision_2", bytes([2, 1]) + compact_payload(4, 1, [K], pose)[2:],
+              "MalformedSectionError", "value width P = 2 (only 4 and 8 are defined)")
+    with_cams("undefined_layout_flag", compact_payload(4, 1 | 4, [K], pose), "MalformedSectionError",
+              "layout flag bit 2 set")
+    with_cams("one_byte_short", compact_payload(4, 1, [K], pose)[:-1], "MalformedSectionError",
+              "the section is one byte shorter than P, F and the header give")
+    with_cams("one_byte_long", compact_payload(4, 1, [K], pose) + b"\0", "MalformedSectionError",
+              "one byte after the last pose")
+    with_cams("empty", b"", "MalformedSectionError", "a cameras section of 0 bytes (no room for P and F)")
+    with_cams("flags_say_static", compact_payload(4, 3, [K], pose), "MalformedSectionError",
+              "flag bit 1 (one pose) with two poses stored: the length does not match")
+    with_cams("nan_focal", compact_payload(4, 1, [[float("nan")] + K[1:]], pose), "MalformedSectionError",
+              "fx is a float32 NaN")
+    with_cams("inf_translation", compact_payload(8, 1, [K], [pose[0], pose[1][:3] + [float("inf")] + pose[1][4:]]),
+              "MalformedSectionError", "t[0] of frame 1 is +infinity (float64)")
+    with_cams("zero_focal", compact_payload(4, 1, [[0.0] + K[1:]], pose), "MalformedSectionError", "fx = 0")
+    with_cams("scaled_rotation", compact_payload(4, 1, [K], [pose[0], [2.0] + pose[1][1:]]),
+              "MalformedSectionError", "R[0][0] = 2 in frame 1: not a rotation")
+    with_cams("legacy_layout_under_flag", find(split(dumps_1_1(scene(4, 2, 4, frames=2)))[1], "CAMS")[3],
+              "MalformedSectionError", "required flag bit 1 but the 1.0 float64 cameras section (P reads as 0)")
+    with_cams("without_flag", compact_payload(4, 1, [K], pose), "MalformedSectionError",
+              "a compact cameras section in a 1.0 file without flag bit 1 (the 1.0 length does not match)",
+              minor=0, required_flags=0)
+    with_cams("in_1_1_file", compact_payload(4, 1, [K], pose), "MalformedHeaderError",
+              "required flag bit 1 in a file that says minor version 1", minor=1, required_flags=2)
+    with_cams("unknown_flag_bit_2", compact_payload(4, 1, [K], pose), "UnsupportedFeatureError",
+              "required flag bit 2 (undefined in 1.2) beside bit 1", minor=2, required_flags=2 | 4)
+    ts_header = dict(header, cameras=dict(header["cameras"], has_timestamps=True))
+    bad = [list(x) for x in sections]
+    cams = find(bad, "CAMS")
+    cams[3] = compact_payload(4, 1, [K], pose, [1.0, 0.5])
+    cams[4] = len(cams[3])
+    out["compact_cameras_decreasing_timestamps"] = (rebuild(ts_header, bad), "MalformedSectionError",
+                                                    "timestamps 1.0 then 0.5 after the blocks")
     return out
 
 
@@ -153,17 +301,17 @@ def rans_valid_vectors() -> dict[str, tuple[bytes, str]]:
     narrow.static_tokens[:] = (c / 4.0 - 0.5 + ((i * (c + 1)) % 3 - 1) / 64.0).astype(np.float32)
     return {
         "int5_rans_centre_prediction": (
-            dumps(narrow, encoding="int5-rans", compression_level=None),
+            dumps_1_1(narrow, encoding="int5-rans", compression_level=None),
             "1.1: int5-rans where Z_s's channels each span a narrow range: coded as residuals from per-channel "
             "centre codes (prediction 1); Z_d without prediction"),
-        "int4_rans_one_group": (dumps(scene(16, 8, 4), encoding="int4-rans", compression_level=None),
+        "int4_rans_one_group": (dumps_1_1(scene(16, 8, 4), encoding="int4-rans", compression_level=None),
                                 "1.1: int4-rans, one scale/offset per token matrix, every section raw"),
         "int6_rans_channel_groups": (
-            dumps(scene(24, 8, 4, frames=2, timestamps=True, provenance=PROVENANCE), encoding="int6-rans",
+            dumps_1_1(scene(24, 8, 4, frames=2, timestamps=True, provenance=PROVENANCE), encoding="int6-rans",
                   groups=2, compression_level=None),
             "1.1: int6-rans with 2 channel groups of 2 channels each"),
         "int3_rans_constant_matrix": (
-            dumps(constant, encoding="int3-rans", compression_level=None),
+            dumps_1_1(constant, encoding="int3-rans", compression_level=None),
             "1.1: int3-rans; Z_d is constant (scale 0, a one-symbol frequency table, a 4-byte stream)"),
         "int8_rans_centre_prediction_511": int8_rans_prediction_vector(),
     }
@@ -174,7 +322,7 @@ def int8_rans_prediction_vector() -> tuple[bytes, str]:
     mode: residual symbols run over the whole 511-symbol alphabet (0..510), so a reader that keeps
     symbols in bytes decodes every other vector and fails here (issue 15)."""
     base = scene(8, 4, 4, provenance=PROVENANCE)
-    header, sections = split(dumps(base, encoding="int8-rans", compression_level=None))
+    header, sections = split(dumps_1_1(base, encoding="int8-rans", compression_level=None))
     centres = [10, 250, 128, 0]
     codes = [[255, 0, 128, 255], [254, 1, 0, 0], [200, 250, 255, 7], [10, 5, 127, 1],
              [0, 255, 129, 128], [11, 249, 64, 3], [255, 2, 192, 254], [9, 251, 128, 2]]
@@ -199,7 +347,7 @@ def rans_payload(head: bytes, freqs: list[int], codes: list[int]) -> bytes:
 
 
 def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
-    good = dumps(scene(4, 2, 4, provenance=PROVENANCE), encoding="int2-rans", compression_level=None)
+    good = dumps_1_1(scene(4, 2, 4, provenance=PROVENANCE), encoding="int2-rans", compression_level=None)
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
 
@@ -245,7 +393,7 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
                                 "int2-rans tokens but required flag bit 0 is clear")
     out["rans_in_1_0_file"] = (patch_preamble(good, 12, "<H", 0), "MalformedHeaderError",
                                "int2-rans tokens in a file that says version 1.0")
-    int8 = dumps(scene(4, 2, 4), encoding="int8", compression_level=None)
+    int8 = dumps_1_1(scene(4, 2, 4), encoding="int8", compression_level=None)
     out["flag_without_rans"] = (patch_preamble(patch_preamble(int8, 12, "<H", 1), 16, "<Q", 1),
                                 "MalformedHeaderError", "required flag bit 0 set on an int8 file")
     quant = [list(s) for s in sections]
@@ -260,7 +408,7 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
 
 
 def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
-    good = dumps(scene(4, 2, 4, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    good = dumps_1_1(scene(4, 2, 4, provenance=PROVENANCE), encoding="int8", compression_level=None)
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
 
@@ -367,6 +515,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(cams, "CAMS")[3] = cam.tobytes()
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
     out.update(rans_invalid_vectors())
+    out.update(compact_invalid_vectors())
     return out
 
 

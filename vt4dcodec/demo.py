@@ -2,7 +2,8 @@
 
 Makes a synthetic multi-camera capture from the test split (assets no training scene used), encodes one
 camera into a ``.vt4d`` file, decodes the source view and two other cameras' trajectories (novel views
-with ground truth), writes mp4s and a PNG contact sheet, and reports the file size and PSNR.
+with ground truth), writes H.264 mp4s (each view, its ground truth, and both side by side, enlarged 4x for
+viewing) and a PNG contact sheet, and reports the file size and PSNR.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from .capture.contact_sheet import write_contact_sheet
 from .capture.io import MANIFEST_NAME, write_capture
 from .errors import CaptureError
 from .format import save
-from .media import psnr, write_mp4
+from .media import psnr, side_by_side, write_mp4
+from .media import upscale as enlarge
 from .synth import SynthConfig, generate_scene
 
 __all__ = ["run_demo", "REPORT_FILE"]
@@ -29,13 +31,16 @@ REPORT_FILE = "demo_report.json"  # written last; marks a directory as the demo'
 
 
 def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, steps: int | None = None,
-             overwrite: bool = False, log: Callable[[str], Any] | None = print) -> dict[str, Any]:
+             overwrite: bool = False, upscale: int = 4,
+             log: Callable[[str], Any] | None = print) -> dict[str, Any]:
     """Run the demo into ``output``; returns a JSON-able summary (paths, bytes, PSNR per view), also
     written to ``output/demo_report.json``.
 
     A directory that holds an earlier demo's report is the demo's own and is rewritten; a capture the
-    demo did not write is replaced only with ``overwrite=True`` (``vt4d demo --overwrite``)."""
+    demo did not write is replaced only with ``overwrite=True`` (``vt4d demo --overwrite``).  Videos are
+    enlarged ``upscale`` times by pixel repetition (PSNR is measured on the rendered pixels)."""
     say = log or (lambda *_: None)
+    enlarge(np.zeros((1, 1, 1, 3), np.uint8), upscale)  # a bad factor fails before any work
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -76,15 +81,18 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
     rows_frames, rows_cams = {}, {}
     for name, video in rendered.items():
         kind = "source" if name == source else "novel"
-        path = write_mp4(out / f"{kind}_{name}.mp4", video, fps=cap.fps)
-        write_mp4(out / f"{kind}_{name}_ground_truth.mp4", cap.frames[name], fps=cap.fps)
         gt = cap.frames[name]
+        path = write_mp4(out / f"{kind}_{name}.mp4", video, fps=cap.fps, scale=upscale)
+        write_mp4(out / f"{kind}_{name}_ground_truth.mp4", gt, fps=cap.fps, scale=upscale)
+        both = write_mp4(out / f"{kind}_{name}_truth_vs_decoded.mp4",
+                         side_by_side(enlarge(gt, upscale), enlarge(video, upscale)), fps=cap.fps)
         value = psnr(video, gt)
         dyn = psnr(video, gt, synth.dynamic_mask[name])
         # the structure-free reference: every pixel the source clip's mean colour (what a codec that
         # kept 3 numbers would score); a render must beat it clearly to carry the scene
         flat = psnr(np.broadcast_to(source_mean, gt.shape), gt)
-        report["views"][name] = {"kind": kind, "video": str(path), "psnr_db": round(value, 2),
+        report["views"][name] = {"kind": kind, "video": str(path), "side_by_side_video": str(both),
+                                 "psnr_db": round(value, 2),
                                  "flat_mean_colour_psnr_db": round(flat, 2),
                                  "dynamic_psnr_db": None if np.isnan(dyn) else round(dyn, 2)}
         say(f"{kind} view {name}: PSNR {value:.2f} dB (flat source mean colour {flat:.2f} dB; moving objects "

@@ -117,3 +117,29 @@ def test_a_failing_verify_reports_on_stderr_even_when_quiet(tmp_path):
     bad.write_bytes(b"not a scene")
     r = vt4d("verify", bad, "-q")
     assert r.returncode == 1 and r.stdout == "" and "FAIL" in r.stderr
+
+
+def test_decode_writes_h264_and_upscales_for_viewing(small_model, capture_dir, tmp_path):
+    """Issue 13: the mp4s `vt4d decode` writes are H.264 yuv420p (browsers play them), ``--upscale 4``
+    enlarges them by pixel repetition."""
+    from vt4dcodec.media import read_mp4
+
+    assert vt4d("encode", capture_dir, "--model", small_model, "-o", tmp_path / "s.vt4d", "-q").returncode == 0
+    plain = vt4d_json("decode", tmp_path / "s.vt4d", "--model", small_model, "--steps", "1", "-o", tmp_path / "a")
+    big = vt4d_json("decode", tmp_path / "s.vt4d", "--model", small_model, "--steps", "1", "-o", tmp_path / "b",
+                    "--upscale", "4")
+    import av
+    small_frames = read_mp4(plain["outputs"][0]["path"])
+    for result, factor in ((plain, 1), (big, 4)):
+        with av.open(result["outputs"][0]["path"]) as c:
+            ctx = c.streams.video[0].codec_context
+            assert (ctx.name, ctx.pix_fmt) == ("h264", "yuv420p")
+            assert (ctx.height, ctx.width) == (small_frames.shape[1] * factor, small_frames.shape[2] * factor)
+
+
+def test_upscale_is_checked_before_work(scene_file, tmp_path):
+    r = vt4d("decode", scene_file, "--format", "png", "--upscale", "4", "-o", tmp_path / "v")
+    assert r.returncode == 1 and "--upscale" in r.stderr and "model" not in r.stderr.lower(), r.stderr
+    r = vt4d("decode", scene_file, "--upscale", "17", "-o", tmp_path / "v")
+    assert r.returncode == 2 and "--upscale" in r.stderr, r.stderr
+    assert not (tmp_path / "v").exists()

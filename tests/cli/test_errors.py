@@ -13,7 +13,8 @@ from vt4dcodec.cli import KEYWORD_FLAGS, cli_message
 # the form of a keyword hint in a library message: replace=True, on_uncommitted='discard', model=<path>
 HINT = re.compile(r"(?<![`\w])[a-z_]+=(?:True|False|'[^']*'|<[^>]+>)")
 # hints no command can reach, with the reason
-API_ONLY = {"depth='npy'": "write_capture's depth format; the commands write synthetic rooms (depth < 65 m) only"}
+API_ONLY = {"depth='npy'": "write_capture's depth format; the commands write synthetic rooms (depth < 65 m) only",
+            "media='png'": "write_capture's media format; the commands write PNG captures only"}
 
 
 def _message_hints() -> set[str]:

@@ -16,7 +16,7 @@ import tomllib
 from cli_helpers import ROOT, vt4d
 
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
-CODEC_ONLY = ("torch", "kornia", "cv2", "safetensors", "skimage", "matplotlib", "tqdm", "fsspec", "aiohttp")
+CODEC_ONLY = ("torch", "kornia", "cv2", "av", "safetensors", "skimage", "matplotlib", "tqdm", "fsspec", "aiohttp")
 # a meta-path finder that makes the codec's packages unimportable, as on a core install
 BLOCK_CODEC = f"""
 import sys
@@ -36,7 +36,7 @@ def test_core_dependencies_are_the_container_only_and_extras_bring_the_rest():
     project = PYPROJECT["project"]
     assert _names(project["dependencies"]) == {"numpy", "msgpack", "zstandard", "filelock"}
     extras = project["optional-dependencies"]
-    assert {"torch", "kornia", "opencv-contrib-python-headless", "safetensors", "tqdm", "vt4dcodec"} <= \
+    assert {"torch", "kornia", "opencv-contrib-python-headless", "av", "safetensors", "tqdm", "vt4dcodec"} <= \
         _names(extras["codec"])
     assert "vt4dcodec[remote]" in extras["codec"] and {"fsspec", "aiohttp"} <= _names(extras["remote"])
     assert "vt4dcodec[codec]" in extras["test"]  # CI's `pip install -e ".[test]"` gets everything

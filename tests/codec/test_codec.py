@@ -8,6 +8,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.capture import Capture
 from vt4dcodec.errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError, Vt4dError
 from vt4dcodec.format import load, save
+from vt4dcodec.format.compact_cameras import REPROJECTION_TOLERANCE_PX, reprojection_change
 
 
 def test_encode_save_load_decode_round_trip(tmp_path, encoded, model_dir, synth_scene):
@@ -18,7 +19,11 @@ def test_encode_save_load_decode_round_trip(tmp_path, encoded, model_dir, synth_
     assert loaded.fingerprint.matches(encoded.fingerprint)
     assert loaded.provenance.kind == "encoded" and loaded.provenance.source_capture_id == synth_scene.capture.capture_id
     assert loaded.metadata["vt4d"]["source_camera"] == synth_scene.capture.camera_names[0]
-    assert loaded.cameras.equals(synth_scene.capture.cameras[synth_scene.capture.camera_names[0]], atol=1e-9)
+    source = synth_scene.capture.cameras[synth_scene.capture.camera_names[0]]
+    # compact cameras (format 1.2, the default): float32 within 0.01 px; cameras="exact" keeps float64
+    assert reprojection_change(source, loaded.cameras) <= REPROJECTION_TOLERANCE_PX
+    save(encoded, path, cameras="exact")
+    assert load(path).cameras.equals(source, atol=1e-9)
     frames = codec.decode(path, "source", steps=2, seed=3, model=model_dir)
     cfg = codec.load_model(model_dir).config
     assert frames.dtype == np.uint8 and frames.shape == (cfg.frames, cfg.image_size, cfg.image_size, 3)

@@ -9,7 +9,7 @@ import pytest
 
 import vt4dcodec
 from vt4dcodec import codec
-from vt4dcodec.media import psnr
+from vt4dcodec.media import mp4_codec_name, psnr, read_mp4
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 
@@ -93,7 +93,10 @@ def test_demo_writes_videos_picture_and_reports(tmp_path):
     report = json.loads(r.stdout)
     assert (tmp_path / "demo" / "contact_sheet.png").stat().st_size > 1000
     assert len(report["views"]) == 3 and all(v["psnr_db"] > 8 for v in report["views"].values())
-    assert sorted(p.suffix for p in (tmp_path / "demo").glob("*.mp4")) == [".mp4"] * 6
+    videos = sorted((tmp_path / "demo").glob("*.mp4"))  # per view: decoded, ground truth, side by side
+    assert len(videos) == 9 and {mp4_codec_name(v) for v in videos} == {"h264"}
+    both = read_mp4(report["views"][next(iter(report["views"]))]["side_by_side_video"])
+    assert both.shape[1:] == (256, 2 * 256 + 2, 3)  # x4 for viewing: truth | decoded
     assert report["scene_bytes"] == (tmp_path / "demo" / "scene.vt4d").stat().st_size
 
 
@@ -134,7 +137,8 @@ def test_generate_with_the_shipped_prior(tmp_path, scene):
     generated = vt4dcodec.load(tmp_path / "gen" / "scene.vt4d")
     assert generated.provenance.kind == "generated"
     assert generated.fingerprint.model_id == "vt4d-tiny"
-    assert len(list((tmp_path / "gen").glob("*.mp4"))) == 2
+    videos = list((tmp_path / "gen").glob("*.mp4"))
+    assert len(videos) == 2 and {mp4_codec_name(v) for v in videos} == {"h264"}
 
 
 # Regression guards for the shipped vt4d-tiny, measured through the public encode/decode path on

@@ -34,7 +34,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and required in (0, 1) and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and required in (0, 1, 2, 3) and file_length == len(data)
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(header_bytes, raw=False)
@@ -55,8 +55,48 @@ def read_scene(data: bytes) -> dict:
         assert len(payload) == raw
         sections[code.decode()] = payload
     entropy = header["encoding"].endswith("-rans")
-    assert (required == 1) == entropy and (minor >= 1 or not entropy)
-    return {"minor": minor, "optional": optional, "header": header, "sections": sections}
+    assert bool(required & 1) == entropy and (minor >= 1 or not entropy)
+    assert minor >= 2 or not required & 2  # compact cameras (I.5.1) since 1.2
+    return {"minor": minor, "optional": optional, "required": required, "header": header, "sections": sections}
+
+
+def compact_block(raw: bytes, pos: int, records: int, count: int, width: int) -> tuple[list[list[float]], int]:
+    """FORMAT.md I.5.1 "Blocks": byte planes back to the predicted integers, undo the prediction, reinterpret."""
+    n = records * count
+    planes = raw[pos:pos + width * n]
+    assert len(planes) == width * n
+    e = [sum(planes[b * n + k] << (8 * b) for b in range(width)) for k in range(n)]
+    mask, fmt = (1 << (8 * width)) - 1, {4: "<If", 8: "<Qd"}[width]
+    u, out = [0] * count, []
+    for r in range(records):
+        u = [(u[j] + e[r * count + j]) & mask if r else e[j] for j in range(count)]
+        out.append([struct.unpack(fmt[0] + fmt[2], struct.pack(fmt[:2], x))[0] for x in u])
+    return out, pos + width * n
+
+
+def read_cameras(scene: dict) -> dict:
+    """The cameras section: I.5 (float64 throughout) or, with required flag bit 1, I.5.1 (compact)."""
+    cams, raw = scene["header"]["cameras"], scene["sections"]["CAMS"]
+    t, n, has_ts = cams["num_frames"], cams["distortion_terms"], cams["has_timestamps"]
+    if not scene["required"] & 2:
+        values = struct.unpack(f"<{len(raw) // 8}d", raw)
+        K = [[list(values[9 * f + 3 * r: 9 * f + 3 * r + 3]) for r in range(3)] for f in range(t)]
+        w2c = [[list(values[9 * t + 16 * f + 4 * r: 9 * t + 16 * f + 4 * r + 4]) for r in range(4)] for f in range(t)]
+        tail = values[25 * t:]
+    else:
+        width, flags = raw[0], raw[1]
+        assert width in (4, 8) and flags < 4
+        n_k, n_w = (1 if flags & 1 else t), (1 if flags & 2 else t)
+        assert len(raw) == 2 + width * (5 * n_k + 12 * n_w) + 8 * (n + (t if has_ts else 0))
+        kv, pos = compact_block(raw, 2, n_k, 5, width)
+        pv, pos = compact_block(raw, pos, n_w, 12, width)
+        K = [[[k[0], k[1], k[2]], [0.0, k[3], k[4]], [0.0, 0.0, 1.0]] for k in (kv[f % n_k] for f in range(t))]
+        w2c = [[p[0:4], p[4:8], p[8:12], [0.0, 0.0, 0.0, 1.0]] for p in (pv[f % n_w] for f in range(t))]
+        tail = struct.unpack(f"<{(len(raw) - pos) // 8}d", raw[pos:])
+    values = [v for m in K + w2c for row in m for v in row] + list(tail)
+    assert all(math.isfinite(v) for v in values)
+    return {"K": K, "w2c": w2c, "distortion": list(tail[:n]) or None,
+            "timestamps": list(tail[n:]) if has_ts else None}
 
 
 def read_varint(raw: bytes, pos: int) -> tuple[int, int]:
@@ -137,16 +177,9 @@ def test_format_md_alone_reads_every_valid_vector(path):
     for tok, quant, shape_key in (("ZSTA", "QSTA", "static"), ("ZDYN", "QDYN", "dynamic")):
         got = decode_tokens(scene, tok, quant, h[f"{shape_key}_shape"])
         assert got == expected[f"{shape_key}_tokens"]
-    cams, t = h["cameras"], h["cameras"]["num_frames"]
-    values = struct.unpack(f"<{len(scene['sections']['CAMS']) // 8}d", scene["sections"]["CAMS"])
-    K = [[list(values[9 * f + 3 * r: 9 * f + 3 * r + 3]) for r in range(3)] for f in range(t)]
-    w2c = [[list(values[9 * t + 16 * f + 4 * r: 9 * t + 16 * f + 4 * r + 4]) for r in range(4)] for f in range(t)]
-    assert K == expected["cameras"]["K"] and w2c == expected["cameras"]["w2c"]
-    n = cams["distortion_terms"]
-    dist = list(values[25 * t:25 * t + n]) or None
-    ts = list(values[25 * t + n:]) if cams["has_timestamps"] else None
-    assert dist == expected["cameras"]["distortion"] and ts == expected["cameras"]["timestamps"]
-    assert all(math.isfinite(v) for v in values)
+    cams = read_cameras(scene)
+    for key in ("K", "w2c", "distortion", "timestamps"):
+        assert cams[key] == expected["cameras"][key], key
 
 
 @settings(max_examples=25, deadline=None)
@@ -171,6 +204,43 @@ def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(enco
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         got = decode_tokens(mine, tok, tok.replace("Z", "Q", 1), mine["header"][f"{shape_key}_shape"])
         assert np.array_equal(np.array(got, dtype=np.float32), want)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 12), st.integers(0, 2**32 - 1), st.sampled_from(["compact", "exact"]), st.booleans(),
+       st.booleans(), st.booleans())
+def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mode, static, zoom, timestamps):
+    """I.5.1: the spec-only cameras reader above decodes the library's compact cameras section (float32 or
+    float64, constant or per-frame K, static or moving pose) to exactly the library's own trajectory."""
+    from format_strategies import simple_scene
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.format import Scene, dumps, loads
+
+    rng = np.random.default_rng(seed)
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    for i in range(frames):
+        q = rng.standard_normal(4)
+        w, x, y, z = q / np.linalg.norm(q)
+        w2c[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+        w2c[i, :3, 3] = rng.uniform(-5, 5, 3)
+    if static:
+        w2c[:] = w2c[0]
+    K = np.tile(np.array([[80.0, 0.0, 31.5], [0.0, 80.0, 31.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
+    if zoom:
+        K[:, 0, 0] = K[:, 1, 1] = rng.uniform(40, 200, frames)
+    traj = Trajectory(K=K, w2c=w2c, width=64, height=64,
+                      timestamps=np.cumsum(rng.uniform(0, 0.1, frames)) if timestamps else None)
+    base = simple_scene(ns=3, nd=2, d=4, seed=seed % 1000)
+    data = dumps(Scene(base.static_tokens, base.dynamic_tokens, traj, base.fingerprint), cameras=mode)
+    mine, ours = read_cameras(read_scene(data)), loads(data).cameras
+    assert np.array_equal(np.array(mine["K"]), ours.K) and np.array_equal(np.array(mine["w2c"]), ours.w2c)
+    assert (mine["timestamps"] is None) == (ours.timestamps is None)
+    if timestamps:
+        assert np.array_equal(mine["timestamps"], ours.timestamps)
+    if mode == "exact":
+        assert np.array_equal(ours.K, traj.K) and np.array_equal(ours.w2c, traj.w2c)
 
 
 # --- Part II: archives, read from FORMAT.md alone (struct + zlib; no vt4dcodec import) ----------------

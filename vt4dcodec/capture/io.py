@@ -388,7 +388,7 @@ def write_capture(
         capture: the capture to store.
         directory: created if missing; must not already hold a capture unless ``overwrite``.
         media: ``"png"`` (lossless PNG sequence ``CAM/rgb/000000.png``...) or ``"mp4"`` (lossy
-            ``CAM/rgb.mp4``, MPEG-4 Part 2 via OpenCV).
+            ``CAM/rgb.mp4``, H.264 yuv420p through PyAV; even image sides only).
         depth: ``"npy"`` (``CAM/depth.npy``, float32 metres, lossless) or ``"png16"`` (``CAM/depth/
             000000.png``, uint16 millimetres, 0 = unknown; depth is rounded to 1 mm and must be
             <= 65.535 m).
@@ -400,9 +400,12 @@ def write_capture(
         raise CaptureError(f"media must be one of {MEDIA_TYPES}, got {media!r}")
     if depth not in ("npy", "png16"):
         raise CaptureError(f"depth must be 'npy' or 'png16', got {depth!r}")
-    for name in capture.cameras:
+    for name, traj in capture.cameras.items():
         if not CAMERA_NAME.match(name):
             raise CaptureError(f"camera name {name!r} must match {CAMERA_NAME.pattern} to be stored")
+        if media == "mp4" and (traj.width % 2 or traj.height % 2):
+            raise CaptureError(f"camera {name!r} is {traj.width}x{traj.height}: H.264 (yuv420p) mp4 media needs even "
+                               "sides; write media='png'")
     directory = Path(directory)
     manifest_path = directory / MANIFEST_NAME
     if manifest_path.exists() and not overwrite:

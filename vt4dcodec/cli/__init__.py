@@ -87,6 +87,29 @@ positive_int = int_at_least(1)
 nonneg_int = int_at_least(0)
 
 
+def add_upscale_option(p: argparse.ArgumentParser, default: int = 1) -> None:
+    """``--upscale N``: nearest-neighbour enlargement of mp4 videos for viewing (decode, generate, demo)."""
+    from ..media import MAX_UPSCALE
+
+    def parse(text: str) -> int:
+        value = int_at_least(1)(text)
+        if value > MAX_UPSCALE:
+            raise argparse.ArgumentTypeError(f"{text!r} must be at most {MAX_UPSCALE}")
+        return value
+
+    parse.__name__ = f"integer in 1..{MAX_UPSCALE}"
+    p.add_argument("--upscale", type=parse, default=default, metavar="N",
+                   help="enlarge mp4 videos N times by pixel repetition, for viewing small renders (e.g. 4: "
+                        f"64x64 -> 256x256); the pixels themselves are unchanged (default {default}; mp4 only)")
+
+
+def check_upscale(args: argparse.Namespace) -> None:
+    """--upscale enlarges videos only: with --format png or npz it is an error (before any work)."""
+    if getattr(args, "upscale", 1) != 1 and getattr(args, "format", "mp4") != "mp4":
+        raise Vt4dError(f"--upscale applies to --format mp4 only (got --format {args.format}); PNG frames and "
+                        "arrays keep the rendered pixels")
+
+
 # --- one shape for every command ----------------------------------------------------------------------
 def add_command(subparsers: Any, name: str, *, help: str, description: str, examples: Sequence[str],
                 notes: str = "", **kwargs: Any) -> argparse.ArgumentParser:

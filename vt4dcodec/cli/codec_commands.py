@@ -17,8 +17,8 @@ from ..demo import run_demo
 from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import VIDEO_FORMATS, write_frames
-from . import (add_command, emit, nonneg_int, positive_int, progress, read_head, storage_options, trajectory_label,
-               working)
+from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, positive_int, progress, read_head,
+               storage_options, trajectory_label, working)
 
 __all__ = ["register"]
 
@@ -194,6 +194,7 @@ def _open_scene_source(args: argparse.Namespace):
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
+    check_upscale(args)
     specs = args.trajectory or ["source"]
     for spec in specs:  # every spec checked before the scene is read or a model loaded
         check_trajectory_spec(spec)
@@ -211,7 +212,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
         path = write_frames(out_dir / f"{stem}_{trajectory_label(spec, i)}", frames, args.format,
-                            extra={"K": traj.K, "w2c": traj.w2c})
+                            extra={"K": traj.K, "w2c": traj.w2c}, scale=args.upscale)
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
     load_s = started - loading
@@ -225,7 +226,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     result = run_demo(args.output, model=args.model or DEFAULT_MODEL, seed=args.seed, steps=args.steps,
-                      overwrite=args.overwrite, log=None if args.json or args.quiet else print)
+                      overwrite=args.overwrite, upscale=args.upscale, log=None if args.json or args.quiet else print)
     emit(args, result)
     return 0
 
@@ -278,6 +279,7 @@ def register(subparsers: Any) -> None:
                         "setting, decode_steps in its config.json)")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
+    add_upscale_option(p)
     p.set_defaults(func=cmd_decode)
 
     p = add_command(
@@ -293,4 +295,5 @@ def register(subparsers: Any) -> None:
                    help="also replace a capture in OUTPUT/capture that the demo did not write")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
                    help="sampler steps (default: the model's recorded decode_steps)")
+    add_upscale_option(p, default=4)
     p.set_defaults(func=cmd_demo)

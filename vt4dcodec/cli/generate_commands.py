@@ -15,7 +15,8 @@ from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
 from ..media import VIDEO_FORMATS, write_frames
-from . import add_command, emit, nonneg_int, positive_int, progress, say, trajectory_label, working
+from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, positive_int, progress, say,
+               trajectory_label, working)
 
 __all__ = ["register", "split_view_specs"]
 
@@ -55,6 +56,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from ..model.prior import check_tokenizer  # the networks (torch): loaded by the command that needs them
 
     # every argument is checked before anything is loaded, sampled or written
+    check_upscale(args)
     views = split_view_specs(args.views) or ["source"]
     for flag, spec in [("--anchor", args.anchor)] + [("--views", v) for v in views]:
         try:
@@ -94,7 +96,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     for i, (spec, traj) in enumerate(progress(args, list(zip(views, trajectories)), len(views), "render", "view")):
         frames = decoder.render(traj, steps=args.render_steps, seed=args.seed)
         path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format,
-                            extra={"K": traj.K, "w2c": traj.w2c})
+                            extra={"K": traj.K, "w2c": traj.w2c}, scale=args.upscale)
         outputs.append({"view": spec, "path": str(path), "frames": int(frames.shape[0])})
     done = time.perf_counter()
     result: dict[str, Any] = {
@@ -133,4 +135,5 @@ def register(subparsers: Any) -> None:
                    help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
                         "0.07 dB of float32 tokens on generated scenes, half the bytes of int8)")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
+    add_upscale_option(p)
     p.set_defaults(func=cmd_generate)

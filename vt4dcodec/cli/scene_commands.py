@@ -99,16 +99,20 @@ def run_info(args: argparse.Namespace) -> int:
         return EXIT_INVALID
     scene = open_scene(args.file, **options)
     summary = scene.summary()
+    summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
+                "camera_encoding": scene.camera_encoding()}
     if args.json or args.quiet:
         emit(args, summary)
         return EXIT_OK
     fp = summary["fingerprint"]
     lines = [
         f"file            {args.file}",
-        f"format          .vt4d scene v{summary['format_version']}, {summary['bytes']} bytes",
+        f"format          .vt4d scene v{summary['format_version']}, {summary['bytes']} bytes "
+        f"({summary['token_bytes']} of tokens, {summary['non_token_bytes']} of everything else)",
         f"tokens          Z_s {summary['static_shape'][0]}x{summary['static_shape'][1]}, "
         f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}",
-        f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px",
+        f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "
+        f"{summary['camera_encoding']}",
         f"model           {fp['model_id']} {fp['model_version']} ({fp['token_dtype']})",
         f"  config sha256 {fp['config_sha256']}",
         f"  weights sha256 {fp['weights_sha256']}",

@@ -9,9 +9,9 @@ Preamble (64 bytes)::
       0    9 magic            89 56 54 34 44 0D 0A 1A 0A  ("\\x89VT4D\\r\\n\\x1a\\n")
       9    1 zero             00
      10    2 major            u16 = 1
-     12    2 minor            u16 = 0
+     12    2 minor            u16 = 0, 1 or 2 (the lowest that describes the file)
      14    2 reserved         u16 = 0
-     16    8 required_flags   u64 (none defined in 1.0: a reader refuses any set bit it does not know)
+     16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2: a reader refuses any set bit it does not know)
      24    8 optional_flags   u64 (none defined in 1.0: unknown bits are ignored)
      32    8 file_length      u64, total container bytes
      40    4 header_length    u32, msgpack header bytes (starts at offset 64)
@@ -50,16 +50,17 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
-           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "BytesLike"]
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS", "BytesLike"]
 
 # What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
 BytesLike = bytes | bytearray | memoryview
 
 SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
 FORMAT_MAJOR = 1
-FORMAT_MINOR = 1  # 1.1 adds the entropy-coded token encodings (required flag bit 0)
+FORMAT_MINOR = 2  # 1.1 adds the entropy-coded token encodings (required flag bit 0), 1.2 compact cameras (bit 1)
 FLAG_ENTROPY_CODED_TOKENS = 1 << 0  # required flag: token sections use an int<b>-rans encoding (1.1)
-KNOWN_REQUIRED_FLAGS = FLAG_ENTROPY_CODED_TOKENS
+FLAG_COMPACT_CAMERAS = 1 << 1  # required flag: the cameras section uses the compact encoding (1.2, I.5.1)
+KNOWN_REQUIRED_FLAGS = FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS
 FLAG_CRITICAL = 0x0001
 COMPRESSION_RAW, COMPRESSION_ZSTD = 0, 1
 

@@ -14,8 +14,9 @@ from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_
 from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
-from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32,
-                     parse_preamble, parse_table)
+from .compact_cameras import unpack_compact_cameras
+from .layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike, Preamble, SectionEntry,
+                     crc32, parse_preamble, parse_table)
 from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -139,7 +140,11 @@ class SceneFile:
     # --- structure ---------------------------------------------------------------------------------
     def _check_encoding_version(self) -> None:
         """Entropy-coded encodings exist from 1.1 on and are announced by required flag bit 0 (and the
-        flag announces nothing else)."""
+        flag announces nothing else); compact cameras (required flag bit 1) exist from 1.2 on."""
+        if self.preamble.required_flags & FLAG_COMPACT_CAMERAS and self.preamble.minor < 2:
+            raise MalformedHeaderError(
+                f"required flag bit 1 (compact cameras) was introduced in format 1.2 but the file says "
+                f"1.{self.preamble.minor}")
         entropy = is_entropy_coded(self._info.encoding)
         flagged = bool(self.preamble.required_flags & FLAG_ENTROPY_CODED_TOKENS)
         if entropy and self.preamble.minor < 1:
@@ -241,12 +246,23 @@ class SceneFile:
     def nbytes(self) -> int:
         return self.preamble.file_length
 
+    @property
+    def compact_cameras(self) -> bool:
+        """Whether the cameras section uses the compact encoding (format 1.2, required flag bit 1)."""
+        return bool(self.preamble.required_flags & FLAG_COMPACT_CAMERAS)
+
+    @property
+    def token_bytes(self) -> int:
+        """Stored bytes of the token sections (``ZSTA``, ``ZDYN``; the ``Q`` sections are not counted)."""
+        return sum(e.stored_length for e in self.sections if e.type in (SECTION_STATIC, SECTION_DYNAMIC))
+
     # --- sections ----------------------------------------------------------------------------------
     @property
     def cameras(self) -> Trajectory:
         """The source camera trajectory (K, w2c, size, distortion, timestamps)."""
         if self._cameras is None:
-            self._cameras = unpack_cameras(self.raw_section(SECTION_CAMERAS), self._info.cameras)
+            unpack = unpack_compact_cameras if self.compact_cameras else unpack_cameras
+            self._cameras = unpack(self.raw_section(SECTION_CAMERAS), self._info.cameras)
         return self._cameras
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
@@ -336,6 +352,14 @@ class SceneFile:
                           "raw_bytes": e.raw_length, "compression": ["raw", "zstd"][e.compression]
                           if e.compression < 2 else str(e.compression)} for e in self.sections],
         }
+
+    def camera_encoding(self) -> str:
+        """"float64" (the 1.0 cameras section) or "compact-float32" / "compact-float64" (I.5.1, read from
+        the checksum-verified section's first byte)."""
+        if not self.compact_cameras:
+            return "float64"
+        payload = self.raw_section(SECTION_CAMERAS)
+        return {4: "compact-float32", 8: "compact-float64"}.get(payload[0] if len(payload) else -1, "compact-invalid")
 
     def __repr__(self) -> str:
         return (f"<SceneFile v{self.preamble.major}.{self.preamble.minor} {self.nbytes} bytes, {self.encoding}, "

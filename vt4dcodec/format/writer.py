@@ -10,7 +10,9 @@ from ..errors import FormatError
 from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, pack_header
 from .encodings import is_entropy_coded
-from .layout import (FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32, pack_preamble, pack_table)
+from .compact_cameras import CAMERA_MODES, pack_compact_cameras
+from .layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
+                     pack_preamble, pack_table)
 from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
 from .scene import Scene
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -47,11 +49,13 @@ def build_container(header: bytes, sections: list[tuple[str, bool, int, bytes, i
 
 
 def dumps(scene: Scene, *, encoding: str | None = None,
-          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1) -> bytes:
+          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
+          cameras: str = "compact") -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
-    The file says the lowest format version that describes it: 1.0 for the float, int8 and int4
-    encodings (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0 for ``int<b>-rans``.
+    The file says the lowest format version that describes it: 1.2 with required flag bit 1 for compact
+    cameras (the default); otherwise 1.0 for the float, int8 and int4 encodings (byte-identical to a 1.0
+    writer's output), 1.1 with required flag bit 0 for ``int<b>-rans`` (bit 0 is set in 1.2 files too).
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
@@ -59,13 +63,21 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             ``None`` stores every section raw and 64-byte aligned, for zero-copy reading.
         groups: channel groups sharing one scale/offset in the ``int<b>-rans`` encodings (1 = one pair per
             token matrix, d = per channel; must divide d).  Ignored by the other encodings.
+        cameras: how the cameras section stores the trajectory (FORMAT.md I.5, I.5.1): ``"compact"``
+            (format 1.2: float32 when no reprojection moves more than 0.01 px, else float64; one record for
+            a constant K or a static pose), ``"exact"`` (format 1.2, float64: reads back bit for bit) or
+            ``"legacy"`` (the 1.0 float64 section, for readers older than 1.2).
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
     encoding = scene.encoding if encoding is None else encoding
     if encoding not in ENCODINGS:
         raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ENCODINGS}")
+    if cameras not in CAMERA_MODES:
+        raise FormatError(f"unknown cameras mode {cameras!r}; choose one of {CAMERA_MODES}")
     layout, cams = pack_cameras(scene.cameras)
+    if cameras != "legacy":
+        cams = pack_compact_cameras(scene.cameras, cameras)
     header = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
                                     scene.provenance, scene.metadata, {}))
     parts = [(SECTION_CAMERAS, cams)]
@@ -82,18 +94,18 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         level = None if entropy_coded and name in (SECTION_STATIC, SECTION_DYNAMIC) else compression_level
         compression, stored = compress_payload(raw, level)
         sections.append((name, True, compression, stored, len(raw)))
-    if entropy_coded:
-        return build_container(header, sections, minor=1, required_flags=FLAG_ENTROPY_CODED_TOKENS)
-    return build_container(header, sections, minor=0)
+    flags = (FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
+    minor = 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0
+    return build_container(header, sections, minor=minor, required_flags=flags)
 
 
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
-         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1) -> int:
+         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact") -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
-    data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups)
+    data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)
