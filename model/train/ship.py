@@ -58,8 +58,8 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
     lines = [
         f"# {model_id} {version}",
         "",
-        "A VideoTok4D tokenizer + rectified-flow renderer sized for CPU, trained from scratch on this project's",
-        "synthetic multi-camera dynamic scenes (no pretrained weights exist offline).",
+        "A VideoTok4D tokenizer + rectified-flow renderer sized for CPU, trained on this project's synthetic",
+        "multi-camera dynamic scenes only (no pretrained weights exist offline).",
         "",
         "## Identity",
         f"- config SHA-256: `{fingerprint['config_sha256']}`",
@@ -78,6 +78,9 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         f"- data: {args['scenes']} synthetic training scenes (seeds {args['scene_seed']}..."
         f"{args['scene_seed'] + args['scenes'] - 1}, split 'train'), {args['cameras']} cameras each, 8 frames at "
         "64x64; " + _pairs_text(args),
+        *([f"- warm start: the weights of {args['init']} (this model's predecessor, itself trained from scratch)"
+           + (", every tensor whose shape fits; tensors new in this config start fresh" if args.get("init_partial")
+              else "")] if args.get("init") else []),
         f"- recipe: prediction={cfg.get('prediction', 'velocity')}, share of samples at tau = 1: "
         f"{args.get('tau_one', 0.0)}, static-token dropout {args.get('drop_static', 0.0)}, saturation penalty "
         f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}",

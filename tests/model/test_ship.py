@@ -1,0 +1,36 @@
+"""The model card is generated from a run's own records, so it cannot drift from what was trained."""
+
+from __future__ import annotations
+
+import json
+
+from vt4dcodec.model.train.ship import model_card
+
+FINGERPRINT = {"config_sha256": "c" * 64, "weights_sha256": "w" * 64, "static_shape": [64, 32],
+               "dynamic_shape": [32, 32]}
+
+
+def _run(tmp_path, name, **args):
+    run = tmp_path / name
+    (run / "checkpoint").mkdir(parents=True)
+    base = {"batch_size": 8, "lr": 5e-4, "warmup": 100, "bf16": False, "scenes": 512, "scene_seed": 0,
+            "cameras": 10, "recon_share": 0.5, "neighbour_sigma": 45.0, "tau_one": 1.0}
+    (run / "checkpoint" / "state.json").write_text(json.dumps({"args": {**base, **args},
+                                                               "config": {"prediction": "x0"}}))
+    # two segments: the second resumed (elapsed restarts), so wall time adds both
+    logs = [{"step": 50, "elapsed_s": 30.0, "loss": 1.0}, {"step": 100, "elapsed_s": 60.0, "loss": 0.8},
+            {"step": 150, "elapsed_s": 20.0, "loss": 0.7}]
+    (run / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in logs))
+    return run
+
+
+def test_card_states_steps_wall_time_recipe_and_warm_start(tmp_path):
+    ae = _run(tmp_path, "ae")
+    fresh = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok"), ae, FINGERPRINT, "## Notes\nhand-written")
+    assert "# vt4d-tiny 9.9.9" in fresh and "150 steps" in fresh and "1.000 -> 0.700" in fresh
+    assert "2 min wall" in fresh or "1 min wall" in fresh  # 60 s + 20 s
+    assert "with probability 0.5" in fresh and "exp(-angle / 45.0 deg)" in fresh and "## Notes" in fresh
+    assert "warm start" not in fresh
+    warm = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok2", init="vt4d-tiny", init_partial=True), ae,
+                      FINGERPRINT, "")
+    assert "warm start: the weights of vt4d-tiny" in warm and "start fresh" in warm
