@@ -601,7 +601,7 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
         print("caliscope_4cam not found (--capture or $VT4D_CALISCOPE): real footage skipped", file=sys.stderr)
 
     result = {
-        "command": "python bench/bench_codecs.py " + " ".join(argv),
+        "command": " ".join(["python bench/bench_codecs.py", *argv]),
         "model": {"id": fp.model_id, "version": fp.model_version, "fingerprint": fp.short(),
                   "training_step": getattr(net, "training_step", None)},
         "decode_steps": int(net.decode_steps), "clip": f"{cfg.frames} frames at {cfg.image_size}x{cfg.image_size}",
