@@ -209,6 +209,7 @@ KEYWORD_FLAGS: dict[str, str] = {
     "scale_intrinsics=True": "--scale-intrinsics",
     "units='m'": "--units m",
     "units='mm'": "--units mm",
+    "capture=DIR": "--capture DIR",
     "model=<path to the model directory>": "--model PATH",
     "on_uncommitted='recover'": "--recover",
     "on_uncommitted='discard'": "--discard-uncommitted",
