@@ -240,19 +240,26 @@ def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str
 
 # --- decoding ---------------------------------------------------------------------------------------
 def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajectory, *, size: int,
-                       max_frames: int) -> Trajectory:
+                       max_frames: int, metadata: dict[str, Any] | None = None,
+                       capture: "Capture | str | os.PathLike | None" = None,
+                       source_capture_id: str | None = None) -> Trajectory:
     """A target trajectory for rendering, fitted to the model's ``size`` x ``size`` image.
 
-    ``spec`` is a :class:`Trajectory`, ``"source"`` (the scene's own cameras), a preset spec such as
+    ``spec`` is a :class:`Trajectory`, ``"source"`` (the scene's own cameras), ``"camera:NAME"`` (capture
+    camera NAME over the scene's clip; needs ``capture``), a preset spec such as
     ``"orbit:degrees=30,distance=2"`` (built from the scene's first source camera), or a path to a
-    trajectory JSON file.  Trajectories for another image size are resized and centre-cropped the way
+    trajectory JSON file.  A trajectory longer than the scene is cut to the clip window recorded in the
+    scene's ``metadata``.  Trajectories for another image size are resized and centre-cropped the way
     captures are (intrinsics updated).
     """
     from .capture.resample import fit_trajectory, plan_fit
+    from .capture.targets import camera_target, cut_to_clip, is_camera_spec
     from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 
     if isinstance(spec, Trajectory):
-        traj = spec
+        traj = cut_to_clip(spec, metadata, max_frames)
+    elif is_camera_spec(spec):
+        traj = camera_target(str(spec), capture, metadata, source_capture_id, max_frames)
     elif isinstance(spec, (str, os.PathLike)) and str(spec) == "source":
         traj = reference
     elif isinstance(spec, (str, os.PathLike)) and (str(spec).endswith(".json") or Path(spec).is_file()):
@@ -267,7 +274,8 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
         raise TrajectoryError(f"trajectory has {traj.num_frames} frames; a scene covers {max_frames} frames")
     if traj.distortion is not None and np.any(traj.distortion):
         raise TrajectoryError("target trajectories must be pinhole (no distortion terms): the renderer draws "
-                              "ideal pinhole images")
+                              "ideal pinhole images; render the undistorted view with "
+                              "dataclasses.replace(trajectory, distortion=None) or 'camera:NAME'")
     if (traj.width, traj.height) != (size, size):
         traj = fit_trajectory(traj, plan_fit(traj.width, traj.height, out_height=size, out_width=size))
     return traj
@@ -306,26 +314,35 @@ class SceneDecoder:
                     f"cannot force: token shapes differ ({stored.short()} vs {have.short()})")
         return cls(scene=scene, model=net)
 
-    def trajectory(self, spec: "Trajectory | str | os.PathLike") -> Trajectory:
+    def trajectory(self, spec: "Trajectory | str | os.PathLike", *,
+                   capture: "Capture | str | os.PathLike | None" = None) -> Trajectory:
+        """``spec`` resolved for this scene (:func:`resolve_trajectory`); ``capture`` serves ``"camera:NAME"``."""
         cfg = self.model.config
-        return resolve_trajectory(spec, self.scene.cameras, size=cfg.image_size, max_frames=cfg.frames)
+        return resolve_trajectory(spec, self.scene.cameras, size=cfg.image_size, max_frames=cfg.frames,
+                                  metadata=self.scene.metadata, capture=capture,
+                                  source_capture_id=getattr(self.scene.provenance, "source_capture_id", None))
 
     def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int | None = DEFAULT_STEPS,
-               seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> np.ndarray:
+               seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False,
+               capture: "Capture | str | os.PathLike | None" = None) -> np.ndarray:
         """Frames (T, H, W, 3) uint8 of the scene seen along ``trajectory`` (deterministic per seed)."""
         return self.render_many([trajectory], steps=steps, seed=seed, drop_static=drop_static,
-                                drop_dynamic=drop_dynamic)[0]
+                                drop_dynamic=drop_dynamic, capture=capture)[0]
 
     def render_many(self, trajectories: Sequence["Trajectory | str | os.PathLike"], *, steps: int | None = DEFAULT_STEPS,
-                    seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False) -> list[np.ndarray]:
-        """Render several trajectories from the one token state, each with the same ``seed``."""
+                    seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False,
+                    capture: "Capture | str | os.PathLike | None" = None) -> list[np.ndarray]:
+        """Render several trajectories from the one token state, each with the same ``seed``.
+
+        ``"camera:NAME"`` takes capture camera NAME over the scene's clip from ``capture`` (a Capture or
+        a capture directory: the one the scene was encoded from)."""
         import torch
 
         z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
         z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
         out = []
         for spec in trajectories:
-            traj = self.trajectory(spec)
+            traj = self.trajectory(spec, capture=capture)
             K = torch.from_numpy(traj.K.astype(np.float32))[None]
             w2c = torch.from_numpy(traj.w2c.astype(np.float32))[None]
             frames = self.model.render(z_s, z_d, K, w2c, steps=steps, seed=seed, drop_static=drop_static,

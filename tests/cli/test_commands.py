@@ -24,7 +24,7 @@ COMMANDS = sorted(_subparsers())
 
 def test_all_commands_are_covered():
     assert set(COMMANDS) == {"info", "verify", "encode", "decode", "demo", "pack", "ls", "extract", "repair",
-                             "compact", "capture-info", "contact-sheet", "synth", "generate"}
+                             "compact", "import", "capture-info", "contact-sheet", "synth", "generate"}
 
 
 @pytest.mark.parametrize("name", COMMANDS)

@@ -37,6 +37,8 @@ __all__ = [
     "read_capture",
     "write_capture",
     "read_camera_frames",
+    "write_manifest",
+    "camera_json",
 ]
 
 MANIFEST_NAME = "capture.json"
@@ -358,7 +360,7 @@ def _depth_to_mm(depth: np.ndarray, name: str) -> np.ndarray:
     return mm
 
 
-def _camera_json(name: str, traj: Trajectory, media: dict, depth: dict | None) -> dict[str, Any]:
+def camera_json(name: str, traj: Trajectory, media: dict, depth: dict | None) -> dict[str, Any]:
     K = traj.K[0].tolist() if np.all(traj.K == traj.K[0]) else traj.K.tolist()
     w2c = traj.w2c[0].tolist() if np.all(traj.w2c == traj.w2c[0]) else traj.w2c.tolist()
     return {
@@ -442,7 +444,7 @@ def write_capture(
                 for i, frame in enumerate(mm):
                     _write_png(cam_dir / "depth" / PNG_NAME.format(i), frame)
                 depth_doc = {"type": "png16_mm", "path": f"{name}/depth"}
-        cameras.append(_camera_json(name, traj, media_doc, depth_doc))
+        cameras.append(camera_json(name, traj, media_doc, depth_doc))
     doc = {
         "format": CAPTURE_FORMAT,
         "version": CAPTURE_VERSION,
@@ -452,10 +454,16 @@ def write_capture(
         "metadata": capture.metadata,
         "cameras": cameras,
     }
+    write_manifest(directory, doc)
+
+
+def write_manifest(directory: Path, doc: dict[str, Any]) -> None:
+    """Write ``doc`` as ``directory/capture.json`` atomically (temporary file, then rename); the media must
+    be in place already (a directory is complete once its manifest lands)."""
     try:
         text = json.dumps(doc, indent=1, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise CaptureError(f"capture metadata must be JSON-serializable finite values: {exc}") from None
     tmp = directory / (MANIFEST_NAME + ".tmp")
     tmp.write_text(text + "\n", encoding="utf-8")
-    os.replace(tmp, manifest_path)
+    os.replace(tmp, directory / MANIFEST_NAME)

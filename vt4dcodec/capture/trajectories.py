@@ -33,6 +33,7 @@ import numpy as np
 
 from ..cameras import Trajectory, look_at, parse_numbers
 from ..errors import CameraError, TrajectoryError
+from .targets import check_camera_spec
 
 __all__ = [
     "PRESETS",
@@ -343,6 +344,9 @@ def check_trajectory_spec(spec: str) -> None:
     any work: ``"source"``, an existing trajectory JSON file (read and checked), or a preset spec whose
     name, parameter names and values are valid.  Raises :class:`TrajectoryError`."""
     if spec == "source":
+        return
+    if spec.startswith("camera:"):
+        check_camera_spec(spec)
         return
     if spec.endswith(".json") or os.path.isfile(spec):
         load_trajectory(spec)  # FileNotFoundError (exit 3) or TrajectoryError

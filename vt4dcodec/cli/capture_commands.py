@@ -1,5 +1,5 @@
-"""`vt4d capture-info` and `vt4d contact-sheet`: look at capture directories (and `vt4d synth`, which
-makes them; defined in :mod:`vt4dcodec.cli.synth_commands`).
+"""`vt4d import`, `vt4d capture-info` and `vt4d contact-sheet`: make and look at capture directories
+(and `vt4d synth`, which makes synthetic ones; defined in :mod:`vt4dcodec.cli.synth_commands`).
 
 Each command is one ``_register_*`` helper listed in :data:`REGISTER`; adding a command to this group
 is one function plus one entry there.
@@ -8,12 +8,16 @@ is one function plus one entry there.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any, Callable
 
 import numpy as np
 
 from ..capture.contact_sheet import write_contact_sheet
+from ..capture.calibration import CALIBRATION_FORMATS
+from ..capture.importer import IMPORT_MEDIA, import_capture
 from ..capture.io import read_capture, read_manifest
+from ..capture.probe import check_capture
 from . import add_command, emit, positive_int
 from .synth_commands import add_synth_parser
 
@@ -74,7 +78,30 @@ def _info_lines(info: dict[str, Any]) -> list[str]:
 
 def _run_capture_info(args: argparse.Namespace) -> int:
     info = capture_info(args.directory)
-    emit(args, info, _info_lines(info))
+    lines = _info_lines(info)
+    problems: list[str] = []
+    if args.check:
+        cameras = check_capture(args.directory)
+        problems = [p for c in cameras for p in c["problems"]]
+        info["check"] = {"ok": not problems, "cameras": cameras}
+        if not problems:
+            lines.append(f"  check: every medium matches the manifest ({len(cameras)} cameras probed)")
+    emit(args, info, lines)
+    for p in problems:
+        print(f"vt4d capture-info: error: {p}", file=sys.stderr)
+    return 1 if problems else 0
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    m = import_capture(args.calibration, args.media_dir, args.output, format=args.format, units=args.units,
+                       media=args.media, frames=args.frames, fps=args.fps, capture_id=args.capture_id,
+                       scale_intrinsics=args.scale_intrinsics, overwrite=args.overwrite)
+    calib = m.metadata["calibration"]
+    result = {"directory": str(m.directory), "capture_id": m.capture_id, "num_cameras": len(m.cameras),
+              "num_frames": m.num_frames, "fps": m.fps, "cameras": [e.name for e in m.cameras],
+              "calibration": calib}
+    emit(args, result, [f"imported {len(m.cameras)} cameras x {m.num_frames} frames at {m.fps:.3f} fps into "
+                        f"{m.directory}", f"  calibration: {calib['format']}, {calib['units']}"])
     return 0
 
 
@@ -95,7 +122,39 @@ def _register_capture_info(sub: Any) -> None:
                     examples=["vt4d capture-info demo_out/capture",
                               "vt4d capture-info captures/test-000000 --json"])
     p.add_argument("directory", help="capture directory (holds capture.json)")
+    p.add_argument("--check", action="store_true",
+                   help="probe every medium (size, frame count, first frame decodes) against the manifest "
+                        "without decoding whole videos; exit 1 naming each mismatch")
     p.set_defaults(func=_run_capture_info)
+
+
+def _register_import(sub: Any) -> None:
+    p = add_command(sub, "import", help="make a capture directory from videos and a calibration file",
+                    description="Import a calibrated multi-camera recording: MEDIA_DIR holds one video "
+                                "(CAM.mp4, .mov, .mkv, .webm, .avi) or image folder (CAM/) per camera, named "
+                                "after the cameras of CALIBRATION.  Calibration formats: OpenCV FileStorage "
+                                "YAML/JSON, Pose2Sim/Anipose/caliscope TOML, COLMAP text (cameras.txt + "
+                                "images.txt, static rigs), NeRF transforms.json.  Sizes and frame counts are "
+                                "checked against the media before anything is written.",
+                    examples=["vt4d import calib.toml videos/ -o capture/",
+                              "vt4d import sparse/0 images/ -o capture/ --format colmap --fps 30",
+                              "vt4d import intri_extri/ videos/ -o capture/ --units mm --frames 100 --media png"])
+    p.add_argument("calibration", help="calibration file (or a COLMAP / NeRF / intri.yml+extri.yml directory)")
+    p.add_argument("media_dir", help="folder with one video or image folder per camera, named after it")
+    p.add_argument("-o", "--output", required=True, help="capture directory to write")
+    p.add_argument("--format", choices=("auto", *CALIBRATION_FORMATS), default="auto",
+                   help="calibration format (default: detected from the file)")
+    p.add_argument("--units", choices=("auto", "m", "mm"), default="auto",
+                   help="translation units (default auto: millimetres when cameras are over 50 units apart)")
+    p.add_argument("--media", choices=IMPORT_MEDIA, default="copy",
+                   help="copy videos as they are (default) or decode them to PNG sequences")
+    p.add_argument("--frames", type=positive_int, default=None, help="keep the first N frames of every camera")
+    p.add_argument("--fps", type=float, default=None, help="frame rate (default: the videos'; needed for images)")
+    p.add_argument("--capture-id", default=None, help="capture id (default: the output directory's name)")
+    p.add_argument("--scale-intrinsics", action="store_true",
+                   help="media at a uniform rescale of the calibrated size: rescale K to them")
+    p.add_argument("--overwrite", action="store_true", help="replace a capture already in the output directory")
+    p.set_defaults(func=_run_import)
 
 
 def _register_contact_sheet(sub: Any) -> None:
@@ -112,6 +171,7 @@ def _register_contact_sheet(sub: Any) -> None:
 
 # One entry per command of this group, in --help order (`vt4d synth` is defined in synth_commands).
 REGISTER: list[Callable[[Any], None]] = [
+    _register_import,
     _register_capture_info,
     _register_contact_sheet,
     add_synth_parser,

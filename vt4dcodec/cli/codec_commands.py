@@ -44,6 +44,7 @@ CAPTURE_ID/CAMERA/CLIP_START (CAMERA: the encoded cameras joined by '.', or 'all
 def _decode_notes() -> str:
     return ("trajectories (-t, repeatable; one output per trajectory):\n"
             "  source                       the scene's own source cameras\n"
+            "  camera:NAME                  capture camera NAME over the scene's clip (needs --capture DIR)\n"
             "  path/to/trajectory.json      a saved trajectory (vt4dcodec.capture.trajectories.save_trajectory)\n"
             "  PRESET[:KEY=VALUE,...]       built from the first source camera; presets with their parameters\n"
             "                               and defaults (metres, degrees; num_frames=N sets the length):\n"
@@ -56,6 +57,7 @@ DECODE_EXAMPLES = [
     "vt4d decode scene.vt4d -t source -t orbit:degrees=30 -o out/",
     "vt4d decode train.vt4da --key scene-000042 -t dolly_in:metres=0.5 --format png -o out/",
     "vt4d decode https://example.org/scene.vt4d -t pan:degrees=15 -o out/",
+    "vt4d decode scene.vt4d --capture capture/ -t camera:cam05 -o out/",
 ]
 
 
@@ -202,7 +204,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
     loading = time.perf_counter()
     with working(args, "loading the model"):
         decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
-    trajectories = [decoder.trajectory(s) for s in specs]  # fail on a bad spec before any rendering
+    trajectories = [decoder.trajectory(s, capture=args.capture) for s in specs]  # fail on a bad spec before any rendering
     out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -271,7 +273,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--allow-truncated", action="store_true",
                    help="read the last intact commit of an archive whose newest commit was cut off")
     p.add_argument("-t", "--trajectory", action="append",
-                   help="trajectory: 'source', a preset spec, or a JSON file (repeatable; default source)")
+                   help="trajectory: 'source', 'camera:NAME', a preset spec, or a JSON file (repeatable; default source)")
+    p.add_argument("--capture", metavar="DIR", default=None,
+                   help="the capture directory the scene was encoded from (for -t camera:NAME)")
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
