@@ -9,6 +9,7 @@ import pytest
 
 import vt4dcodec
 from vt4dcodec import codec
+from vt4dcodec.eval.protocol import HEALTH_THRESHOLDS
 from vt4dcodec.media import mp4_codec_name, psnr, read_mp4
 from vt4dcodec.synth import SynthConfig, generate_scene
 
@@ -141,16 +142,14 @@ def test_generate_with_the_shipped_prior(tmp_path, scene):
     assert len(videos) == 2 and {mp4_codec_name(v) for v in videos} == {"h264"}
 
 
-# Regression guards for the shipped vt4d-tiny, measured through the public encode/decode path on
-# held-out scenes. They guard what the model achieves now (docs/RESULTS.md); issue 12's targets
-# (source view >= 25 dB, slot spread >= 0.2 in both groups, swap drop >= 5 dB) are not met yet, and
-# these are not those targets.
-# vt4d-tiny 0.3.0 on these four scenes (python runs the test's own computation): source view +0.69 dB
-# over the flat mean-colour image (these four are hard scenes: +2.5 dB over 16), swap drop 5.31 dB,
-# static slot spread 0.237 (0.2.0: +0.5 dB, 3.1 dB, 0.002).
-GUARD_SOURCE_OVER_FLAT_DB = 0.4
-GUARD_SWAP_DROP_DB = 4.0
-GUARD_STATIC_SPREAD = 0.2
+# The shipped vt4d-tiny on four held-out scenes through the public encode/decode path (default
+# encoding). Token health is asserted at the issue-12 thresholds (slot spread >= 0.2 in both groups,
+# token-swap drop >= 5 dB on the source view: vt4dcodec.eval.protocol.HEALTH_THRESHOLDS), which 0.4.0 meets;
+# the source-view quality target (25 dB) is not met yet, so that line is a regression guard at the
+# level reached. vt4d-tiny 0.4.0 on these four scenes (runs the test's own computation): source view
+# +1.93 dB over the flat mean-colour image (0.3.0: +0.69, 0.2.0: +0.5), swap drop 6.62 dB (5.31, 3.1),
+# slot spread Z_s 0.516 / Z_d 0.257 (0.237 / -, 0.002 / -).
+GUARD_SOURCE_OVER_FLAT_DB = 1.5
 
 
 @pytest.fixture(scope="module")
@@ -179,9 +178,11 @@ def test_shipped_tokens_carry_the_scene(held_out_tokens):
         swap = codec.SceneDecoder(scene=other.scene, model=decoder.model)
         swapped.append(psnr(swap.render(cap.cameras[cam]), truth))
     z_s = torch.stack([torch.from_numpy(np.asarray(d.scene.static_tokens, np.float32)) for _, _, d in held_out_tokens])
+    z_d = torch.stack([torch.from_numpy(np.asarray(d.scene.dynamic_tokens, np.float32)) for _, _, d in held_out_tokens])
     assert np.mean(own) - np.mean(flat) >= GUARD_SOURCE_OVER_FLAT_DB
-    assert np.mean(own) - np.mean(swapped) >= GUARD_SWAP_DROP_DB
-    assert slot_spread(z_s) >= GUARD_STATIC_SPREAD
+    assert np.mean(own) - np.mean(swapped) >= HEALTH_THRESHOLDS["swap_drop_min_db"]
+    assert slot_spread(z_s) >= HEALTH_THRESHOLDS["spread_min"]
+    assert slot_spread(z_d) >= HEALTH_THRESHOLDS["spread_min"]
 
 
 def test_demo_runs_twice_into_the_same_directory_and_guards_foreign_captures(tmp_path):
