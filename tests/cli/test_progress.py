@@ -61,6 +61,13 @@ def test_archive_commands_show_progress_on_a_terminal(scene_file, tmp_path):
     assert code == 0 and "pack: 100%" in tty, tty
     code, _, tty = _on_a_terminal("extract", tmp_path / "a.vt4da", "-o", tmp_path / "x")
     assert code == 0 and "extract: 100%" in tty, tty
+    # repair and compact have no steps to count: a running clock, ended with the time taken
+    code, _, tty = _on_a_terminal("repair", tmp_path / "a.vt4da")
+    assert code == 0 and "repairing" in tty and "done in" in tty, tty
+    code, _, tty = _on_a_terminal("compact", tmp_path / "a.vt4da")
+    assert code == 0 and "compacting" in tty and "done in" in tty, tty
+    code, _, tty = _on_a_terminal("compact", tmp_path / "a.vt4da", "-q")
+    assert code == 0 and tty == "", tty
 
 
 def test_working_shows_a_running_clock(monkeypatch, capsys):

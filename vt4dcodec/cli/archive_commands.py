@@ -14,7 +14,7 @@ from typing import Any
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
-from . import add_command, emit, positive_int, progress, storage_options
+from . import add_command, emit, positive_int, progress, storage_options, working
 
 __all__ = ["register"]
 
@@ -124,7 +124,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
 
 def cmd_repair(args: argparse.Namespace) -> int:
-    report = repair_archive(args.archive, full_scan=args.full_scan, dry_run=args.dry_run)
+    with working(args, f"repairing {args.archive}"):  # no steps to count: a running clock on a terminal
+        report = repair_archive(args.archive, full_scan=args.full_scan, dry_run=args.dry_run)
     status = 0 if report.complete else 1  # never report success when committed scenes were lost
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
@@ -173,7 +174,8 @@ def _repair_errors(args: argparse.Namespace, report: Any) -> None:
 
 def cmd_compact(args: argparse.Namespace) -> int:
     major, _, minor = args.format_version.partition(".")
-    report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
+    with working(args, f"compacting {args.archive}"):
+        report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
     emit(args, report.to_dict(),
          [f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
           f"generation {report.generation}, format {report.version[0]}.{report.version[1]}"])
