@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
-    "resolve_trajectory", "model_fingerprint",
+    "resolve_trajectory", "model_fingerprint", "parse_camera_list",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -114,20 +114,28 @@ def _pick_camera(capture: Capture, camera: str | None) -> str:
     return camera
 
 
+def parse_camera_list(cameras: "Sequence[str] | str", available: Sequence[str], *, label: str = "cameras"
+                      ) -> list[str]:
+    """``"all"``, ``"cam00,cam02"`` or a sequence of names -> the names in order, refused (naming
+    ``label``) when empty or repeated. Whether each exists is the caller's check."""
+    if isinstance(cameras, str):
+        names = list(available) if cameras == "all" else [c.strip() for c in cameras.split(",")]
+    else:
+        names = list(cameras)
+    if not names or any(not isinstance(n, str) or not n for n in names):
+        raise CaptureError(f"{label} must name at least one camera ('all' or comma-separated names), got {cameras!r}")
+    if len(set(names)) != len(names):
+        raise CaptureError(f"{label} names a camera twice: {names}")
+    return names
+
+
 def _pick_cameras(capture: Capture, camera: str | None, cameras: "Sequence[str] | str | None") -> list[str]:
     """The encoded cameras: ``cameras`` ("all", or names in the order given) or the one ``camera``."""
     if cameras is None:
         return [_pick_camera(capture, camera)]
     if camera is not None:
         raise CaptureError("give camera= (one camera) or cameras= (several), not both")
-    if isinstance(cameras, str):
-        names = capture.camera_names if cameras == "all" else [c.strip() for c in cameras.split(",")]
-    else:
-        names = list(cameras)
-    if not names or any(not isinstance(n, str) or not n for n in names):
-        raise CaptureError(f"cameras must name at least one camera, got {cameras!r}")
-    if len(set(names)) != len(names):
-        raise CaptureError(f"cameras names a camera twice: {names}")
+    names = parse_camera_list(cameras, capture.camera_names)
     for name in names:
         _pick_camera(capture, name)
     return names

@@ -370,8 +370,8 @@ class ViewsBatchSampler(Sampler):
     a batch is single-camera (V = 1), or with probability ``multi_share`` multi-camera with V drawn
     uniformly from ``multi_views``. Yields lists of ``(index, V)``; every index once per pass."""
 
-    def __init__(self, size: int, batch_size: int, *, multi_share: float, multi_views: tuple[int, ...],
-                 generator: torch.Generator) -> None:
+    def __init__(self, size: int, batch_size: int, generator: torch.Generator, *, multi_share: float,
+                 multi_views: tuple[int, ...]) -> None:
         if not 0.0 <= multi_share <= 1.0 or any(v < 2 for v in multi_views) or (multi_share > 0 and not multi_views):
             raise ValueError("multi_share must be in [0, 1] and multi_views numbers >= 2")
         self.size, self.batch_size = size, batch_size

@@ -213,9 +213,8 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.recon_share > 0 or args.neighbour_sigma is not None):
             parser.error("--multi-share needs --recon-share or --neighbour-sigma (sampled targets)")
         sampler = functools.partial(ViewsBatchSampler, len(dataset), args.batch_size, multi_share=args.multi_share,
-                                    multi_views=views)
-    batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs,
-                                batch_sampler=None if sampler is None else lambda g: sampler(generator=g)))
+                                    multi_views=views)  # called with the rank's seeded generator
+    batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs, batch_sampler=sampler))
     step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
                              pixel_weight=args.pixel_weight)

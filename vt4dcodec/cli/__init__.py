@@ -180,6 +180,12 @@ def working(args: argparse.Namespace, desc: str, interval: float = 0.5) -> Itera
 
 
 # --- sources: local paths and fsspec URLs --------------------------------------------------------------
+def add_storage_option(parser: argparse.ArgumentParser) -> None:
+    """``--storage-option KEY=VALUE`` (repeatable), read back with :func:`storage_options`."""
+    parser.add_argument("--storage-option", action="append", metavar="KEY=VALUE",
+                        help="fsspec storage option for a URL (repeatable)")
+
+
 def storage_options(pairs: list[str] | None) -> dict[str, str]:
     """``--storage-option KEY=VALUE`` (repeatable) as fsspec keyword arguments."""
     out = {}

@@ -14,7 +14,7 @@ from typing import Any
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
-from . import add_command, emit, positive_int, progress, storage_options, working
+from . import add_command, add_storage_option, emit, positive_int, progress, storage_options, working
 
 __all__ = ["register"]
 
@@ -187,8 +187,6 @@ TRUNC_HELP = ("read the last intact commit of an archive whose newest commit was
 
 
 def register(subparsers: Any) -> None:
-    so = dict(action="append", metavar="KEY=VALUE", help="fsspec storage option (repeatable)")
-
     p = add_command(subparsers, "pack", help="pack .vt4d files into an archive (.vt4da)",
                     description="Pack .vt4d scene files (or directories of them, searched recursively) into an "
                     "archive.  A file's key is its name without .vt4d; below a directory, its path relative to "
@@ -216,7 +214,7 @@ def register(subparsers: Any) -> None:
                               "vt4d ls https://example.org/scenes.vt4da --json",
                               "vt4d ls s3://bucket/scenes.vt4da --storage-option anon=true"])
     p.add_argument("archive", help="archive path or fsspec URL")
-    p.add_argument("--storage-option", **so)
+    add_storage_option(p)
     p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.set_defaults(func=cmd_ls)
 
@@ -231,7 +229,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("keys", nargs="*", help="scene keys (default: all)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
-    p.add_argument("--storage-option", **so)
+    add_storage_option(p)
     p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.set_defaults(func=cmd_extract)
 

@@ -12,13 +12,14 @@ from .. import codec
 from ..archive import ArchiveWriter, is_archive, open_archive
 from ..capture.io import MANIFEST_NAME, read_capture, read_manifest
 from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
-from ..codec import DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint
+from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
+                     parse_camera_list)
 from ..demo import run_demo
 from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import VIDEO_FORMATS, write_frames
-from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, positive_int, progress, read_head,
-               storage_options, trajectory_label, working)
+from . import (add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int, positive_int,
+               progress, read_head, storage_options, trajectory_label, working)
 
 __all__ = ["register"]
 
@@ -100,15 +101,10 @@ def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None
         raise CaptureError("give --camera (one camera) or --cameras (several), not both")
     if camera is None and cameras is None:
         return
-
-    wanted = [camera] if camera is not None else [c.strip() for c in cameras.split(",")] if cameras != "all" else []
     flag = "--camera" if camera is not None else "--cameras"
-    if any(not c for c in wanted) or (cameras is not None and cameras != "all" and not wanted):
-        raise CaptureError(f"--cameras takes 'all' or comma-separated camera names, got {cameras!r}")
-    if len(set(wanted)) != len(wanted):
-        raise CaptureError(f"--cameras names a camera twice: {wanted}")
     for cap_dir in captures:
         names = [e.name for e in read_manifest(cap_dir).cameras]
+        wanted = [camera] if camera is not None else parse_camera_list(cameras, names, label="--cameras")
         missing = [c for c in wanted if c not in names]
         if missing:
             raise CaptureError(f"{cap_dir} has no camera {missing[0]!r} ({flag}); it has {names}")
@@ -268,8 +264,7 @@ def register(subparsers: Any) -> None:
         examples=DECODE_EXAMPLES, notes=_decode_notes())
     p.add_argument("source", help="a .vt4d file, an archive (.vt4da) with --key, or ARCHIVE::KEY (path or URL)")
     p.add_argument("--key", help="scene key inside an archive")
-    p.add_argument("--storage-option", action="append", metavar="KEY=VALUE",
-                   help="fsspec storage option for a URL (repeatable)")
+    add_storage_option(p)
     p.add_argument("--allow-truncated", action="store_true",
                    help="read the last intact commit of an archive whose newest commit was cut off")
     p.add_argument("-t", "--trajectory", action="append",

@@ -11,20 +11,19 @@ from typing import Any
 from ..archive import is_archive, verify_archive
 from ..errors import Vt4dError
 from ..format import open_scene, verify
-from . import add_command, emit, read_head, storage_options
+from . import add_command, add_storage_option, emit, read_head, storage_options
 
 EXIT_OK, EXIT_INVALID, EXIT_OS = 0, 1, 3
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    so = dict(action="append", metavar="KEY=VALUE", help="fsspec storage option for a URL (repeatable)")
     info = add_command(subparsers, "info", help="show what a .vt4d scene file holds",
                        description="Print the header of a .vt4d scene: model fingerprint, token shapes, encoding, "
                                    "cameras, provenance and sections.  Reads the header only; no torch.",
                        examples=["vt4d info scene.vt4d",
                                  "vt4d info https://example.org/scene.vt4d --json"])
     info.add_argument("file", help="a .vt4d scene file (path or fsspec URL)")
-    info.add_argument("--storage-option", **so)
+    add_storage_option(info)
     info.set_defaults(func=run_info)
     verify = add_command(subparsers, "verify", help="check .vt4d files (scenes or archives) byte by byte",
                          description="Verify every checksum, size and section of each file. Exit code 0 when all "
@@ -32,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          examples=["vt4d verify scene.vt4d scenes.vt4da",
                                    "vt4d verify s3://bucket/scenes.vt4da --storage-option anon=true --json"])
     verify.add_argument("files", nargs="+", metavar="FILE", help=".vt4d scene or archive files (paths or URLs)")
-    verify.add_argument("--storage-option", **so)
+    add_storage_option(verify)
     verify.set_defaults(func=run_verify)
 
 
