@@ -215,8 +215,7 @@ def _render_tokens(net: VideoTok4D, sc: SynthScene, sources: Sequence[str], targ
     Returns (variant -> videos, file bytes, seconds spent, the decoder of the stored bytes).
     """
     t0 = time.perf_counter()
-    picked = {"camera": sources[0]} if len(sources) == 1 else {"cameras": list(sources)}
-    scene = codec.encode(sc.capture, net, ENCODING, seed=settings.seed, **picked)
+    scene = codec.encode(sc.capture, net, ENCODING, cameras=list(sources), seed=settings.seed)
     blob = dumps(scene)
     decoder = codec.SceneDecoder.open(blob, model=net)
     trajectories = [sc.capture.cameras[k] for k in targets]
