@@ -1,6 +1,6 @@
 """Held-out probe of a stage-2 training checkpoint, cheap enough to run while training goes on.
 
-    python bench/probe_checkpoint.py RUN_DIR [--scenes 16] [--figure PNG] [--cache runs/scene_cache]
+    python bench/probe_checkpoint.py RUN_DIR [--scenes 16] [--figure PNG] [--cache runs/scene_cache] [--split train]
 
 Loads ``RUN_DIR/checkpoint`` (float32 weights, no codec, no quantization), encodes camera 0 of the
 first ``--scenes`` held-out 10-camera scenes (split "test", cached with the training pool's settings)
@@ -36,6 +36,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=Path("runs/scene_cache"))
     parser.add_argument("--figure", type=Path, default=None, help="PNG: truth | render at frames 0 and 7")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--split", choices=("test", "train"), default="test",
+                        help="held-out scenes (default) or the first training scenes: the gap between the two "
+                             "says whether a run under- or overfits")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     state = json.loads((args.run / "checkpoint" / "state.json").read_text())
@@ -43,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     model = VideoTok4D(cfg)
     model.load_state_dict(load_file(str(args.run / "checkpoint" / "model.safetensors")))
     model.eval()
-    pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split="test")
+    pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split=args.split)
     res: dict[str, list[float]] = {k: [] for k in ("source", "near", "far", "flat_source", "flat_near", "flat_far")}
     zs, zd, truths, Ks, w2cs = [], [], [], [], []
     with torch.no_grad():
@@ -77,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     result.update({k: round(v, 3) for k, v in token_health(z_s, z_d).items()})
     result["swap_drop_db"] = round(float(psnr_db(own, truth).mean() - psnr_db(swapped, truth).mean()), 2)
     result["step"] = int(state["step"])
+    result["split"] = args.split
     print(json.dumps(result))
     if args.figure is not None:
         import matplotlib
