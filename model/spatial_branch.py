@@ -48,10 +48,15 @@ class SpatialBranch(nn.Module):
         self.queries = nn.Parameter(torch.randn(n_queries, D) * QUERY_INIT_STD)
         self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
         self.query_bias = None
+        self.query_content: nn.Linear | None = None
         if cfg.locality_sigma > 0:  # static query i anchored at grid cell i mod P (configs.ModelConfig)
             cells = grid_positions(cfg.patches_per_side)
-            anchors = cells[torch.arange(n_queries) % cells.shape[0]]
-            self.query_bias = nn.Parameter(locality_prior(anchors, cells, cfg.heads, cfg.locality_sigma))
+            self.register_buffer("anchor", torch.arange(n_queries) % cells.shape[0], persistent=False)
+            self.query_bias = nn.Parameter(locality_prior(cells[self.anchor], cells, cfg.heads, cfg.locality_sigma))
+            if cfg.query_from_grid:  # zero map: a model warm-started without it begins unchanged
+                self.query_content = nn.Linear(D, D)
+                nn.init.zeros_(self.query_content.weight)
+                nn.init.zeros_(self.query_content.bias)
 
     def forward(self, latents: torch.Tensor, rays: torch.Tensor, views: int = 1) -> torch.Tensor:
         """latents X: (B, T, C, h, w); rays: (B, T, 6, h, w). Returns (B / views, n_queries, D).
@@ -67,6 +72,9 @@ class SpatialBranch(nn.Module):
         grid = x.flatten(1, 2)  # camera-aware feature grid (B, T P, D)
         grid = grid.reshape(grid.shape[0] // views, views * grid.shape[1], grid.shape[2])  # (B/V, V T P, D)
         q = self.queries[None].expand(grid.shape[0], -1, -1)
+        if self.query_content is not None:  # + W * mean over frames (and cameras) of the anchor cell's feature
+            cell = x.reshape(x.shape[0] // views, views * T, x.shape[2], x.shape[3]).mean(1)  # (B/V, P, D)
+            q = q + self.query_content(cell[:, self.anchor])
         bias = None if self.query_bias is None else self.query_bias.repeat(1, 1, grid.shape[1] // self.query_bias.shape[-1])
         for block in self.query_blocks:
             q = block(q, grid, bias=bias)

@@ -16,6 +16,7 @@ from vt4dcodec.errors import ModelError
 from vt4dcodec.model import VideoTok4D, get_config
 from vt4dcodec.model.bottleneck import saturation_penalty
 from vt4dcodec.model.configs import ModelConfig
+from vt4dcodec.model.layers import patchify
 from vt4dcodec.model.diagnostics import effective_rank, saturation, slot_spread, swap_drop_db, token_health
 from vt4dcodec.model.train.data import MixedFrames, PairDataset, PhotoCrops, axis_angles_deg
 from vt4dcodec.model.train.tokenizer import draw_tau
@@ -276,3 +277,40 @@ def test_locality_prior_anchors_static_queries_and_renderer_tokens():
     assert unified.renderer.token_bias[0, :, -1].abs().sum() > 0  # every unified token is anchored
     with pytest.raises(ModelError):
         get_config("tiny", **SMALL, locality_sigma=-1.0)
+
+
+def test_query_from_grid_starts_as_the_model_without_it_and_reads_the_anchor_cell():
+    base = get_config("tiny", **SMALL, locality_sigma=1.0)
+    cfg = get_config("tiny", **SMALL, locality_sigma=1.0, query_from_grid=True)
+    assert get_config("tiny", **SMALL, locality_sigma=1.0, query_from_grid=False).sha256() == base.sha256()
+    assert cfg.sha256() != base.sha256()
+    torch.manual_seed(0)
+    old = VideoTok4D(base).eval()
+    new = VideoTok4D(cfg).eval()
+    missing, unexpected = new.load_state_dict(old.state_dict(), strict=False)
+    assert sorted(missing) == ["spatial_branch.query_content.bias", "spatial_branch.query_content.weight"]
+    assert not unexpected
+    batch = random_batch(cfg, B=2)
+    with torch.no_grad():  # the map starts at zero: a warm start begins exactly where the old model was
+        for a, b in zip(old.encode(batch), new.encode(batch)):
+            torch.testing.assert_close(a, b)
+    # once the map is non-zero, query i starts from W * (its anchor cell's feature averaged over frames)
+    P = cfg.patches_per_side ** 2
+    branch = new.spatial_branch
+    assert branch.anchor.tolist() == [i % P for i in range(cfg.n_static)]
+    with torch.no_grad():
+        branch.query_content.weight.normal_(std=0.5)
+        branch.query_blocks = torch.nn.ModuleList()  # no cross-attention: the start state is the output
+        h = cfg.latent_size
+        latents, rays = torch.randn(2, cfg.frames, cfg.latent_channels, h, h), torch.randn(2, cfg.frames, 6, h, h)
+        q = branch(latents, rays)
+        x = branch.embed(patchify(torch.cat([latents, rays], dim=2), cfg.patch_size))
+        x = x + branch.pos_space[None, None] + branch.pos_time[None, :, None]
+        for block in branch.blocks:
+            x = block(x)
+        want = branch.queries[None] + branch.query_content(x.mean(1)[:, torch.arange(cfg.n_static) % P])
+        torch.testing.assert_close(q, want)
+    with pytest.raises(ModelError, match="locality_sigma"):
+        get_config("tiny", **SMALL, query_from_grid=True)
+    with pytest.raises(ModelError, match="query_from_grid"):
+        get_config("tiny", **SMALL, locality_sigma=1.0, query_from_grid=1)
