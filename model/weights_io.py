@@ -32,8 +32,8 @@ from safetensors.torch import load_file, save_file
 
 from vt4dcodec.errors import ModelError, ModelNotFoundError
 
-from .configs import ModelConfig
-from .prior import Co4DGen, PriorConfig
+from .configs import ModelConfig, PriorConfig
+from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 
 __all__ = [

@@ -28,7 +28,8 @@ from torch.utils.data import Dataset
 
 from vt4dcodec.errors import ModelError
 
-from ..prior import Co4DGen, PriorCondition, PriorConfig, get_prior_config
+from ..configs import PriorConfig, get_prior_config
+from ..prior import Co4DGen, PriorCondition
 from ..weights_io import save_prior
 from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
                      train_loop)
