@@ -29,8 +29,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from vt4dcodec.errors import ModelError, ModelMismatchError
+from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
+from .identity import ModelIdentity
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
 
@@ -67,13 +69,15 @@ class PriorCondition:
         return PriorCondition(*(getattr(self, f.name).repeat_interleave(n, 0) for f in dataclasses.fields(self)))
 
 
-class Co4DGen(nn.Module):
-    """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder."""
+class Co4DGen(ModelIdentity, nn.Module):
+    """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder.
 
-    # Identity, set by ``weights_io.load_prior`` (None for a prior that was never saved and loaded).
-    model_id: str | None = None
-    model_version: str | None = None
-    tokenizer_fingerprint: Any = None  # vt4dcodec.format.ModelFingerprint of the tokenizer it models
+    Identity (:class:`~.identity.ModelIdentity`) and ``tokenizer_fingerprint``, the fingerprint of the
+    tokenizer whose tokens it models, are set by ``weights_io.load_prior`` from prior.json (None for a
+    prior that was never saved and loaded).
+    """
+
+    tokenizer_fingerprint: ModelFingerprint | None = None
 
     def __init__(self, cfg: PriorConfig) -> None:
         super().__init__()

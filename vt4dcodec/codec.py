@@ -43,58 +43,31 @@ DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fideli
 # 1,248 token bytes). int2-rans is 638 bytes smaller and within 0.1 dB on average but loses up to
 # 0.23 dB on single views. Re-measure with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4-rans"
-MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model directories
 
 
 # --- models -----------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=4)
-def _load_model_cached(resolved: str) -> "VideoTok4D":
+def _load_model_cached(directory: str) -> "VideoTok4D":
     from .model import from_pretrained
 
-    return from_pretrained(resolved)
-
-
-def _user_model_dirs() -> list[Path]:
-    dirs = []
-    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
-        root_path = Path(root)
-        if root_path.is_dir():
-            dirs.extend(p for p in sorted(root_path.iterdir()) if (p / "config.json").is_file())
-    return dirs
-
-
-def _find_model_dir(model_id: str) -> str:
-    """A shipped id, or a directory under $VT4D_MODEL_PATH whose name is ``model_id``."""
-    from .model import shipped_model_ids
-
-    if model_id in shipped_model_ids():
-        return model_id
-    for d in _user_model_dirs():
-        if d.name == model_id:
-            return str(d)
-    raise ModelNotFoundError(
-        f"model {model_id!r} is neither shipped (shipped: {shipped_model_ids() or 'none'}) nor a directory "
-        f"under ${MODEL_PATH_ENV}; pass model=<path to the model directory>"
-    )
+    return from_pretrained(directory)
 
 
 def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "VideoTok4D":
-    """A model by shipped id, by directory path, or an already loaded one (returned as is)."""
+    """A model by shipped id, by directory path, by the name of a directory under $VT4D_MODEL_PATH
+    (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is).  Each
+    directory is loaded once per process."""
     from .model import VideoTok4D
+    from .model.weights_io import model_directory
 
     if isinstance(model, VideoTok4D):
         return model
-    path = Path(model)
-    if path.is_dir():
-        return _load_model_cached(str(path.resolve()))
-    return _load_model_cached(_find_model_dir(str(model)))
+    return _load_model_cached(str(model_directory(model).resolve()))
 
 
 def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
-    """The fingerprint a container stores for ``model`` (cached on the model object)."""
-    from .model.weights_io import stored_fingerprint
-
-    return stored_fingerprint(model)
+    """The fingerprint a container stores for ``model`` (``VideoTok4D.stored_fingerprint``)."""
+    return model.stored_fingerprint()
 
 
 # --- encoding ---------------------------------------------------------------------------------------

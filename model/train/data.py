@@ -32,6 +32,7 @@ from vt4dcodec.errors import CaptureError
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 from ..configs import ModelConfig
+from ..identity import weights_sha256
 from ..motion import MASK_RULE_VERSION
 from ..preprocess import prepare_source
 from ..source_inputs import SourceBatch, SourceInputs
@@ -169,8 +170,6 @@ class ScenePool:
 
 def autoencoder_key(autoencoder: torch.nn.Module) -> str:
     """12 hex digits of the autoencoder's weights hash (the one model fingerprints use)."""
-    from ..weights_io import weights_sha256
-
     return weights_sha256(autoencoder.state_dict())[:12]
 
 

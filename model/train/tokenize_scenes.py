@@ -37,7 +37,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
 
 from ..source_inputs import SourceBatch, SourceInputs
-from ..weights_io import from_pretrained, stored_fingerprint
+from ..weights_io import from_pretrained
 from .data import ScenePool
 
 __all__ = ["CLIP_EXTENSION", "clip_path", "pack_clip", "unpack_clip", "ClipStore", "event_key", "record_key",
@@ -147,7 +147,7 @@ def write_shards(tokenizer: Any, pool: ScenePool, seeds: list[int], out: Path, *
     if per_shard < 1:
         raise ModelError("per_shard must be >= 1")
     out.mkdir(parents=True, exist_ok=True)
-    fingerprint = stored_fingerprint(tokenizer)
+    fingerprint = tokenizer.stored_fingerprint()
     size = pool.image_size
     paths = []
     for n, start in enumerate(range(0, len(seeds), per_shard)):

@@ -132,7 +132,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
         model.load_state_dict(fits, strict=False)
         skipped = sorted(set(fresh) - set(fits))
         print(f"--init-partial: copied {len(fits)} of {len(fresh)} tensors; fresh: {', '.join(skipped) or 'none'}")
-    model.model_id = model.model_version = None
+    model.set_identity(None, None)
     model.freeze_autoencoder()
     return model
 

@@ -323,7 +323,7 @@ def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dic
     ``steps``: the sampler steps this evaluation rendered it with."""
     fp = codec.model_fingerprint(net)
     cfg = net.config
-    info = {"fingerprint": fp.short(), "training_step": getattr(net, "training_step", None), "config": cfg.name,
+    info = {"fingerprint": fp.short(), "training_step": net.training_step, "config": cfg.name,
             "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic, "token_dim": cfg.token_dim,
             "unified_tokens": cfg.unified_tokens, "motion_isolation": cfg.motion_isolation,
             "track_attention": cfg.track_attention, "decode_steps": int(net.decode_steps)}

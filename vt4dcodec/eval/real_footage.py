@@ -194,7 +194,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "axis_angle_deg": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
         "image_size": size, "clip_frames": net.config.frames, "steps": steps,
         "decode_steps": int(net.decode_steps), "seed": args.seed,
-        "model": codec.model_fingerprint(net).short(), "training_step": getattr(net, "training_step", None), "wall_s": round(wall, 1),
+        "model": codec.model_fingerprint(net).short(), "training_step": net.training_step, "wall_s": round(wall, 1),
         "summary": summarize_real(rows), "rows": rows,
     }
     out = write_json(args.out, results)
