@@ -4,7 +4,7 @@
 """
 
 from .configs import CONFIG_NAMES, PRIOR_CONFIG_NAMES, ModelConfig, PriorConfig, get_config, get_prior_config
-from .source_inputs import SourceBatch, SourceInputs
+from .inputs.source_inputs import SourceBatch, SourceInputs
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained, save_pretrained, shipped_model_ids
 

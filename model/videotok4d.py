@@ -27,7 +27,7 @@ from .diagnostics import token_health
 from .identity import ModelIdentity, fingerprint_fields
 from .rays import latent_rays
 from .renderer import Renderer
-from .source_inputs import SourceBatch
+from .inputs.source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
 from .temporal_branch import TemporalBranch
 

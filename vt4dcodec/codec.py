@@ -180,8 +180,8 @@ def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str
     import torch
 
     from .capture.resample import fit_capture
-    from .model.preprocess import prepare_source
-    from .model.source_inputs import SourceBatch
+    from .model.inputs.preprocess import prepare_source
+    from .model.inputs.source_inputs import SourceBatch
 
     cfg = net.config
     if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:

@@ -33,9 +33,9 @@ from vt4dcodec.synth import SynthConfig, generate_scene
 
 from ..configs import ModelConfig
 from ..identity import weights_sha256
-from ..motion import MASK_RULE_VERSION
-from ..preprocess import prepare_source
-from ..source_inputs import SourceBatch, SourceInputs
+from ..inputs.motion import MASK_RULE_VERSION
+from ..inputs.preprocess import prepare_source
+from ..inputs.source_inputs import SourceBatch, SourceInputs
 
 __all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "ViewsBatchSampler",
            "axis_angles_deg",

@@ -36,7 +36,7 @@ import torch
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
 
-from ..source_inputs import SourceBatch, SourceInputs
+from ..inputs.source_inputs import SourceBatch, SourceInputs
 from ..weights_io import from_pretrained
 from .data import ScenePool
 

@@ -8,7 +8,7 @@ autoencoder: the rectified-flow loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z
     torchrun --nproc_per_node=2 -m vt4dcodec.model.train.tokenizer --autoencoder ... --out ... --steps ...
 
 Each sample: one scene, a source camera c (its clip, cameras, motion mask and tracks from
-``model.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
+``model.inputs.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
 pair a != c, or with the recipe flags a sampled target (c itself for reconstruction, else a camera
 that overlaps c), flow times with a share at tau = 1, static-token dropout and a saturation penalty
 (docs/training.md says what each does and what was measured). ``--init`` continues a saved model

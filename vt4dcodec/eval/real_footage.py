@@ -42,8 +42,8 @@ from vt4dcodec.capture.capture import Capture
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.format import dumps
 
-from vt4dcodec.model.depth import estimate_depth
-from vt4dcodec.model.motion import DEFAULT_DEPTH_RANGE
+from vt4dcodec.model.inputs.depth import estimate_depth
+from vt4dcodec.model.inputs.motion import DEFAULT_DEPTH_RANGE
 
 from . import baselines
 from .command import resolve_model, run_command
