@@ -25,6 +25,10 @@ import numpy as np
 
 from .cameras import Trajectory
 from .capture.capture import Capture
+from .capture.io import MANIFEST_NAME, read_capture
+from .capture.resample import fit_capture, fit_trajectory, plan_fit
+from .capture.targets import camera_target, cut_to_clip, is_camera_spec
+from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
 from .format import ModelFingerprint, Provenance, Scene, load
 
@@ -48,7 +52,7 @@ DEFAULT_ENCODING = "int4-rans"
 # --- models -----------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=4)
 def _load_model_cached(directory: str) -> "VideoTok4D":
-    from .model import from_pretrained
+    from .model import from_pretrained  # lazy: torch loads on first use, not with `import vt4dcodec` / `vt4d`
 
     return from_pretrained(directory)
 
@@ -57,7 +61,7 @@ def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "Vide
     """A model by shipped id, by directory path, by the name of a directory under $VT4D_MODEL_PATH
     (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is).  Each
     directory is loaded once per process."""
-    from .model import VideoTok4D
+    from .model import VideoTok4D  # lazy: keeps torch out of `import vt4dcodec` / `vt4d` (as above)
     from .model.weights_io import model_directory
 
     if isinstance(model, VideoTok4D):
@@ -74,8 +78,6 @@ def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
 def _as_capture(capture: "Capture | str | os.PathLike") -> Capture:
     if isinstance(capture, Capture):
         return capture
-    from .capture.io import read_capture
-
     return read_capture(capture)
 
 
@@ -177,9 +179,8 @@ def encode_clips(
 
 def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
                  metadata: dict[str, Any] | None) -> Scene:
-    import torch
+    import torch  # lazy (and the inputs below): `import vt4dcodec` / `vt4d` load neither torch nor OpenCV
 
-    from .capture.resample import fit_capture
     from .model.inputs.preprocess import prepare_source
     from .model.inputs.source_inputs import SourceBatch
 
@@ -233,10 +234,6 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
     scene's ``metadata``.  Trajectories for another image size are resized and centre-cropped the way
     captures are (intrinsics updated).
     """
-    from .capture.resample import fit_trajectory, plan_fit
-    from .capture.targets import camera_target, cut_to_clip, is_camera_spec
-    from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
-
     if isinstance(spec, Trajectory):
         traj = cut_to_clip(spec, metadata, max_frames)
     elif is_camera_spec(spec):
@@ -317,7 +314,7 @@ class SceneDecoder:
 
         ``"camera:NAME"`` takes capture camera NAME over the scene's clip from ``capture`` (a Capture or
         a capture directory: the one the scene was encoded from)."""
-        import torch
+        import torch  # lazy: keeps torch out of `import vt4dcodec` / `vt4d`
 
         z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
         z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
@@ -345,7 +342,5 @@ def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Traj
 
 def iter_capture_dirs(root: str | os.PathLike) -> Iterable[Path]:
     """Capture directories (holding a manifest) directly under ``root``, sorted by name."""
-    from .capture.io import MANIFEST_NAME
-
     root = Path(root)
     return [p for p in sorted(root.iterdir()) if (p / MANIFEST_NAME).is_file()]

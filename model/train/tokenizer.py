@@ -25,6 +25,8 @@ import json
 import sys
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from safetensors import SafetensorError
@@ -80,11 +82,7 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
                    ) -> dict[str, float]:
     """PSNR of renders against the target camera for ``count`` pairs, and a PNG: rows are pairs,
     columns source | target | render at the first, middle and last frame."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     model.eval()
     idx = np.linspace(0, len(dataset) - 1, count).astype(int).tolist()
     batch = collate_pairs([dataset[i] for i in idx])

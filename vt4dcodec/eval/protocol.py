@@ -59,6 +59,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from vt4dcodec import codec
 from vt4dcodec.errors import Vt4dError
@@ -405,8 +406,6 @@ def run_evaluation(settings: EvalSettings, models: dict[str, VideoTok4D], method
     seeds = settings.seeds
     iterator = seeds
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(seeds, desc="scenes", unit="scene")
     rows: list[dict[str, Any]] = []
     kept: dict[str, dict[int, dict[str, dict[str, Any]]]] = {s: {} for s in sets}
