@@ -28,16 +28,14 @@ from safetensors.torch import load_file
 from vt4dcodec.capture.caliscope import find_sample_capture, import_caliscope
 from vt4dcodec.model import get_config
 from vt4dcodec.model.autoencoder import LatentAutoencoder
-from vt4dcodec.model.weights_io import SHIPPED_DIR
+from vt4dcodec.model.weights_io import model_directory
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 
 def load_candidate(spec: str) -> LatentAutoencoder:
     path = Path(spec)
-    if not path.exists() and (SHIPPED_DIR / spec).is_dir():
-        path = SHIPPED_DIR / spec
-    if path.is_dir():
-        path = path / "model.safetensors"
+    if not path.is_file():  # a model directory, shipped id or $VT4D_MODEL_PATH name
+        path = model_directory(spec) / "model.safetensors"
     state = {k.removeprefix("autoencoder."): v.float() for k, v in load_file(str(path)).items()
              if not k.startswith(("spatial_branch", "temporal_branch", "renderer", "static_", "dynamic_"))}
     latent = state["encoder.{}.weight".format(max(int(k.split(".")[1]) for k in state if k.startswith("encoder.")

@@ -603,7 +603,7 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
     result = {
         "command": " ".join(["python bench/bench_codecs.py", *argv]),
         "model": {"id": fp.model_id, "version": fp.model_version, "fingerprint": fp.short(),
-                  "training_step": getattr(net, "training_step", None)},
+                  "training_step": net.training_step},
         "decode_steps": int(net.decode_steps), "clip": f"{cfg.frames} frames at {cfg.image_size}x{cfg.image_size}",
         "encodings": list(encodings), "reference_encoding": reference,
         "codecs": {k: {"label": v[0], "encoder": v[1], "decoder": v[2], "options": v[3]("Q"),

@@ -1,4 +1,4 @@
-"""Benchmark of the non-learned Track-Aware Dynamic Attention inputs (model.motion/tracks/depth/preprocess).
+"""Benchmark of the non-learned Track-Aware Dynamic Attention inputs (model.inputs.motion/tracks/depth/preprocess).
 
 Measures on synthetic test-split scenes (vt4dcodec.synth, 64x64, 8 frames, 3 cameras per scene):
   * motion-mask IoU against the ground-truth dynamic masks, with capture depth and with plane-sweep depth,
@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 import torch
 
-from vt4dcodec.model.depth import estimate_depth
-from vt4dcodec.model.motion import estimate_flows, isolate_motion
-from vt4dcodec.model.preprocess import prepare_source
-from vt4dcodec.model.tracks import bilinear_sample, propagate_tracks, sample_seeds
+from vt4dcodec.model.inputs.depth import estimate_depth
+from vt4dcodec.model.inputs.motion import estimate_flows, isolate_motion
+from vt4dcodec.model.inputs.preprocess import prepare_source
+from vt4dcodec.model.inputs.tracks import bilinear_sample, propagate_tracks, sample_seeds
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 TUNING_SEEDS = range(0, 6)

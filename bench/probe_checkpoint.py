@@ -24,7 +24,7 @@ from safetensors.torch import load_file
 
 from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.diagnostics import psnr_db, token_health
-from vt4dcodec.model.source_inputs import SourceBatch, SourceInputs
+from vt4dcodec.model.inputs.source_inputs import SourceBatch, SourceInputs
 from vt4dcodec.model.train.data import ScenePool, axis_angles_deg
 from vt4dcodec.model.videotok4d import VideoTok4D
 

@@ -1,4 +1,9 @@
-"""Named model configurations (issue #5 item 6) and the ablation switches (item 7).
+"""The configurations of both models: :class:`ModelConfig` (the VideoTok4D tokenizer, with its ablation
+switches) and :class:`PriorConfig` (the Co4DGen prior), their named presets and shared validation.
+
+Both are frozen dataclasses with the same serialization: ``to_dict`` / ``from_dict`` (unknown keys
+refused), and ``sha256`` over the canonical JSON (sorted keys, no whitespace), the config hash a
+model's fingerprint records.
 
 ``get_config("paper")`` follows the paper's setting (32 frames at 256x256, N_s = 1024 static and
 N_d = 512 dynamic tokens of width d = 64); ``get_config("tiny")`` is the same architecture at the
@@ -6,6 +11,8 @@ size this project's CPUs can train: 8 frames at 64x64, a 16x16x4 latent cut into
 tokens per frame: half the training-step time of 2x2 patches on this CPU, same token budget),
 N_s = 64, N_d = 32, d = 32,
 i.e. 96 x 32 = 3,072 token floats for 8 x 64 x 64 x 3 = 98,304 pixel values (1/32).
+``get_prior_config("co4dgen-tiny")`` is the prior for vt4d-tiny's token state; ``"co4dgen-paper"`` the
+paper-size one.
 """
 
 from __future__ import annotations
@@ -14,21 +21,68 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, TypeVar
 
 from vt4dcodec.errors import ModelError
 
-__all__ = ["ModelConfig", "get_config", "CONFIG_NAMES", "PREDICTIONS"]
+__all__ = [
+    "ModelConfig", "get_config", "CONFIG_NAMES", "PREDICTIONS", "PriorConfig", "get_prior_config",
+    "PRIOR_CONFIG_NAMES",
+]
 
 PREDICTIONS = ("velocity", "x0")
 _UNSET = object()
-# fields added after models were shipped -> the default that reproduces the earlier behaviour
-_LATER_FIELDS: dict[str, Any] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
-                                 "query_from_grid": False}
+_C = TypeVar("_C", bound="_Config")
+
+
+def _require_positive_ints(config: Any, keys: Any, label: str) -> None:
+    """ModelError unless every field in ``keys`` is an int (not a bool) > 0; ``label`` names the config."""
+    for key in keys:
+        value = getattr(config, key)
+        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+            raise ModelError(f"{label} {key} must be a positive integer, got {value!r}")
+
+
+class _Config:
+    """Serialization shared by the frozen config dataclasses below.
+
+    ``_KIND`` names the config in errors ("model", "prior"); ``_LATER_FIELDS`` maps fields added after
+    models were shipped to the default that reproduces the earlier behaviour: while a field holds that
+    default it is left out of the hashed JSON, so older configs keep their hash.
+    """
+
+    _KIND: ClassVar[str]
+    _LATER_FIELDS: ClassVar[dict[str, Any]] = {}
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def canonical_json(self) -> str:
+        """Sorted keys, no whitespace: the bytes the fingerprint hashes."""
+        data = {k: v for k, v in self.to_dict().items() if self._LATER_FIELDS.get(k, _UNSET) != v}
+        return json.dumps(data, sort_keys=True, separators=(",", ":"))
+
+    def sha256(self) -> str:
+        return hashlib.sha256(self.canonical_json().encode("utf-8")).hexdigest()
+
+    @classmethod
+    def from_dict(cls: type[_C], data: Any) -> _C:
+        if not isinstance(data, dict):
+            raise ModelError(f"a {cls._KIND} config must be a JSON object")
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ModelError(f"unknown {cls._KIND} config keys: {unknown}")
+        try:
+            return cls(**data)
+        except TypeError as exc:
+            raise ModelError(f"bad {cls._KIND} config: {exc}") from None
+
+    def replace(self: _C, **overrides: Any) -> _C:
+        return type(self).from_dict({**self.to_dict(), **overrides})
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class ModelConfig(_Config):
     """Every size and switch of a VideoTok4D model. Frozen; build variants with ``replace``.
 
     Sizes:
@@ -94,14 +148,15 @@ class ModelConfig:
     locality_sigma: float = 0.0
     query_from_grid: bool = False
 
+    _KIND: ClassVar[str] = "model"
+    _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
+                                               "query_from_grid": False}
+
     def __post_init__(self) -> None:
-        positive = ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width", "patch_size",
-                    "width", "heads", "n_static", "n_dynamic", "token_dim", "n_tracks", "renderer_layers",
-                    "spatial_layers", "static_query_layers", "track_layers")
-        for key in positive:
-            value = getattr(self, key)
-            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-                raise ModelError(f"config {key} must be a positive integer, got {value!r}")
+        _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
+                                      "patch_size", "width", "heads", "n_static", "n_dynamic", "token_dim",
+                                      "n_tracks", "renderer_layers", "spatial_layers", "static_query_layers",
+                                      "track_layers"), "config")
         if self.dynamic_spatial_layers < 0:
             raise ModelError("config dynamic_spatial_layers must be >= 0")
         if self.ae_downsample & (self.ae_downsample - 1):
@@ -158,35 +213,6 @@ class ModelConfig:
     def token_floats(self) -> int:
         return (self.n_static + self.n_dynamic) * self.token_dim
 
-    # serialization ---------------------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    def canonical_json(self) -> str:
-        """Sorted keys, no whitespace: the bytes the fingerprint hashes. Fields added after models were
-        shipped are left out while they hold their original default, so older configs keep their hash."""
-        data = {k: v for k, v in self.to_dict().items() if _LATER_FIELDS.get(k, _UNSET) != v}
-        return json.dumps(data, sort_keys=True, separators=(",", ":"))
-
-    def sha256(self) -> str:
-        return hashlib.sha256(self.canonical_json().encode("utf-8")).hexdigest()
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
-        if not isinstance(data, dict):
-            raise ModelError("a model config must be a JSON object")
-        known = {f.name: f.type for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - set(known))
-        if unknown:
-            raise ModelError(f"unknown model config keys: {unknown}")
-        try:
-            return cls(**data)
-        except TypeError as exc:
-            raise ModelError(f"bad model config: {exc}") from None
-
-    def replace(self, **overrides: Any) -> "ModelConfig":
-        return ModelConfig.from_dict({**self.to_dict(), **overrides})
-
 
 _PAPER = dict(
     name="paper", frames=32, image_size=256, latent_channels=16, ae_downsample=8, ae_width=64,
@@ -203,3 +229,68 @@ def get_config(name: str, /, **overrides: Any) -> ModelConfig:
     if name not in _CONFIGS:
         raise ModelError(f"unknown model config {name!r}; choose one of {list(CONFIG_NAMES)}")
     return ModelConfig.from_dict({**ModelConfig().to_dict(), **_CONFIGS[name], **overrides})
+
+
+@dataclass(frozen=True)
+class PriorConfig(_Config):
+    """Sizes of a Co4DGen prior.
+
+    Token state (must equal the tokenizer's): n_static (N_s), n_dynamic (N_d), token_dim (d).
+    Conditioning clip: frames (T), image_size (H = W pixels), cond_patch (pixels per video-token side),
+    anchor_grid (anchor-ray tokens per frame side), cond_layers (self-attention blocks of E_cond).
+    Denoiser: width (D), heads, mlp_ratio, layers (co-denoising blocks G^l).
+    """
+
+    name: str = "co4dgen-tiny"
+    n_static: int = 64
+    n_dynamic: int = 32
+    token_dim: int = 32
+    frames: int = 8
+    image_size: int = 64
+    cond_patch: int = 16
+    anchor_grid: int = 4
+    cond_layers: int = 2
+    width: int = 128
+    heads: int = 4
+    mlp_ratio: float = 2.0
+    layers: int = 4
+
+    _KIND: ClassVar[str] = "prior"
+
+    def __post_init__(self) -> None:
+        _require_positive_ints(self, [f.name for f in dataclasses.fields(self) if f.name not in ("name", "mlp_ratio")],
+                               "prior config")
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError("prior config name must be a non-empty string")
+        if self.width % self.heads or self.image_size % self.cond_patch:
+            raise ModelError("prior width must divide by heads and image_size by cond_patch")
+        if not (isinstance(self.mlp_ratio, (int, float)) and self.mlp_ratio > 0):
+            raise ModelError("prior mlp_ratio must be > 0")
+
+    @classmethod
+    def for_tokenizer(cls, tokenizer: ModelConfig, name: str = "co4dgen-tiny", **overrides: Any) -> "PriorConfig":
+        """The named prior config with the token and clip sizes of ``tokenizer``."""
+        base = get_prior_config(name).to_dict()
+        base.update(n_static=tokenizer.n_static, n_dynamic=tokenizer.n_dynamic, token_dim=tokenizer.token_dim,
+                    frames=tokenizer.frames, image_size=tokenizer.image_size, **overrides)
+        return cls.from_dict(base)
+
+    def fits_tokenizer(self, tokenizer: ModelConfig) -> bool:
+        return (self.n_static, self.n_dynamic, self.token_dim, self.frames, self.image_size) == (
+            tokenizer.n_static, tokenizer.n_dynamic, tokenizer.token_dim, tokenizer.frames, tokenizer.image_size)
+
+
+_PRIOR_CONFIGS: dict[str, dict[str, Any]] = {
+    "co4dgen-tiny": {},
+    "co4dgen-paper": dict(name="co4dgen-paper", n_static=1024, n_dynamic=512, token_dim=64, frames=32,
+                          image_size=256, cond_patch=16, anchor_grid=8, cond_layers=4, width=768, heads=12,
+                          mlp_ratio=4.0, layers=12),
+}
+PRIOR_CONFIG_NAMES = tuple(_PRIOR_CONFIGS)
+
+
+def get_prior_config(name: str, /, **overrides: Any) -> PriorConfig:
+    """"co4dgen-tiny" (for vt4d-tiny: 96 x 32 tokens, width 128, 4 blocks) or "co4dgen-paper"."""
+    if name not in _PRIOR_CONFIGS:
+        raise ModelError(f"unknown prior config {name!r}; choose one of {list(PRIOR_CONFIG_NAMES)}")
+    return PriorConfig.from_dict({**PriorConfig().to_dict(), **_PRIOR_CONFIGS[name], **overrides})

@@ -12,7 +12,8 @@ alpha_tau = 1 - tau, sigma_tau = tau (rectified flow, the renderer's convention)
 the velocity v = eps - Z (Eq. 9).  Sampling integrates dZ/dtau = v from tau = 1 (seeded noise) to 0 with
 Euler or Heun steps, un-standardises and clips to the tokenizer's open interval (-1, 1).
 
-Weights: a prior directory holds ``prior.json`` (config, hashes and the fingerprint of the tokenizer the
+Its configuration, :class:`~vt4dcodec.model.configs.PriorConfig`, sits in ``configs.py`` beside the
+tokenizer's.  Weights: a prior directory holds ``prior.json`` (config, hashes and the fingerprint of the tokenizer the
 prior was trained on), ``prior.safetensors`` and optionally ``MODEL_CARD.md``.  :func:`load_prior`
 verifies the weights hash; :func:`check_tokenizer` refuses a tokenizer other than the recorded one.
 """
@@ -20,8 +21,6 @@ verifies the weights hash; :func:`check_tokenizer` refuses a tokenizer other tha
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,103 +29,17 @@ import torch.nn.functional as F
 from torch import nn
 
 from vt4dcodec.errors import ModelError, ModelMismatchError
+from vt4dcodec.format import ModelFingerprint
 
-from .configs import ModelConfig
+from .configs import PriorConfig
+from .identity import ModelIdentity
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
 
-__all__ = [
-    "PriorConfig", "get_prior_config", "PRIOR_CONFIG_NAMES", "PriorCondition", "Co4DGen", "check_tokenizer",
-    "SAMPLERS", "TOKEN_LIMIT",
-]
+__all__ = ["PriorCondition", "Co4DGen", "check_tokenizer", "SAMPLERS", "TOKEN_LIMIT"]
 
 SAMPLERS = ("euler", "heun")
 TOKEN_LIMIT = 1.0 - 1e-4  # sampled tokens are clipped to the tokenizer's bounded range (-1, 1)
-
-
-@dataclass(frozen=True)
-class PriorConfig:
-    """Sizes of a Co4DGen prior.
-
-    Token state (must equal the tokenizer's): n_static (N_s), n_dynamic (N_d), token_dim (d).
-    Conditioning clip: frames (T), image_size (H = W pixels), cond_patch (pixels per video-token side),
-    anchor_grid (anchor-ray tokens per frame side), cond_layers (self-attention blocks of E_cond).
-    Denoiser: width (D), heads, mlp_ratio, layers (co-denoising blocks G^l).
-    """
-
-    name: str = "co4dgen-tiny"
-    n_static: int = 64
-    n_dynamic: int = 32
-    token_dim: int = 32
-    frames: int = 8
-    image_size: int = 64
-    cond_patch: int = 16
-    anchor_grid: int = 4
-    cond_layers: int = 2
-    width: int = 128
-    heads: int = 4
-    mlp_ratio: float = 2.0
-    layers: int = 4
-
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("name", "mlp_ratio"):
-                continue
-            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-                raise ModelError(f"prior config {f.name} must be a positive integer, got {value!r}")
-        if not isinstance(self.name, str) or not self.name:
-            raise ModelError("prior config name must be a non-empty string")
-        if self.width % self.heads or self.image_size % self.cond_patch:
-            raise ModelError("prior width must divide by heads and image_size by cond_patch")
-        if not (isinstance(self.mlp_ratio, (int, float)) and self.mlp_ratio > 0):
-            raise ModelError("prior mlp_ratio must be > 0")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    def sha256(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-    @classmethod
-    def from_dict(cls, data: Any) -> "PriorConfig":
-        if not isinstance(data, dict):
-            raise ModelError("a prior config must be a JSON object")
-        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ModelError(f"unknown prior config keys: {unknown}")
-        try:
-            return cls(**data)
-        except TypeError as exc:
-            raise ModelError(f"bad prior config: {exc}") from None
-
-    @classmethod
-    def for_tokenizer(cls, tokenizer: ModelConfig, name: str = "co4dgen-tiny", **overrides: Any) -> "PriorConfig":
-        """The named prior config with the token and clip sizes of ``tokenizer``."""
-        base = get_prior_config(name).to_dict()
-        base.update(n_static=tokenizer.n_static, n_dynamic=tokenizer.n_dynamic, token_dim=tokenizer.token_dim,
-                    frames=tokenizer.frames, image_size=tokenizer.image_size, **overrides)
-        return cls.from_dict(base)
-
-    def fits_tokenizer(self, tokenizer: ModelConfig) -> bool:
-        return (self.n_static, self.n_dynamic, self.token_dim, self.frames, self.image_size) == (
-            tokenizer.n_static, tokenizer.n_dynamic, tokenizer.token_dim, tokenizer.frames, tokenizer.image_size)
-
-
-_PRIOR_CONFIGS: dict[str, dict[str, Any]] = {
-    "co4dgen-tiny": {},
-    "co4dgen-paper": dict(name="co4dgen-paper", n_static=1024, n_dynamic=512, token_dim=64, frames=32,
-                          image_size=256, cond_patch=16, anchor_grid=8, cond_layers=4, width=768, heads=12,
-                          mlp_ratio=4.0, layers=12),
-}
-PRIOR_CONFIG_NAMES = tuple(_PRIOR_CONFIGS)
-
-
-def get_prior_config(name: str, /, **overrides: Any) -> PriorConfig:
-    """"co4dgen-tiny" (for vt4d-tiny: 96 x 32 tokens, width 128, 4 blocks) or "co4dgen-paper"."""
-    if name not in _PRIOR_CONFIGS:
-        raise ModelError(f"unknown prior config {name!r}; choose one of {list(PRIOR_CONFIG_NAMES)}")
-    return PriorConfig.from_dict({**PriorConfig().to_dict(), **_PRIOR_CONFIGS[name], **overrides})
 
 
 @dataclass
@@ -156,13 +69,15 @@ class PriorCondition:
         return PriorCondition(*(getattr(self, f.name).repeat_interleave(n, 0) for f in dataclasses.fields(self)))
 
 
-class Co4DGen(nn.Module):
-    """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder."""
+class Co4DGen(ModelIdentity, nn.Module):
+    """v_omega(Z_tau, h, tau): the Co4DGen denoiser with its conditioning encoder.
 
-    # Identity, set by ``weights_io.load_prior`` (None for a prior that was never saved and loaded).
-    model_id: str | None = None
-    model_version: str | None = None
-    tokenizer_fingerprint: Any = None  # vt4dcodec.format.ModelFingerprint of the tokenizer it models
+    Identity (:class:`~.identity.ModelIdentity`) and ``tokenizer_fingerprint``, the fingerprint of the
+    tokenizer whose tokens it models, are set by ``weights_io.load_prior`` from prior.json (None for a
+    prior that was never saved and loaded).
+    """
+
+    tokenizer_fingerprint: ModelFingerprint | None = None
 
     def __init__(self, cfg: PriorConfig) -> None:
         super().__init__()

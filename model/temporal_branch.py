@@ -2,7 +2,7 @@
 Z_d = E_d(X^dyn_{1:T}, P_s, F_{1:T-1}).
 
 The non-learned inputs (motion mask M_t, Eq. 3-4; tracks p_i^t with validity, Eq. 6) come from
-``model.motion`` / ``model.tracks`` through :class:`~vt4dcodec.model.source_inputs.SourceBatch`. Here:
+``model.inputs.motion`` / ``model.inputs.tracks`` through :class:`~vt4dcodec.model.inputs.source_inputs.SourceBatch`. Here:
 
 1. X^dyn_t = X_t ⊙ M_t (Eq. 4), embedded per latent pixel together with the Plücker rays of P_s;
 2. Xbar^dyn_t = A_sp(X^dyn_t; M_t) -- spatial self-attention whose keys are the masked pixels only

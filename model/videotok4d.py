@@ -18,14 +18,16 @@ import torch.nn.functional as F
 from torch import nn
 
 from vt4dcodec.errors import ModelError
+from vt4dcodec.format import ModelFingerprint
 
 from .autoencoder import LatentAutoencoder
 from .bottleneck import TokenBottleneck, saturation_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
+from .identity import ModelIdentity, fingerprint_fields
 from .rays import latent_rays
 from .renderer import Renderer
-from .source_inputs import SourceBatch
+from .inputs.source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
 from .temporal_branch import TemporalBranch
 
@@ -36,16 +38,14 @@ DEFAULT_DECODE_STEPS = 8  # for model directories that record no decode_steps (w
 MAX_DECODE_STEPS = 1000
 
 
-class VideoTok4D(nn.Module):
+class VideoTok4D(ModelIdentity, nn.Module):
     """The whole model for one :class:`ModelConfig`.
 
-    Identity (set by ``from_pretrained`` from the model directory; never part of the config hash):
-    ``model_id`` / ``model_version`` (None for a model that was never saved or loaded) and
-    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default.
+    Identity (:class:`~.identity.ModelIdentity`: ``model_id``, ``model_version``, ``training_step``) and
+    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default, are
+    set by ``weights_io.from_pretrained`` from the model directory; none is part of the config hash.
     """
 
-    model_id: str | None = None
-    model_version: str | None = None
     decode_steps: int = DEFAULT_DECODE_STEPS
 
     def __init__(self, cfg: ModelConfig) -> None:
@@ -270,8 +270,13 @@ class VideoTok4D(nn.Module):
         """The training objective (so DistributedDataParallel can wrap the model): see rectified_flow_loss."""
         return self.rectified_flow_loss(batch, target_frames, K_tgt, w2c_tgt, generator, **loss_options)
 
-    def fingerprint(self, model_id: str, model_version: str) -> Any:
+    def fingerprint(self, model_id: str, model_version: str) -> ModelFingerprint:
         """The :class:`vt4dcodec.format.ModelFingerprint` a container stores for these weights."""
-        from .weights_io import model_fingerprint
+        return ModelFingerprint(**fingerprint_fields(self, model_id, model_version))
 
-        return model_fingerprint(self, model_id, model_version)
+    def stored_fingerprint(self) -> ModelFingerprint:
+        """The fingerprint a container stores for this model under its own identity ("unnamed", "0" for a
+        model that was never saved or loaded), computed once per identity and kept."""
+        if self._stored_fingerprint is None:
+            self._stored_fingerprint = self.fingerprint(self.model_id or "unnamed", self.model_version or "0")
+        return self._stored_fingerprint

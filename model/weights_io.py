@@ -1,6 +1,10 @@
 """Weights I/O and lookup of both models: the VideoTok4D tokenizer (``save_pretrained`` /
-``from_pretrained``) and the Co4DGen prior (``save_prior`` / ``load_prior``), shipped ids, the
-fingerprint.
+``from_pretrained``) and the Co4DGen prior (``save_prior`` / ``load_prior``).
+
+Lookup (:func:`model_directory`, the same for both): a directory holding the model's meta file; else a
+shipped id (a directory of ``model/weights/``); else a directory of that name under one of the
+``os.pathsep``-separated roots in ``$VT4D_MODEL_PATH`` (user models and priors, found by the id a scene
+or prior records); else ModelNotFoundError.
 
 A tokenizer directory holds
 
@@ -15,14 +19,17 @@ A tokenizer directory holds
 The fingerprint a container stores is SHA-256 over the canonical config JSON (sorted keys, no
 whitespace) and SHA-256 over the weights in canonical order: for every tensor name in sorted order,
 the UTF-8 name, its dtype and shape, then its little-endian bytes, taken from the model's own float32
-state (independent of the storage dtype). Loading recomputes the weights hash and refuses files whose
-hash disagrees with config.json.
+state (independent of the storage dtype; ``identity.weights_sha256``). Loading recomputes the weights
+hash and refuses files whose hash disagrees with config.json.  A prior directory holds ``prior.json``
+(the same keys, format "co4dgen-prior/1", plus the fingerprint of its tokenizer), ``prior.safetensors``
+and optionally ``MODEL_CARD.md``.  Loading sets each model's identity (``model_id``, ``model_version``)
+from its meta file.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -31,36 +38,26 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from vt4dcodec.errors import ModelError, ModelNotFoundError
+from vt4dcodec.format import ModelFingerprint
 
-from .configs import ModelConfig
-from .prior import Co4DGen, PriorConfig
+from .configs import ModelConfig, PriorConfig
+from .identity import weights_sha256
+from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 
 __all__ = [
-    "save_pretrained", "from_pretrained", "save_prior", "load_prior", "weights_sha256", "fingerprint_fields",
-    "model_fingerprint", "stored_fingerprint", "shipped_model_ids", "shipped_prior_ids", "model_directory",
-    "SHIPPED_DIR", "MODEL_FORMAT", "PRIOR_FORMAT", "write_weights_directory", "read_weights_meta", "storage_state",
-    "widen_stored",
+    "save_pretrained", "from_pretrained", "save_prior", "load_prior", "shipped_model_ids", "shipped_prior_ids",
+    "model_directory", "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "write_weights_directory",
+    "read_weights_meta", "storage_state", "widen_stored",
 ]
 
 MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
+MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model and prior directories
 CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
 PRIOR_META_FILE, PRIOR_WEIGHTS_FILE = "prior.json", "prior.safetensors"
 MAX_CONFIG_BYTES = 1 << 20
 STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
-
-
-def weights_sha256(state: dict[str, torch.Tensor]) -> str:
-    """SHA-256 over tensors in sorted-name order: name, dtype, shape, then little-endian bytes."""
-    digest = hashlib.sha256()
-    for name in sorted(state):
-        tensor = state[name].detach().to("cpu").contiguous()
-        header = json.dumps([name, str(tensor.dtype).removeprefix("torch."), list(tensor.shape)],
-                            separators=(",", ":"))
-        digest.update(header.encode("utf-8"))
-        digest.update(tensor.view(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
-    return digest.hexdigest()
 
 
 def storage_state(module: torch.nn.Module, storage_dtype: str = "float32"
@@ -86,32 +83,6 @@ def widen_stored(state: dict[str, torch.Tensor], expected: dict[str, torch.Tenso
     """Stored float16 tensors widened to the module's float32; every other tensor unchanged."""
     return {k: v.to(torch.float32) if v.dtype == torch.float16 and k in expected
             and expected[k].dtype == torch.float32 else v for k, v in state.items()}
-
-
-def fingerprint_fields(model: VideoTok4D, model_id: str, model_version: str) -> dict[str, Any]:
-    """The keyword arguments of ``vt4dcodec.format.ModelFingerprint`` for ``model``."""
-    cfg = model.config
-    return dict(model_id=str(model_id), model_version=str(model_version), config_sha256=cfg.sha256(),
-                weights_sha256=weights_sha256(model.state_dict()), static_shape=tuple(cfg.static_shape),
-                dynamic_shape=tuple(cfg.dynamic_shape), token_dtype="float32")
-
-
-def model_fingerprint(model: VideoTok4D, model_id: str, model_version: str) -> Any:
-    from vt4dcodec.format import ModelFingerprint  # the container's record type
-
-    return ModelFingerprint(**fingerprint_fields(model, model_id, model_version))
-
-
-def stored_fingerprint(model: VideoTok4D) -> Any:
-    """The fingerprint a container stores for ``model``: its own id and version ("unnamed", "0" for a
-    model that was never saved or loaded), computed once and cached on the model object."""
-    cached = getattr(model, "_vt4d_fingerprint", None)
-    if cached is None:
-        model_id = model.model_id or "unnamed"
-        model_version = model.model_version or "0"
-        cached = model.fingerprint(model_id, model_version)
-        model._vt4d_fingerprint = cached
-    return cached
 
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
@@ -168,21 +139,34 @@ def shipped_prior_ids() -> list[str]:
     return _shipped_ids(PRIOR_META_FILE)
 
 
-def model_directory(name_or_path: str | Path, meta_file: str = CONFIG_FILE) -> Path:
+def _user_directory(model_id: str, meta_file: str) -> Path | None:
+    """The first directory named ``model_id`` and holding ``meta_file`` under a root of $VT4D_MODEL_PATH."""
+    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
+        candidate = Path(root) / model_id
+        if (candidate / meta_file).is_file():
+            return candidate
+    return None
+
+
+def model_directory(name_or_path: str | os.PathLike[str], meta_file: str = CONFIG_FILE) -> Path:
     """The directory of a tokenizer (``meta_file`` config.json) or a prior (prior.json): a directory
-    holding ``meta_file``; else a shipped id; else any other directory (its reader then says what it
-    lacks).  ModelNotFoundError otherwise."""
+    holding ``meta_file``; else a shipped id; else a directory of that name under $VT4D_MODEL_PATH; else
+    any other directory (its reader then says what it lacks).  ModelNotFoundError otherwise."""
     path = Path(name_or_path)
     if (path / meta_file).is_file():
         return path
     shipped = _shipped_ids(meta_file)
-    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in shipped:
-        return SHIPPED_DIR / name_or_path
+    if isinstance(name_or_path, str) and name_or_path and "/" not in name_or_path and os.sep not in name_or_path:
+        if name_or_path in shipped:
+            return SHIPPED_DIR / name_or_path
+        user = _user_directory(name_or_path, meta_file)
+        if user is not None:
+            return user
     if path.is_dir():
         return path
-    what = "prior" if meta_file == PRIOR_META_FILE else "model"
-    raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory and not a shipped id "
-                             f"(shipped: {shipped or 'none'})")
+    what, hint = ("prior", "") if meta_file == PRIOR_META_FILE else ("model", "; pass model=<path to the model directory>")
+    raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory, not a shipped id (shipped: "
+                             f"{shipped or 'none'}) and not a directory under ${MODEL_PATH_ENV}{hint}")
 
 
 def read_weights_meta(directory: Path, *, meta_file: str, weights_file: str, fmt: str,
@@ -242,7 +226,7 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
         raise ModelError(f"{directory / WEIGHTS_FILE}: weights do not match weights_sha256 in {CONFIG_FILE}")
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
-    model.model_id, model.model_version = meta["model_id"], meta["model_version"]
+    model.set_identity(meta["model_id"], meta["model_version"])
     model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
     return model.to(device).eval()
 
@@ -266,8 +250,6 @@ def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_ve
 
 
 def _read_prior_meta(directory: Path) -> dict[str, Any]:
-    from vt4dcodec.format import ModelFingerprint
-
     path = directory / PRIOR_META_FILE
     meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
                              fmt=PRIOR_FORMAT, config_type=PriorConfig)
@@ -298,7 +280,7 @@ def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") 
                                           for k in state):
         raise ModelError(f"{directory}: weights do not fit the prior config")
     prior.load_state_dict(state, strict=True)
-    prior.model_id, prior.model_version = meta["model_id"], meta["model_version"]
+    prior.set_identity(meta["model_id"], meta["model_version"])
     prior.tokenizer_fingerprint = meta["tokenizer"]
     prior.requires_grad_(False)
     return prior.to(device).eval()

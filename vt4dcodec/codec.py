@@ -25,6 +25,10 @@ import numpy as np
 
 from .cameras import Trajectory
 from .capture.capture import Capture
+from .capture.io import MANIFEST_NAME, read_capture
+from .capture.resample import fit_capture, fit_trajectory, plan_fit
+from .capture.targets import camera_target, cut_to_clip, is_camera_spec
+from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
 from .format import ModelFingerprint, Provenance, Scene, load
 
@@ -43,66 +47,37 @@ DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fideli
 # 1,248 token bytes). int2-rans is 638 bytes smaller and within 0.1 dB on average but loses up to
 # 0.23 dB on single views. Re-measure with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4-rans"
-MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model directories
 
 
 # --- models -----------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=4)
-def _load_model_cached(resolved: str) -> "VideoTok4D":
-    from .model import from_pretrained
+def _load_model_cached(directory: str) -> "VideoTok4D":
+    from .model import from_pretrained  # lazy: torch loads on first use, not with `import vt4dcodec` / `vt4d`
 
-    return from_pretrained(resolved)
-
-
-def _user_model_dirs() -> list[Path]:
-    dirs = []
-    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
-        root_path = Path(root)
-        if root_path.is_dir():
-            dirs.extend(p for p in sorted(root_path.iterdir()) if (p / "config.json").is_file())
-    return dirs
-
-
-def _find_model_dir(model_id: str) -> str:
-    """A shipped id, or a directory under $VT4D_MODEL_PATH whose name is ``model_id``."""
-    from .model import shipped_model_ids
-
-    if model_id in shipped_model_ids():
-        return model_id
-    for d in _user_model_dirs():
-        if d.name == model_id:
-            return str(d)
-    raise ModelNotFoundError(
-        f"model {model_id!r} is neither shipped (shipped: {shipped_model_ids() or 'none'}) nor a directory "
-        f"under ${MODEL_PATH_ENV}; pass model=<path to the model directory>"
-    )
+    return from_pretrained(directory)
 
 
 def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "VideoTok4D":
-    """A model by shipped id, by directory path, or an already loaded one (returned as is)."""
-    from .model import VideoTok4D
+    """A model by shipped id, by directory path, by the name of a directory under $VT4D_MODEL_PATH
+    (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is).  Each
+    directory is loaded once per process."""
+    from .model import VideoTok4D  # lazy: keeps torch out of `import vt4dcodec` / `vt4d` (as above)
+    from .model.weights_io import model_directory
 
     if isinstance(model, VideoTok4D):
         return model
-    path = Path(model)
-    if path.is_dir():
-        return _load_model_cached(str(path.resolve()))
-    return _load_model_cached(_find_model_dir(str(model)))
+    return _load_model_cached(str(model_directory(model).resolve()))
 
 
 def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
-    """The fingerprint a container stores for ``model`` (cached on the model object)."""
-    from .model.weights_io import stored_fingerprint
-
-    return stored_fingerprint(model)
+    """The fingerprint a container stores for ``model`` (``VideoTok4D.stored_fingerprint``)."""
+    return model.stored_fingerprint()
 
 
 # --- encoding ---------------------------------------------------------------------------------------
 def _as_capture(capture: "Capture | str | os.PathLike") -> Capture:
     if isinstance(capture, Capture):
         return capture
-    from .capture.io import read_capture
-
     return read_capture(capture)
 
 
@@ -204,11 +179,10 @@ def encode_clips(
 
 def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
                  metadata: dict[str, Any] | None) -> Scene:
-    import torch
+    import torch  # lazy (and the inputs below): `import vt4dcodec` / `vt4d` load neither torch nor OpenCV
 
-    from .capture.resample import fit_capture
-    from .model.preprocess import prepare_source
-    from .model.source_inputs import SourceBatch
+    from .model.inputs.preprocess import prepare_source
+    from .model.inputs.source_inputs import SourceBatch
 
     cfg = net.config
     if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
@@ -260,10 +234,6 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
     scene's ``metadata``.  Trajectories for another image size are resized and centre-cropped the way
     captures are (intrinsics updated).
     """
-    from .capture.resample import fit_trajectory, plan_fit
-    from .capture.targets import camera_target, cut_to_clip, is_camera_spec
-    from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
-
     if isinstance(spec, Trajectory):
         traj = cut_to_clip(spec, metadata, max_frames)
     elif is_camera_spec(spec):
@@ -344,7 +314,7 @@ class SceneDecoder:
 
         ``"camera:NAME"`` takes capture camera NAME over the scene's clip from ``capture`` (a Capture or
         a capture directory: the one the scene was encoded from)."""
-        import torch
+        import torch  # lazy: keeps torch out of `import vt4dcodec` / `vt4d`
 
         z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
         z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
@@ -372,7 +342,5 @@ def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Traj
 
 def iter_capture_dirs(root: str | os.PathLike) -> Iterable[Path]:
     """Capture directories (holding a manifest) directly under ``root``, sorted by name."""
-    from .capture.io import MANIFEST_NAME
-
     root = Path(root)
     return [p for p in sorted(root.iterdir()) if (p / MANIFEST_NAME).is_file()]

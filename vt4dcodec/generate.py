@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -40,22 +39,24 @@ GENERATED_ENCODING = "int4-rans"
 
 
 @functools.lru_cache(maxsize=4)
-def _load_prior_cached(resolved: str) -> "Co4DGen":
+def _load_prior_cached(directory: str) -> "Co4DGen":
     from .model.weights_io import load_prior
 
-    return load_prior(resolved)
+    return load_prior(directory)
 
 
 def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR) -> "Co4DGen":
-    """A prior by shipped id, by directory, or an already loaded :class:`Co4DGen` (returned as is)."""
+    """A prior by shipped id, by directory, by the name of a directory under $VT4D_MODEL_PATH (the
+    lookup of ``vt4dcodec.model.weights_io.model_directory``, as for tokenizers), or an already loaded
+    :class:`Co4DGen` (returned as is).  Each directory is loaded once per process."""
     from .model.prior import Co4DGen
+    from .model.weights_io import PRIOR_META_FILE, model_directory
 
     if isinstance(model, Co4DGen):
         if model.tokenizer_fingerprint is None:
             raise ModelError("this prior records no tokenizer fingerprint: load it with load_prior")
         return model
-    path = Path(model)
-    return _load_prior_cached(str(path.resolve()) if path.is_dir() else str(model))
+    return _load_prior_cached(str(model_directory(model, PRIOR_META_FILE).resolve()))
 
 
 def fit_conditioning(video: np.ndarray, cameras: Trajectory, *, size: int, frames: int, start: int = 0

@@ -19,13 +19,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 import torch.distributed as dist
 from safetensors.torch import load_file, save_file
 from torch import nn
+from torch.utils.data import DataLoader, RandomSampler
+from tqdm import tqdm
 
+from vt4dcodec.data.multiview import find_capture_dirs
 from vt4dcodec.errors import ModelError
+
+from .data import ScenePool, rank_seeds
 
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
@@ -88,14 +95,10 @@ def cycle(loader: Any) -> Iterator[Any]:
 
 def scene_pool_and_seeds(args: argparse.Namespace, cfg: Any, info: DistInfo) -> tuple[Any, list[int]]:
     """The rank's share of the training scenes: seeds to generate, or indices into ``--data``."""
-    from .data import ScenePool, rank_seeds
-
     cache = args.cache or args.out.parent / "scene_cache"
     if args.data is None:
         pool = ScenePool.for_config(cfg, cache, args.cameras)
         return pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size)
-    from vt4dcodec.data.multiview import find_capture_dirs
-
     captures = tuple(find_capture_dirs(args.data)[:args.scenes])
     pool = ScenePool.for_config(cfg, cache, args.cameras, captures=captures)
     return pool, rank_seeds(0, len(captures), info.rank, info.world_size)
@@ -105,8 +108,6 @@ def make_loader(dataset: Any, args: argparse.Namespace, info: DistInfo, collate_
                 batch_sampler: Any = None) -> Any:
     """Shuffled DataLoader with a per-rank seeded order (ranks already hold disjoint scenes), or the
     given ``batch_sampler`` (a callable taking the rank's seeded generator)."""
-    from torch.utils.data import DataLoader, RandomSampler
-
     generator = torch.Generator().manual_seed(args.seed + info.rank)
     if batch_sampler is not None:
         return DataLoader(dataset, batch_sampler=batch_sampler(generator), num_workers=args.workers,
@@ -174,11 +175,7 @@ class JsonlLog:
 def plot_loss_curve(records: list[dict[str, Any]], png: Path, title: str, key: str = "loss",
                     smooth: int = 20) -> None:
     """Loss against step (raw and a moving average), matplotlib Agg, log-scale y."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     pts = [(r["step"], r[key]) for r in records if key in r and "step" in r]
     if not pts:
         return
@@ -260,8 +257,6 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     ``<out>/log.jsonl`` (losses averaged over ranks), checkpoints every ``ckpt_every`` steps and at
     the end, and draws ``<out>/loss.png``. Returns the log records.
     """
-    from tqdm import tqdm
-
     out: Path = args.out
     ckpt = out / "checkpoint"
     state = load_checkpoint(ckpt, trained, optimizer)

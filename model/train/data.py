@@ -23,18 +23,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
+from tqdm import tqdm
 
 from vt4dcodec.cameras import Trajectory
+from vt4dcodec.data.multiview import MultiViewPairs
 from vt4dcodec.errors import CaptureError
 from vt4dcodec.synth import SynthConfig, generate_scene
+from vt4dcodec.synth.assets import PHOTO_TEXTURES, photo_image
 
 from ..configs import ModelConfig
-from ..motion import MASK_RULE_VERSION
-from ..preprocess import prepare_source
-from ..source_inputs import SourceBatch, SourceInputs
+from ..identity import weights_sha256
+from ..inputs.motion import MASK_RULE_VERSION
+from ..inputs.preprocess import prepare_source
+from ..inputs.source_inputs import SourceBatch, SourceInputs
 
 __all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "ViewsBatchSampler",
            "axis_angles_deg",
@@ -113,8 +118,6 @@ class ScenePool:
 
     def _read_capture(self, path: Path) -> dict[str, np.ndarray]:
         """The first ``cameras`` cameras and ``frames`` frames of a capture directory (depth 0 = unknown)."""
-        from vt4dcodec.data.multiview import MultiViewPairs
-
         views = MultiViewPairs([path], pairing="same")
         if len(views) < self.cameras:
             raise CaptureError(f"{path} has {len(views)} cameras; training asks for {self.cameras}")
@@ -169,8 +172,6 @@ class ScenePool:
 
 def autoencoder_key(autoencoder: torch.nn.Module) -> str:
     """12 hex digits of the autoencoder's weights hash (the one model fingerprints use)."""
-    from ..weights_io import weights_sha256
-
     return weights_sha256(autoencoder.state_dict())[:12]
 
 
@@ -179,8 +180,6 @@ def precompute_latents(pool: "ScenePool", seeds: list[int], autoencoder: torch.n
                        progress: bool = False) -> str:
     """Encode every frame of every camera of ``seeds`` once with the frozen ``autoencoder`` and cache
     the latents (stage 2 then skips the encoder pass, about 40 % of a step). Returns the cache key."""
-    from tqdm import tqdm
-
     key = autoencoder_key(autoencoder)
     autoencoder.eval()
     for seed in tqdm(seeds, desc="latents", disable=not progress):
@@ -228,8 +227,6 @@ class PhotoCrops(Dataset):
     """
 
     def __init__(self, size: int, count: int, seed: int = 0) -> None:
-        from vt4dcodec.synth.assets import PHOTO_TEXTURES
-
         self.size, self.count, self.seed = size, int(count), int(seed)
         self.names = sorted(n for n, split in PHOTO_TEXTURES.items() if split == "train")
 
@@ -237,10 +234,6 @@ class PhotoCrops(Dataset):
         return self.count
 
     def __getitem__(self, index: int) -> torch.Tensor:
-        import cv2
-
-        from vt4dcodec.synth.assets import photo_image
-
         rng = np.random.default_rng([self.seed, int(index)])
         img = photo_image(self.names[int(rng.integers(len(self.names)))])
         H, W = img.shape[:2]

@@ -26,9 +26,12 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import Dataset
 
+from vt4dcodec.data.archive_dataset import ArchiveDataset
 from vt4dcodec.errors import ModelError
+from vt4dcodec.format import ModelFingerprint
 
-from ..prior import Co4DGen, PriorCondition, PriorConfig, get_prior_config
+from ..configs import PriorConfig, get_prior_config
+from ..prior import Co4DGen, PriorCondition
 from ..weights_io import save_prior
 from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
                      train_loop)
@@ -53,8 +56,6 @@ class PriorPairDataset(Dataset):
     ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, and the two keys."""
 
     def __init__(self, shards: Any) -> None:
-        from vt4dcodec.data.archive_dataset import ArchiveDataset
-
         self.tokens = ArchiveDataset(shards)
         if len(self.tokens) == 0:
             raise ModelError(f"no token records in {shards}")
@@ -177,8 +178,6 @@ def arguments() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vt4dcodec.format import ModelFingerprint
-
     args = arguments().parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)

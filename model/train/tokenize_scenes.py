@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import sys
 import time
 from pathlib import Path
@@ -33,12 +34,14 @@ from typing import Any
 import numpy as np
 import torch
 
+from vt4dcodec.archive import ArchiveWriter, open_archive
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
+from vt4dcodec.format import Provenance, Scene
 
-from ..source_inputs import SourceBatch, SourceInputs
-from ..weights_io import from_pretrained, stored_fingerprint
-from .data import ScenePool
+from ..inputs.source_inputs import SourceBatch, SourceInputs
+from ..weights_io import from_pretrained
+from .data import ScenePool, rank_seeds
 
 __all__ = ["CLIP_EXTENSION", "clip_path", "pack_clip", "unpack_clip", "ClipStore", "event_key", "record_key",
            "tokenize_event", "write_shards", "main", "MAX_CLIP_BYTES"]
@@ -93,8 +96,6 @@ class ClipStore:
     """Read access to the sidecars of a list of token shards (opened lazily, per process)."""
 
     def __init__(self, shards: list[str]) -> None:
-        from vt4dcodec.archive import open_archive
-
         self.paths = [clip_path(s) for s in shards]
         self.keys: dict[str, int] = {}
         for i, path in enumerate(self.paths):
@@ -108,10 +109,6 @@ class ClipStore:
         return key in self.keys
 
     def load(self, key: str) -> dict[str, np.ndarray]:
-        import os
-
-        from vt4dcodec.archive import open_archive
-
         if key not in self.keys:
             raise ArchiveError(f"no conditioning clip {key!r} in {self.paths}")
         if self._pid != os.getpid():
@@ -141,13 +138,10 @@ def write_shards(tokenizer: Any, pool: ScenePool, seeds: list[int], out: Path, *
                  encoding: str = "float16", shard_offset: int = 0, progress: bool = False) -> list[str]:
     """Tokenize ``seeds`` of ``pool`` into shards ``<out>/<split>-NNNNN.vt4da`` + sidecars; returns the
     token shard paths.  Shard numbers start at ``shard_offset`` (distinct per rank)."""
-    from vt4dcodec.archive import ArchiveWriter
-    from vt4dcodec.format import Provenance, Scene
-
     if per_shard < 1:
         raise ModelError("per_shard must be >= 1")
     out.mkdir(parents=True, exist_ok=True)
-    fingerprint = stored_fingerprint(tokenizer)
+    fingerprint = tokenizer.stored_fingerprint()
     size = pool.image_size
     paths = []
     for n, start in enumerate(range(0, len(seeds), per_shard)):
@@ -187,11 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    from .data import rank_seeds
-
     torch.set_num_threads(args.threads)
-    import os
-
     rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
     if args.cameras < 2:
         raise ModelError("Co4DGen pairs need at least 2 cameras per event")

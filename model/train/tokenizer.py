@@ -8,7 +8,7 @@ autoencoder: the rectified-flow loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z
     torchrun --nproc_per_node=2 -m vt4dcodec.model.train.tokenizer --autoencoder ... --out ... --steps ...
 
 Each sample: one scene, a source camera c (its clip, cameras, motion mask and tracks from
-``model.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
+``model.inputs.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
 pair a != c, or with the recipe flags a sampled target (c itself for reconstruction, else a camera
 that overlaps c), flow times with a share at tau = 1, static-token dropout and a saturation penalty
 (docs/training.md says what each does and what was measured). ``--init`` continues a saved model
@@ -25,6 +25,8 @@ import json
 import sys
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from safetensors import SafetensorError
@@ -80,11 +82,7 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
                    ) -> dict[str, float]:
     """PSNR of renders against the target camera for ``count`` pairs, and a PNG: rows are pairs,
     columns source | target | render at the first, middle and last frame."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     model.eval()
     idx = np.linspace(0, len(dataset) - 1, count).astype(int).tolist()
     batch = collate_pairs([dataset[i] for i in idx])
@@ -132,7 +130,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
         model.load_state_dict(fits, strict=False)
         skipped = sorted(set(fresh) - set(fits))
         print(f"--init-partial: copied {len(fits)} of {len(fresh)} tensors; fresh: {', '.join(skipped) or 'none'}")
-    model.model_id = model.model_version = None
+    model.set_identity(None, None)
     model.freeze_autoencoder()
     return model
 

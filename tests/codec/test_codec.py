@@ -79,7 +79,7 @@ def test_unknown_model_id_is_a_clear_error(encoded):
 
 
 def test_user_model_found_through_model_path(monkeypatch, encoded, model_dir):
-    monkeypatch.setenv(codec.MODEL_PATH_ENV, str(model_dir.parent))
+    monkeypatch.setenv("VT4D_MODEL_PATH", str(model_dir.parent))
     decoder = codec.SceneDecoder.open(encoded)  # the fingerprint's id names the directory
     assert decoder.model.config == codec.load_model(model_dir).config
 

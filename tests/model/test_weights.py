@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 import torch
 
 from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.model import VideoTok4D, from_pretrained, get_config, save_pretrained
-from vt4dcodec.model.weights_io import fingerprint_fields, weights_sha256
+from vt4dcodec.model.identity import fingerprint_fields, weights_sha256
+from vt4dcodec.model.weights_io import model_directory
 
 from network_fixtures import random_batch
 
@@ -53,6 +55,15 @@ def test_fingerprint_hashes_config_and_weights(saved):
     state = {k: v.clone() for k, v in model.state_dict().items()}
     state["renderer.out.bias"][0] += 1e-7  # one changed weight changes the hash
     assert weights_sha256(state) != fields["weights_sha256"]
+
+
+def test_model_found_by_id_through_model_path(saved, tmp_path, monkeypatch):
+    """$VT4D_MODEL_PATH: os.pathsep-separated roots whose subdirectories are found by their name."""
+    _, path = saved
+    with pytest.raises(ModelNotFoundError, match="VT4D_MODEL_PATH"):
+        from_pretrained(path.name)
+    monkeypatch.setenv("VT4D_MODEL_PATH", os.pathsep.join([str(tmp_path), str(path.parent)]))
+    assert model_directory(path.name) == path and from_pretrained(path.name).model_id == "vt4d-test"
 
 
 def test_unknown_ids_and_paths_raise_model_not_found(tmp_path):

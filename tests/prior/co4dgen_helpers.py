@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import torch
 
-from vt4dcodec.model.prior import Co4DGen, PriorCondition, get_prior_config
+from vt4dcodec.model.configs import get_prior_config
+from vt4dcodec.model.prior import Co4DGen, PriorCondition
 
 SMALL_TOKENIZER = dict(frames=4, image_size=32, width=32, heads=2, spatial_layers=1, static_query_layers=1,
                        track_layers=1, renderer_layers=1, n_static=8, n_dynamic=4, token_dim=8, n_tracks=8,

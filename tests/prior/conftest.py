@@ -30,7 +30,7 @@ def shards(tmp_path_factory, tokenizer_dir) -> Path:
     from vt4dcodec.model.train.tokenize_scenes import write_shards
 
     tok = from_pretrained(tokenizer_dir)
-    tok.model_id, tok.model_version = "tok-test", "0"
+    tok.set_identity("tok-test", "0")
     root = tmp_path_factory.mktemp("co4dgen")
     pool = ScenePool.for_config(tok.config, root / "cache", CAMERAS)
     write_shards(tok, pool, list(range(EVENTS)), root / "shards", per_shard=1, encoding="float16")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 import torch
@@ -53,6 +54,18 @@ def test_damaged_or_foreign_prior_files_are_refused(tmp_path):
     (d / "prior.json").write_text("{not json")
     with pytest.raises(ModelError):
         load_prior(d)
+
+
+def test_prior_found_by_id_through_model_path(tmp_path, monkeypatch):
+    """$VT4D_MODEL_PATH finds priors by directory name, as it finds tokenizers (the one lookup of weights_io)."""
+    from vt4dcodec.generate import load_prior_model
+
+    save_prior(small_prior(), tmp_path / "models" / "p-user", model_id="p-user", model_version="3", tokenizer=FP)
+    with pytest.raises(ModelNotFoundError, match="VT4D_MODEL_PATH"):
+        load_prior("p-user")
+    monkeypatch.setenv("VT4D_MODEL_PATH", str(tmp_path / "elsewhere") + os.pathsep + str(tmp_path / "models"))
+    assert load_prior("p-user").model_version == "3"
+    assert load_prior_model("p-user").model_id == "p-user"
 
 
 def test_a_prior_is_only_used_with_its_tokenizer(tmp_path):

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from co4dgen_helpers import SMALL_PRIOR, random_condition, small_prior
 from vt4dcodec.errors import ModelError
 from vt4dcodec.model import get_config
-from vt4dcodec.model.prior import Co4DGen, PriorConfig, get_prior_config
+from vt4dcodec.model.configs import PriorConfig, get_prior_config
+from vt4dcodec.model.prior import Co4DGen
 
 
 def test_tiny_config_fits_vt4d_tiny_and_paper_config_builds():

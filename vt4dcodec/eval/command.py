@@ -82,9 +82,9 @@ def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
         raise EvaluationError(f"{ckpt} holds no complete training checkpoint: {exc}") from None
     load_checkpoint(ckpt, net, None)
     train_args = state.get("args", {})
-    net.model_id = str(train_args.get("model_id", "unnamed"))
-    net.model_version = f"{train_args.get('model_version', '0')}+step{int(state['step'])}"
-    net.training_step = int(state["step"])
+    net.set_identity(str(train_args.get("model_id", "unnamed")),
+                     f"{train_args.get('model_version', '0')}+step{int(state['step'])}",
+                     training_step=int(state["step"]))
     return net.eval()
 
 

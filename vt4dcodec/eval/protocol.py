@@ -59,6 +59,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from vt4dcodec import codec
 from vt4dcodec.errors import Vt4dError
@@ -323,7 +324,7 @@ def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dic
     ``steps``: the sampler steps this evaluation rendered it with."""
     fp = codec.model_fingerprint(net)
     cfg = net.config
-    info = {"fingerprint": fp.short(), "training_step": getattr(net, "training_step", None), "config": cfg.name,
+    info = {"fingerprint": fp.short(), "training_step": net.training_step, "config": cfg.name,
             "n_static": cfg.n_static, "n_dynamic": cfg.n_dynamic, "token_dim": cfg.token_dim,
             "unified_tokens": cfg.unified_tokens, "motion_isolation": cfg.motion_isolation,
             "track_attention": cfg.track_attention, "decode_steps": int(net.decode_steps)}
@@ -405,8 +406,6 @@ def run_evaluation(settings: EvalSettings, models: dict[str, VideoTok4D], method
     seeds = settings.seeds
     iterator = seeds
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(seeds, desc="scenes", unit="scene")
     rows: list[dict[str, Any]] = []
     kept: dict[str, dict[int, dict[str, dict[str, Any]]]] = {s: {} for s in sets}

@@ -33,17 +33,19 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 
 from vt4dcodec import codec
-from vt4dcodec.capture.caliscope import find_sample_capture
+from vt4dcodec.capture.caliscope import find_sample_capture, import_caliscope
 from vt4dcodec.capture.capture import Capture
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.format import dumps
 
-from vt4dcodec.model.depth import estimate_depth
-from vt4dcodec.model.motion import DEFAULT_DEPTH_RANGE
+from vt4dcodec.model.inputs.depth import estimate_depth
+from vt4dcodec.model.inputs.motion import DEFAULT_DEPTH_RANGE
 
 from . import baselines
 from .command import resolve_model, run_command
@@ -108,11 +110,7 @@ def evaluate_real(capture: Capture, net: Any, source: str, target: str, *, steps
 def save_real_figure(path: str | Path, clips: list[dict[str, Any]], source: str, target: str,
                      rows_per_clip: Sequence[int] = (0, 4), max_clips: int = 3) -> Path:
     """PNG: rows = (clip, frame), columns source | target (real) | ours | nearest frame | depth warp."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     picks = [(c, t) for c in clips[:max_clips] for t in rows_per_clip if t < len(c["truth"])]
     cols = [("source", f"source {source}"), ("truth", f"real {target}"), ("ours", "VideoTok4D"),
             ("nearest_frame", "nearest frame"), ("depth_warp", "depth warp"), ("mean_colour", "flat mean colour")]
@@ -169,8 +167,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
-    from vt4dcodec.capture.caliscope import import_caliscope
-
     torch.set_num_threads(max(1, args.threads))
     net = resolve_model(args.model).eval()
     size = net.config.image_size
@@ -194,7 +190,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "axis_angle_deg": round(angle, 2), "frames": capture.num_frames, "fps": capture.fps,
         "image_size": size, "clip_frames": net.config.frames, "steps": steps,
         "decode_steps": int(net.decode_steps), "seed": args.seed,
-        "model": codec.model_fingerprint(net).short(), "training_step": getattr(net, "training_step", None), "wall_s": round(wall, 1),
+        "model": codec.model_fingerprint(net).short(), "training_step": net.training_step, "wall_s": round(wall, 1),
         "summary": summarize_real(rows), "rows": rows,
     }
     out = write_json(args.out, results)

@@ -4,12 +4,16 @@ Markdown tables docs/RESULTS.md shows and the PNG figures.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from PIL import Image
 
 from vt4dcodec.synth.generator import SynthScene
 
@@ -83,11 +87,7 @@ FIGURE_COLUMNS = ("ours", "ours_no_dynamic", "unified", "nearest_frame", "depth_
 def save_figure(path: str | Path, kept: dict[int, dict[str, dict[str, Any]]], *, view: int = 0,
                 times: Sequence[int] | None = None, dpi: int = 100) -> Path:
     """PNG grid: one row per (scene, time), columns source | ground truth | the methods present."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     if not kept:
         raise EvaluationError("no scenes kept for the figure")
     first = next(iter(kept.values()))
@@ -121,11 +121,6 @@ def save_figure(path: str | Path, kept: dict[int, dict[str, dict[str, Any]]], *,
 
 def save_png_small(fig: Any, path: str | Path, *, dpi: int = 100) -> Path:
     """Save a matplotlib figure as a 256-colour PNG (docs figures stay well under 300 KB), then close it."""
-    import io
-
-    import matplotlib.pyplot as plt
-    from PIL import Image
-
     buf = io.BytesIO()
     fig.savefig(buf, dpi=dpi, format="png")
     plt.close(fig)

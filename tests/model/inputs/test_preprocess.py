@@ -1,4 +1,4 @@
-"""Source preprocessing (model.preprocess.prepare_source): the encoder's inputs from a calibrated clip."""
+"""Source preprocessing (model.inputs.preprocess.prepare_source): the encoder's inputs from a calibrated clip."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.model.preprocess import prepare_source, undistort_clip
-from vt4dcodec.model.source_inputs import SourceBatch, SourceInputs
+from vt4dcodec.model.inputs.preprocess import prepare_source, undistort_clip
+from vt4dcodec.model.inputs.source_inputs import SourceBatch, SourceInputs
 
 from test_motion import iou, plane_scene  # noqa: E402  (hand-made scene, same directory)
 

@@ -1,4 +1,4 @@
-"""Flow-propagated tracks (model.tracks): rigid-motion accuracy, validity rules, seeds, bad input."""
+"""Flow-propagated tracks (model.inputs.tracks): rigid-motion accuracy, validity rules, seeds, bad input."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from vt4dcodec.errors import Vt4dError
-from vt4dcodec.model.motion import estimate_flows
-from vt4dcodec.model.tracks import (
+from vt4dcodec.model.inputs.motion import estimate_flows
+from vt4dcodec.model.inputs.tracks import (
     PADDING_SEED_FRAME,
     TrackInputError,
     bilinear_sample,

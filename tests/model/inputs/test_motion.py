@@ -1,4 +1,4 @@
-"""Pose-compensated motion isolation (model.motion) with DIS flow, on hand-made and synthetic scenes.
+"""Pose-compensated motion isolation (model.inputs.motion) with DIS flow, on hand-made and synthetic scenes.
 
 Issue #5 item 9: a static scene seen by moving cameras gives a motion mask under 2 % of the pixels;
 on scenes with moving objects the mask's IoU with the true object masks is at least 0.7 (DIS flow,
@@ -17,7 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from vt4dcodec.model.geometry import camera_flow
-from vt4dcodec.model.motion import (
+from vt4dcodec.model.inputs.motion import (
     TAU_K,
     TAU_MIN,
     MotionInputError,

@@ -1,7 +1,7 @@
 """Pose-compensated motion isolation (paper Sec. 3.2, Eqs. 3-4), non-learned part.
 
 Optical flow F_t comes from OpenCV DIS (the stand-in for RAFT, tuned for 64x64 frames), depth D_t from
-the capture or from :func:`model.depth.estimate_depth`, and the flow the cameras alone would cause on a
+the capture or from :func:`model.inputs.depth.estimate_depth`, and the flow the cameras alone would cause on a
 static scene, F_pose (Eq. 3), as :func:`vt4dcodec.model.geometry.camera_flow` defines it.  The residual
 ``r_t(p) = || F_t(p) - F_pose_t(p) ||`` isolates independently moving content and
 ``M_t(p) = 1{ r_t(p) > tau_t }`` (Eq. 4).
@@ -70,7 +70,7 @@ import numpy as np
 import torch
 
 from vt4dcodec.errors import Vt4dError
-from .geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
+from ..geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
 
 from .depth import estimate_depth
 
@@ -476,7 +476,7 @@ def isolate_motion(
         K: (T, 3, 3) intrinsics in pixels of ``frames`` (undistorted pinhole).
         w2c: (T, 4, 4) world-to-camera poses in metres.
         depth: (T, H, W) float32 z-depth in metres (<= 0 or non-finite = unknown), or None to estimate it
-            by plane sweep over ``depth_range`` (see :mod:`model.depth`).
+            by plane sweep over ``depth_range`` (see :mod:`model.inputs.depth`).
         latent_hw: (h, w) latent resolution of ``mask_latent``.
         flows: precomputed adjacent ``(fwd, bwd)`` as returned by :func:`estimate_flows` (skips that DIS
             work; the long-baseline flows are always computed here).

@@ -1,4 +1,4 @@
-"""Plane-sweep depth (model.depth): homography, accuracy against ground truth, degenerate cameras, bad input."""
+"""Plane-sweep depth (model.inputs.depth): homography, accuracy against ground truth, degenerate cameras, bad input."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from vt4dcodec.model.geometry import project, relative_pose, transform_points
-from vt4dcodec.model.depth import DepthInputError, estimate_depth, plane_homography
+from vt4dcodec.model.inputs.depth import DepthInputError, estimate_depth, plane_homography
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 from test_motion import plane_scene  # noqa: E402  (the hand-made wall-and-card scene, same directory)

@@ -1,7 +1,7 @@
 """What the encoder E(V_s, P_s) consumes: a source clip plus its non-learned preprocessing.
 
 The learned networks never call OpenCV: optical flow, motion isolation (paper Sec. 3.2) and track
-propagation are computed once per clip by ``model.motion`` / ``model.tracks`` and arrive here as arrays.
+propagation are computed once per clip by ``model.inputs.motion`` / ``model.inputs.tracks`` and arrive here as arrays.
 One clip is a :class:`SourceInputs` (numpy); a training or inference batch is a :class:`SourceBatch`
 (torch), built by :meth:`SourceBatch.collate`. A scene may be encoded from several synchronized cameras
 at once: the batch then holds ``views`` clips per scene, scene-major, and the encoder fuses them into

@@ -1,10 +1,10 @@
-"""Source preprocessing: a calibrated clip -> :class:`model.source_inputs.SourceInputs`.
+"""Source preprocessing: a calibrated clip -> :class:`model.inputs.source_inputs.SourceInputs`.
 
 Runs the non-learned half of Track-Aware Dynamic Attention once per clip (in DataLoader workers during
 training, once per encode at inference): DIS flow, pose-compensated motion isolation at latent
-resolution (:mod:`model.motion`), track seeds sampled from the masks and propagated by the flow
-(:mod:`model.tracks`).  When the capture carries no depth it is estimated by plane sweep
-(:mod:`model.depth`).  Lens distortion, if the trajectory has any, is removed first (frames resampled
+resolution (:mod:`model.inputs.motion`), track seeds sampled from the masks and propagated by the flow
+(:mod:`model.inputs.tracks`).  When the capture carries no depth it is estimated by plane sweep
+(:mod:`model.inputs.depth`).  Lens distortion, if the trajectory has any, is removed first (frames resampled
 to the same pinhole ``K``), because every later step assumes a pinhole camera.
 """
 
@@ -30,7 +30,11 @@ def undistort_clip(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Resample frames (bilinear) and depth (nearest) to the ideal pinhole camera with the same ``K``.
 
-    Returns the inputs unchanged when the trajectory has no (or all-zero) distortion.
+    Returns the inputs unchanged when the trajectory has no (or all-zero) distortion.  Not the same
+    resampling as ``vt4dcodec.capture.resample.FrameFitter`` (which the codec applies first, so its clips
+    arrive here without distortion): here colour outside the source image repeats the edge pixel
+    (BORDER_REPLICATE; FrameFitter writes black) and the size and ``K`` are kept (FrameFitter fuses the
+    undistortion with its resize and centre crop, area-prefiltering when it shrinks).
     """
     dist = trajectory.distortion
     if dist is None or not np.any(dist):
