@@ -33,8 +33,10 @@ sys.path.insert(0, str(ROOT.parent))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
-from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE,  # noqa: E402
-                                     SECTION_ENTRY_SIZE, crc32, parse_preamble, parse_table)
+from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
+from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
+                                     FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE, crc32, entry_size, parse_preamble,
+                                     parse_table)
 from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
@@ -44,7 +46,12 @@ VECTORS = ROOT / "vectors"
 # --- deterministic scene content ---------------------------------------------------------------------
 def dumps_1_1(*args: Any, **kw: Any) -> bytes:
     """The writer with the 1.0 cameras section: the vectors made before format 1.2 keep their bytes."""
-    return dumps(*args, cameras="legacy", **kw)
+    return dumps(*args, cameras="legacy", header="legacy", **kw)
+
+
+def dumps_1_2(*args: Any, **kw: Any) -> bytes:
+    """The writer with the 1.0 to 1.2 header and table: the vectors made for format 1.2 keep their bytes."""
+    return dumps(*args, header="legacy", **kw)
 
 
 def tokens(rows: int, cols: int, salt: int) -> np.ndarray:
@@ -78,14 +85,17 @@ PROVENANCE = Provenance("0.1.0", "2026-01-01T00:00:00Z", "capture-0001", "encode
 
 # --- container surgery (also used by the tests) ------------------------------------------------------
 def split(data: bytes) -> tuple[dict, list[list]]:
-    """(header map, sections as [type, critical, compression, stored bytes, raw_length]) of a container."""
+    """(header map, sections as [type, critical, compression, stored bytes, raw_length]) of a container; in
+    a compact container (1.3) the header is decompressed and each section also carries its aligned flag."""
     pre = parse_preamble(data)
-    header = msgpack.unpackb(data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length], raw=False)
+    compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
+    stored = data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length]
+    header = msgpack.unpackb(decompress_header(stored) if compact else stored, raw=False)
     start = PREAMBLE_SIZE + pre.header_length
-    end = start + pre.section_count * SECTION_ENTRY_SIZE
-    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length)
+    end = start + pre.section_count * entry_size(pre.required_flags)
+    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length, compact=compact)
     return header, [[e.type, e.critical, e.compression, data[e.offset:e.offset + e.stored_length], e.raw_length]
-                    for e in entries]
+                    + ([e.aligned] if compact else []) for e in entries]
 
 
 def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
@@ -94,12 +104,27 @@ def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
     Without ``minor`` / ``required_flags`` the preamble says 1.0 with no flags, unless the sections came
     from a 1.2 file with compact cameras (a ``CAMS`` raw length below the 1.0 length the header implies,
     which only the compact encoding has): then 1.2 with flag bit 1 (and bit 0 for an ``-rans`` encoding),
-    as the writer would say."""
+    as the writer would say; sections from a compact container (with their aligned flag) make one again."""
+    if "minor" not in kw and "required_flags" not in kw and any(len(s) == 6 for s in sections):
+        return rebuild_1_3(header, sections, **kw)  # split() of a compact container: build one again
     raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
     if "minor" not in kw and "required_flags" not in kw and _compact_cameras(header, sections):
         rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
         kw = dict(kw, minor=2, required_flags=FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0))
     return build_container(raw, [tuple(s) for s in sections], **kw)
+
+
+def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = True, minor: int = 3,
+                required_flags: int | None = None, **kw: Any) -> bytes:
+    """A compact container (1.3) with correct checksums: the header map (or raw msgpack bytes) compressed
+    with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as they are.  Required
+    flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding)."""
+    raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
+    if required_flags is None:
+        rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
+        required_flags = FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
+    stored = compress_header(raw) if compress else raw
+    return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)
 
 
 def _header_map(header: dict | bytes) -> dict:
@@ -135,9 +160,10 @@ def patch_entry(data: bytes, index: int, field_offset: int, fmt: str, value: int
     """Overwrite one field of section-table entry ``index`` and fix the table CRC in the preamble."""
     pre = parse_preamble(data)
     start = PREAMBLE_SIZE + pre.header_length
+    size = entry_size(pre.required_flags)
     out = bytearray(data)
-    struct.pack_into(fmt, out, start + index * SECTION_ENTRY_SIZE + field_offset, value)
-    table = out[start:start + pre.section_count * SECTION_ENTRY_SIZE]
+    struct.pack_into(fmt, out, start + index * size + field_offset, value)
+    table = out[start:start + pre.section_count * size]
     return patch_preamble(bytes(out), 52, "<I", crc32(table))
 
 
@@ -203,26 +229,26 @@ def with_cameras(s: Scene, traj: Trajectory) -> Scene:
 def compact_valid_vectors() -> dict[str, tuple[bytes, str]]:
     return {
         "compact_cameras_static_f32": (
-            dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+            dumps_1_2(scene(2, 1, 3), encoding="float32", compression_level=None),
             "1.2: compact cameras, one frame (constant K and static pose, P = 4), every section raw (the "
             "FORMAT.md I.5.1 example)"),
         "compact_cameras_orbit_f32_zstd": (
-            dumps(with_cameras(scene(8, 4, 4, provenance=PROVENANCE), orbit(8)), encoding="int8"),
+            dumps_1_2(with_cameras(scene(8, 4, 4, provenance=PROVENANCE), orbit(8)), encoding="int8"),
             "1.2: compact cameras, 8 frames of an orbit rounded to float32 (constant K, moving pose, "
             "timestamps), zstd sections"),
         "compact_cameras_orbit_f32_raw": (
-            dumps(with_cameras(scene(8, 4, 4), orbit(8)), encoding="int8", compression_level=None),
+            dumps_1_2(with_cameras(scene(8, 4, 4), orbit(8)), encoding="int8", compression_level=None),
             "1.2: the same orbit with every section raw: the byte planes of the predicted records are "
             "readable in the file"),
         "compact_cameras_zoom_exact_f64": (
-            dumps(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
+            dumps_1_2(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
             "1.2: compact cameras in float64 (P = 8, bit-exact), per-frame intrinsics (zoom), moving pose"),
         "compact_cameras_distortion_timestamps": (
-            dumps(scene(4, 2, 4, frames=3, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001], timestamps=True),
+            dumps_1_2(scene(4, 2, 4, frames=3, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001], timestamps=True),
                   encoding="int4", compression_level=None),
             "1.2: compact cameras with 5 distortion terms and timestamps stored as float64 after the blocks"),
         "compact_cameras_with_rans": (
-            dumps(with_cameras(scene(16, 8, 4, provenance=PROVENANCE), orbit(4)), encoding="int4-rans"),
+            dumps_1_2(with_cameras(scene(16, 8, 4, provenance=PROVENANCE), orbit(4)), encoding="int4-rans"),
             "1.2: compact cameras and entropy-coded tokens: required flags 3"),
     }
 
@@ -242,7 +268,7 @@ def compact_payload(width: int, flags: int, k: list[list[float]], poses: list[li
 
 
 def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
-    good = dumps(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    good = dumps_1_2(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int8", compression_level=None)
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
     K = [100.0, 0.0, 31.5, 100.0, 23.5]
@@ -281,7 +307,8 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     with_cams("in_1_1_file", compact_payload(4, 1, [K], pose), "MalformedHeaderError",
               "required flag bit 1 in a file that says minor version 1", minor=1, required_flags=2)
     with_cams("unknown_flag_bit_2", compact_payload(4, 1, [K], pose), "UnsupportedFeatureError",
-              "required flag bit 2 (undefined in 1.2) beside bit 1", minor=2, required_flags=2 | 4)
+              "required flag bit 2 (undefined in 1.2) beside bit 1", minor=2, required_flags=2 | 4,
+              compact_layout=False)
     ts_header = dict(header, cameras=dict(header["cameras"], has_timestamps=True))
     bad = [list(x) for x in sections]
     cams = find(bad, "CAMS")
@@ -522,8 +549,9 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
 def parse_table_offsets(data: bytes) -> list[int]:
     pre = parse_preamble(data)
     start = PREAMBLE_SIZE + pre.header_length
-    end = start + pre.section_count * SECTION_ENTRY_SIZE
-    return [e.offset for e in parse_table(data[start:end], pre.section_count, end, pre.file_length)]
+    end = start + pre.section_count * entry_size(pre.required_flags)
+    return [e.offset for e in parse_table(data[start:end], pre.section_count, end, pre.file_length,
+                                          compact=bool(pre.required_flags & FLAG_COMPACT_CONTAINER))]
 
 
 # --- expected content ----------------------------------------------------------------------------

@@ -14,9 +14,9 @@ from vt4dcodec.format.header import unpack_header
 MV = load_vector_tool()
 
 
-def _with_header(edit) -> bytes:
+def _with_header(edit, header_mode: str = "compact") -> bytes:
     header, sections = MV.split(dumps(simple_scene(provenance=Provenance("0.1", "2026-01-01T00:00:00Z", None,
-                                                                             "encoded"))))
+                                                                             "encoded")), header=header_mode))
     return MV.rebuild(edit(header), sections)
 
 
@@ -55,9 +55,10 @@ def test_metadata_limit_measures_the_canonical_re_encoding():
         h["metadata"] = {"wide": "PLACEHOLDER"}
         raw = msgpack.packb(h, use_bin_type=True)
         return raw.replace(msgpack.packb("PLACEHOLDER"), wide)
-    data = _with_header(edit)
+    data = _with_header(edit, "legacy")
     assert len(data) > 262_144 + 90_000  # the stored metadata alone is 360,003 bytes
     assert loads(data).metadata["wide"] == [1] * n
+    assert loads(_with_header(edit)).metadata["wide"] == [1] * n  # the same header inside a compact container
 
     def too_big(h):
         h["metadata"] = {"big": ["x" * 60000] * 5}
