@@ -201,6 +201,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
                                      "unknown ancillary sections (one with an unknown compression code)")
     out.update(rans_valid_vectors())
     out.update(compact_valid_vectors())
+    out.update(container_valid_vectors())
     return out
 
 
@@ -316,6 +317,96 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     cams[4] = len(cams[3])
     out["compact_cameras_decreasing_timestamps"] = (rebuild(ts_header, bad), "MalformedSectionError",
                                                     "timestamps 1.0 then 0.5 after the blocks")
+    return out
+
+
+# --- format 1.3: the compact container (FORMAT.md I.3.1, I.4.1, I.5.2) ------------------------------------
+ENCODER_METADATA = {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture"}}
+
+
+def container_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    base = scene(4, 2, 2, provenance=PROVENANCE)
+    header, sections = split(dumps(base, encoding="int8", compression_level=None))
+    header["future_key"] = {"anything": [1, 2]}
+    sections.insert(2, ["xTRA", False, 0, b"ancillary bytes a 1.3 reader skips", 34, True])
+    sections.append(["xZZZ", False, 7, b"unknown compression is fine when ancillary", 99, False])
+    return {
+        "compact_container_minimal": (
+            dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+            "1.3: compact container, one frame (quaternion pose), float32 tokens stored raw and 64-aligned, "
+            "the cameras section packed right after the table (the FORMAT.md I.4.1 example)"),
+        "compact_container_orbit_rans": (
+            dumps(with_cameras(scene(64, 32, 4, provenance=PROVENANCE, metadata=ENCODER_METADATA), orbit(8)),
+                  encoding="int4-rans"),
+            "1.3: what the encoder writes by default: int4-rans tokens, 8 frames of an orbit as float32 "
+            "quaternions with timestamps, provenance and the encoder's vt4d metadata; nothing aligned"),
+        "compact_container_int8_distortion": (
+            dumps(with_cameras(scene(16, 8, 4, metadata={"scene": "ramp"}), orbit(3)), encoding="int8",
+                  compression_level=None),
+            "1.3: int8 tokens stored raw (aligned) with their quantization sections packed between them"),
+        "compact_container_exact_f64": (
+            dumps(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
+            "1.3: compact container with float64 matrix poses (cameras=\"exact\", bit for bit), zoom, zstd"),
+        "compact_container_legacy_cameras": (
+            dumps(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int4", cameras="legacy"),
+            "1.3: compact header and table with the 1.0 float64 cameras section: required flags 4 only"),
+        "compact_container_future_minor": (
+            rebuild_1_3(header, sections, minor=9, optional_flags=1 << 40, required_flags=6),
+            "minor version 9 with the compact container: an unknown optional flag, header key and two "
+            "unknown ancillary sections (one aligned, one with an unknown compression code)"),
+    }
+
+
+def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(with_cameras(scene(4, 2, 4, provenance=PROVENANCE), orbit(2)), encoding="int8",
+                 compression_level=None)
+    header, sections = split(good)
+    raw_header = msgpack.packb(header, use_bin_type=True)
+    stored = compress_header(raw_header)
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def add(name: str, data: bytes, error: str, why: str) -> None:
+        out[f"compact_container_{name}"] = (data, error, why)
+
+    add("header_not_zstd", rebuild_1_3(raw_header, sections, compress=False), "MalformedHeaderError",
+        "required flag bit 2 but the header is plain msgpack, not a zstd frame")
+    no_size = zstandard.ZstdCompressor(write_content_size=False).compress(raw_header)
+    add("header_no_content_size", rebuild_1_3(no_size, sections, compress=False), "MalformedHeaderError",
+        "the header's zstd frame does not declare its content size")
+    add("header_trailing_frame", rebuild_1_3(stored + b"\x50\x2a\x4d\x18" + bytes(4), sections, compress=False),
+        "MalformedHeaderError", "an empty skippable frame after the header's zstd frame")
+    huge = zstandard.ZstdCompressor(level=19).compress(b"\x80" + bytes(1 << 20))
+    add("header_declares_over_1_mib", rebuild_1_3(huge, sections, compress=False), "LimitExceededError",
+        "the header's zstd frame declares 1 MiB + 1 bytes")
+    add("header_unknown_key", rebuild_1_3(dict(header, extra=1), sections), "MalformedHeaderError",
+        "an unknown key inside the compressed header of a 1.3 file")
+    add("header_bin_type", rebuild_1_3(msgpack.packb(dict(header, metadata={"x": b"bytes"}), use_bin_type=True),
+                                       sections), "MalformedHeaderError",
+        "a msgpack bin value inside the compressed header (the I.3 rules hold after decompression)")
+    add("in_1_2_file", rebuild_1_3(header, sections, minor=2), "UnsupportedFeatureError",
+        "required flag bit 2 in a file that says minor version 2 (unknown there)")
+    add("table_flag_bit_2", patch_entry(good, 0, 4, "<B", 0x05), "MalformedSectionError",
+        "a compact table entry sets flag bit 2")
+    data = bytearray(good)
+    zsta_at = parse_table_offsets(good)[[x[0] for x in sections].index("ZSTA")]
+    assert zsta_at % 64 == 0 and not data[zsta_at - 1]
+    data[zsta_at - 1] = 0x01
+    add("nonzero_padding", bytes(data), "MalformedSectionError", "the padding before an aligned section is not zero")
+    K = [100.0, 0.0, 31.5, 100.0, 23.5]
+    t = [0.0, 0.0, 3.0]
+
+    def with_cams(name: str, payload: bytes, why: str) -> None:
+        bad = [list(x) for x in sections]
+        cams = find(bad, "CAMS")
+        cams[2:5] = [0, payload, len(payload)]
+        add(name, rebuild_1_3(header, bad), "MalformedSectionError", why)
+
+    with_cams("quaternion_zero_norm", compact_payload(4, 1 | 4, [K], [[1.0, 0.0, 0.0, 0.0] + t, [0.0] * 4 + t]),
+              "the second pose's quaternion is (0, 0, 0, 0)")
+    with_cams("quaternion_matrix_length", compact_payload(4, 1 | 4, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
+              "layout flag bit 2 with 12-value pose records: the length does not match")
+    with_cams("cameras_flag_bit_3", compact_payload(4, 1 | 8, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
+              "compact cameras layout flag bit 3 (undefined in 1.3)")
     return out
 
 
@@ -543,6 +634,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
     out.update(rans_invalid_vectors())
     out.update(compact_invalid_vectors())
+    out.update(container_invalid_vectors())
     return out
 
 

@@ -36,7 +36,7 @@ from .layout import BytesLike
 
 __all__ = ["CAMERA_MODES", "COMPACT_PRECISIONS", "REPROJECTION_TOLERANCE_PX", "pack_compact_cameras",
            "unpack_compact_cameras", "compact_camera_bytes", "reprojection_change", "quaternion_to_rotation",
-           "rotation_to_quaternion"]
+           "rotation_to_quaternion", "stable_float32_quaternions"]
 
 CAMERA_MODES = ("compact", "exact", "legacy")  # what save() offers: see writer.dumps
 COMPACT_PRECISIONS = (4, 8)
@@ -138,12 +138,37 @@ def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
     return out
 
 
-def _encode(traj: Trajectory, precision: int, quaternions: bool = False) -> bytes:
-    flags = _flags(traj) | (QUATERNION_POSES if quaternions else 0)
+_STABLE_ROUNDS = 4
+
+
+def stable_float32_quaternions(R: np.ndarray) -> np.ndarray | None:
+    """float32 quaternions (as float64 values) for the rotations ``R`` that the writer finds again from the
+    rotations they decode to, so loading a file and saving it again gives the same bytes; None when that
+    does not settle within a few rounds (rare: the writer then keeps matrices).  Rotations whose entries
+    are all float32 values (read from a float32 matrix file) get quaternions only if those rebuild them
+    exactly, for the same reason."""
+    def float32(rotations: np.ndarray) -> np.ndarray:
+        return rotation_to_quaternion(rotations).astype(np.float32).astype(np.float64) + 0.0  # + 0.0: no -0.0
+
+    q = float32(R)
+    for _ in range(_STABLE_ROUNDS):
+        again = float32(quaternion_to_rotation(q))
+        if again.tobytes() == q.tobytes():  # bit for bit
+            float32_matrices = np.array_equal(R.astype(np.float32).astype(np.float64), R)
+            if float32_matrices and not np.array_equal(quaternion_to_rotation(q), R):
+                return None
+            return q
+        q = again
+    return None
+
+
+def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = None) -> bytes:
+    """The payload; ``quaternions`` (one per pose record kept) stores the poses as quaternion + t."""
+    flags = _flags(traj) | (QUATERNION_POSES if quaternions is not None else 0)
     K = traj.K[:1] if flags & CONSTANT_INTRINSICS else traj.K
     w2c = traj.w2c[:1] if flags & STATIC_POSE else traj.w2c
-    if quaternions:
-        poses = np.concatenate([rotation_to_quaternion(w2c[:, :3, :3]), w2c[:, :3, 3]], axis=1)
+    if quaternions is not None:
+        poses = np.concatenate([quaternions, w2c[:, :3, 3]], axis=1)
     else:
         poses = w2c[:, :3, :].reshape(len(w2c), POSE_VALUES)
     parts = [bytes([precision, flags]), _pack_block(_intrinsic_records(K), precision), _pack_block(poses, precision)]
@@ -183,12 +208,17 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
     if mode not in ("compact", "exact"):
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
-        for quat in (True, False) if quaternions else (False,):
+        candidates: list[np.ndarray | None] = [None]
+        if quaternions:
+            w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
+            q = stable_float32_quaternions(w2c[:, :3, :3])
+            candidates = [q, None] if q is not None else [None]
+        for quat in candidates:
             raw = _encode(traj, 4, quat)
             try:
                 back = _decode(raw, traj.num_frames, traj.width, traj.height,
                                0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
-                               quaternions=quat)
+                               quaternions=quat is not None)
             except MalformedSectionError:
                 back = None  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
             if back is not None and reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
