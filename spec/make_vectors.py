@@ -91,6 +91,8 @@ def split(data: bytes) -> tuple[dict, list[list]]:
     compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
     stored = data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length]
     header = msgpack.unpackb(decompress_header(stored) if compact else stored, raw=False)
+    if compact:  # the digests are 32-byte bin values there (I.3.1): give the map of the 1.2 header
+        header["fingerprint"] = dict(header["fingerprint"], **{k: header["fingerprint"][k].hex() for k in DIGESTS})
     start = PREAMBLE_SIZE + pre.header_length
     end = start + pre.section_count * entry_size(pre.required_flags)
     entries = parse_table(data[start:end], pre.section_count, end, pre.file_length, compact=compact)
@@ -114,12 +116,21 @@ def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
     return build_container(raw, [tuple(s) for s in sections], **kw)
 
 
+DIGESTS = ("config_sha256", "weights_sha256")
+
+
+def binary_digests(header: dict) -> dict:
+    """The header map with the fingerprint's hex digests as 32-byte bin values, as a compact header holds them."""
+    fp = header["fingerprint"]
+    return dict(header, fingerprint=dict(fp, **{k: bytes.fromhex(fp[k]) for k in DIGESTS if isinstance(fp[k], str)}))
+
+
 def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = True, minor: int = 3,
                 required_flags: int | None = None, **kw: Any) -> bytes:
-    """A compact container (1.3) with correct checksums: the header map (or raw msgpack bytes) compressed
-    with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as they are.  Required
-    flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding)."""
-    raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
+    """A compact container (1.3) with correct checksums: the header map (its digests made binary) or raw
+    msgpack bytes, compressed with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as
+    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding)."""
+    raw = header if isinstance(header, bytes) else msgpack.packb(binary_digests(header), use_bin_type=True)
     if required_flags is None:
         rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
         required_flags = FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
@@ -361,7 +372,7 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     good = dumps(with_cameras(scene(4, 2, 4, provenance=PROVENANCE), orbit(2)), encoding="int8",
                  compression_level=None)
     header, sections = split(good)
-    raw_header = msgpack.packb(header, use_bin_type=True)
+    raw_header = msgpack.packb(binary_digests(header), use_bin_type=True)
     stored = compress_header(raw_header)
     out: dict[str, tuple[bytes, str, str]] = {}
 
@@ -380,9 +391,15 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         "the header's zstd frame declares 1 MiB + 1 bytes")
     add("header_unknown_key", rebuild_1_3(dict(header, extra=1), sections), "MalformedHeaderError",
         "an unknown key inside the compressed header of a 1.3 file")
-    add("header_bin_type", rebuild_1_3(msgpack.packb(dict(header, metadata={"x": b"bytes"}), use_bin_type=True),
-                                       sections), "MalformedHeaderError",
-        "a msgpack bin value inside the compressed header (the I.3 rules hold after decompression)")
+    add("header_bin_type", rebuild_1_3(msgpack.packb(binary_digests(dict(header, metadata={"x": b"bytes"})),
+                                                     use_bin_type=True), sections), "MalformedHeaderError",
+        "a msgpack bin value in the metadata of a compressed header (bin is for the two digests only)")
+    add("hex_digest", rebuild_1_3(msgpack.packb(header, use_bin_type=True), sections), "MalformedHeaderError",
+        "the fingerprint digests as 64 hex digits inside a compact header (I.3.1 wants 32-byte bin values)")
+    short = binary_digests(header)
+    short["fingerprint"]["weights_sha256"] = short["fingerprint"]["weights_sha256"][:31]
+    add("digest_31_bytes", rebuild_1_3(msgpack.packb(short, use_bin_type=True), sections), "MalformedHeaderError",
+        "weights_sha256 as a 31-byte bin value")
     add("in_1_2_file", rebuild_1_3(header, sections, minor=2), "UnsupportedFeatureError",
         "required flag bit 2 in a file that says minor version 2 (unknown there)")
     add("table_flag_bit_2", patch_entry(good, 0, 4, "<B", 0x05), "MalformedSectionError",

@@ -48,6 +48,7 @@ def test_a_default_single_camera_scene_has_at_most_512_non_token_bytes(seed, cam
     assert f.version == (1, 3) and non_token <= 512, non_token
     legacy = open_scene(dumps(scene, header="legacy"))
     assert legacy.version == (1, 2) and legacy.nbytes - legacy.token_bytes > 1000  # what 1.2 spent
+    assert f.header == legacy.header and f.fingerprint == scene.fingerprint  # binary digests read back as hex
     assert reprojection_change(scene.cameras, loads(dumps(scene)).cameras) <= REPROJECTION_TOLERANCE_PX
 
 

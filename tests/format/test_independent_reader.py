@@ -68,6 +68,10 @@ def read_scene(data: bytes) -> dict:
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
+    if compact:  # I.3.1: the two digests are 32-byte bin values; as hex they read as in I.8
+        fp = header["fingerprint"]
+        assert all(isinstance(fp[k], bytes) and len(fp[k]) == 32 for k in ("config_sha256", "weights_sha256"))
+        header["fingerprint"] = dict(fp, config_sha256=fp["config_sha256"].hex(), weights_sha256=fp["weights_sha256"].hex())
     table_start = 64 + header_length
     size = 18 if compact else 40
     table = data[table_start:table_start + size * count]

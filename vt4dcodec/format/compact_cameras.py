@@ -25,6 +25,7 @@ instead of 9, which is what brings a default 8-frame scene's non-token bytes und
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -36,7 +37,7 @@ from .layout import BytesLike
 
 __all__ = ["CAMERA_MODES", "COMPACT_PRECISIONS", "REPROJECTION_TOLERANCE_PX", "pack_compact_cameras",
            "unpack_compact_cameras", "compact_camera_bytes", "reprojection_change", "quaternion_to_rotation",
-           "rotation_to_quaternion", "stable_float32_quaternions"]
+           "rotation_to_quaternion", "canonical_float32_quaternions"]
 
 CAMERA_MODES = ("compact", "exact", "legacy")  # what save() offers: see writer.dumps
 COMPACT_PRECISIONS = (4, 8)
@@ -112,10 +113,11 @@ def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
     return R
 
 
-def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
+def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndarray:
     """(n, 3, 3) rotations -> (n, 4) unit quaternions (w, x, y, z) (informative: any writer method will do).
-    Shepperd's method, from the largest of w, x, y, z; each sign is chosen so consecutive quaternions are
-    close (q and -q are the same rotation), which keeps the predicted differences small."""
+    Shepperd's method, from the largest of w, x, y, z.  ``continuous``: each sign is chosen so consecutive
+    quaternions are close (q and -q are the same rotation), which keeps the predicted differences small;
+    else each is signed on its own (the one closer to (1, 0, 0, 0))."""
     out = np.empty((len(R), 4))
     for i, m in enumerate(np.asarray(R, dtype=np.float64)):
         diag = (m[0, 0] + m[1, 1] + m[2, 2], m[0, 0], m[1, 1], m[2, 2])
@@ -133,33 +135,58 @@ def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
             z = 0.5 * np.sqrt(max(1.0 - m[0, 0] - m[1, 1] + m[2, 2], 0.0))
             q = ((m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z)
         v = np.array(q) / np.linalg.norm(q)
-        previous = out[i - 1] if i else np.array([1.0, 0.0, 0.0, 0.0])
+        previous = out[i - 1] if i and continuous else np.array([1.0, 0.0, 0.0, 0.0])
         out[i] = -v if float(v @ previous) < 0 else v
     return out
 
 
-_STABLE_ROUNDS = 4
+# the 81 float32 neighbours (each component -1, 0 or +1 ulp) of a quaternion, nearest first, in a fixed order
+_NEIGHBOURS = np.array(sorted(itertools.product((-1, 0, 1), repeat=4), key=lambda k: (sum(map(abs, k)), k)),
+                       dtype=np.int32)
 
 
-def stable_float32_quaternions(R: np.ndarray) -> np.ndarray | None:
-    """float32 quaternions (as float64 values) for the rotations ``R`` that the writer finds again from the
-    rotations they decode to, so loading a file and saving it again gives the same bytes; None when that
-    does not settle within a few rounds (rare: the writer then keeps matrices).  Rotations whose entries
-    are all float32 values (read from a float32 matrix file) get quaternions only if those rebuild them
-    exactly, for the same reason."""
-    def float32(rotations: np.ndarray) -> np.ndarray:
-        return rotation_to_quaternion(rotations).astype(np.float32).astype(np.float64) + 0.0  # + 0.0: no -0.0
+def _float32(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, dtype=np.float32).astype(np.float64) + 0.0  # + 0.0: never -0.0
 
-    q = float32(R)
-    for _ in range(_STABLE_ROUNDS):
-        again = float32(quaternion_to_rotation(q))
-        if again.tobytes() == q.tobytes():  # bit for bit
-            float32_matrices = np.array_equal(R.astype(np.float32).astype(np.float64), R)
-            if float32_matrices and not np.array_equal(quaternion_to_rotation(q), R):
-                return None
-            return q
-        q = again
-    return None
+
+def _exact_float32_quaternions(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each rotation, the first float32 quaternion near its own that rebuilds it exactly (FORMAT.md I.5.2
+    formula), and whether there was one: (quaternions (n, 4), found (n,))."""
+    centre = _float32(rotation_to_quaternion(R, continuous=False))
+    found = np.all(quaternion_to_rotation(centre) == R, axis=(1, 2))
+    q = centre.copy()
+    miss = np.flatnonzero(~found)
+    if len(miss):
+        bits = centre[miss].astype(np.float32).view(np.int32)
+        candidates = _float32((bits[:, None, :] + _NEIGHBOURS[None]).view(np.float32))  # (m, 81, 4)
+        rebuilt = quaternion_to_rotation(candidates.reshape(-1, 4)).reshape(len(miss), len(_NEIGHBOURS), 3, 3)
+        hit = np.all(rebuilt == R[miss][:, None], axis=(2, 3))
+        first = np.argmax(hit, axis=1)
+        ok = hit[np.arange(len(miss)), first]
+        q[miss[ok]] = candidates[ok, first[ok]]
+        found[miss[ok]] = True
+    return q, found
+
+
+def canonical_float32_quaternions(R: np.ndarray) -> np.ndarray | None:
+    """float32 quaternions (as float64 values) for the rotations ``R``, chosen so that the writer finds the
+    same ones again from the rotations they decode to: loading a file and saving it again gives the same
+    bytes, and resaving never drifts.  A rotation some nearby float32 quaternion rebuilds exactly (one read
+    from a 1.3 file) keeps that quaternion; any other is rounded to float32 and then replaced by the first
+    quaternion that rebuilds the rounded one's rotation exactly.  Signs follow from frame to frame.  None in
+    the (unseen so far) case where no such quaternion is found: the writer then keeps matrices."""
+    R = np.asarray(R, dtype=np.float64)
+    q, found = _exact_float32_quaternions(R)
+    if not found.all():
+        rounded = quaternion_to_rotation(_float32(rotation_to_quaternion(R[~found], continuous=False)))
+        q_rounded, found_rounded = _exact_float32_quaternions(rounded)
+        if not found_rounded.all():
+            return None
+        q[~found] = q_rounded
+    for i in range(1, len(q)):  # q and -q rebuild the same rotation: keep consecutive records close
+        if float(q[i] @ q[i - 1]) < 0:
+            q[i] = -q[i] + 0.0
+    return q
 
 
 def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = None) -> bytes:
@@ -211,7 +238,7 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
         candidates: list[np.ndarray | None] = [None]
         if quaternions:
             w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
-            q = stable_float32_quaternions(w2c[:, :3, :3])
+            q = canonical_float32_quaternions(w2c[:, :3, :3])
             candidates = [q, None] if q is not None else [None]
         for quat in candidates:
             raw = _encode(traj, 4, quat)

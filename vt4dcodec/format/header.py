@@ -16,7 +16,9 @@ A file whose minor version is newer than this reader's may add keys; they are ig
 
 In a compact container (format 1.3, required flag bit 2) the stored header is one zstd frame of these msgpack
 bytes, compressed with the spec-fixed raw-content dictionary :data:`HEADER_DICTIONARY` (FORMAT.md I.3.1): the
-key names and the usual values cost a few bytes of match codes instead of their text.
+key names and the usual values cost a few bytes of match codes instead of their text.  There the two
+fingerprint digests are 32-byte msgpack bin values instead of 64 hex digits (the only bin values allowed);
+the reader turns them back into hex, so the parsed header is the 1.2 header.
 """
 
 from __future__ import annotations
@@ -109,9 +111,17 @@ class HeaderInfo:
         }
 
 
-def pack_header(info: HeaderInfo) -> bytes:
-    """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above)."""
-    data: bytes = msgpack.packb(info.to_dict(), use_bin_type=True)
+DIGEST_KEYS = ("config_sha256", "weights_sha256")
+
+
+def pack_header(info: HeaderInfo, *, binary_digests: bool = False) -> bytes:
+    """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above).
+    ``binary_digests``: the fingerprint's SHA-256 digests as 32-byte bin values (a compact header, I.3.1)."""
+    header = info.to_dict()
+    if binary_digests:
+        header["fingerprint"] = dict(header["fingerprint"], **{k: bytes.fromhex(header["fingerprint"][k])
+                                                               for k in DIGEST_KEYS})
+    data: bytes = msgpack.packb(header, use_bin_type=True)
     if len(data) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"the header would be {len(data)} bytes, over the {MAX_HEADER_BYTES} limit")
     return data
@@ -160,15 +170,17 @@ def _pairs_no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def unpack_header(raw: BytesLike) -> dict[str, Any]:
-    """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth."""
+def unpack_header(raw: BytesLike, *, binary_digests: bool = False) -> dict[str, Any]:
+    """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth.
+    ``binary_digests`` (a compact header, I.3.1): the two fingerprint digests MUST be 32-byte bin values,
+    returned as 64 lowercase hex digits; bin anywhere else is still refused."""
     if len(raw) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"header is {len(raw)} bytes; the limit is {MAX_HEADER_BYTES}")
     try:
         value = msgpack.unpackb(
             bytes(raw), raw=False, strict_map_key=True, ext_hook=_refuse_ext, use_list=True,
             object_pairs_hook=_pairs_no_duplicates,
-            max_str_len=MAX_STRING_CHARS, max_bin_len=0, max_array_len=MAX_CONTAINER_ITEMS,
+            max_str_len=MAX_STRING_CHARS, max_bin_len=32 if binary_digests else 0, max_array_len=MAX_CONTAINER_ITEMS,
             max_map_len=MAX_CONTAINER_ITEMS, max_ext_len=0,
         )
     except MalformedHeaderError:
@@ -177,7 +189,38 @@ def unpack_header(raw: BytesLike) -> dict[str, Any]:
         detail = str(exc)[:120] or "undecodable bytes"
         raise MalformedHeaderError(f"the header is not valid bounded msgpack ({type(exc).__name__}: {detail})") from None
     _check_depth(value)
-    return require_map(value, "header")
+    header = require_map(value, "header")
+    if binary_digests:
+        header = _hex_digests(header)
+    _refuse_bin(header)
+    return header
+
+
+def _hex_digests(header: dict[str, Any]) -> dict[str, Any]:
+    fp = header.get("fingerprint")
+    if not isinstance(fp, dict):
+        return header  # the header checks name what is wrong
+    fp = dict(fp)
+    for key in DIGEST_KEYS:
+        value = fp.get(key)
+        if not isinstance(value, bytes) or len(value) != 32:
+            raise MalformedHeaderError(f"fingerprint.{key} of a compact header must be a 32-byte bin value (I.3.1), "
+                                       f"got {type(value).__name__}{f' of {len(value)} bytes' if isinstance(value, bytes) else ''}")
+        fp[key] = value.hex()
+    return dict(header, fingerprint=fp)
+
+
+def _refuse_bin(value: Any) -> None:
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, bytes):
+            raise MalformedHeaderError("the header holds a msgpack bin value; bin is allowed only for the two "
+                                       "fingerprint digests of a compact header")
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
 
 
 def _check_depth(value: Any) -> None:
@@ -195,7 +238,7 @@ def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool 
     """Decode and validate a header.  ``newer_minor``: the file's minor version is newer than this
     reader's, so unknown keys are tolerated (known keys are still checked exactly).  ``compressed``: the
     stored header of a compact container (format 1.3), decompressed first."""
-    h = unpack_header(decompress_header(raw) if compressed else raw)
+    h = unpack_header(decompress_header(raw), binary_digests=True) if compressed else unpack_header(raw)
     exact_keys(h, HEADER_KEYS, "header", allow_extra=newer_minor)
     static_shape = require_shape(h["static_shape"], "static_shape", MAX_TOKENS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES,
                                  LimitExceededError)

@@ -87,7 +87,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             ``"legacy"`` (the 1.0 float64 section, for readers older than 1.2).  In a compact container
             ``"compact"`` may store rotations as float32 quaternions (FORMAT.md I.5.2) under the same 0.01 px rule.
         header: ``"compact"`` (format 1.3, FORMAT.md I.3.1 and I.4.1: the header as one zstd frame with the
-            spec-fixed dictionary, 18-byte table entries, payloads packed except raw fixed-width token arrays,
+            spec-fixed dictionary and binary digests, 18-byte table entries, payloads packed except raw fixed-width token arrays,
             which stay 64-aligned for zero-copy reading) or ``"legacy"`` (the msgpack header, 40-byte entries
             and 64-aligned payloads of 1.0 to 1.2, for readers older than 1.3; with ``cameras="legacy"`` too,
             the file reads in 1.0 and 1.1 readers).
@@ -106,7 +106,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     if cameras != "legacy":
         cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact)
     head = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
-                                  scene.provenance, scene.metadata, {}))
+                                  scene.provenance, scene.metadata, {}), binary_digests=compact)
     if compact:
         head = compress_header(head)
     parts = [(SECTION_CAMERAS, cams)]
