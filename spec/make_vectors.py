@@ -33,8 +33,10 @@ sys.path.insert(0, str(ROOT.parent))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
-from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE,  # noqa: E402
-                                     SECTION_ENTRY_SIZE, crc32, parse_preamble, parse_table)
+from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
+from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
+                                     FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE, crc32, entry_size, parse_preamble,
+                                     parse_table)
 from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
@@ -44,7 +46,12 @@ VECTORS = ROOT / "vectors"
 # --- deterministic scene content ---------------------------------------------------------------------
 def dumps_1_1(*args: Any, **kw: Any) -> bytes:
     """The writer with the 1.0 cameras section: the vectors made before format 1.2 keep their bytes."""
-    return dumps(*args, cameras="legacy", **kw)
+    return dumps(*args, cameras="legacy", header="legacy", **kw)
+
+
+def dumps_1_2(*args: Any, **kw: Any) -> bytes:
+    """The writer with the 1.0 to 1.2 header and table: the vectors made for format 1.2 keep their bytes."""
+    return dumps(*args, header="legacy", **kw)
 
 
 def tokens(rows: int, cols: int, salt: int) -> np.ndarray:
@@ -78,14 +85,19 @@ PROVENANCE = Provenance("0.1.0", "2026-01-01T00:00:00Z", "capture-0001", "encode
 
 # --- container surgery (also used by the tests) ------------------------------------------------------
 def split(data: bytes) -> tuple[dict, list[list]]:
-    """(header map, sections as [type, critical, compression, stored bytes, raw_length]) of a container."""
+    """(header map, sections as [type, critical, compression, stored bytes, raw_length]) of a container; in
+    a compact container (1.3) the header is decompressed and each section also carries its aligned flag."""
     pre = parse_preamble(data)
-    header = msgpack.unpackb(data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length], raw=False)
+    compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
+    stored = data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length]
+    header = msgpack.unpackb(decompress_header(stored) if compact else stored, raw=False)
+    if compact:  # the digests are 32-byte bin values there (I.3.1): give the map of the 1.2 header
+        header["fingerprint"] = dict(header["fingerprint"], **{k: header["fingerprint"][k].hex() for k in DIGESTS})
     start = PREAMBLE_SIZE + pre.header_length
-    end = start + pre.section_count * SECTION_ENTRY_SIZE
-    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length)
+    end = start + pre.section_count * entry_size(pre.required_flags)
+    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length, compact=compact)
     return header, [[e.type, e.critical, e.compression, data[e.offset:e.offset + e.stored_length], e.raw_length]
-                    for e in entries]
+                    + ([e.aligned] if compact else []) for e in entries]
 
 
 def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
@@ -94,12 +106,36 @@ def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
     Without ``minor`` / ``required_flags`` the preamble says 1.0 with no flags, unless the sections came
     from a 1.2 file with compact cameras (a ``CAMS`` raw length below the 1.0 length the header implies,
     which only the compact encoding has): then 1.2 with flag bit 1 (and bit 0 for an ``-rans`` encoding),
-    as the writer would say."""
+    as the writer would say; sections from a compact container (with their aligned flag) make one again."""
+    if "minor" not in kw and "required_flags" not in kw and any(len(s) == 6 for s in sections):
+        return rebuild_1_3(header, sections, **kw)  # split() of a compact container: build one again
     raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
     if "minor" not in kw and "required_flags" not in kw and _compact_cameras(header, sections):
         rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
         kw = dict(kw, minor=2, required_flags=FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0))
     return build_container(raw, [tuple(s) for s in sections], **kw)
+
+
+DIGESTS = ("config_sha256", "weights_sha256")
+
+
+def binary_digests(header: dict) -> dict:
+    """The header map with the fingerprint's hex digests as 32-byte bin values, as a compact header holds them."""
+    fp = header["fingerprint"]
+    return dict(header, fingerprint=dict(fp, **{k: bytes.fromhex(fp[k]) for k in DIGESTS if isinstance(fp[k], str)}))
+
+
+def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = True, minor: int = 3,
+                required_flags: int | None = None, **kw: Any) -> bytes:
+    """A compact container (1.3) with correct checksums: the header map (its digests made binary) or raw
+    msgpack bytes, compressed with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as
+    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding)."""
+    raw = header if isinstance(header, bytes) else msgpack.packb(binary_digests(header), use_bin_type=True)
+    if required_flags is None:
+        rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
+        required_flags = FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
+    stored = compress_header(raw) if compress else raw
+    return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)
 
 
 def _header_map(header: dict | bytes) -> dict:
@@ -135,9 +171,10 @@ def patch_entry(data: bytes, index: int, field_offset: int, fmt: str, value: int
     """Overwrite one field of section-table entry ``index`` and fix the table CRC in the preamble."""
     pre = parse_preamble(data)
     start = PREAMBLE_SIZE + pre.header_length
+    size = entry_size(pre.required_flags)
     out = bytearray(data)
-    struct.pack_into(fmt, out, start + index * SECTION_ENTRY_SIZE + field_offset, value)
-    table = out[start:start + pre.section_count * SECTION_ENTRY_SIZE]
+    struct.pack_into(fmt, out, start + index * size + field_offset, value)
+    table = out[start:start + pre.section_count * size]
     return patch_preamble(bytes(out), 52, "<I", crc32(table))
 
 
@@ -175,6 +212,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
                                      "unknown ancillary sections (one with an unknown compression code)")
     out.update(rans_valid_vectors())
     out.update(compact_valid_vectors())
+    out.update(container_valid_vectors())
     return out
 
 
@@ -203,26 +241,26 @@ def with_cameras(s: Scene, traj: Trajectory) -> Scene:
 def compact_valid_vectors() -> dict[str, tuple[bytes, str]]:
     return {
         "compact_cameras_static_f32": (
-            dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+            dumps_1_2(scene(2, 1, 3), encoding="float32", compression_level=None),
             "1.2: compact cameras, one frame (constant K and static pose, P = 4), every section raw (the "
             "FORMAT.md I.5.1 example)"),
         "compact_cameras_orbit_f32_zstd": (
-            dumps(with_cameras(scene(8, 4, 4, provenance=PROVENANCE), orbit(8)), encoding="int8"),
+            dumps_1_2(with_cameras(scene(8, 4, 4, provenance=PROVENANCE), orbit(8)), encoding="int8"),
             "1.2: compact cameras, 8 frames of an orbit rounded to float32 (constant K, moving pose, "
             "timestamps), zstd sections"),
         "compact_cameras_orbit_f32_raw": (
-            dumps(with_cameras(scene(8, 4, 4), orbit(8)), encoding="int8", compression_level=None),
+            dumps_1_2(with_cameras(scene(8, 4, 4), orbit(8)), encoding="int8", compression_level=None),
             "1.2: the same orbit with every section raw: the byte planes of the predicted records are "
             "readable in the file"),
         "compact_cameras_zoom_exact_f64": (
-            dumps(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
+            dumps_1_2(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
             "1.2: compact cameras in float64 (P = 8, bit-exact), per-frame intrinsics (zoom), moving pose"),
         "compact_cameras_distortion_timestamps": (
-            dumps(scene(4, 2, 4, frames=3, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001], timestamps=True),
+            dumps_1_2(scene(4, 2, 4, frames=3, distortion=[0.01, -0.002, 0.0005, 0.0, 0.001], timestamps=True),
                   encoding="int4", compression_level=None),
             "1.2: compact cameras with 5 distortion terms and timestamps stored as float64 after the blocks"),
         "compact_cameras_with_rans": (
-            dumps(with_cameras(scene(16, 8, 4, provenance=PROVENANCE), orbit(4)), encoding="int4-rans"),
+            dumps_1_2(with_cameras(scene(16, 8, 4, provenance=PROVENANCE), orbit(4)), encoding="int4-rans"),
             "1.2: compact cameras and entropy-coded tokens: required flags 3"),
     }
 
@@ -242,7 +280,7 @@ def compact_payload(width: int, flags: int, k: list[list[float]], poses: list[li
 
 
 def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
-    good = dumps(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int8", compression_level=None)
+    good = dumps_1_2(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int8", compression_level=None)
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
     K = [100.0, 0.0, 31.5, 100.0, 23.5]
@@ -281,7 +319,8 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     with_cams("in_1_1_file", compact_payload(4, 1, [K], pose), "MalformedHeaderError",
               "required flag bit 1 in a file that says minor version 1", minor=1, required_flags=2)
     with_cams("unknown_flag_bit_2", compact_payload(4, 1, [K], pose), "UnsupportedFeatureError",
-              "required flag bit 2 (undefined in 1.2) beside bit 1", minor=2, required_flags=2 | 4)
+              "required flag bit 2 (undefined in 1.2) beside bit 1", minor=2, required_flags=2 | 4,
+              compact_layout=False)
     ts_header = dict(header, cameras=dict(header["cameras"], has_timestamps=True))
     bad = [list(x) for x in sections]
     cams = find(bad, "CAMS")
@@ -289,6 +328,102 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     cams[4] = len(cams[3])
     out["compact_cameras_decreasing_timestamps"] = (rebuild(ts_header, bad), "MalformedSectionError",
                                                     "timestamps 1.0 then 0.5 after the blocks")
+    return out
+
+
+# --- format 1.3: the compact container (FORMAT.md I.3.1, I.4.1, I.5.2) ------------------------------------
+ENCODER_METADATA = {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture"}}
+
+
+def container_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    base = scene(4, 2, 2, provenance=PROVENANCE)
+    header, sections = split(dumps(base, encoding="int8", compression_level=None))
+    header["future_key"] = {"anything": [1, 2]}
+    sections.insert(2, ["xTRA", False, 0, b"ancillary bytes a 1.3 reader skips", 34, True])
+    sections.append(["xZZZ", False, 7, b"unknown compression is fine when ancillary", 99, False])
+    return {
+        "compact_container_minimal": (
+            dumps(scene(2, 1, 3), encoding="float32", compression_level=None),
+            "1.3: compact container, one frame (quaternion pose), float32 tokens stored raw and 64-aligned, "
+            "the cameras section packed right after the table (the FORMAT.md I.4.1 example)"),
+        "compact_container_orbit_rans": (
+            dumps(with_cameras(scene(64, 32, 4, provenance=PROVENANCE, metadata=ENCODER_METADATA), orbit(8)),
+                  encoding="int4-rans"),
+            "1.3: what the encoder writes by default: int4-rans tokens, 8 frames of an orbit as float32 "
+            "quaternions with timestamps, provenance and the encoder's vt4d metadata; nothing aligned"),
+        "compact_container_int8_distortion": (
+            dumps(with_cameras(scene(16, 8, 4, metadata={"scene": "ramp"}), orbit(3)), encoding="int8",
+                  compression_level=None),
+            "1.3: int8 tokens stored raw (aligned) with their quantization sections packed between them"),
+        "compact_container_exact_f64": (
+            dumps(with_cameras(scene(4, 2, 4), orbit(5, zoom=True)), encoding="float16", cameras="exact"),
+            "1.3: compact container with float64 matrix poses (cameras=\"exact\", bit for bit), zoom, zstd"),
+        "compact_container_legacy_cameras": (
+            dumps(scene(4, 2, 4, frames=2, provenance=PROVENANCE), encoding="int4", cameras="legacy"),
+            "1.3: compact header and table with the 1.0 float64 cameras section: required flags 4 only"),
+        "compact_container_future_minor": (
+            rebuild_1_3(header, sections, minor=9, optional_flags=1 << 40, required_flags=6),
+            "minor version 9 with the compact container: an unknown optional flag, header key and two "
+            "unknown ancillary sections (one aligned, one with an unknown compression code)"),
+    }
+
+
+def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(with_cameras(scene(4, 2, 4, provenance=PROVENANCE), orbit(2)), encoding="int8",
+                 compression_level=None)
+    header, sections = split(good)
+    raw_header = msgpack.packb(binary_digests(header), use_bin_type=True)
+    stored = compress_header(raw_header)
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def add(name: str, data: bytes, error: str, why: str) -> None:
+        out[f"compact_container_{name}"] = (data, error, why)
+
+    add("header_not_zstd", rebuild_1_3(raw_header, sections, compress=False), "MalformedHeaderError",
+        "required flag bit 2 but the header is plain msgpack, not a zstd frame")
+    no_size = zstandard.ZstdCompressor(write_content_size=False).compress(raw_header)
+    add("header_no_content_size", rebuild_1_3(no_size, sections, compress=False), "MalformedHeaderError",
+        "the header's zstd frame does not declare its content size")
+    add("header_trailing_frame", rebuild_1_3(stored + b"\x50\x2a\x4d\x18" + bytes(4), sections, compress=False),
+        "MalformedHeaderError", "an empty skippable frame after the header's zstd frame")
+    huge = zstandard.ZstdCompressor(level=19).compress(b"\x80" + bytes(1 << 20))
+    add("header_declares_over_1_mib", rebuild_1_3(huge, sections, compress=False), "LimitExceededError",
+        "the header's zstd frame declares 1 MiB + 1 bytes")
+    add("header_unknown_key", rebuild_1_3(dict(header, extra=1), sections), "MalformedHeaderError",
+        "an unknown key inside the compressed header of a 1.3 file")
+    add("header_bin_type", rebuild_1_3(msgpack.packb(binary_digests(dict(header, metadata={"x": b"bytes"})),
+                                                     use_bin_type=True), sections), "MalformedHeaderError",
+        "a msgpack bin value in the metadata of a compressed header (bin is for the two digests only)")
+    add("hex_digest", rebuild_1_3(msgpack.packb(header, use_bin_type=True), sections), "MalformedHeaderError",
+        "the fingerprint digests as 64 hex digits inside a compact header (I.3.1 wants 32-byte bin values)")
+    short = binary_digests(header)
+    short["fingerprint"]["weights_sha256"] = short["fingerprint"]["weights_sha256"][:31]
+    add("digest_31_bytes", rebuild_1_3(msgpack.packb(short, use_bin_type=True), sections), "MalformedHeaderError",
+        "weights_sha256 as a 31-byte bin value")
+    add("in_1_2_file", rebuild_1_3(header, sections, minor=2), "UnsupportedFeatureError",
+        "required flag bit 2 in a file that says minor version 2 (unknown there)")
+    add("table_flag_bit_2", patch_entry(good, 0, 4, "<B", 0x05), "MalformedSectionError",
+        "a compact table entry sets flag bit 2")
+    data = bytearray(good)
+    zsta_at = parse_table_offsets(good)[[x[0] for x in sections].index("ZSTA")]
+    assert zsta_at % 64 == 0 and not data[zsta_at - 1]
+    data[zsta_at - 1] = 0x01
+    add("nonzero_padding", bytes(data), "MalformedSectionError", "the padding before an aligned section is not zero")
+    K = [100.0, 0.0, 31.5, 100.0, 23.5]
+    t = [0.0, 0.0, 3.0]
+
+    def with_cams(name: str, payload: bytes, why: str) -> None:
+        bad = [list(x) for x in sections]
+        cams = find(bad, "CAMS")
+        cams[2:5] = [0, payload, len(payload)]
+        add(name, rebuild_1_3(header, bad), "MalformedSectionError", why)
+
+    with_cams("quaternion_zero_norm", compact_payload(4, 1 | 4, [K], [[1.0, 0.0, 0.0, 0.0] + t, [0.0] * 4 + t]),
+              "the second pose's quaternion is (0, 0, 0, 0)")
+    with_cams("quaternion_matrix_length", compact_payload(4, 1 | 4, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
+              "layout flag bit 2 with 12-value pose records: the length does not match")
+    with_cams("cameras_flag_bit_3", compact_payload(4, 1 | 8, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
+              "compact cameras layout flag bit 3 (undefined in 1.3)")
     return out
 
 
@@ -516,14 +651,16 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
     out.update(rans_invalid_vectors())
     out.update(compact_invalid_vectors())
+    out.update(container_invalid_vectors())
     return out
 
 
 def parse_table_offsets(data: bytes) -> list[int]:
     pre = parse_preamble(data)
     start = PREAMBLE_SIZE + pre.header_length
-    end = start + pre.section_count * SECTION_ENTRY_SIZE
-    return [e.offset for e in parse_table(data[start:end], pre.section_count, end, pre.file_length)]
+    end = start + pre.section_count * entry_size(pre.required_flags)
+    return [e.offset for e in parse_table(data[start:end], pre.section_count, end, pre.file_length,
+                                          compact=bool(pre.required_flags & FLAG_COMPACT_CONTAINER))]
 
 
 # --- expected content ----------------------------------------------------------------------------

@@ -140,3 +140,28 @@ def test_reader_remeasures_size_when_slots_point_past_its_snapshot(tmp_path):
 
     with open_archive(Stale(data)) as ar:
         assert dict(ar.iter_records()) == {"a": b"1"}
+
+
+def test_compact_container_records_archive_beside_older_ones(tmp_path):
+    """Format 1.3 scenes (the writer's default) and 1.0/1.2 ones live in one archive: summaries, loads,
+    extraction byte for byte and verification read each layout."""
+    from vt4dcodec.archive.examples import example_scene
+    from vt4dcodec.format import dumps, open_scene
+
+    scene = example_scene(5, static_shape=(8, 4), dynamic_shape=(4, 4), frames=3)
+    records = {"v1.3": dumps(scene), "v1.2": dumps(scene, header="legacy"),
+               "v1.0": dumps(scene, header="legacy", cameras="legacy")}
+    assert [open_scene(v).version for v in records.values()] == [(1, 3), (1, 2), (1, 0)]
+    path = tmp_path / "mixed.vt4da"
+    with ArchiveWriter(path) as w:
+        for k, v in records.items():
+            w.append(k, v)
+        w.append("object", scene)  # a Scene object is written in the default (1.3) layout
+    verify_archive(path)
+    with open_archive(path) as ar:
+        for k, v in records.items():
+            assert ar.read_bytes(k) == v and ar.open_scene(k).version == open_scene(v).version
+            assert ar.summary(k)["bytes"] == len(v) and ar.summary(k)["frames"] == 3
+            np.testing.assert_array_equal(ar.load(k).static_tokens, loads(v).static_tokens)
+            assert ar.load(k).fingerprint == scene.fingerprint
+        assert ar.open_scene("object").version == (1, 3) and ar.read_bytes("object") == records["v1.3"]

@@ -20,6 +20,31 @@ def test_info_text_and_json(tmp_path, capsys):
     assert summary["static_shape"] == [4, 2] and summary["metadata_keys"] == ["who"]
 
 
+def test_info_and_verify_read_both_layouts(tmp_path, capsys):
+    """Format 1.3 (the default compact container) and the 1.2 layout: `vt4d info --json` says the version
+    and what is not tokens (file bytes minus token sections), `vt4d verify` passes both and names a
+    damaged compressed header."""
+    scene = simple_scene(metadata={"who": "me"})
+    for header, version in (("compact", "1.3"), ("legacy", "1.2")):
+        path = tmp_path / f"{header}.vt4d"
+        save(scene, path, header=header)
+        assert main(["info", "--json", str(path)]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["format_version"] == version and summary["compact_container"] == (header == "compact")
+        assert summary["non_token_bytes"] == summary["bytes"] - summary["token_bytes"]
+        assert summary["header_bytes"] < summary["non_token_bytes"] and summary["metadata_keys"] == ["who"]
+        assert main(["info", str(path)]) == 0
+        assert ("compressed header" in capsys.readouterr().out) == (header == "compact")
+        assert main(["verify", str(path)]) == 0
+        assert "OK" in capsys.readouterr().out
+    data = bytearray((tmp_path / "compact.vt4d").read_bytes())
+    data[70] ^= 0x01  # inside the zstd frame of the header
+    (tmp_path / "bad.vt4d").write_bytes(bytes(data))
+    capsys.readouterr()
+    assert main(["verify", "--json", str(tmp_path / "bad.vt4d")]) == 1
+    assert json.loads(capsys.readouterr().out)[0]["error"] == "ChecksumError"
+
+
 def test_verify_exit_codes(tmp_path, capsys):
     good, bad = tmp_path / "good.vt4d", tmp_path / "bad.vt4d"
     save(simple_scene(), good)

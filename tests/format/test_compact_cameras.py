@@ -39,10 +39,13 @@ def moving(frames=8, *, scale=1.0, size=64) -> Trajectory:
 
 @pytest.mark.parametrize("encoding,flags", [("int8", 2), ("float16", 2), ("int4-rans", 3)])
 def test_compact_files_say_1_2_with_flag_bit_1(encoding, flags):
-    f = open_scene(dumps(with_cameras(moving(), encoding)))
+    f = open_scene(dumps(with_cameras(moving(), encoding), header="legacy"))
     assert f.version == (1, 2) and f.preamble.required_flags == flags and f.compact_cameras
     assert f.camera_encoding() == "compact-float32"
-    legacy = open_scene(dumps(with_cameras(moving(), encoding), cameras="legacy"))
+    default = open_scene(dumps(with_cameras(moving(), encoding)))  # the compact container of 1.3
+    assert default.version == (1, 3) and default.preamble.required_flags == flags | 4 and default.compact_cameras
+    assert default.camera_encoding() == "compact-float32-quaternion"
+    legacy = open_scene(dumps(with_cameras(moving(), encoding), cameras="legacy", header="legacy"))
     assert legacy.version == (1, flags & 1) and not legacy.compact_cameras and legacy.camera_encoding() == "float64"
 
 
@@ -104,11 +107,11 @@ def test_any_trajectory_round_trips_within_the_bound(traj, mode):
 
 
 def test_a_1_1_reader_refuses_compact_cameras_by_the_required_flag(monkeypatch):
-    data = dumps(with_cameras(moving()))
+    data = dumps(with_cameras(moving()), header="legacy")
     monkeypatch.setattr(layout, "KNOWN_REQUIRED_FLAGS", layout.FLAG_ENTROPY_CODED_TOKENS)
     with pytest.raises(UnsupportedFeatureError, match="upgrade"):
         loads(data)
-    loads(dumps(with_cameras(moving()), cameras="legacy"))
+    loads(dumps(with_cameras(moving()), cameras="legacy", header="legacy"))
 
 
 def test_unknown_camera_mode_is_a_typed_error():

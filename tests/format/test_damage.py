@@ -22,6 +22,11 @@ SMALL = {
     "zstd": dumps(simple_scene(ns=3, nd=2, d=3, frames=2, encoding="int4", metadata={"k": [1, 2]})),
     "raw": dumps(simple_scene(ns=3, nd=2, d=3, frames=1, encoding="float32"), compression_level=None),
     "rans": dumps(simple_scene(ns=5, nd=2, d=3, frames=1, encoding="int5-rans"), compression_level=None),
+    # the 1.0-1.2 layout (msgpack header, 40-byte entries, aligned payloads) stays as well guarded
+    "raw_legacy": dumps(simple_scene(ns=3, nd=2, d=3, frames=1, encoding="float32"), compression_level=None,
+                        header="legacy"),
+    "zstd_legacy": dumps(simple_scene(ns=3, nd=2, d=3, frames=2, encoding="int4", metadata={"k": [1, 2]}),
+                         header="legacy"),
 }
 
 
@@ -138,13 +143,20 @@ def test_stream_declaring_a_huge_length_reads_in_bounded_chunks():
 
 
 def test_reserved_table_bytes_and_section_flags_are_checked():
-    data = SMALL["raw"]
+    data = SMALL["raw_legacy"]
     with pytest.raises(MalformedSectionError, match="reserved"):
         load(mv.patch_entry(data, 0, 36, "<I", 1))
     with pytest.raises(MalformedSectionError, match="reserved"):
         load(mv.patch_entry(data, 0, 4, "<H", 0x8001))
+    with pytest.raises(MalformedSectionError, match="reserved"):
+        load(mv.patch_entry(data, 0, 4, "<H", 0x0003))  # bit 1 (aligned) exists in compact tables only
     with pytest.raises(MalformedSectionError, match="critical"):
         load(mv.patch_entry(data, 0, 4, "<H", 0))
+    compact = SMALL["raw"]  # 18-byte entries: flags is one byte at offset 4
+    with pytest.raises(MalformedSectionError, match="reserved"):
+        load(mv.patch_entry(compact, 0, 4, "<B", 0x05))
+    with pytest.raises(MalformedSectionError, match="critical"):
+        load(mv.patch_entry(compact, 0, 4, "<B", 0x00))
 
 
 def test_known_section_not_allowed_for_the_encoding():

@@ -28,32 +28,74 @@ def align64(n: int) -> int:
     return (n + 63) // 64 * 64
 
 
+# FORMAT.md I.3.1: the header dictionary is the shortest-form msgpack of this JSON value, keys in order
+HEADER_DICTIONARY = msgpack.packb(
+    {"encodings": ["float32", "float16", "int8", "int4", "int2-rans", "int3-rans", "int5-rans", "int6-rans",
+                   "int7-rans", "int8-rans"],
+     "kinds": ["generated", "estimated", "source_cameras", "vt4d-test"],
+     "static_shape": [64, 32], "dynamic_shape": [32, 32], "encoding": "int4-rans",
+     "cameras": {"num_frames": 8, "width": 64, "height": 64, "distortion_terms": 0, "has_timestamps": True},
+     "fingerprint": {"model_id": "vt4d-tiny", "model_version": "1.0.0", "config_sha256": "0123456789abcdef",
+                     "weights_sha256": "0123456789abcdef", "static_shape": [64, 32], "dynamic_shape": [32, 32],
+                     "token_dtype": "float32"},
+     "provenance": {"library_version": "0.1.0", "created_utc": "2026-01-01T00:00:00Z",
+                    "source_capture_id": "synth-test-000000", "kind": "encoded"},
+     "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8,
+                           "depth_source": "capture"}}})
+assert len(HEADER_DICTIONARY) == 638 and zlib.crc32(HEADER_DICTIONARY) == 0xC95A6BEA  # as FORMAT.md says
+
+
+def compact_header(stored: bytes) -> bytes:
+    """FORMAT.md I.3.1: one zstd frame, content size declared (<= 1 MiB), raw-content dictionary."""
+    declared = zstandard.frame_content_size(stored)
+    assert 0 <= declared <= 1 << 20
+    dictionary = zstandard.ZstdCompressionDict(HEADER_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+    frame = zstandard.ZstdDecompressor(dict_data=dictionary).decompressobj()
+    out = frame.decompress(stored)
+    assert frame.eof and len(out) == declared and not frame.unused_data
+    return out
+
+
 def read_scene(data: bytes) -> dict:
     """FORMAT.md I.10, steps 1-6 (without the rejection checks an independent reader would also need)."""
     assert data[:9] == SIGNATURE and data[9] == 0
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and required in (0, 1, 2, 3) and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 8 and file_length == len(data)
+    compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
+    assert minor >= 3 or not compact
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
-    header = msgpack.unpackb(header_bytes, raw=False)
+    header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
+    if compact:  # I.3.1: the two digests are 32-byte bin values; as hex they read as in I.8
+        fp = header["fingerprint"]
+        assert all(isinstance(fp[k], bytes) and len(fp[k]) == 32 for k in ("config_sha256", "weights_sha256"))
+        header["fingerprint"] = dict(fp, config_sha256=fp["config_sha256"].hex(), weights_sha256=fp["weights_sha256"].hex())
     table_start = 64 + header_length
-    table = data[table_start:table_start + 40 * count]
+    size = 18 if compact else 40
+    table = data[table_start:table_start + size * count]
     assert zlib.crc32(table) == table_crc
-    sections, expected_offset = {}, align64(table_start + 40 * count)
+    sections, cursor = {}, table_start + size * count
     for i in range(count):
-        code, flags, comp, _, offset, stored, raw, crc, _ = struct.unpack_from("<4sHBBQQQII", table, 40 * i)
-        assert offset == expected_offset
+        if compact:  # no offsets: packed, or at the next multiple of 64 when the aligned bit says so
+            code, flags, comp, stored, raw, crc = struct.unpack_from("<4sBBIII", table, 18 * i)
+            assert flags < 4
+            offset = align64(cursor) if flags & 2 else cursor
+        else:
+            code, flags, comp, _, offset, stored, raw, crc, _ = struct.unpack_from("<4sHBBQQQII", table, 40 * i)
+            assert offset == align64(cursor)
+        assert not any(data[cursor:offset])  # padding is zero
         payload = data[offset:offset + stored]
         assert zlib.crc32(payload) == crc
-        expected_offset = align64(offset + stored)
+        cursor = offset + stored
         if not flags & 1:
             continue  # ancillary: skip
         if comp == 1:
             payload = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(payload)).read(raw + 1)
         assert len(payload) == raw
         sections[code.decode()] = payload
+    assert cursor == file_length
     entropy = header["encoding"].endswith("-rans")
     assert bool(required & 1) == entropy and (minor >= 1 or not entropy)
     assert minor >= 2 or not required & 2  # compact cameras (I.5.1) since 1.2
@@ -85,11 +127,14 @@ def read_cameras(scene: dict) -> dict:
         tail = values[25 * t:]
     else:
         width, flags = raw[0], raw[1]
-        assert width in (4, 8) and flags < 4
+        assert width in (4, 8) and flags < (8 if scene["required"] & 4 else 4)  # bit 2: I.5.2, 1.3 only
         n_k, n_w = (1 if flags & 1 else t), (1 if flags & 2 else t)
-        assert len(raw) == 2 + width * (5 * n_k + 12 * n_w) + 8 * (n + (t if has_ts else 0))
+        m = 7 if flags & 4 else 12
+        assert len(raw) == 2 + width * (5 * n_k + m * n_w) + 8 * (n + (t if has_ts else 0))
         kv, pos = compact_block(raw, 2, n_k, 5, width)
-        pv, pos = compact_block(raw, pos, n_w, 12, width)
+        pv, pos = compact_block(raw, pos, n_w, m, width)
+        if flags & 4:
+            pv = [quaternion_pose(p) for p in pv]
         K = [[[k[0], k[1], k[2]], [0.0, k[3], k[4]], [0.0, 0.0, 1.0]] for k in (kv[f % n_k] for f in range(t))]
         w2c = [[p[0:4], p[4:8], p[8:12], [0.0, 0.0, 0.0, 1.0]] for p in (pv[f % n_w] for f in range(t))]
         tail = struct.unpack(f"<{(len(raw) - pos) // 8}d", raw[pos:])
@@ -97,6 +142,17 @@ def read_cameras(scene: dict) -> dict:
     assert all(math.isfinite(v) for v in values)
     return {"K": K, "w2c": w2c, "distortion": list(tail[:n]) or None,
             "timestamps": list(tail[n:]) if has_ts else None}
+
+
+def quaternion_pose(p: list[float]) -> list[float]:
+    """FORMAT.md I.5.2: (qw, qx, qy, qz, t0, t1, t2) -> the 12 values of w2c rows 0..2, operation by operation."""
+    w, x, y, z, t0, t1, t2 = p
+    n = ((w * w + x * x) + y * y) + z * z
+    assert n != 0
+    s = 2 / n
+    return [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y), t0,
+            s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x), t1,
+            s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y), t2]
 
 
 def read_varint(raw: bytes, pos: int) -> tuple[int, int]:
@@ -208,10 +264,12 @@ def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(enco
 
 @settings(max_examples=25, deadline=None)
 @given(st.integers(1, 12), st.integers(0, 2**32 - 1), st.sampled_from(["compact", "exact"]), st.booleans(),
-       st.booleans(), st.booleans())
-def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mode, static, zoom, timestamps):
-    """I.5.1: the spec-only cameras reader above decodes the library's compact cameras section (float32 or
-    float64, constant or per-frame K, static or moving pose) to exactly the library's own trajectory."""
+       st.booleans(), st.booleans(), st.sampled_from(["compact", "legacy"]))
+def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mode, static, zoom, timestamps,
+                                                                header):
+    """I.5.1, I.5.2: the spec-only cameras reader above decodes the library's compact cameras section (float32
+    or float64, constant or per-frame K, static or moving pose, matrices or quaternions in a 1.3 compact
+    container) to exactly the library's own trajectory."""
     from format_strategies import simple_scene
     from vt4dcodec.cameras import Trajectory
     from vt4dcodec.format import Scene, dumps, loads
@@ -233,7 +291,8 @@ def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mo
     traj = Trajectory(K=K, w2c=w2c, width=64, height=64,
                       timestamps=np.cumsum(rng.uniform(0, 0.1, frames)) if timestamps else None)
     base = simple_scene(ns=3, nd=2, d=4, seed=seed % 1000)
-    data = dumps(Scene(base.static_tokens, base.dynamic_tokens, traj, base.fingerprint), cameras=mode)
+    data = dumps(Scene(base.static_tokens, base.dynamic_tokens, traj, base.fingerprint), cameras=mode,
+                 header=header)
     mine, ours = read_cameras(read_scene(data)), loads(data).cameras
     assert np.array_equal(np.array(mine["K"]), ours.K) and np.array_equal(np.array(mine["w2c"]), ours.w2c)
     assert (mine["timestamps"] is None) == (ours.timestamps is None)

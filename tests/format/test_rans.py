@@ -118,13 +118,14 @@ def test_narrow_channels_use_centre_prediction_and_iid_tokens_do_not():
 
 
 def test_rans_files_say_1_1_with_the_flag_and_others_stay_1_0():
-    """With the 1.0 cameras section (cameras="legacy"); compact cameras make every file 1.2 (test_compact_cameras)."""
+    """With the 1.0 cameras section and header (cameras="legacy", header="legacy"); compact cameras make every
+    file 1.2 and the compact container 1.3 (test_compact_cameras, test_compact_container)."""
     scene = simple_scene(ns=6, d=4)
     for encoding in ("float32", "float16", "int8", "int4"):
-        f = open_scene(dumps(scene, encoding=encoding, cameras="legacy"))
+        f = open_scene(dumps(scene, encoding=encoding, cameras="legacy", header="legacy"))
         assert f.version == (1, 0) and f.preamble.required_flags == 0
     for encoding in RANS_ENCODINGS:
-        data = dumps(scene, encoding=encoding, groups=2, cameras="legacy")
+        data = dumps(scene, encoding=encoding, groups=2, cameras="legacy", header="legacy")
         f = open_scene(data)
         assert f.version == (1, 1) and f.preamble.required_flags == layout.FLAG_ENTROPY_CODED_TOKENS
         assert {e.type for e in f.sections} == {"CAMS", "ZSTA", "ZDYN"}
@@ -132,11 +133,11 @@ def test_rans_files_say_1_1_with_the_flag_and_others_stay_1_0():
 
 
 def test_a_1_0_reader_refuses_entropy_coded_files_by_the_required_flag(monkeypatch):
-    data = dumps(simple_scene(), encoding="int4-rans", cameras="legacy")
+    data = dumps(simple_scene(), encoding="int4-rans", cameras="legacy", header="legacy")
     monkeypatch.setattr(layout, "KNOWN_REQUIRED_FLAGS", 0)
     with pytest.raises(UnsupportedFeatureError, match="upgrade"):
         loads(data)
-    loads(dumps(simple_scene(), encoding="int8", cameras="legacy"))
+    loads(dumps(simple_scene(), encoding="int8", cameras="legacy", header="legacy"))
 
 
 def test_lazy_access_codes_and_group_parameters():
@@ -350,9 +351,9 @@ def test_tokens_pair_equals_static_then_dynamic_even_when_damaged(encoding, ns, 
         entry_index = f.sections.index(entry)
         new_crc = layout.crc32(bytes(raw[entry.offset:entry.offset + entry.stored_length]))
         table_at = layout.PREAMBLE_SIZE + f.preamble.header_length
-        struct.pack_into("<I", raw, table_at + layout.SECTION_ENTRY_SIZE * entry_index + 32, new_crc)
-        struct.pack_into("<I", raw, 52, layout.crc32(bytes(raw[table_at:table_at + layout.SECTION_ENTRY_SIZE
-                                                                * len(f.sections)])))
+        size = layout.entry_size(f.preamble.required_flags)  # 18 bytes (crc at 14) in a 1.3 compact container
+        struct.pack_into("<I", raw, table_at + size * entry_index + (14 if f.compact_container else 32), new_crc)
+        struct.pack_into("<I", raw, 52, layout.crc32(bytes(raw[table_at:table_at + size * len(f.sections)])))
         struct.pack_into("<I", raw, 60, layout.crc32(bytes(raw[:60])))
     f = open_scene(bytes(raw))
     assert _pair_outcome(lambda g: g.tokens(), f) == _pair_outcome(_sequential_tokens, f)

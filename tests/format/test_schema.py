@@ -23,7 +23,7 @@ def test_valid_vectors_headers_validate():
     mv = load_vector_tool()
     for path in sorted((REPO / "spec" / "vectors" / "valid").glob("*.vt4d")):
         header, _ = mv.split(path.read_bytes())
-        if path.stem.startswith("future_minor"):
+        if "future_minor" in path.stem:
             header.pop("future_key")  # a newer minor version may add keys; 1.0's schema lists exactly 1.0's
         jsonschema.validate(header, SCHEMA)
 

@@ -14,9 +14,9 @@ from vt4dcodec.format.header import unpack_header
 MV = load_vector_tool()
 
 
-def _with_header(edit) -> bytes:
+def _with_header(edit, header_mode: str = "compact") -> bytes:
     header, sections = MV.split(dumps(simple_scene(provenance=Provenance("0.1", "2026-01-01T00:00:00Z", None,
-                                                                             "encoded"))))
+                                                                             "encoded")), header=header_mode))
     return MV.rebuild(edit(header), sections)
 
 
@@ -51,17 +51,19 @@ def test_metadata_limit_measures_the_canonical_re_encoding():
     canonical = msgpack.packb([1] * n)
     wide = canonical[:3] + b"".join(b"\xcf" + (1).to_bytes(8, "big") for _ in range(n))
 
-    def edit(h):
+    def edit(h, compact=False):
         h["metadata"] = {"wide": "PLACEHOLDER"}
-        raw = msgpack.packb(h, use_bin_type=True)
+        raw = msgpack.packb(MV.binary_digests(h) if compact else h, use_bin_type=True)  # I.3.1: bin digests
         return raw.replace(msgpack.packb("PLACEHOLDER"), wide)
-    data = _with_header(edit)
+    data = _with_header(edit, "legacy")
     assert len(data) > 262_144 + 90_000  # the stored metadata alone is 360,003 bytes
     assert loads(data).metadata["wide"] == [1] * n
+    # the same header inside a compact container
+    assert loads(_with_header(lambda h: edit(h, compact=True))).metadata["wide"] == [1] * n
 
     def too_big(h):
         h["metadata"] = {"big": ["x" * 60000] * 5}
-        return msgpack.packb(h, use_bin_type=True)
+        return msgpack.packb(MV.binary_digests(h), use_bin_type=True)
     with pytest.raises(LimitExceededError):
         loads(_with_header(too_big))
 

@@ -47,4 +47,4 @@ def example_scene(seed: int, *, static_shape: tuple[int, int] = (96, 64),
 def example_record(seed: int, **kwargs: Any) -> bytes:
     """``.vt4d`` bytes of :func:`example_scene` (deterministic).  The 1.0 cameras section: the archive
     vectors made from these records are kept byte for byte (FORMAT.md, versioning rules)."""
-    return dumps(example_scene(seed, **kwargs), cameras="legacy")
+    return dumps(example_scene(seed, **kwargs), cameras="legacy", header="legacy")

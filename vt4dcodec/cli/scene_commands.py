@@ -99,6 +99,7 @@ def run_info(args: argparse.Namespace) -> int:
     scene = open_scene(args.file, **options)
     summary = scene.summary()
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
+                "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
                 "camera_encoding": scene.camera_encoding()}
     if args.json or args.quiet:
         emit(args, summary)
@@ -107,7 +108,8 @@ def run_info(args: argparse.Namespace) -> int:
     lines = [
         f"file            {args.file}",
         f"format          .vt4d scene v{summary['format_version']}, {summary['bytes']} bytes "
-        f"({summary['token_bytes']} of tokens, {summary['non_token_bytes']} of everything else)",
+        f"({summary['token_bytes']} of tokens, {summary['non_token_bytes']} of everything else, "
+        f"{summary['header_bytes']} of them the {'compressed ' if summary['compact_container'] else ''}header)",
         f"tokens          Z_s {summary['static_shape'][0]}x{summary['static_shape'][1]}, "
         f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}",
         f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "

@@ -6,19 +6,26 @@ frame finds the runs that smooth trajectories leave.
 Payload (little-endian)::
 
     u8  precision P      4 (float32) or 8 (float64)
-    u8  layout flags     bit 0: one intrinsics record for every frame; bit 1: one pose for every frame
+    u8  layout flags     bit 0: one intrinsics record for every frame; bit 1: one pose for every frame;
+                         bit 2 (format 1.3, compact containers only): poses as quaternion + translation
     intrinsics block     nK records of (fx, s, cx, fy, cy), predicted + byte planes (below)
-    pose block           nP records of w2c rows 0..2 (12 values, row-major), predicted + byte planes
+    pose block           nP records of w2c rows 0..2 (12 values, row-major), or with bit 2 of
+                         (qw, qx, qy, qz, tx, ty, tz) (7 values), predicted + byte planes
     distortion           distortion_terms float64 (as in 1.0)
     timestamps           T float64 if has_timestamps (as in 1.0)
 
 A block of n records of m values: let u[r, j] be the P-byte unsigned integer whose bytes are value j of
 record r.  The writer stores e[0, j] = u[0, j] and e[r, j] = (u[r, j] - u[r-1, j]) mod 2^(8P); then
 byte k of every e (row-major order) for k = 0, then k = 1, ... (byte planes).  The reader inverts both.
+
+Quaternion poses (FORMAT.md I.5.2): R is rebuilt from (qw, qx, qy, qz) widened to float64 by one fixed
+formula (:func:`quaternion_to_rotation`), so every reader computes the same bits; a rotation costs 4 values
+instead of 9, which is what brings a default 8-frame scene's non-token bytes under 512.
 """
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -29,13 +36,14 @@ from .header import CameraLayout
 from .layout import BytesLike
 
 __all__ = ["CAMERA_MODES", "COMPACT_PRECISIONS", "REPROJECTION_TOLERANCE_PX", "pack_compact_cameras",
-           "unpack_compact_cameras", "compact_camera_bytes", "reprojection_change"]
+           "unpack_compact_cameras", "compact_camera_bytes", "reprojection_change", "quaternion_to_rotation",
+           "rotation_to_quaternion", "canonical_float32_quaternions"]
 
 CAMERA_MODES = ("compact", "exact", "legacy")  # what save() offers: see writer.dumps
 COMPACT_PRECISIONS = (4, 8)
-CONSTANT_INTRINSICS, STATIC_POSE = 1 << 0, 1 << 1
-KNOWN_LAYOUT_FLAGS = CONSTANT_INTRINSICS | STATIC_POSE
-INTRINSIC_VALUES, POSE_VALUES = 5, 12
+CONSTANT_INTRINSICS, STATIC_POSE, QUATERNION_POSES = 1 << 0, 1 << 1, 1 << 2
+KNOWN_LAYOUT_FLAGS = CONSTANT_INTRINSICS | STATIC_POSE  # and QUATERNION_POSES in compact containers (1.3)
+INTRINSIC_VALUES, POSE_VALUES, QUATERNION_POSE_VALUES = 5, 12, 7
 REPROJECTION_TOLERANCE_PX = 0.01  # float32 is used only when no probe point moves more than this
 PROBE_DEPTHS_M = (0.1, 1.0, 10.0, 100.0)  # the reference writer's probe points (FORMAT.md I.5.1)
 PROBE_GRID = 5
@@ -74,20 +82,123 @@ def _flags(traj: Trajectory) -> int:
     return flags
 
 
+def _pose_values(flags: int) -> int:
+    return QUATERNION_POSE_VALUES if flags & QUATERNION_POSES else POSE_VALUES
+
+
 def compact_camera_bytes(T: int, precision: int, flags: int, distortion_terms: int, has_timestamps: bool) -> int:
     """The raw length of a compact cameras section."""
     n_k = 1 if flags & CONSTANT_INTRINSICS else T
     n_p = 1 if flags & STATIC_POSE else T
-    return 2 + precision * (INTRINSIC_VALUES * n_k + POSE_VALUES * n_p) + 8 * (distortion_terms
-                                                                           + (T if has_timestamps else 0))
+    return 2 + precision * (INTRINSIC_VALUES * n_k + _pose_values(flags) * n_p) + 8 * (
+        distortion_terms + (T if has_timestamps else 0))
 
 
-def _encode(traj: Trajectory, precision: int) -> bytes:
-    flags = _flags(traj)
+def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
+    """(n, 4) quaternions (w, x, y, z), float64, any non-zero norm -> (n, 3, 3) rotations, by FORMAT.md I.5.2's
+    formula, operation for operation (every step is one IEEE 754 binary64 operation, so readers agree)."""
+    w, x, y, z = (np.ascontiguousarray(q[:, i], dtype=np.float64) for i in range(4))
+    with np.errstate(all="ignore"):  # a zero or overflowing norm gives inf/NaN, rejected by the caller's checks
+        s = 2.0 / (((w * w + x * x) + y * y) + z * z)
+        R = np.empty((len(q), 3, 3))
+        R[:, 0, 0] = 1.0 - s * (y * y + z * z)
+        R[:, 0, 1] = s * (x * y - w * z)
+        R[:, 0, 2] = s * (x * z + w * y)
+        R[:, 1, 0] = s * (x * y + w * z)
+        R[:, 1, 1] = 1.0 - s * (x * x + z * z)
+        R[:, 1, 2] = s * (y * z - w * x)
+        R[:, 2, 0] = s * (x * z - w * y)
+        R[:, 2, 1] = s * (y * z + w * x)
+        R[:, 2, 2] = 1.0 - s * (x * x + y * y)
+    return R
+
+
+def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndarray:
+    """(n, 3, 3) rotations -> (n, 4) unit quaternions (w, x, y, z) (informative: any writer method will do).
+    Shepperd's method, from the largest of w, x, y, z.  ``continuous``: each sign is chosen so consecutive
+    quaternions are close (q and -q are the same rotation), which keeps the predicted differences small;
+    else each is signed on its own (the one closer to (1, 0, 0, 0))."""
+    out = np.empty((len(R), 4))
+    for i, m in enumerate(np.asarray(R, dtype=np.float64)):
+        diag = (m[0, 0] + m[1, 1] + m[2, 2], m[0, 0], m[1, 1], m[2, 2])
+        k = int(np.argmax(diag))
+        if k == 0:
+            w = 0.5 * np.sqrt(max(1.0 + diag[0], 0.0))
+            q = (w, (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w))
+        elif k == 1:
+            x = 0.5 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+            q = ((m[2, 1] - m[1, 2]) / (4 * x), x, (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x))
+        elif k == 2:
+            y = 0.5 * np.sqrt(max(1.0 - m[0, 0] + m[1, 1] - m[2, 2], 0.0))
+            q = ((m[0, 2] - m[2, 0]) / (4 * y), (m[0, 1] + m[1, 0]) / (4 * y), y, (m[1, 2] + m[2, 1]) / (4 * y))
+        else:
+            z = 0.5 * np.sqrt(max(1.0 - m[0, 0] - m[1, 1] + m[2, 2], 0.0))
+            q = ((m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z)
+        v = np.array(q) / np.linalg.norm(q)
+        previous = out[i - 1] if i and continuous else np.array([1.0, 0.0, 0.0, 0.0])
+        out[i] = -v if float(v @ previous) < 0 else v
+    return out
+
+
+# the 81 float32 neighbours (each component -1, 0 or +1 ulp) of a quaternion, nearest first, in a fixed order
+_NEIGHBOURS = np.array(sorted(itertools.product((-1, 0, 1), repeat=4), key=lambda k: (sum(map(abs, k)), k)),
+                       dtype=np.int32)
+
+
+def _float32(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, dtype=np.float32).astype(np.float64) + 0.0  # + 0.0: never -0.0
+
+
+def _exact_float32_quaternions(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each rotation, the first float32 quaternion near its own that rebuilds it exactly (FORMAT.md I.5.2
+    formula), and whether there was one: (quaternions (n, 4), found (n,))."""
+    centre = _float32(rotation_to_quaternion(R, continuous=False))
+    found = np.all(quaternion_to_rotation(centre) == R, axis=(1, 2))
+    q = centre.copy()
+    miss = np.flatnonzero(~found)
+    if len(miss):
+        bits = centre[miss].astype(np.float32).view(np.int32)
+        candidates = _float32((bits[:, None, :] + _NEIGHBOURS[None]).view(np.float32))  # (m, 81, 4)
+        rebuilt = quaternion_to_rotation(candidates.reshape(-1, 4)).reshape(len(miss), len(_NEIGHBOURS), 3, 3)
+        hit = np.all(rebuilt == R[miss][:, None], axis=(2, 3))
+        first = np.argmax(hit, axis=1)
+        ok = hit[np.arange(len(miss)), first]
+        q[miss[ok]] = candidates[ok, first[ok]]
+        found[miss[ok]] = True
+    return q, found
+
+
+def canonical_float32_quaternions(R: np.ndarray) -> np.ndarray | None:
+    """float32 quaternions (as float64 values) for the rotations ``R``, chosen so that the writer finds the
+    same ones again from the rotations they decode to: loading a file and saving it again gives the same
+    bytes, and resaving never drifts.  A rotation some nearby float32 quaternion rebuilds exactly (one read
+    from a 1.3 file) keeps that quaternion; any other is rounded to float32 and then replaced by the first
+    quaternion that rebuilds the rounded one's rotation exactly.  Signs follow from frame to frame.  None in
+    the (unseen so far) case where no such quaternion is found: the writer then keeps matrices."""
+    R = np.asarray(R, dtype=np.float64)
+    q, found = _exact_float32_quaternions(R)
+    if not found.all():
+        rounded = quaternion_to_rotation(_float32(rotation_to_quaternion(R[~found], continuous=False)))
+        q_rounded, found_rounded = _exact_float32_quaternions(rounded)
+        if not found_rounded.all():
+            return None
+        q[~found] = q_rounded
+    for i in range(1, len(q)):  # q and -q rebuild the same rotation: keep consecutive records close
+        if float(q[i] @ q[i - 1]) < 0:
+            q[i] = -q[i] + 0.0
+    return q
+
+
+def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = None) -> bytes:
+    """The payload; ``quaternions`` (one per pose record kept) stores the poses as quaternion + t."""
+    flags = _flags(traj) | (QUATERNION_POSES if quaternions is not None else 0)
     K = traj.K[:1] if flags & CONSTANT_INTRINSICS else traj.K
     w2c = traj.w2c[:1] if flags & STATIC_POSE else traj.w2c
-    parts = [bytes([precision, flags]), _pack_block(_intrinsic_records(K), precision),
-             _pack_block(w2c[:, :3, :].reshape(len(w2c), POSE_VALUES), precision)]
+    if quaternions is not None:
+        poses = np.concatenate([quaternions, w2c[:, :3, 3]], axis=1)
+    else:
+        poses = w2c[:, :3, :].reshape(len(w2c), POSE_VALUES)
+    parts = [bytes([precision, flags]), _pack_block(_intrinsic_records(K), precision), _pack_block(poses, precision)]
     for extra in (traj.distortion, traj.timestamps):
         if extra is not None:
             parts.append(np.ascontiguousarray(extra, dtype="<f8").tobytes())
@@ -116,33 +227,43 @@ def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     return worst
 
 
-def pack_compact_cameras(traj: Trajectory, mode: str = "compact") -> bytes:
-    """The compact cameras payload of ``traj``.  ``mode`` "exact": float64 (the trajectory reads back
-    bit for bit); "compact": float32 when the decoded trajectory is valid and moves no probe point more
-    than 0.01 px (:func:`reprojection_change`), else float64."""
+def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False) -> bytes:
+    """The compact cameras payload of ``traj``.  ``mode`` "exact": float64 matrices (the trajectory reads
+    back bit for bit); "compact": the first of float32 quaternion poses (only with ``quaternions``, which a
+    compact container allows), float32 matrices and float64 matrices whose decoded trajectory is valid and
+    moves no probe point more than 0.01 px (:func:`reprojection_change`)."""
     if mode not in ("compact", "exact"):
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
-        raw = _encode(traj, 4)
-        try:
-            back = _decode(raw, traj.num_frames, traj.width, traj.height,
-                           0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None)
-        except MalformedSectionError:
-            back = None  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
-        if back is not None and reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
-            return raw
+        candidates: list[np.ndarray | None] = [None]
+        if quaternions:
+            w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
+            q = canonical_float32_quaternions(w2c[:, :3, :3])
+            candidates = [q, None] if q is not None else [None]
+        for quat in candidates:
+            raw = _encode(traj, 4, quat)
+            try:
+                back = _decode(raw, traj.num_frames, traj.width, traj.height,
+                               0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
+                               quaternions=quat is not None)
+            except MalformedSectionError:
+                back = None  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
+            if back is not None and reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
+                return raw
     return _encode(traj, 8)
 
 
-def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: int, has_timestamps: bool) -> Trajectory:
+def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: int, has_timestamps: bool, *,
+            quaternions: bool = False) -> Trajectory:
     raw = bytes(raw)
     if len(raw) < 2:
         raise MalformedSectionError(f"compact cameras section is {len(raw)} bytes; it needs at least 2")
     precision, flags = raw[0], raw[1]
     if precision not in COMPACT_PRECISIONS:
         raise MalformedSectionError(f"compact cameras: precision {precision} is not 4 (float32) or 8 (float64)")
-    if flags & ~KNOWN_LAYOUT_FLAGS:
-        raise MalformedSectionError(f"compact cameras: layout flags 0x{flags:02x} set undefined bits")
+    if flags & ~(KNOWN_LAYOUT_FLAGS | (QUATERNION_POSES if quaternions else 0)):
+        raise MalformedSectionError(f"compact cameras: layout flags 0x{flags:02x} set undefined bits"
+                                    + ("" if quaternions else " (bit 2, quaternion poses, needs a compact container)"))
     need = compact_camera_bytes(T, precision, flags, distortion_terms, has_timestamps)
     if len(raw) != need:
         raise MalformedSectionError(f"compact cameras section is {len(raw)} bytes; its header and layout "
@@ -152,14 +273,19 @@ def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: i
     pos = 2
     kv = _unpack_block(raw[pos:pos + precision * INTRINSIC_VALUES * n_k], n_k, INTRINSIC_VALUES, precision)
     pos += precision * INTRINSIC_VALUES * n_k
-    pv = _unpack_block(raw[pos:pos + precision * POSE_VALUES * n_p], n_p, POSE_VALUES, precision)
-    pos += precision * POSE_VALUES * n_p
+    m = _pose_values(flags)
+    pv = _unpack_block(raw[pos:pos + precision * m * n_p], n_p, m, precision)
+    pos += precision * m * n_p
     tail = np.frombuffer(raw[pos:], dtype="<f8").astype(np.float64)
     K = np.zeros((n_k, 3, 3))
     K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2] = kv.T
     K[:, 2, 2] = 1.0
     w2c = np.zeros((n_p, 4, 4))
-    w2c[:, :3, :] = pv.reshape(n_p, 3, 4)
+    if flags & QUATERNION_POSES:
+        w2c[:, :3, :3] = quaternion_to_rotation(pv[:, :4])
+        w2c[:, :3, 3] = pv[:, 4:]
+    else:
+        w2c[:, :3, :] = pv.reshape(n_p, 3, 4)
     w2c[:, 3, 3] = 1.0
     try:
         return Trajectory(K=np.repeat(K, T // n_k, axis=0), w2c=np.repeat(w2c, T // n_p, axis=0), width=width,
@@ -169,7 +295,8 @@ def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: i
         raise MalformedSectionError(f"cameras section breaks the camera conventions: {exc}") from None
 
 
-def unpack_compact_cameras(raw: BytesLike, layout: CameraLayout) -> Trajectory:
-    """Rebuild the trajectory from a compact cameras payload; any problem is a MalformedSectionError."""
+def unpack_compact_cameras(raw: BytesLike, layout: CameraLayout, *, quaternions: bool = False) -> Trajectory:
+    """Rebuild the trajectory from a compact cameras payload; any problem is a MalformedSectionError.
+    ``quaternions``: the file is a compact container (format 1.3), where layout flag bit 2 is defined."""
     return _decode(raw, layout.num_frames, layout.width, layout.height, layout.distortion_terms,
-                   layout.has_timestamps)
+                   layout.has_timestamps, quaternions=quaternions)

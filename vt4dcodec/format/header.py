@@ -13,6 +13,12 @@ The header is one msgpack map with exactly these keys (version 1.0)::
     metadata       map (user key/values)
 
 A file whose minor version is newer than this reader's may add keys; they are ignored.
+
+In a compact container (format 1.3, required flag bit 2) the stored header is one zstd frame of these msgpack
+bytes, compressed with the spec-fixed raw-content dictionary :data:`HEADER_DICTIONARY` (FORMAT.md I.3.1): the
+key names and the usual values cost a few bytes of match codes instead of their text.  There the two
+fingerprint digests are 32-byte msgpack bin values instead of 64 hex digits (the only bin values allowed);
+the reader turns them back into hex, so the parsed header is the 1.2 header.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import msgpack
+import zstandard
 
 from ..cameras import DISTORTION_LENGTHS
 from ..errors import LimitExceededError, MalformedHeaderError
@@ -33,10 +40,31 @@ from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEAD
                      MAX_STRING_CHARS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES, MAX_TOKENS)
 from .metadata import normalize_metadata
 
-__all__ = ["HeaderInfo", "CameraLayout", "pack_header", "unpack_header", "parse_header"]
+__all__ = ["HeaderInfo", "CameraLayout", "pack_header", "unpack_header", "parse_header", "HEADER_DICTIONARY",
+           "compress_header", "decompress_header"]
 
 HEADER_KEYS = {"static_shape", "dynamic_shape", "encoding", "cameras", "fingerprint", "provenance", "metadata"}
 CAMERA_KEYS = {"num_frames", "width", "height", "distortion_terms", "has_timestamps"}
+
+# FORMAT.md I.3.1: the dictionary of the compact header is the msgpack encoding (shortest forms, keys in this
+# order) of this template, a header as the reference encoder writes it.  Spec-fixed: changing one byte of it
+# changes how every 1.3 file decodes, so it never changes (tests pin its length and CRC-32).
+HEADER_DICTIONARY_TEMPLATE: dict[str, Any] = {
+    "encodings": ["float32", "float16", "int8", "int4", "int2-rans", "int3-rans", "int5-rans", "int6-rans",
+                  "int7-rans", "int8-rans"],
+    "kinds": ["generated", "estimated", "source_cameras", "vt4d-test"],
+    "static_shape": [64, 32], "dynamic_shape": [32, 32], "encoding": "int4-rans",
+    "cameras": {"num_frames": 8, "width": 64, "height": 64, "distortion_terms": 0, "has_timestamps": True},
+    "fingerprint": {"model_id": "vt4d-tiny", "model_version": "1.0.0", "config_sha256": "0123456789abcdef",
+                    "weights_sha256": "0123456789abcdef", "static_shape": [64, 32], "dynamic_shape": [32, 32],
+                    "token_dtype": "float32"},
+    "provenance": {"library_version": "0.1.0", "created_utc": "2026-01-01T00:00:00Z",
+                   "source_capture_id": "synth-test-000000", "kind": "encoded"},
+    "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture"}},
+}
+HEADER_DICTIONARY: bytes = msgpack.packb(HEADER_DICTIONARY_TEMPLATE, use_bin_type=True)
+_HEADER_ZSTD_LEVEL = 19  # the header is a few hundred bytes: the strongest level costs nothing
+_HEADER_DICT = zstandard.ZstdCompressionDict(HEADER_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
 
 
 @dataclass(frozen=True)
@@ -83,12 +111,52 @@ class HeaderInfo:
         }
 
 
-def pack_header(info: HeaderInfo) -> bytes:
-    """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above)."""
-    data: bytes = msgpack.packb(info.to_dict(), use_bin_type=True)
+DIGEST_KEYS = ("config_sha256", "weights_sha256")
+
+
+def pack_header(info: HeaderInfo, *, binary_digests: bool = False) -> bytes:
+    """Canonical msgpack bytes of the header (keys in the order of HEADER_KEYS listing above).
+    ``binary_digests``: the fingerprint's SHA-256 digests as 32-byte bin values (a compact header, I.3.1)."""
+    header = info.to_dict()
+    if binary_digests:
+        header["fingerprint"] = dict(header["fingerprint"], **{k: bytes.fromhex(header["fingerprint"][k])
+                                                               for k in DIGEST_KEYS})
+    data: bytes = msgpack.packb(header, use_bin_type=True)
     if len(data) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"the header would be {len(data)} bytes, over the {MAX_HEADER_BYTES} limit")
     return data
+
+
+def compress_header(raw: bytes) -> bytes:
+    """The stored form of a compact header (FORMAT.md I.3.1): one zstd frame with the spec-fixed raw-content
+    dictionary, its content size declared, no dictionary id and no checksum (the header CRC covers it)."""
+    cctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICT, write_content_size=True,
+                                    write_checksum=False, write_dict_id=False)
+    return cctx.compress(raw)
+
+
+def decompress_header(stored: BytesLike) -> bytes:
+    """The msgpack bytes of a compact header, bounded: the frame MUST declare its content size, at most
+    1 MiB, and hold exactly that many bytes; nothing may follow the frame."""
+    try:
+        declared = zstandard.frame_content_size(stored)
+    except zstandard.ZstdError as exc:
+        raise MalformedHeaderError(f"the compact header is not a zstd frame ({exc})") from None
+    if declared < 0:
+        raise MalformedHeaderError("the compact header's zstd frame does not declare its content size")
+    if declared > MAX_HEADER_BYTES:
+        raise LimitExceededError(f"the compact header declares {declared} bytes; the limit is {MAX_HEADER_BYTES}")
+    frame = zstandard.ZstdDecompressor(dict_data=_HEADER_DICT).decompressobj(read_across_frames=False)
+    try:
+        out = frame.decompress(bytes(stored))  # libzstd refuses output beyond the declared content size
+    except zstandard.ZstdError as exc:
+        raise MalformedHeaderError(f"the compact header's zstd frame is corrupt ({exc})") from None
+    if not frame.eof or len(out) != declared:
+        raise MalformedHeaderError(f"the compact header's zstd frame yields {len(out)} bytes, not the {declared} "
+                                   "it declares")
+    if frame.unused_data:
+        raise MalformedHeaderError(f"{len(frame.unused_data)} bytes follow the compact header's zstd frame")
+    return out
 
 
 def _refuse_ext(code: int, data: bytes) -> Any:
@@ -102,15 +170,17 @@ def _pairs_no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def unpack_header(raw: BytesLike) -> dict[str, Any]:
-    """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth."""
+def unpack_header(raw: BytesLike, *, binary_digests: bool = False) -> dict[str, Any]:
+    """Decode header bytes with hard limits: size, string/array/map lengths, no bin or ext, depth.
+    ``binary_digests`` (a compact header, I.3.1): the two fingerprint digests MUST be 32-byte bin values,
+    returned as 64 lowercase hex digits; bin anywhere else is still refused."""
     if len(raw) > MAX_HEADER_BYTES:
         raise LimitExceededError(f"header is {len(raw)} bytes; the limit is {MAX_HEADER_BYTES}")
     try:
         value = msgpack.unpackb(
             bytes(raw), raw=False, strict_map_key=True, ext_hook=_refuse_ext, use_list=True,
             object_pairs_hook=_pairs_no_duplicates,
-            max_str_len=MAX_STRING_CHARS, max_bin_len=0, max_array_len=MAX_CONTAINER_ITEMS,
+            max_str_len=MAX_STRING_CHARS, max_bin_len=32 if binary_digests else 0, max_array_len=MAX_CONTAINER_ITEMS,
             max_map_len=MAX_CONTAINER_ITEMS, max_ext_len=0,
         )
     except MalformedHeaderError:
@@ -119,7 +189,38 @@ def unpack_header(raw: BytesLike) -> dict[str, Any]:
         detail = str(exc)[:120] or "undecodable bytes"
         raise MalformedHeaderError(f"the header is not valid bounded msgpack ({type(exc).__name__}: {detail})") from None
     _check_depth(value)
-    return require_map(value, "header")
+    header = require_map(value, "header")
+    if binary_digests:
+        header = _hex_digests(header)
+    _refuse_bin(header)
+    return header
+
+
+def _hex_digests(header: dict[str, Any]) -> dict[str, Any]:
+    fp = header.get("fingerprint")
+    if not isinstance(fp, dict):
+        return header  # the header checks name what is wrong
+    fp = dict(fp)
+    for key in DIGEST_KEYS:
+        value = fp.get(key)
+        if not isinstance(value, bytes) or len(value) != 32:
+            raise MalformedHeaderError(f"fingerprint.{key} of a compact header must be a 32-byte bin value (I.3.1), "
+                                       f"got {type(value).__name__}{f' of {len(value)} bytes' if isinstance(value, bytes) else ''}")
+        fp[key] = value.hex()
+    return dict(header, fingerprint=fp)
+
+
+def _refuse_bin(value: Any) -> None:
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, bytes):
+            raise MalformedHeaderError("the header holds a msgpack bin value; bin is allowed only for the two "
+                                       "fingerprint digests of a compact header")
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
 
 
 def _check_depth(value: Any) -> None:
@@ -133,10 +234,11 @@ def _check_depth(value: Any) -> None:
             stack.extend((c, depth + 1) for c in children)
 
 
-def parse_header(raw: BytesLike, *, newer_minor: bool = False) -> HeaderInfo:
+def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool = False) -> HeaderInfo:
     """Decode and validate a header.  ``newer_minor``: the file's minor version is newer than this
-    reader's, so unknown keys are tolerated (known keys are still checked exactly)."""
-    h = unpack_header(raw)
+    reader's, so unknown keys are tolerated (known keys are still checked exactly).  ``compressed``: the
+    stored header of a compact container (format 1.3), decompressed first."""
+    h = unpack_header(decompress_header(raw), binary_digests=True) if compressed else unpack_header(raw)
     exact_keys(h, HEADER_KEYS, "header", allow_extra=newer_minor)
     static_shape = require_shape(h["static_shape"], "static_shape", MAX_TOKENS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES,
                                  LimitExceededError)

@@ -9,9 +9,10 @@ Preamble (64 bytes)::
       0    9 magic            89 56 54 34 44 0D 0A 1A 0A  ("\\x89VT4D\\r\\n\\x1a\\n")
       9    1 zero             00
      10    2 major            u16 = 1
-     12    2 minor            u16 = 0, 1 or 2 (the lowest that describes the file)
+     12    2 minor            u16 = 0, 1, 2 or 3 (the lowest that describes the file)
      14    2 reserved         u16 = 0
-     16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2: a reader refuses any set bit it does not know)
+     16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2, bit 2 since 1.3: a reader refuses any set bit
+                                  it does not know)
      24    8 optional_flags   u64 (none defined in 1.0: unknown bits are ignored)
      32    8 file_length      u64, total container bytes
      40    4 header_length    u32, msgpack header bytes (starts at offset 64)
@@ -33,6 +34,16 @@ Section table entry (40 bytes), the table starting right after the header::
      32    4 crc32            u32, CRC-32 of the stored bytes
      36    4 reserved         u32 = 0
 
+Compact section table entry (18 bytes; format 1.3, required flag bit 2), payloads packed back to back
+except where an entry asks for 64-byte alignment::
+
+      0    4 type             4 ASCII letters/digits
+      4    1 flags            u8, bit 0 = critical, bit 1 = aligned (starts at a multiple of 64); other bits 0
+      5    1 compression      u8, 0 = stored raw, 1 = one zstd frame
+      6    4 stored_length    u32, bytes in the file
+     10    4 raw_length       u32, bytes after decompression (= stored_length when raw)
+     14    4 crc32            u32, CRC-32 of the stored bytes
+
 CRC-32 is the ISO-HDLC / zlib / PNG CRC (polynomial 0xEDB88320 reflected, init and xorout 0xFFFFFFFF).
 """
 
@@ -50,24 +61,41 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
-           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS", "BytesLike"]
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
+           "FLAG_COMPACT_CONTAINER", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size", "BytesLike"]
 
 # What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
 BytesLike = bytes | bytearray | memoryview
 
 SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
 FORMAT_MAJOR = 1
-FORMAT_MINOR = 2  # 1.1 adds the entropy-coded token encodings (required flag bit 0), 1.2 compact cameras (bit 1)
+# 1.1 adds the entropy-coded token encodings (required flag bit 0), 1.2 compact cameras (bit 1), 1.3 the compact
+# container (bit 2): zstd header with a spec-fixed dictionary, 18-byte table entries, unaligned payloads
+FORMAT_MINOR = 3
 FLAG_ENTROPY_CODED_TOKENS = 1 << 0  # required flag: token sections use an int<b>-rans encoding (1.1)
 FLAG_COMPACT_CAMERAS = 1 << 1  # required flag: the cameras section uses the compact encoding (1.2, I.5.1)
-KNOWN_REQUIRED_FLAGS = FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS
+FLAG_COMPACT_CONTAINER = 1 << 2  # required flag: compact header, table and quaternion poses (1.3, I.3.1, I.4.1)
+KNOWN_REQUIRED_FLAGS = FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS | FLAG_COMPACT_CONTAINER
+# The version that introduced each required flag: in a file that says an older minor version the flag is
+# unknown, and the file is refused as a reader of that version would (UnsupportedFeatureError).  Bit 1 keeps its
+# 1.2 rule (MalformedHeaderError in files below 1.2, checked by the reader), which its golden vectors pin.
+FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3}
 FLAG_CRITICAL = 0x0001
+FLAG_ALIGNED = 0x0002  # compact table entries only: the payload starts at a multiple of 64
+COMPACT_ENTRY_SIZE = 18
 COMPRESSION_RAW, COMPRESSION_ZSTD = 0, 1
 
 _PREAMBLE = struct.Struct("<9sBHHHQQQIIIIII")
 _ENTRY = struct.Struct("<4sHBBQQQII")
+_COMPACT_ENTRY = struct.Struct("<4sBBIII")
 _TYPE = re.compile(rb"[A-Za-z0-9]{4}")
 assert _PREAMBLE.size == PREAMBLE_SIZE and _ENTRY.size == SECTION_ENTRY_SIZE
+assert _COMPACT_ENTRY.size == COMPACT_ENTRY_SIZE
+
+
+def entry_size(required_flags: int) -> int:
+    """Bytes of one section-table entry: 18 in a compact container (required flag bit 2), else 40."""
+    return COMPACT_ENTRY_SIZE if required_flags & FLAG_COMPACT_CONTAINER else SECTION_ENTRY_SIZE
 
 
 def crc32(data: BytesLike) -> int:
@@ -101,6 +129,7 @@ class SectionEntry:
     stored_length: int
     raw_length: int
     crc32: int
+    aligned: bool = True  # starts at a multiple of 64 (always in the 40-byte table; per entry in the compact one)
 
 
 def pack_preamble(p: Preamble) -> bytes:
@@ -154,11 +183,15 @@ def parse_preamble(data: BytesLike) -> Preamble:
         raise UnsupportedFeatureError(
             f"the file requires feature flag(s) 0x{unknown:016x} this reader does not know; upgrade vt4dcodec"
         )
+    for flag, since in FLAG_SINCE_MINOR.items():
+        if req & flag and minor < since:
+            raise UnsupportedFeatureError(
+                f"the file says format 1.{minor}, which has no required flag 0x{flag:x} (defined from 1.{since} on)")
     if header_length > MAX_HEADER_BYTES:
         raise LimitExceededError(f"header length {header_length} exceeds the {MAX_HEADER_BYTES}-byte limit")
     if count > MAX_SECTIONS:
         raise LimitExceededError(f"{count} sections exceed the limit of {MAX_SECTIONS}")
-    table_end = PREAMBLE_SIZE + header_length + count * SECTION_ENTRY_SIZE
+    table_end = PREAMBLE_SIZE + header_length + count * entry_size(req)
     if file_length < table_end:
         raise MalformedSectionError(
             f"declared file length {file_length} is shorter than its own header and section table ({table_end})"
@@ -166,7 +199,14 @@ def parse_preamble(data: BytesLike) -> Preamble:
     return Preamble(major, minor, req, opt, file_length, header_length, header_crc, count, table_crc)
 
 
-def pack_table(entries: list[SectionEntry]) -> bytes:
+def pack_table(entries: list[SectionEntry], *, compact: bool = False) -> bytes:
+    if compact:
+        return b"".join(
+            _COMPACT_ENTRY.pack(e.type.encode("ascii"), (FLAG_CRITICAL if e.critical else 0)
+                                | (FLAG_ALIGNED if e.aligned else 0), e.compression, e.stored_length, e.raw_length,
+                                e.crc32)
+            for e in entries
+        )
     return b"".join(
         _ENTRY.pack(e.type.encode("ascii"), FLAG_CRITICAL if e.critical else 0, e.compression, 0, e.offset,
                     e.stored_length, e.raw_length, e.crc32, 0)
@@ -174,21 +214,32 @@ def pack_table(entries: list[SectionEntry]) -> bytes:
     )
 
 
-def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int) -> list[SectionEntry]:
+def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int, *,
+                compact: bool = False) -> list[SectionEntry]:
     """Parse ``count`` entries and check the canonical layout: each payload starts at the 64-aligned end
-    of the previous one (the first after the table), no overlap, and the last one ends the container."""
+    of the previous one (the first after the table), no overlap, and the last one ends the container.
+
+    ``compact`` (format 1.3): 18-byte entries without offsets; each payload starts right where the previous
+    one ended (the first right after the table), or at the next multiple of 64 when its entry says aligned."""
     entries: list[SectionEntry] = []
-    expected_offset = align(table_end)
+    cursor = table_end
     seen: set[str] = set()
+    known_flags = FLAG_CRITICAL | (FLAG_ALIGNED if compact else 0)
     for i in range(count):
-        tcode, flags, comp, res8, offset, stored, rawlen, crc, res32 = _ENTRY.unpack_from(raw, i * SECTION_ENTRY_SIZE)
+        if compact:
+            tcode, flags, comp, stored, rawlen, crc = _COMPACT_ENTRY.unpack_from(raw, i * COMPACT_ENTRY_SIZE)
+            res8 = res32 = 0
+            offset = expected_offset = align(cursor) if flags & FLAG_ALIGNED else cursor
+        else:
+            tcode, flags, comp, res8, offset, stored, rawlen, crc, res32 = _ENTRY.unpack_from(raw, i * SECTION_ENTRY_SIZE)
+            expected_offset = align(cursor)
         if not _TYPE.fullmatch(tcode):
             raise MalformedSectionError(f"section {i} has an invalid type code {tcode!r}")
         name = tcode.decode("ascii")
         if name in seen:
             raise MalformedSectionError(f"section {name} appears twice")
         seen.add(name)
-        if flags & ~FLAG_CRITICAL or res8 or res32:
+        if flags & ~known_flags or res8 or res32:
             raise MalformedSectionError(f"section {name} sets reserved bits or bytes")
         if comp not in (COMPRESSION_RAW, COMPRESSION_ZSTD):
             if flags & FLAG_CRITICAL:
@@ -205,8 +256,9 @@ def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int) ->
             raise MalformedSectionError(f"section {name} ({offset}..{end}) runs past the container end {file_length}")
         if comp == COMPRESSION_RAW and stored != rawlen:
             raise MalformedSectionError(f"raw section {name}: stored length {stored} != raw length {rawlen}")
-        entries.append(SectionEntry(name, bool(flags & FLAG_CRITICAL), comp, offset, stored, rawlen, crc))
-        expected_offset = align(end)
+        entries.append(SectionEntry(name, bool(flags & FLAG_CRITICAL), comp, offset, stored, rawlen, crc,
+                                    not compact or bool(flags & FLAG_ALIGNED)))
+        cursor = end
     last_end = entries[-1].offset + entries[-1].stored_length if entries else table_end
     if last_end != file_length:
         raise MalformedSectionError(f"the last section ends at {last_end} but the container is {file_length} bytes")

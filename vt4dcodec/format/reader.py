@@ -15,9 +15,9 @@ from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
 from .compact_cameras import unpack_compact_cameras
-from .layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike, Preamble, SectionEntry,
-                     crc32, parse_preamble, parse_table)
-from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
+from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike,
+                     Preamble, SectionEntry, crc32, entry_size, parse_preamble, parse_table)
+from .limits import PREAMBLE_SIZE
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, section_payload, unpack_cameras)
@@ -125,14 +125,16 @@ class SceneFile:
         if crc32(header_raw) != pre.header_crc32:
             raise ChecksumError("the header checksum does not match: the header bytes are damaged")
         table_start = PREAMBLE_SIZE + pre.header_length
-        table_end = table_start + pre.section_count * SECTION_ENTRY_SIZE
+        table_end = table_start + pre.section_count * entry_size(pre.required_flags)
         table_raw = data[table_start:table_end]
         if crc32(table_raw) != pre.table_crc32:
             raise ChecksumError("the section table checksum does not match: the table is damaged")
         self.preamble: Preamble = pre
-        self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR)
+        compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
+        self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR, compressed=compact)
         self._check_encoding_version()
-        self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length)
+        self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length,
+                                                        compact=compact)
         self._by_type = {e.type: e for e in self.sections}
         self._check_section_set()
         self._cameras: Trajectory | None = None
@@ -252,6 +254,12 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_COMPACT_CAMERAS)
 
     @property
+    def compact_container(self) -> bool:
+        """Whether the file is a compact container (format 1.3, required flag bit 2): zstd header with the
+        spec-fixed dictionary, 18-byte table entries, packed payloads, quaternion poses allowed."""
+        return bool(self.preamble.required_flags & FLAG_COMPACT_CONTAINER)
+
+    @property
     def token_bytes(self) -> int:
         """Stored bytes of the token sections (``ZSTA``, ``ZDYN``; the ``Q`` sections are not counted)."""
         return sum(e.stored_length for e in self.sections if e.type in (SECTION_STATIC, SECTION_DYNAMIC))
@@ -261,8 +269,11 @@ class SceneFile:
     def cameras(self) -> Trajectory:
         """The source camera trajectory (K, w2c, size, distortion, timestamps)."""
         if self._cameras is None:
-            unpack = unpack_compact_cameras if self.compact_cameras else unpack_cameras
-            self._cameras = unpack(self.raw_section(SECTION_CAMERAS), self._info.cameras)
+            raw = self.raw_section(SECTION_CAMERAS)
+            if self.compact_cameras:
+                self._cameras = unpack_compact_cameras(raw, self._info.cameras, quaternions=self.compact_container)
+            else:
+                self._cameras = unpack_cameras(raw, self._info.cameras)
         return self._cameras
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
@@ -311,7 +322,8 @@ class SceneFile:
     def verify(self) -> None:
         """Check every byte: padding is zero, every section's checksum, size, and decoded content
         (including ancillary sections' checksums).  Raises the FormatError subclass of the first problem."""
-        end = PREAMBLE_SIZE + self.preamble.header_length + self.preamble.section_count * SECTION_ENTRY_SIZE
+        end = (PREAMBLE_SIZE + self.preamble.header_length
+               + self.preamble.section_count * entry_size(self.preamble.required_flags))
         for entry in self.sections:
             if any(self._data[end:entry.offset]):
                 raise MalformedSectionError(f"padding before section {entry.type} is not zero")
@@ -355,11 +367,12 @@ class SceneFile:
 
     def camera_encoding(self) -> str:
         """"float64" (the 1.0 cameras section) or "compact-float32" / "compact-float64" (I.5.1, read from
-        the checksum-verified section's first byte)."""
+        the checksum-verified section's first byte), with "-quaternion" when the poses are quaternions (I.5.2)."""
         if not self.compact_cameras:
             return "float64"
         payload = self.raw_section(SECTION_CAMERAS)
-        return {4: "compact-float32", 8: "compact-float64"}.get(payload[0] if len(payload) else -1, "compact-invalid")
+        name = {4: "compact-float32", 8: "compact-float64"}.get(payload[0] if len(payload) else -1, "compact-invalid")
+        return name + ("-quaternion" if len(payload) > 1 and payload[1] & 4 and self.compact_container else "")
 
     def __repr__(self) -> str:
         return (f"<SceneFile v{self.preamble.major}.{self.preamble.minor} {self.nbytes} bytes, {self.encoding}, "

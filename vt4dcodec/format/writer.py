@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+from collections.abc import Sequence
 from typing import BinaryIO
 
 from ..errors import FormatError
@@ -11,51 +12,68 @@ from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, pack_header
 from .encodings import is_entropy_coded
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
-from .layout import (FLAG_COMPACT_CAMERAS, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
-                     pack_preamble, pack_table)
-from .limits import PREAMBLE_SIZE, SECTION_ENTRY_SIZE
+from .header import compress_header
+from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble,
+                     SectionEntry, align, crc32, entry_size, pack_preamble, pack_table)
+from .limits import PREAMBLE_SIZE
 from .scene import Scene
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, compress_payload, pack_cameras)
 
-__all__ = ["dumps", "save", "build_container", "DEFAULT_COMPRESSION_LEVEL"]
+__all__ = ["dumps", "save", "build_container", "DEFAULT_COMPRESSION_LEVEL", "HEADER_MODES"]
+
+HEADER_MODES = ("compact", "legacy")  # what save(header=...) offers: see dumps
 
 DEFAULT_COMPRESSION_LEVEL = 9  # zstd level; see docs/benchmarks/format.md for the size/speed trade
 
 
-def build_container(header: bytes, sections: list[tuple[str, bool, int, bytes, int]], *,
-                    minor: int = 0, required_flags: int = 0, optional_flags: int = 0) -> bytes:
+# (type, critical, compression, stored bytes, raw length[, aligned])
+SectionParts = tuple[str, bool, int, bytes, int] | tuple[str, bool, int, bytes, int, bool]
+
+
+def build_container(header: bytes, sections: Sequence[SectionParts], *,
+                    minor: int = 0, required_flags: int = 0, optional_flags: int = 0,
+                    compact_layout: bool | None = None) -> bytes:
     """Lay out a container from already-encoded parts.
 
-    ``sections`` holds ``(type, critical, compression, stored_bytes, raw_length)`` in file order.  Used by
-    :func:`dumps` and by the test-vector generator (which builds deliberately unusual files).
+    ``sections`` holds ``(type, critical, compression, stored_bytes, raw_length[, aligned])`` in file order;
+    ``aligned`` counts in a compact container only (required flag bit 2: 18-byte entries, payloads packed,
+    an aligned one at the next multiple of 64; the header given is stored as it is, already compressed).
+    Used by :func:`dumps` and by the test-vector generator (which builds deliberately unusual files, and
+    may ask with ``compact_layout`` for the other table layout than the flags say).
     """
-    table_end = PREAMBLE_SIZE + len(header) + SECTION_ENTRY_SIZE * len(sections)
-    entries, offset = [], align(table_end)
-    for name, critical, compression, stored, raw_length in sections:
-        entries.append(SectionEntry(name, critical, compression, offset, len(stored), raw_length, crc32(stored)))
-        offset = align(offset + len(stored))
-    file_length = entries[-1].offset + entries[-1].stored_length if entries else table_end
-    table = pack_table(entries)
+    compact = bool(required_flags & FLAG_COMPACT_CONTAINER) if compact_layout is None else compact_layout
+    table_end = PREAMBLE_SIZE + len(header) + entry_size(FLAG_COMPACT_CONTAINER if compact else 0) * len(sections)
+    entries, cursor = [], table_end
+    for section in sections:
+        name, critical, compression, stored, raw_length = section[0], section[1], section[2], section[3], section[4]
+        aligned = not compact or any(section[5:])
+        offset = align(cursor) if aligned else cursor
+        entries.append(SectionEntry(name, critical, compression, offset, len(stored), raw_length, crc32(stored),
+                                    aligned))
+        cursor = offset + len(stored)
+    file_length = cursor
+    table = pack_table(entries, compact=compact)
     preamble = pack_preamble(Preamble(FORMAT_MAJOR, minor, required_flags, optional_flags, file_length,
                                       len(header), crc32(header), len(entries), crc32(table)))
     out = bytearray(file_length)
     out[:PREAMBLE_SIZE] = preamble
     out[PREAMBLE_SIZE:PREAMBLE_SIZE + len(header)] = header
     out[PREAMBLE_SIZE + len(header):table_end] = table
-    for entry, (_, _, _, stored, _) in zip(entries, sections):
-        out[entry.offset:entry.offset + len(stored)] = stored
+    for entry, section in zip(entries, sections):
+        out[entry.offset:entry.offset + entry.stored_length] = section[3]
     return bytes(out)
 
 
 def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
-          cameras: str = "compact") -> bytes:
+          cameras: str = "compact", header: str = "compact") -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
-    The file says the lowest format version that describes it: 1.2 with required flag bit 1 for compact
-    cameras (the default); otherwise 1.0 for the float, int8 and int4 encodings (byte-identical to a 1.0
-    writer's output), 1.1 with required flag bit 0 for ``int<b>-rans`` (bit 0 is set in 1.2 files too).
+    The file says the lowest format version that describes it: 1.3 with required flag bit 2 for the compact
+    container (the default); else 1.2 with required flag bit 1 for compact cameras; otherwise 1.0 for the
+    float, int8 and int4 encodings (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0
+    for ``int<b>-rans`` (bit 0 is set in 1.2 and 1.3 files too).
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
@@ -66,7 +84,13 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         cameras: how the cameras section stores the trajectory (FORMAT.md I.5, I.5.1): ``"compact"``
             (format 1.2: float32 when no reprojection moves more than 0.01 px, else float64; one record for
             a constant K or a static pose), ``"exact"`` (format 1.2, float64: reads back bit for bit) or
-            ``"legacy"`` (the 1.0 float64 section, for readers older than 1.2).
+            ``"legacy"`` (the 1.0 float64 section, for readers older than 1.2).  In a compact container
+            ``"compact"`` may store rotations as float32 quaternions (FORMAT.md I.5.2) under the same 0.01 px rule.
+        header: ``"compact"`` (format 1.3, FORMAT.md I.3.1 and I.4.1: the header as one zstd frame with the
+            spec-fixed dictionary and binary digests, 18-byte table entries, payloads packed except raw fixed-width token arrays,
+            which stay 64-aligned for zero-copy reading) or ``"legacy"`` (the msgpack header, 40-byte entries
+            and 64-aligned payloads of 1.0 to 1.2, for readers older than 1.3; with ``cameras="legacy"`` too,
+            the file reads in 1.0 and 1.1 readers).
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -75,11 +99,16 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ENCODINGS}")
     if cameras not in CAMERA_MODES:
         raise FormatError(f"unknown cameras mode {cameras!r}; choose one of {CAMERA_MODES}")
+    if header not in HEADER_MODES:
+        raise FormatError(f"unknown header mode {header!r}; choose one of {HEADER_MODES}")
+    compact = header == "compact"
     layout, cams = pack_cameras(scene.cameras)
     if cameras != "legacy":
-        cams = pack_compact_cameras(scene.cameras, cameras)
-    header = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
-                                    scene.provenance, scene.metadata, {}))
+        cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact)
+    head = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
+                                  scene.provenance, scene.metadata, {}), binary_digests=compact)
+    if compact:
+        head = compress_header(head)
     parts = [(SECTION_CAMERAS, cams)]
     for tokens, tok_name, quant_name in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT),
                                          (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)):
@@ -87,25 +116,31 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         if enc.quant is not None:
             parts.append((quant_name, enc.quant))
         parts.append((tok_name, enc.tokens))
-    sections = []
+    sections: list[SectionParts] = []
     entropy_coded = is_entropy_coded(encoding)
     for name, raw in parts:
+        tokens_section = name in (SECTION_STATIC, SECTION_DYNAMIC)
         # rANS streams are incompressible: their sections are stored raw without trying zstd (FORMAT.md I.6.1)
-        level = None if entropy_coded and name in (SECTION_STATIC, SECTION_DYNAMIC) else compression_level
+        level = None if entropy_coded and tokens_section else compression_level
         compression, stored = compress_payload(raw, level)
-        sections.append((name, True, compression, stored, len(raw)))
-    flags = (FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
-    minor = 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0
-    return build_container(header, sections, minor=minor, required_flags=flags)
+        # a compact container aligns only what a reader can use in place: raw fixed-width token arrays
+        aligned = tokens_section and not entropy_coded and compression == COMPRESSION_RAW
+        sections.append((name, True, compression, stored, len(raw), aligned))
+    flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
+             | (FLAG_COMPACT_CONTAINER if compact else 0))
+    minor = 3 if compact else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0
+    return build_container(head, sections, minor=minor, required_flags=flags)
 
 
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
-         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact") -> int:
+         compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
+         header: str = "compact") -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
-    data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras)
+    data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
+                 header=header)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)

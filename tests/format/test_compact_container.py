@@ -1,0 +1,193 @@
+"""Format 1.3, the compact container (FORMAT.md I.3.1, I.4.1, I.5.2): the writer's default, what it costs
+besides the tokens, the legacy knob, and that damage anywhere still ends in a typed error."""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from format_strategies import load_vector_tool, simple_scene
+from vt4dcodec.errors import FormatError, LimitExceededError, MalformedHeaderError, UnsupportedFeatureError
+from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, dumps, loads, open_scene
+from vt4dcodec.format import layout
+from vt4dcodec.format.compact_cameras import (REPROJECTION_TOLERANCE_PX, quaternion_to_rotation,
+                                              reprojection_change, rotation_to_quaternion)
+from vt4dcodec.format.header import HEADER_DICTIONARY, compress_header, decompress_header
+from vt4dcodec.synth import SynthConfig, generate_scene
+
+mv = load_vector_tool()
+
+
+def default_like_scene(camera: int = 0, seed: int = 0) -> Scene:
+    """What `vt4d encode` writes for one camera of a held-out synthetic capture with vt4d-tiny: 8 frames at
+    64x64 with timestamps, Z_s 64x32 and Z_d 32x32, int4-rans, provenance and the encoder's metadata."""
+    cap = generate_scene(seed, split="test", config=SynthConfig(num_frames=8, height=64, width=64)).capture
+    rng = np.random.default_rng(seed)
+    fp = ModelFingerprint("vt4d-tiny", "0.4.0", hashlib.sha256(b"c%d" % seed).hexdigest(),
+                          hashlib.sha256(b"w%d" % seed).hexdigest(), (64, 32), (32, 32))
+    name = cap.camera_names[camera]
+    return Scene(rng.standard_normal((64, 32)), rng.standard_normal((32, 32)), cap.cameras[name], fp,
+                 metadata={"vt4d": {"source_camera": name, "clip_start": 0, "clip_frames": 8,
+                                    "depth_source": "capture"}},
+                 provenance=Provenance("0.1.0", "2026-11-29T23:47:02Z", cap.capture_id, "encoded"),
+                 encoding="int4-rans")
+
+
+@pytest.mark.parametrize("seed,camera", [(0, 0), (1, 3), (2, 9), (5, 5)])
+def test_a_default_single_camera_scene_has_at_most_512_non_token_bytes(seed, camera):
+    """Issue 13's target: file bytes minus the token sections, as `vt4d info --json` reports them."""
+    scene = default_like_scene(camera, seed)
+    f = open_scene(dumps(scene))
+    non_token = f.nbytes - f.token_bytes
+    assert f.version == (1, 3) and non_token <= 512, non_token
+    legacy = open_scene(dumps(scene, header="legacy"))
+    assert legacy.version == (1, 2) and legacy.nbytes - legacy.token_bytes > 1000  # what 1.2 spent
+    assert f.header == legacy.header and f.fingerprint == scene.fingerprint  # binary digests read back as hex
+    assert reprojection_change(scene.cameras, loads(dumps(scene)).cameras) <= REPROJECTION_TOLERANCE_PX
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+@pytest.mark.parametrize("cameras", ["compact", "exact", "legacy"])
+def test_every_encoding_and_cameras_mode_round_trips_in_both_layouts(encoding, cameras):
+    scene = default_like_scene()
+    compact, legacy = loads(dumps(scene, encoding=encoding, cameras=cameras)), loads(
+        dumps(scene, encoding=encoding, cameras=cameras, header="legacy"))
+    assert np.array_equal(compact.static_tokens, legacy.static_tokens)
+    assert np.array_equal(compact.dynamic_tokens, legacy.dynamic_tokens)
+    assert compact.fingerprint == scene.fingerprint and compact.provenance == scene.provenance
+    assert compact.metadata == scene.metadata
+    if cameras == "compact":
+        assert reprojection_change(scene.cameras, compact.cameras) <= REPROJECTION_TOLERANCE_PX
+    else:  # float64 matrices: bit for bit in either layout
+        assert compact.cameras.equals(scene.cameras) and legacy.cameras.equals(scene.cameras)
+
+
+def test_versions_and_flags_the_writer_says():
+    scene = simple_scene(ns=6, d=4)
+    for kw, version, flags in (({}, (1, 3), 6), ({"encoding": "int4-rans"}, (1, 3), 7),
+                               ({"cameras": "legacy"}, (1, 3), 4), ({"header": "legacy"}, (1, 2), 2),
+                               ({"header": "legacy", "cameras": "legacy"}, (1, 0), 0),
+                               ({"header": "legacy", "cameras": "legacy", "encoding": "int4-rans"}, (1, 1), 1)):
+        f = open_scene(dumps(scene, **kw))
+        assert (f.version, f.preamble.required_flags) == (version, flags), kw
+        assert f.compact_container == bool(flags & 4)
+    with pytest.raises(FormatError, match="header mode"):
+        dumps(scene, header="tiny")
+
+
+def test_a_1_2_reader_refuses_compact_containers_by_the_required_flag(monkeypatch):
+    data = dumps(simple_scene())
+    monkeypatch.setattr(layout, "KNOWN_REQUIRED_FLAGS", layout.FLAG_ENTROPY_CODED_TOKENS | layout.FLAG_COMPACT_CAMERAS)
+    with pytest.raises(UnsupportedFeatureError, match="upgrade"):
+        loads(data)
+    loads(dumps(simple_scene(), header="legacy"))
+
+
+def test_raw_fixed_width_tokens_stay_64_aligned_and_zero_copy():
+    data = dumps(simple_scene(ns=5, nd=3, d=4, encoding="float32"), compression_level=None)
+    f = open_scene(data)
+    by_type = {e.type: e for e in f.sections}
+    assert by_type["ZSTA"].aligned and by_type["ZSTA"].offset % 64 == 0 and by_type["ZDYN"].offset % 64 == 0
+    assert not by_type["CAMS"].aligned and by_type["CAMS"].offset == 64 + f.preamble.header_length + 18 * 3
+    z = f.static_tokens()
+    assert not z.flags.owndata and not z.flags.writeable  # a view into the file's bytes
+    rans = open_scene(dumps(simple_scene(ns=5, nd=3, d=4), encoding="int5-rans", compression_level=None))
+    assert not any(e.aligned for e in rans.sections)  # rANS streams are read, never mapped: packed
+
+
+def test_header_dictionary_is_pinned():
+    """Spec-fixed (FORMAT.md I.3.1): changing one byte changes how every 1.3 file decodes."""
+    assert len(HEADER_DICTIONARY) == 638 and zlib.crc32(HEADER_DICTIONARY) == 0xC95A6BEA
+
+
+def test_compact_header_frame_rules():
+    raw = b"\x80"  # an empty map
+    assert decompress_header(compress_header(raw)) == raw
+    with pytest.raises(LimitExceededError):
+        decompress_header(compress_header(b"\x80" + bytes(1 << 20)))
+    with pytest.raises(MalformedHeaderError, match="follow"):
+        decompress_header(compress_header(raw) + compress_header(raw))
+    with pytest.raises(MalformedHeaderError, match="not a zstd frame"):
+        decompress_header(raw)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.data())
+def test_damaged_compact_header_only_raises_format_errors(data):
+    """Byte edits inside the stored (compressed) header, CRCs fixed so decompression itself is attacked:
+    a header or a FormatError, never anything else, and nothing large allocated (the frame is bounded)."""
+    good = dumps(simple_scene(provenance=Provenance("0.1.0", "2026-01-01T00:00:00Z", "cap", "encoded")))
+    pre = layout.parse_preamble(good)
+    stored = bytearray(good[64:64 + pre.header_length])
+    for _ in range(data.draw(st.integers(1, 4))):
+        stored[data.draw(st.integers(0, len(stored) - 1))] = data.draw(st.integers(0, 255))
+    cut = data.draw(st.integers(len(stored) - 3, len(stored)))
+    _, sections = mv.split(good)
+    try:
+        loads(mv.rebuild_1_3(bytes(stored[:cut]), sections, compress=False))
+    except FormatError:
+        pass
+
+
+def test_quaternions_round_trip_and_keep_their_sign_from_frame_to_frame():
+    rng = np.random.default_rng(3)
+    q = rng.standard_normal((50, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R = quaternion_to_rotation(q)
+    assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-12) and np.allclose(np.linalg.det(R), 1)
+    back = rotation_to_quaternion(R)
+    assert np.allclose(quaternion_to_rotation(back), R, atol=1e-12)
+    smooth = quaternion_to_rotation(np.cumsum(np.full((20, 4), 0.05), axis=0) + [1, 0, 0, 0])
+    signs = rotation_to_quaternion(smooth)
+    assert np.all(np.einsum("ni,ni->n", signs[1:], signs[:-1]) > 0)
+    # the formula normalises: any non-zero scale of q is the same rotation
+    assert np.allclose(quaternion_to_rotation(3.0 * q), R, atol=1e-12)
+
+
+def test_quaternion_formula_is_the_one_format_md_writes():
+    """I.5.2, operation for operation in Python floats: the same bits as the vectorised reader."""
+    w, x, y, z = 0.5, -0.25, 0.125, 0.8
+    n = ((w * w + x * x) + y * y) + z * z
+    s = 2 / n
+    spec = [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y),
+            s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x),
+            s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)]
+    assert quaternion_to_rotation(np.array([[w, x, y, z]]))[0].ravel().tolist() == spec
+
+
+def test_table_crc_covers_the_18_byte_entries():
+    data = bytearray(dumps(simple_scene()))
+    pre = layout.parse_preamble(bytes(data))
+    table_at = 64 + pre.header_length
+    struct.pack_into("<I", data, table_at + 6, struct.unpack_from("<I", data, table_at + 6)[0] + 1)
+    with pytest.raises(FormatError, match="table"):
+        loads(bytes(data))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 10), st.booleans())
+def test_saving_a_loaded_scene_again_gives_the_same_bytes(seed, frames, float32_matrices):
+    """The writer's quaternions are the ones it finds again from the rotations they decode to (and a file of
+    float32 matrices stays one), so load + save is a fixed point and resaving never drifts."""
+    from vt4dcodec.cameras import Trajectory
+
+    rng = np.random.default_rng(seed)
+    q = rng.standard_normal((frames, 4))
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, :3, :3] = quaternion_to_rotation(q)
+    w2c[:, :3, 3] = rng.uniform(-3, 3, (frames, 3))
+    if float32_matrices:
+        w2c = w2c.astype(np.float32).astype(np.float64)
+    K = np.tile(np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 31.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
+    base = simple_scene(ns=2, nd=1, d=2)
+    scene = Scene(base.static_tokens, base.dynamic_tokens, Trajectory(K, w2c, 64, 64), base.fingerprint)
+    if float32_matrices:
+        scene = loads(dumps(scene, header="legacy"))  # a 1.2 file of float32 matrices, read back
+    first = dumps(scene)
+    assert dumps(loads(first)) == first
