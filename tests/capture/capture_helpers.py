@@ -70,3 +70,14 @@ def numbered_video(T, H=48, W=64):
     """Frames whose frame number can be read back after lossy coding: a grey level per frame."""
     levels = np.linspace(16, 239, T).round().astype(np.uint8)
     return np.broadcast_to(levels[:, None, None, None], (T, H, W, 3)).copy()
+
+
+def video_capture(directory, videos, num_frames, width, height, fps=25.0):
+    """A capture directory whose cameras' media are the given video files (name -> file in directory)."""
+    from vt4dcodec.capture.io import CAPTURE_FORMAT, CAPTURE_VERSION, camera_json, read_manifest, write_manifest
+
+    cams = [camera_json(name, make_trajectory(1, width, height, moving=False, timestamps=False),
+                        {"type": "mp4", "path": file}, None) for name, file in videos.items()]
+    write_manifest(directory, {"format": CAPTURE_FORMAT, "version": CAPTURE_VERSION, "fps": fps,
+                               "num_frames": num_frames, "cameras": cams})
+    return read_manifest(directory)

@@ -6,20 +6,10 @@ import pytest
 
 from vt4dcodec.capture import read_capture, write_capture
 from vt4dcodec.capture import video as video_mod
-from vt4dcodec.capture.io import (CAPTURE_FORMAT, CAPTURE_VERSION, MAX_READ_PIXELS, camera_json, read_camera_frames,
-                                  read_manifest, write_manifest)
+from vt4dcodec.capture.io import MAX_READ_PIXELS, read_camera_frames
 from vt4dcodec.errors import CaptureError
 
-from capture_helpers import make_capture, make_trajectory, numbered_video, write_video
-
-
-def video_capture(directory, videos, num_frames, width, height, fps=25.0):
-    """A capture directory whose cameras' media are the given video files (name -> file in directory)."""
-    cams = [camera_json(name, make_trajectory(1, width, height, moving=False, timestamps=False),
-                        {"type": "mp4", "path": file}, None) for name, file in videos.items()]
-    write_manifest(directory, {"format": CAPTURE_FORMAT, "version": CAPTURE_VERSION, "fps": fps,
-                               "num_frames": num_frames, "cameras": cams})
-    return read_manifest(directory)
+from capture_helpers import make_capture, numbered_video, video_capture, write_video
 
 
 def decoded_all(path):
