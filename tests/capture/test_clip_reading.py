@@ -128,3 +128,18 @@ def test_limits_apply_to_what_is_read(tmp_path):
         read_camera_frames(manifest, "cam3")
     with pytest.raises(CaptureError, match="missing video"):  # the limit passes; only the media are missing
         read_capture(tmp_path, cameras=["cam3"], start=20_000, num_frames=8)
+
+
+def test_a_contact_sheet_reads_only_the_frames_it_shows(tmp_path):
+    from vt4dcodec.capture.contact_sheet import contact_sheet, read_sheet_frames
+
+    T = 30
+    write_video(tmp_path / "a.mp4", numbered_video(T), "libx264", container="mp4", options={"g": "5"})
+    write_video(tmp_path / "b.webm", numbered_video(T)[::-1].copy(), "libvpx-vp9", container="webm")
+    video_capture(tmp_path, {"a": "a.mp4", "b": "b.webm"}, T, 64, 48)
+    shown, numbers = read_sheet_frames(tmp_path, 4)
+    assert numbers == [0, 10, 19, 29] and shown.num_frames == 4
+    whole = read_capture(tmp_path)
+    for name in ("a", "b"):
+        np.testing.assert_array_equal(shown.frames[name], whole.frames[name][numbers])
+    np.testing.assert_array_equal(contact_sheet(shown, frame_numbers=numbers), contact_sheet(whole, max_frames=4))
