@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import CaptureError
 from .capture import Capture
+from .io import read_capture, read_manifest
 
 __all__ = ["contact_sheet", "write_contact_sheet", "read_sheet_frames"]
 
@@ -31,8 +32,6 @@ def _frame_indices(total: int, max_frames: int) -> np.ndarray:
 def read_sheet_frames(directory: "str | os.PathLike", max_frames: int = 8) -> tuple[Capture, list[int]]:
     """The ``max_frames`` evenly spaced frames a sheet of the capture directory shows, every camera, read
     one frame at a time (videos seeked): (a capture of just those frames, their frame numbers)."""
-    from .io import read_capture, read_manifest
-
     manifest = read_manifest(directory)
     numbers = [int(i) for i in _frame_indices(manifest.num_frames, max_frames)]
     parts = [read_capture(manifest, start=i, num_frames=1) for i in numbers]
