@@ -7,10 +7,16 @@ the model that made it.  It imports torch lazily, so ``import vt4dcodec`` stays 
 
 Clip policy (documented in README and FORMAT.md "Captures"): a model encodes clips of exactly
 ``config.frames`` frames at ``config.image_size`` pixels square.  Larger frames are undistorted,
-resized (shorter side) and centre-cropped with the intrinsics updated; :func:`encode` takes the
+resized (shorter side) and centre-cropped with the intrinsics updated (``fit="pad"`` instead resizes
+the longer side and letterboxes: the whole picture on black bars, recorded in the scene so renders
+of capture cameras are fitted the same way); :func:`encode` takes the
 ``config.frames`` frames starting at ``start`` and :func:`encode_clips` splits a long capture into
 consecutive clips (a shorter tail is dropped and reported).  A capture with fewer frames than the
 clip is rejected with :class:`~vt4dcodec.errors.CaptureError`.
+
+Given a capture directory, encoding reads only the clip: the encoded cameras' frames ``[start,
+start + config.frames)`` (videos seeked, not decoded whole; :mod:`vt4dcodec.capture.io`), so time and
+memory follow the clip, not the capture, and ``encode_clips`` reads one clip at a time.
 """
 
 from __future__ import annotations
@@ -25,8 +31,8 @@ import numpy as np
 
 from .cameras import Trajectory
 from .capture.capture import Capture
-from .capture.io import MANIFEST_NAME, read_capture
-from .capture.resample import fit_capture, fit_trajectory, plan_fit
+from .capture.io import MANIFEST_NAME, CaptureManifest, read_capture, read_manifest
+from .capture.resample import check_fit, fit_capture, fit_trajectory, plan_fit
 from .capture.targets import camera_target, cut_to_clip, is_camera_spec
 from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
@@ -37,7 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
-    "resolve_trajectory", "model_fingerprint", "parse_camera_list",
+    "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -75,16 +81,17 @@ def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
 
 
 # --- encoding ---------------------------------------------------------------------------------------
-def _as_capture(capture: "Capture | str | os.PathLike") -> Capture:
-    if isinstance(capture, Capture):
+def _open_source(capture: "Capture | CaptureManifest | str | os.PathLike") -> "Capture | CaptureManifest":
+    """An in-memory capture as it is; a capture directory as its manifest (no media read yet)."""
+    if isinstance(capture, (Capture, CaptureManifest)):
         return capture
-    return read_capture(capture)
+    return read_manifest(capture)
 
 
-def _pick_camera(capture: Capture, camera: str | None) -> str:
+def _pick_camera(capture: "Capture | CaptureManifest", camera: str | None) -> str:
     if camera is None:
         return capture.camera_names[0]
-    if camera not in capture.cameras:
+    if camera not in capture.camera_names:
         raise CaptureError(f"capture {capture.capture_id!r} has no camera {camera!r}; it has {capture.camera_names}")
     return camera
 
@@ -104,7 +111,8 @@ def parse_camera_list(cameras: "Sequence[str] | str", available: Sequence[str], 
     return names
 
 
-def _pick_cameras(capture: Capture, camera: str | None, cameras: "Sequence[str] | str | None") -> list[str]:
+def _pick_cameras(capture: "Capture | CaptureManifest", camera: str | None,
+                  cameras: "Sequence[str] | str | None") -> list[str]:
     """The encoded cameras: ``cameras`` ("all", or names in the order given) or the one ``camera``."""
     if cameras is None:
         return [_pick_camera(capture, camera)]
@@ -116,8 +124,34 @@ def _pick_cameras(capture: Capture, camera: str | None, cameras: "Sequence[str] 
     return names
 
 
+def _check_start(source: "Capture | CaptureManifest", start: int, frames: int) -> None:
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+        raise CaptureError(f"start must be a non-negative frame index, got {start!r}")
+    if start + frames > source.num_frames:
+        raise CaptureError(
+            f"capture {source.capture_id!r} has {source.num_frames} frames; a clip of {frames} frames starting at "
+            f"frame {start} does not fit (this model encodes exactly {frames} frames per scene)"
+        )
+
+
+def read_clip(capture: "Capture | CaptureManifest | str | os.PathLike", names: Sequence[str], start: int,
+              frames: int) -> Capture:
+    """Cameras ``names`` over frames ``[start, start + frames)`` as a capture of ``frames`` frames (frame 0 is
+    capture frame ``start``).  From a directory only that window of those cameras is decoded; an
+    in-memory capture is sliced without copying."""
+    source = _open_source(capture)
+    _check_start(source, start, frames)
+    if isinstance(source, CaptureManifest):
+        return read_capture(source, cameras=list(names), start=int(start), num_frames=frames)
+    stop = int(start) + frames
+    return Capture(cameras={n: source.cameras[n][start:stop] for n in names},
+                   frames={n: source.frames[n][start:stop] for n in names},
+                   depth={n: source.depth[n][start:stop] for n in names if source.has_depth(n)} or None,
+                   fps=source.fps, capture_id=source.capture_id, metadata=source.metadata)
+
+
 def encode(
-    capture: "Capture | str | os.PathLike",
+    capture: "Capture | CaptureManifest | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
     encoding: str = DEFAULT_ENCODING,
     *,
@@ -126,6 +160,7 @@ def encode(
     start: int = 0,
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
+    fit: str = "crop",
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -134,7 +169,8 @@ def encode(
     tokens, fused from every encoded camera (the encoder's queries attend to all of them).
 
     Args:
-        capture: a :class:`Capture` or a capture directory.
+        capture: a :class:`Capture`, or a capture directory (or its manifest): then only the clip's
+            frames of the encoded cameras are read.
         model: shipped model id, model directory, or a loaded model.
         encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``;
             default :data:`DEFAULT_ENCODING`).
@@ -146,16 +182,24 @@ def encode(
         start: first frame of the clip; the clip is ``model.config.frames`` frames long.
         seed: seeds track sampling, so the same capture and seed give the same tokens.
         metadata: user key/values stored in the file (bounded; see FORMAT.md "Metadata").
+        fit: how frames of another aspect ratio become the model's square: ``"crop"`` (resize the
+            shorter side, centre-crop: a portrait 9:16 frame loses 44 % of its pixels) or ``"pad"``
+            (resize the longer side, letterbox on black bars: the whole picture is kept, at fewer
+            pixels; recorded as ``metadata["vt4d"]["fit"]``).
     Returns:
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
     """
-    cap = _as_capture(capture)
-    return _encode_clip(cap, load_model(model), encoding, _pick_cameras(cap, camera, cameras), start, seed, metadata)
+    source = _open_source(capture)
+    check_fit(fit)
+    net = load_model(model)
+    names = _pick_cameras(source, camera, cameras)
+    clip = read_clip(source, names, start, net.config.frames)
+    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit)
 
 
 def encode_clips(
-    capture: "Capture | str | os.PathLike",
+    capture: "Capture | CaptureManifest | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
     encoding: str = DEFAULT_ENCODING,
     *,
@@ -163,39 +207,34 @@ def encode_clips(
     cameras: "Sequence[str] | str | None" = None,
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
+    fit: str = "crop",
 ) -> list[Scene]:
-    """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each.
+    """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
+    (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
 
     A tail shorter than one clip is dropped; each scene's metadata records its ``clip_start``.
     """
-    cap = _as_capture(capture)
+    source = _open_source(capture)
+    check_fit(fit)
     net = load_model(model)
     T = net.config.frames
-    if cap.num_frames < T:
-        raise CaptureError(f"capture has {cap.num_frames} frames; model clips are {T} frames")
-    names = _pick_cameras(cap, camera, cameras)
-    return [_encode_clip(cap, net, encoding, names, s, seed, metadata) for s in range(0, cap.num_frames - T + 1, T)]
+    if source.num_frames < T:
+        raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")
+    names = _pick_cameras(source, camera, cameras)
+    return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit)
+            for s in range(0, source.num_frames - T + 1, T)]
 
 
-def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
-                 metadata: dict[str, Any] | None) -> Scene:
+def _encode_clip(clip: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
+                 metadata: dict[str, Any] | None, fit: str = "crop") -> Scene:
+    """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
     import torch  # lazy (and the inputs below): `import vt4dcodec` / `vt4d` load neither torch nor OpenCV
 
     from .model.inputs.preprocess import prepare_source
     from .model.inputs.source_inputs import SourceBatch
 
     cfg = net.config
-    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
-        raise CaptureError(f"start must be a non-negative frame index, got {start!r}")
-    if start + cfg.frames > cap.num_frames:
-        raise CaptureError(
-            f"capture {cap.capture_id!r} has {cap.num_frames} frames; a clip of {cfg.frames} frames starting at "
-            f"frame {start} does not fit (this model encodes exactly {cfg.frames} frames per scene)"
-        )
-    chosen = Capture(cameras={n: cap.cameras[n] for n in names}, frames={n: cap.frames[n] for n in names},
-                     depth={n: cap.depth[n] for n in names if cap.has_depth(n)} or None,
-                     fps=cap.fps, capture_id=cap.capture_id, metadata=cap.metadata)
-    fitted = fit_capture(chosen, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, start=start)
+    fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     clips, depth_sources = [], []
     for name in names:
         depth = fitted.depth[name] if fitted.has_depth(name) else None
@@ -209,18 +248,27 @@ def _encode_clip(cap: Capture, net: "VideoTok4D", encoding: str, names: list[str
                             "depth_source": depth_sources[0]}
     if len(names) > 1:
         info["source_cameras"] = list(names)
+    if fit != "crop":
+        info["fit"] = fit  # absent: "crop"
     return Scene(
         static_tokens=z_s[0].numpy().astype(np.float32),
         dynamic_tokens=z_d[0].numpy().astype(np.float32),
         cameras=fitted.cameras[names[0]],
         fingerprint=model_fingerprint(net),
         metadata={**(metadata or {}), "vt4d": info},
-        provenance=Provenance.now(cap.capture_id, "encoded"),
+        provenance=Provenance.now(clip.capture_id, "encoded"),
         encoding=encoding,
     )
 
 
 # --- decoding ---------------------------------------------------------------------------------------
+def scene_fit(metadata: dict[str, Any] | None) -> str:
+    """How the scene's clip was fitted to the model's square: ``"crop"`` (the default) or ``"pad"``."""
+    info = (metadata or {}).get("vt4d")
+    fit = info.get("fit", "crop") if isinstance(info, dict) else "crop"
+    return fit if fit in ("crop", "pad") else "crop"
+
+
 def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajectory, *, size: int,
                        max_frames: int, metadata: dict[str, Any] | None = None,
                        capture: "Capture | str | os.PathLike | None" = None,
@@ -232,7 +280,8 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
     ``"orbit:degrees=30,distance=2"`` (built from the scene's first source camera), or a path to a
     trajectory JSON file.  A trajectory longer than the scene is cut to the clip window recorded in the
     scene's ``metadata``.  Trajectories for another image size are resized and centre-cropped the way
-    captures are (intrinsics updated).
+    captures are (intrinsics updated), with the scene's recorded fit (``metadata["vt4d"]["fit"]``: a
+    scene encoded with ``fit="pad"`` letterboxes them too).
     """
     if isinstance(spec, Trajectory):
         traj = cut_to_clip(spec, metadata, max_frames)
@@ -255,7 +304,8 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
                               "ideal pinhole images; render the undistorted view with "
                               "dataclasses.replace(trajectory, distortion=None) or 'camera:NAME'")
     if (traj.width, traj.height) != (size, size):
-        traj = fit_trajectory(traj, plan_fit(traj.width, traj.height, out_height=size, out_width=size))
+        traj = fit_trajectory(traj, plan_fit(traj.width, traj.height, out_height=size, out_width=size,
+                                             fit=scene_fit(metadata)))
     return traj
 
 

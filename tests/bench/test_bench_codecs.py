@@ -3,24 +3,14 @@ end to end on a small random model and writes the results it claims."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_codecs.py"
-
-
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_codecs", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+BENCH = "bench_codecs"  # the script under test (conftest.py loads it)
 
 
 def _curve(psnrs, rate_at_20=100.0, decade_db=10.0, factor=1.0):

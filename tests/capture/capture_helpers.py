@@ -40,3 +40,44 @@ def make_capture(T=3, width=32, height=24, *, cameras=("cam_a", "cam_b"), depth=
     d = {cameras[0]: rng.uniform(0.5, 20.0, size=(T, height, width)).astype(np.float32)} if depth else None
     return Capture(cameras=trajs, frames=frames, depth=d, fps=10.0, capture_id="test",
                    metadata={"note": "unit test"})
+
+
+def write_video(path, frames, codec="libx264", *, container=None, rate=25, options=None, pts=None):
+    """Write RGB ``frames`` as one video with PyAV (``pts``: explicit timestamps in milliseconds, for
+    variable frame rates).  Returns the path."""
+    from fractions import Fraction
+
+    import av
+
+    T, H, W, _ = frames.shape
+    with av.open(str(path), "w", format=container) as out:
+        stream = out.add_stream(codec, rate=rate)
+        stream.width, stream.height = W, H
+        stream.pix_fmt = "yuvj420p" if codec == "mjpeg" else "rgb24" if codec == "png" else "yuv420p"
+        stream.options = dict(options or {})
+        if pts is not None:
+            stream.codec_context.time_base = Fraction(1, 1000)
+        for i, frame in enumerate(frames):
+            vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+            if pts is not None:
+                vf.pts, vf.time_base = int(pts[i]), Fraction(1, 1000)
+            out.mux(stream.encode(vf))
+        out.mux(stream.encode(None))
+    return path
+
+
+def numbered_video(T, H=48, W=64):
+    """Frames whose frame number can be read back after lossy coding: a grey level per frame."""
+    levels = np.linspace(16, 239, T).round().astype(np.uint8)
+    return np.broadcast_to(levels[:, None, None, None], (T, H, W, 3)).copy()
+
+
+def video_capture(directory, videos, num_frames, width, height, fps=25.0):
+    """A capture directory whose cameras' media are the given video files (name -> file in directory)."""
+    from vt4dcodec.capture.io import CAPTURE_FORMAT, CAPTURE_VERSION, camera_json, read_manifest, write_manifest
+
+    cams = [camera_json(name, make_trajectory(1, width, height, moving=False, timestamps=False),
+                        {"type": "mp4", "path": file}, None) for name, file in videos.items()]
+    write_manifest(directory, {"format": CAPTURE_FORMAT, "version": CAPTURE_VERSION, "fps": fps,
+                               "num_frames": num_frames, "cameras": cams})
+    return read_manifest(directory)

@@ -205,7 +205,7 @@ def test_mp4_with_wrong_frame_count(tmp_path):
                 cam["timestamps"] = None
         return change
 
-    for n, expected in ((2, "more than the 2"), (5, "has 3 frames")):
+    for n, expected in ((2, "declares 3 frames but the manifest says 2"), (5, "declares 3 frames but the manifest says 5")):
         edit_manifest(tmp_path, claim(n))
         with pytest.raises(CaptureError, match=expected):
             read_capture(tmp_path)

@@ -48,8 +48,65 @@ def test_plan_covers_then_crops(W, H, ow, oh):
     np.testing.assert_allclose(plan.intrinsics(K), expected, atol=1e-9)
 
 
+@given(W=st.integers(8, 400), H=st.integers(8, 400), ow=st.integers(4, 128), oh=st.integers(4, 128))
+def test_pad_plan_fits_inside_then_centres(W, H, ow, oh):
+    plan = plan_fit(W, H, out_height=oh, out_width=ow, fit="pad")
+    assert 1 <= plan.scaled_width <= ow and 1 <= plan.scaled_height <= oh
+    assert plan.scaled_width == ow or plan.scaled_height == oh or abs(plan.sx - plan.sy) < 0.1
+    assert plan.x0 <= 0 and plan.y0 <= 0  # the whole image is inside the output
+    assert abs((-plan.x0) - (ow - plan.scaled_width - (-plan.x0))) <= 1  # centred: bars differ by <= 1 px
+    assert abs((-plan.y0) - (oh - plan.scaled_height - (-plan.y0))) <= 1
+
+
+def portrait_capture(W=54, H=96, distortion=None):
+    """A portrait camera whose frame is red in its top fifth, blue in its bottom fifth, green between."""
+    img = np.zeros((H, W, 3), np.uint8)
+    img[: H // 5] = (255, 0, 0)
+    img[H // 5: H - H // 5] = (0, 255, 0)
+    img[H - H // 5:] = (0, 0, 255)
+    K = np.array([[70.0, 0, (W - 1) / 2], [0, 70.0, (H - 1) / 2], [0, 0, 1]])
+    traj = Trajectory(K=K, w2c=np.eye(4), width=W, height=H, distortion=distortion)
+    return Capture(cameras={"c": traj}, frames={"c": img[None]})
+
+
+@pytest.mark.parametrize("distortion", [None, np.array([1e-4, 0, 0, 0])])
+def test_pad_keeps_the_whole_portrait_picture(distortion):
+    """Portrait 9:16 into a square: crop cuts the red top and blue bottom away; pad keeps all three bands
+    and puts black bars left and right, and the intrinsics say where every source pixel went."""
+    cap = portrait_capture(distortion=distortion)
+    crop = fit_capture(cap, height=32, width=32)
+    pad = fit_capture(cap, height=32, width=32, fit="pad")
+    assert pad.metadata["fit"]["mode"] == "pad"
+
+    def share(frames, colour):
+        return float(np.mean(np.all(np.abs(frames[0].astype(int) - colour) < 60, axis=-1)))
+
+    assert share(crop.frames["c"], (255, 0, 0)) == 0 and share(crop.frames["c"], (0, 0, 255)) == 0
+    assert share(pad.frames["c"], (255, 0, 0)) > 0.08 and share(pad.frames["c"], (0, 0, 255)) > 0.08
+    plan = plan_fit(54, 96, out_height=32, out_width=32, fit="pad")
+    assert (plan.scaled_width, plan.scaled_height, plan.x0, plan.y0) == (18, 32, -7, 0)
+    frame = pad.frames["c"][0]
+    assert not frame[:, :6].any() and not frame[:, 26:].any()  # black bars, a pixel away from the image edge
+    assert frame[:, 8:24].min(axis=-1).max() == 0 and frame[:, 8:24].max(axis=-1).min() > 150  # the image
+    # the corners of the source image map inside the output, where the fitted K projects them
+    K = pad.cameras["c"].K[0]
+    src_K = cap.cameras["c"].K[0]
+    corners = np.array([[-0.5, -0.5], [53.5, 95.5]])
+    rays = np.linalg.solve(src_K, np.c_[corners, np.ones(2)].T).T
+    projected = (K @ rays.T).T[:, :2]
+    np.testing.assert_allclose(projected, [[6.5, -0.5], [24.5, 31.5]], atol=1e-9)
+
+
+def test_unknown_fit_is_refused():
+    with pytest.raises(CaptureError, match="'crop'.*'pad'.*'squash'"):
+        fit_capture(make_capture(T=1), height=8, width=8, fit="squash")
+    with pytest.raises(CaptureError, match="fit must be"):
+        plan_fit(10, 10, out_height=4, out_width=4, fit="letterbox")
+
+
+@pytest.mark.parametrize("fit", ["crop", "pad"])
 @pytest.mark.parametrize("out_h, out_w", [(64, 64), (48, 96), (120, 160), (300, 400)])
-def test_fit_capture_moves_points_where_the_new_intrinsics_say(out_h, out_w):
+def test_fit_capture_moves_points_where_the_new_intrinsics_say(out_h, out_w, fit):
     """End to end: blobs at the distorted projections of known 3D points land, after undistortion,
     resizing and cropping, where the fitted pinhole camera projects those points."""
     W, H = 320, 240
@@ -61,17 +118,17 @@ def test_fit_capture_moves_points_where_the_new_intrinsics_say(out_h, out_w):
     img = blob_image(W, H, seen, sigma=2.5)
     traj = Trajectory(K=K, w2c=np.eye(4), width=W, height=H, distortion=DIST)
     cap = Capture(cameras={"c": traj}, frames={"c": img[None]})
-    fitted = fit_capture(cap, height=out_h, width=out_w)
+    fitted = fit_capture(cap, height=out_h, width=out_w, fit=fit)
     out = fitted.cameras["c"]
     assert out.distortion is None and (out.width, out.height) == (out_w, out_h)
     assert fitted.frames["c"].shape == (1, out_h, out_w, 3)
     pred = (out.K[0] @ rays.T).T[:, :2]  # pinhole projection with the fitted intrinsics
-    scale = plan_fit(W, H, out_height=out_h, out_width=out_w).sx
+    scale = plan_fit(W, H, out_height=out_h, out_width=out_w, fit=fit).sx
     for p in pred:
         c = centroid(fitted.frames["c"][0], p, radius=max(2, round(16 * scale)))
         assert np.linalg.norm(c - p) < 0.2, (c, p)
     # observations follow the same mapping
-    mapped = plan_fit(W, H, out_height=out_h, out_width=out_w).points(undistort_pixels(seen, K, DIST))
+    mapped = plan_fit(W, H, out_height=out_h, out_width=out_w, fit=fit).points(undistort_pixels(seen, K, DIST))
     np.testing.assert_allclose(mapped, pred, atol=1e-6)
 
 
@@ -94,7 +151,7 @@ def test_fit_capture_frames_depth_and_timestamps():
     d_in, d_out = cap.depth["cam_a"], out.depth["cam_a"]
     assert d_out.shape == (3, 16, 16) and d_out.dtype == np.float32
     assert set(np.unique(d_out)) <= set(np.unique(d_in[1:4]))  # nearest: no blended depths
-    assert out.metadata["fit"] == {"height": 16, "width": 16, "start": 1, "num_frames": 3}
+    assert out.metadata["fit"] == {"height": 16, "width": 16, "start": 1, "num_frames": 3, "mode": "crop"}
 
 
 def test_distorted_depth_is_resampled_without_blending():

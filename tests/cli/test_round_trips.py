@@ -43,3 +43,13 @@ def test_save_into_a_missing_folder_names_the_folder_not_a_temp_file(tmp_path):
     with pytest.raises(FileNotFoundError) as exc:
         save(make_scene(), target)
     assert str(tmp_path / "nope") in str(exc.value) and ".tmp-" not in str(exc.value)
+
+
+def test_encode_fit_pad_is_recorded_and_a_bad_fit_names_the_flag(small_model, capture_dir, tmp_path):
+    from vt4dcodec import load
+
+    target = tmp_path / "pad.vt4d"
+    vt4d_json("encode", capture_dir, "--model", small_model, "--fit", "pad", "-o", target)
+    assert load(target).metadata["vt4d"]["fit"] == "pad"
+    r = vt4d("encode", capture_dir, "--model", small_model, "--fit", "squash", "-o", target)
+    assert r.returncode == 2 and "--fit" in r.stderr and "crop" in r.stderr

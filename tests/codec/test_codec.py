@@ -162,3 +162,74 @@ def test_bad_capture_directory_is_a_vt4d_error(tmp_path, model_dir):
     (tmp_path / "capture.json").write_text("{not json")
     with pytest.raises(Vt4dError):
         codec.encode(tmp_path, model=model_dir)
+
+
+def test_encoding_a_directory_reads_only_the_clip_of_the_encoded_cameras(tmp_path, synth_scene, model_dir,
+                                                                       monkeypatch):
+    """From a capture directory, encode decodes the clip's frames of the encoded cameras and nothing else
+    (one seeked read per camera), and gives the tokens the in-memory capture gives."""
+    from vt4dcodec.capture import io as capture_io
+    from vt4dcodec.capture import read_capture, write_capture
+
+    cap = synth_scene.capture
+    names = cap.camera_names
+    T = cap.num_frames
+    long = Capture(cameras={n: Trajectory(K=np.concatenate([cap.cameras[n].K] * 3),
+                                          w2c=np.concatenate([cap.cameras[n].w2c] * 3),
+                                          width=cap.cameras[n].width, height=cap.cameras[n].height) for n in names},
+                   frames={n: np.concatenate([cap.frames[n]] * 3) for n in names}, fps=cap.fps, capture_id="long")
+    write_capture(long, tmp_path, media="mp4")
+    reads = []
+    real = capture_io.read_video_window
+
+    def spy(path, start, count, **kwargs):
+        reads.append((str(path.relative_to(tmp_path)), start, count))
+        return real(path, start, count, **kwargs)
+
+    monkeypatch.setattr(capture_io, "read_video_window", spy)
+    scene = codec.encode(tmp_path, model=model_dir, camera=names[1], start=T)
+    assert reads == [(f"{names[1]}/rgb.mp4", T, T)]
+    assert scene.metadata["vt4d"]["clip_start"] == T
+    reference = codec.encode(read_capture(tmp_path), model=model_dir, camera=names[1], start=T)
+    np.testing.assert_array_equal(scene.static_tokens, reference.static_tokens)
+    np.testing.assert_array_equal(scene.dynamic_tokens, reference.dynamic_tokens)
+    reads.clear()
+    clips = codec.encode_clips(tmp_path, model=model_dir, cameras=[names[2], names[0]])
+    assert [c.metadata["vt4d"]["clip_start"] for c in clips] == [0, T, 2 * T]
+    assert reads == [(f"{n}/rgb.mp4", s, T) for s in (0, T, 2 * T) for n in (names[2], names[0])]
+    with pytest.raises(CaptureError, match="does not fit"):
+        codec.encode(tmp_path, model=model_dir, start=2 * T + 1)
+
+
+def _portrait(cap, name, extra=48):
+    """``cap``'s camera ``name`` as a portrait camera: ``extra`` rows of grey above and below its frames."""
+    traj = cap.cameras[name]
+    half = extra // 2
+    frames = np.pad(cap.frames[name], ((0, 0), (half, half), (0, 0), (0, 0)), constant_values=128)
+    K = traj.K.copy()
+    K[:, 1, 2] += half
+    return Capture(cameras={name: Trajectory(K=K, w2c=traj.w2c, width=traj.width, height=traj.height + extra)},
+                   frames={name: frames}, fps=cap.fps, capture_id="portrait")
+
+
+def test_fit_pad_keeps_the_whole_portrait_frame_and_renders_capture_cameras_alike(synth_scene, model_dir):
+    from vt4dcodec.capture.resample import plan_fit
+
+    name = synth_scene.capture.camera_names[0]
+    portrait = _portrait(synth_scene.capture, name)  # 64 x 112
+    size = synth_scene.capture.cameras[name].width
+    padded = codec.encode(portrait, model=model_dir, fit="pad")
+    cropped = codec.encode(portrait, model=model_dir)
+    assert padded.metadata["vt4d"]["fit"] == "pad" and "fit" not in cropped.metadata["vt4d"]
+    plan = plan_fit(size, size + 48, out_height=size, out_width=size, fit="pad")
+    assert plan.scaled_height == size and plan.scaled_width < size and plan.x0 < 0
+    np.testing.assert_allclose(padded.cameras.K, plan.intrinsics(portrait.cameras[name].K), atol=1e-9)
+    assert not np.allclose(padded.cameras.K, cropped.cameras.K)
+    # a capture camera (and any capture-size trajectory) is fitted the way the scene was
+    for scene in (padded, cropped):
+        decoder = codec.SceneDecoder.open(scene, model=model_dir)
+        np.testing.assert_allclose(decoder.trajectory(f"camera:{name}", capture=portrait).K, scene.cameras.K,
+                                   atol=1e-9)
+        np.testing.assert_allclose(decoder.trajectory(portrait.cameras[name]).K, scene.cameras.K, atol=1e-9)
+    with pytest.raises(CaptureError, match="fit must be 'crop'.*or 'pad'"):
+        codec.encode(portrait, model="no-such-model", fit="squash")  # refused before the model is looked up

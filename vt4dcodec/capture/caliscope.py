@@ -177,6 +177,7 @@ def import_caliscope(
     width: int = 64,
     num_frames: int | None = None,
     frame_step: int = 1,
+    fit: str = "crop",
 ) -> Capture:
     """Import a caliscope recording as an undistorted, resized, centre-cropped capture.
 
@@ -185,6 +186,7 @@ def import_caliscope(
         height, width: output resolution in pixels (resize the shorter side, then centre-crop).
         num_frames: keep at most this many synchronized frames (default: all).
         frame_step: keep every ``frame_step``-th synchronized frame (fps divides accordingly).
+        fit: ``"crop"`` (centre-crop) or ``"pad"`` (letterbox) to the output size (:mod:`.resample`).
     Returns:
         A Capture with static pinhole cameras ``cam_N`` (K in output pixels, no distortion),
         per-camera timestamps in seconds from the first frame, fps from the median frame interval.
@@ -207,7 +209,7 @@ def import_caliscope(
     t0 = min(float(t.min()) for name, t in times.items() if name in calib)
     cameras, frames = {}, {}
     for name, traj in calib.items():
-        plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width)
+        plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width, fit=fit)
         fitter = FrameFitter(traj.K[0], traj.distortion, plan)
         frames[name] = _stream_fitted_frames(path / "videos" / f"{name}.mp4", keep, len(syncs), fitter,
                                              plan, f"camera {name!r}")
@@ -223,6 +225,6 @@ def import_caliscope(
         "source_path": str(path),
         "sync_indices": [syncs[k] for k in keep],
         "raw_size": {n: [t.width, t.height] for n, t in calib.items()},
-        "fit": {"height": height, "width": width, "frame_step": frame_step, "num_frames": len(keep)},
+        "fit": {"height": height, "width": width, "frame_step": frame_step, "num_frames": len(keep), "mode": fit},
     }
     return Capture(cameras=cameras, frames=frames, fps=fps, capture_id=path.name, metadata=metadata)

@@ -9,7 +9,7 @@ calibration lacks are left out (and listed in the result).
 
 Checks before anything is written: every camera has media; each medium's size equals the calibration's
 image size (or, with ``scale_intrinsics``, is a uniform rescale of it, and K is rescaled); every camera
-has the same number of frames; the capture fits the reader's limits.  Units: translations are taken as
+has the same number of frames.  Units: translations are taken as
 metres or millimetres by :func:`~vt4dcodec.capture.calibration.decide_units` (``units="auto"``) or as
 given.  Videos are copied byte for byte (``media="copy"``, their codec unchanged: the reader decodes
 any codec its FFmpeg knows) or decoded into PNG sequences (``media="png"``, which ``frames=`` needs to
@@ -34,7 +34,6 @@ from .io import (
     CAPTURE_FORMAT,
     CAPTURE_VERSION,
     MANIFEST_NAME,
-    MAX_CAPTURE_PIXELS,
     PNG_NAME,
     CaptureManifest,
     camera_json,
@@ -256,11 +255,6 @@ def import_capture(
         if max(rates) - min(rates) > 0.01 * fps:
             raise CaptureError(f"the videos' frame rates differ ({sorted(set(rates))}); a capture has one clock: "
                                "pass fps= (--fps) to state it")
-    pixels = sum(T * c.width * c.height for c in cams if c.width and c.height)
-    if pixels > MAX_CAPTURE_PIXELS:
-        raise CaptureError(f"{len(cams)} cameras x {T} frames is {pixels} pixels, over the capture limit of "
-                           f"{MAX_CAPTURE_PIXELS}; import fewer frames with frames=N (--frames N) and "
-                           "media='png' (--media png)")
     trajectories = {}
     for cam, name in zip(cams, names):
         try:

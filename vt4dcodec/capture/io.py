@@ -5,6 +5,10 @@ one world-to-camera pose per frame, fps, frame count, timestamps, media paths) a
 an mp4 or a PNG sequence of RGB frames, and optional depth as 16-bit PNGs in millimetres or one
 float32 ``.npy`` in metres.
 
+Reading takes a window: :func:`read_capture` and :func:`read_camera_frames` read only the cameras and
+frames ``[start, start + num_frames)`` asked for (videos are seeked, not decoded from the start; PNG
+and depth files outside the window are not opened), so memory follows what is read, not the capture.
+
 Every problem with a directory raises :class:`~vt4dcodec.errors.CaptureError` (or ``CameraError`` for
 bad calibration) naming the camera and file; sizes in the manifest are checked against documented
 limits before any pixel is allocated, and each decoded file is checked against the manifest.
@@ -26,6 +30,7 @@ from ..cameras import Trajectory, parse_numbers
 from ..errors import CameraError, CaptureError
 from ..media import write_mp4
 from .capture import Capture
+from .video import read_video_window
 
 __all__ = [
     "MANIFEST_NAME", "read_camera_depth",
@@ -37,6 +42,8 @@ __all__ = [
     "read_capture",
     "write_capture",
     "read_camera_frames",
+    "frame_window",
+    "MAX_READ_PIXELS",
     "write_manifest",
     "camera_json",
 ]
@@ -50,7 +57,11 @@ MAX_MANIFEST_BYTES = 64 * 1024 * 1024
 MAX_CAMERAS = 256
 MAX_FRAMES = 100_000
 MAX_SIDE = 16_384
-MAX_CAPTURE_PIXELS = 2**32  # total bytes of RGB over all cameras and frames / 3
+# Pixels decoded by one read (frames x width x height, summed over the cameras read): bounds what one
+# read_capture / read_camera_frames call allocates (2**32 pixels = 12 GiB of RGB).  A capture itself
+# has no total: 10 minutes of 8 cameras at 4K60 (36,000 frames each) is a valid capture, read a clip
+# at a time.
+MAX_READ_PIXELS = 2**32
 
 CAMERA_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 MEDIA_TYPES = ("png", "mp4")
@@ -87,6 +98,10 @@ class CaptureManifest:
     num_frames: int
     cameras: tuple[CameraEntry, ...]
     metadata: dict[str, Any]
+
+    @property
+    def camera_names(self) -> list[str]:
+        return [e.name for e in self.cameras]
 
     def camera(self, name: str) -> CameraEntry:
         for entry in self.cameras:
@@ -212,9 +227,6 @@ def read_manifest(directory: str | os.PathLike) -> CaptureManifest:
     names = [e.name for e in entries]
     if len(set(names)) != len(names):
         raise CaptureError(f"{path}: camera names must be unique, got {names}")
-    pixels = sum(T * e.trajectory.width * e.trajectory.height for e in entries)
-    if pixels > MAX_CAPTURE_PIXELS:
-        raise CaptureError(f"{path}: {pixels} pixels in total exceeds the limit of {MAX_CAPTURE_PIXELS}")
     return CaptureManifest(directory, capture_id, float(fps), T, entries, metadata)
 
 
@@ -230,7 +242,10 @@ def _check_png_header(path: Path, width: int, height: int, where: str) -> None:
         raise CaptureError(f"{where}: {path} is {w}x{h}, manifest says {width}x{height}")
 
 
-def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str, *, depth: bool) -> np.ndarray:
+def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str, *, depth: bool,
+                       window: range) -> np.ndarray:
+    """Frames ``window`` of a PNG folder that must hold exactly ``T`` files (the listing is checked; only
+    the files in the window are opened)."""
     cv2 = _cv2()
     if not folder.is_dir():
         raise CaptureError(f"{where}: missing folder {folder}")
@@ -244,9 +259,11 @@ def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str,
             f"(missing {missing[:3]}{'...' if len(missing) > 3 else ''}, unexpected {extra[:3]})"
         )
     H, W = shape
-    out = np.empty((T, H, W) if depth else (T, H, W, 3), dtype=np.uint16 if depth else np.uint8)
+    n = len(window)
+    out = np.empty((n, H, W) if depth else (n, H, W, 3), dtype=np.uint16 if depth else np.uint8)
     flag = cv2.IMREAD_UNCHANGED if depth else cv2.IMREAD_COLOR
-    for i, name in enumerate(expected):
+    for j, i in enumerate(window):
+        name = expected[i]
         _check_png_header(folder / name, W, H, where)
         img = cv2.imread(str(folder / name), flag)
         if img is None:
@@ -255,38 +272,11 @@ def _read_png_sequence(folder: Path, T: int, shape: tuple[int, int], where: str,
             raise CaptureError(f"{where}: {folder / name} must be a single-channel 16-bit PNG")
         if img.shape[:2] != (H, W):
             raise CaptureError(f"{where}: {folder / name} is {img.shape[1]}x{img.shape[0]}, manifest says {W}x{H}")
-        out[i] = img if depth else img[..., ::-1]
+        out[j] = img if depth else img[..., ::-1]
     return out
 
 
-def _read_mp4(path: Path, T: int, shape: tuple[int, int], where: str) -> np.ndarray:
-    cv2 = _cv2()
-    if not path.is_file():
-        raise CaptureError(f"{where}: missing video {path}")
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise CaptureError(f"{where}: cannot open video {path}")
-    H, W = shape
-    out = np.empty((T, H, W, 3), dtype=np.uint8)
-    try:
-        size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
-        if size != (W, H):
-            raise CaptureError(f"{where}: {path} is {size[0]}x{size[1]}, manifest says {W}x{H}")
-        for i in range(T):
-            ok, img = cap.read()
-            if not ok:
-                raise CaptureError(f"{where}: {path} has {i} frames but the manifest says {T}")
-            if img.shape[:2] != (H, W):
-                raise CaptureError(f"{where}: {path} is {img.shape[1]}x{img.shape[0]}, manifest says {W}x{H}")
-            out[i] = img[..., ::-1]
-        if cap.read()[0]:
-            raise CaptureError(f"{where}: {path} has more than the {T} frames the manifest says")
-    finally:
-        cap.release()
-    return out
-
-
-def _read_depth_npy(path: Path, T: int, shape: tuple[int, int], where: str) -> np.ndarray:
+def _read_depth_npy(path: Path, T: int, shape: tuple[int, int], where: str, window: range) -> np.ndarray:
     if not path.is_file():
         raise CaptureError(f"{where}: missing depth file {path}")
     expected = T * shape[0] * shape[1] * 4
@@ -298,36 +288,82 @@ def _read_depth_npy(path: Path, T: int, shape: tuple[int, int], where: str) -> n
         raise CaptureError(f"{where}: {path} is not a valid .npy file ({exc})") from None
     if arr.dtype != np.float32 or arr.shape != (T, *shape):
         raise CaptureError(f"{where}: {path} must be float32 {(T, *shape)}, got {arr.dtype} {arr.shape}")
-    return np.array(arr)
+    return np.array(arr[window.start:window.stop])
 
 
-def read_camera_frames(manifest: CaptureManifest, name: str) -> np.ndarray:
-    """(T, H, W, 3) uint8 RGB frames of one camera of a capture directory."""
+def frame_window(manifest: CaptureManifest, start: int = 0, num_frames: int | None = None) -> range:
+    """Frames ``[start, start + num_frames)`` of the capture (``num_frames`` None: to the end), checked."""
+    T = manifest.num_frames
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or not 0 <= start < T:
+        raise CaptureError(f"start frame {start!r} outside the capture's frames 0..{T - 1}")
+    if num_frames is None:
+        num_frames = T - start
+    if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or not 1 <= num_frames <= T - start:
+        raise CaptureError(f"num_frames {num_frames!r}: the capture has {T - start} frames from frame {start} on")
+    return range(int(start), int(start) + int(num_frames))
+
+
+def _check_read_size(manifest: CaptureManifest, names: list[str], window: range) -> None:
+    pixels = sum(len(window) * manifest.camera(n).trajectory.width * manifest.camera(n).trajectory.height
+                 for n in names)
+    if pixels > MAX_READ_PIXELS:
+        raise CaptureError(
+            f"reading {len(names)} camera(s) x {len(window)} frames of {manifest.directory} is {pixels} pixels, over "
+            f"the limit of {MAX_READ_PIXELS} for one read; read a clip at a time (start=, num_frames=) or fewer "
+            "cameras (cameras=)")
+
+
+def read_camera_frames(manifest: CaptureManifest, name: str, start: int = 0, num_frames: int | None = None
+                       ) -> np.ndarray:
+    """(num_frames, H, W, 3) uint8 RGB frames ``[start, start + num_frames)`` of one camera of a capture
+    directory (default: every frame).  Videos are seeked to the window, not decoded from the start."""
     entry = manifest.camera(name)
+    window = frame_window(manifest, start, num_frames)
+    _check_read_size(manifest, [name], window)
     shape = (entry.trajectory.height, entry.trajectory.width)
     path = _safe_relpath(manifest.directory, entry.media_path, f"camera {name!r}")
     if entry.media_type == "png":
-        return _read_png_sequence(path, manifest.num_frames, shape, f"camera {name!r}", depth=False)
-    return _read_mp4(path, manifest.num_frames, shape, f"camera {name!r}")
+        return _read_png_sequence(path, manifest.num_frames, shape, f"camera {name!r}", depth=False, window=window)
+    return read_video_window(path, window.start, len(window), width=shape[1], height=shape[0],
+                             total=manifest.num_frames, where=f"camera {name!r}")
 
 
-def read_camera_depth(manifest: CaptureManifest, entry: CameraEntry) -> np.ndarray:
+def read_camera_depth(manifest: CaptureManifest, entry: CameraEntry, start: int = 0,
+                      num_frames: int | None = None) -> np.ndarray:
+    """(num_frames, H, W) float32 depth in metres (0 = unknown) of frames ``[start, start + num_frames)``."""
+    window = frame_window(manifest, start, num_frames)
     shape = (entry.trajectory.height, entry.trajectory.width)
     where = f"camera {entry.name!r} depth"
     path = _safe_relpath(manifest.directory, entry.depth_path, where)
     if entry.depth_type == "npy_m":
-        return _read_depth_npy(path, manifest.num_frames, shape, where)
-    mm = _read_png_sequence(path, manifest.num_frames, shape, where, depth=True)
+        return _read_depth_npy(path, manifest.num_frames, shape, where, window)
+    mm = _read_png_sequence(path, manifest.num_frames, shape, where, depth=True, window=window)
     return mm.astype(np.float32) / np.float32(1000.0)
 
 
-def read_capture(directory: str | os.PathLike) -> Capture:
-    """Load a capture directory into memory (frames RGB uint8, depth float32 metres, 0 = unknown)."""
-    manifest = read_manifest(directory)
-    frames = {e.name: read_camera_frames(manifest, e.name) for e in manifest.cameras}
-    depth = {e.name: read_camera_depth(manifest, e) for e in manifest.cameras if e.depth_type}
+def read_capture(directory: "str | os.PathLike | CaptureManifest", *, cameras: "list[str] | None" = None,
+                 start: int = 0, num_frames: int | None = None) -> Capture:
+    """Load a capture directory into memory (frames RGB uint8, depth float32 metres, 0 = unknown).
+
+    Args:
+        directory: the capture directory (or its already read manifest).
+        cameras: the cameras to read, in this order (default: all, in manifest order).
+        start, num_frames: the frames to read, ``[start, start + num_frames)`` (default: all).  The
+            returned capture holds just that window: frame 0 is capture frame ``start``, and poses and
+            timestamps are cut to it.  Only the window is decoded (videos are seeked).
+    One read may decode at most :data:`MAX_READ_PIXELS` pixels; read a long capture a clip at a time.
+    """
+    manifest = directory if isinstance(directory, CaptureManifest) else read_manifest(directory)
+    names = [e.name for e in manifest.cameras] if cameras is None else list(cameras)
+    if not names or len(set(names)) != len(names):
+        raise CaptureError(f"cameras must name distinct cameras of the capture, got {cameras!r}")
+    entries = [manifest.camera(n) for n in names]
+    window = frame_window(manifest, start, num_frames)
+    _check_read_size(manifest, names, window)
+    frames = {e.name: read_camera_frames(manifest, e.name, window.start, len(window)) for e in entries}
+    depth = {e.name: read_camera_depth(manifest, e, window.start, len(window)) for e in entries if e.depth_type}
     return Capture(
-        cameras={e.name: e.trajectory for e in manifest.cameras},
+        cameras={e.name: e.trajectory[window.start:window.stop] for e in entries},
         frames=frames,
         depth=depth or None,
         fps=manifest.fps,

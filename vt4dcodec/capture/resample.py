@@ -1,22 +1,27 @@
-"""Fit captures to a model's resolution and clip length: undistort, resize, centre-crop (numpy + OpenCV).
+"""Fit captures to a model's resolution and clip length: undistort, resize, centre-crop or pad (numpy + OpenCV).
 
 The mapping, per camera (one camera = one ``K``, optional distortion):
 
 1. **Undistort** (only when the camera has distortion terms) to the ideal pinhole camera with the
    *same* ``K``; pixels that map outside the source image become black / unknown depth (0).
    The distortion is then dropped from the calibration.
-2. **Resize** by one factor so the image covers ``height`` x ``width`` (the shorter side fits):
-   ``s = max(height / H, width / W)``, new size ``round(W s) x round(H s)``; the intrinsics follow
-   the pixel-centre mapping ``u' = (u + 0.5) * sx - 0.5`` with the exact per-axis ratios.
-3. **Centre-crop** to ``height`` x ``width``: offset ``x0 = (W' - width) // 2``, ``y0 = (H' - height)
-   // 2``; ``cx -= x0``, ``cy -= y0``.
+2. **Resize** by one factor ``s``, new size ``round(W s) x round(H s)``; the intrinsics follow the
+   pixel-centre mapping ``u' = (u + 0.5) * sx - 0.5`` with the exact per-axis ratios.  ``fit="crop"``
+   (the default): ``s = max(height / H, width / W)``, the image covers ``height`` x ``width`` (the
+   shorter side fits).  ``fit="pad"``: ``s = min(height / H, width / W)``, the whole image fits inside
+   (the longer side fits).
+3. **Centre** it in ``height`` x ``width``: offset ``x0 = (W' - width) // 2``, ``y0 = (H' - height) // 2``
+   and ``cx -= x0``, ``cy -= y0``.  With ``crop`` the offsets are >= 0 and the overhang is cut away
+   (a portrait 1080x1920 frame loses 44 % of its pixels); with ``pad`` they are <= 0 and the image is
+   letterboxed: the bars are black RGB and unknown depth (0), and the whole field of view is kept.
 
 How pixels are resampled (:class:`FrameFitter`): without distortion, an area-average resize when
-shrinking (bilinear when enlarging) and a crop.  With distortion, one ``cv2.remap`` straight from
-the source to the output pixels (map from ``cv2.initUndistortRectifyMap``); when shrinking, the
-source is first area-averaged to the resized size (a low-pass that prevents aliasing; the lens model
-is applied at that scale with the scaled ``K``, which is geometrically exact).  RGB is bilinear,
-depth nearest (never blends depths across edges).
+shrinking (bilinear when enlarging) and a crop or pad.  With distortion, one ``cv2.remap`` straight
+from the source to the output pixels (map from ``cv2.initUndistortRectifyMap``; output pixels that
+fall outside the source, bars included, are black); when shrinking, the source is first area-averaged
+to the resized size (a low-pass that prevents aliasing; the lens model is applied at that scale with
+the scaled ``K``, which is geometrically exact).  RGB is bilinear, depth nearest (never blends depths
+across edges).
 
 Frames ``[start, start + num_frames)`` are kept and the rest dropped (``num_frames=None`` keeps all
 from ``start``); poses and timestamps are sliced the same way.  :class:`FitPlan` applies the same
@@ -42,7 +47,11 @@ __all__ = [
     "fit_trajectory",
     "fit_capture",
     "select_frames",
+    "FITS",
+    "check_fit",
 ]
+
+FITS = ("crop", "pad")  # how a frame of another aspect ratio becomes the output size
 
 # Tight criteria so point undistortion converges even for strongly distorted webcams (k1 ~ -0.34).
 _UNDISTORT_CRITERIA = (3, 200, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
@@ -57,7 +66,8 @@ def _cv2():
 @dataclass(frozen=True)
 class FitPlan:
     """How an ``in_width`` x ``in_height`` image becomes ``out_width`` x ``out_height``: a resize to
-    ``scaled_width`` x ``scaled_height`` then a crop starting at pixel ``(x0, y0)``."""
+    ``scaled_width`` x ``scaled_height``, then the output window starts at pixel ``(x0, y0)`` of the
+    resized image: a crop where the offsets are >= 0, black bars (letterbox) where they are < 0."""
 
     in_width: int
     in_height: int
@@ -95,14 +105,28 @@ class FitPlan:
         ], axis=-1)
 
 
-def plan_fit(width: int, height: int, *, out_height: int, out_width: int) -> FitPlan:
-    """The resize-then-centre-crop plan that fits ``width`` x ``height`` to ``out_width`` x ``out_height``."""
+def check_fit(fit: str) -> str:
+    """``fit`` itself when it is one of :data:`FITS`; CaptureError otherwise."""
+    if fit not in FITS:
+        raise CaptureError(f"fit must be 'crop' (centre-crop to the square) or 'pad' (letterbox: keep the whole "
+                           f"picture), got {fit!r}")
+    return fit
+
+
+def plan_fit(width: int, height: int, *, out_height: int, out_width: int, fit: str = "crop") -> FitPlan:
+    """The plan that fits ``width`` x ``height`` to ``out_width`` x ``out_height``: resize, then centre-crop
+    (``fit="crop"``) or centre on black bars (``fit="pad"``)."""
     for label, v in (("width", width), ("height", height), ("out_width", out_width), ("out_height", out_height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
             raise CaptureError(f"{label} must be a positive integer number of pixels, got {v!r}")
-    s = max(out_height / height, out_width / width)
-    sw = max(out_width, int(round(width * s)))
-    sh = max(out_height, int(round(height * s)))
+    if check_fit(fit) == "crop":
+        s = max(out_height / height, out_width / width)
+        sw = max(out_width, int(round(width * s)))
+        sh = max(out_height, int(round(height * s)))
+    else:
+        s = min(out_height / height, out_width / width)
+        sw = min(out_width, max(1, int(round(width * s))))
+        sh = min(out_height, max(1, int(round(height * s))))
     return FitPlan(int(width), int(height), sw, sh, (sw - out_width) // 2, (sh - out_height) // 2,
                    int(out_width), int(out_height))
 
@@ -162,7 +186,8 @@ def undistort_pixels(uv: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndar
 
 
 def fit_image(image: np.ndarray, plan: FitPlan, *, depth: bool = False) -> np.ndarray:
-    """Resize and centre-crop one (H, W, 3) uint8 image or (H, W) float32 depth map by ``plan``."""
+    """Resize and centre-crop or pad one (H, W, 3) uint8 image or (H, W) float32 depth map by ``plan``
+    (bars: black, depth 0)."""
     cv2 = _cv2()
     if image.shape[:2] != (plan.in_height, plan.in_width):
         raise CaptureError(f"image is {image.shape[1]}x{image.shape[0]}, the plan is for {plan.in_width}x{plan.in_height}")
@@ -175,7 +200,14 @@ def fit_image(image: np.ndarray, plan: FitPlan, *, depth: bool = False) -> np.nd
         else:
             interp = cv2.INTER_LINEAR
         image = cv2.resize(image, size, interpolation=interp)
-    return np.ascontiguousarray(image[plan.y0:plan.y0 + plan.out_height, plan.x0:plan.x0 + plan.out_width])
+    if plan.x0 >= 0 and plan.y0 >= 0:
+        return np.ascontiguousarray(image[plan.y0:plan.y0 + plan.out_height, plan.x0:plan.x0 + plan.out_width])
+    out = np.zeros((plan.out_height, plan.out_width) + image.shape[2:], dtype=image.dtype)
+    sx, sy, dx, dy = max(plan.x0, 0), max(plan.y0, 0), max(-plan.x0, 0), max(-plan.y0, 0)
+    w = min(plan.scaled_width - sx, plan.out_width - dx)
+    h = min(plan.scaled_height - sy, plan.out_height - dy)
+    out[dy:dy + h, dx:dx + w] = image[sy:sy + h, sx:sx + w]
+    return out
 
 
 def fit_trajectory(traj: Trajectory, plan: FitPlan) -> Trajectory:
@@ -212,21 +244,23 @@ def _fitted_camera(traj: Trajectory, frames: np.ndarray, depth: np.ndarray | Non
 
 
 def fit_capture(capture: Capture, *, height: int, width: int, num_frames: int | None = None,
-                start: int = 0) -> Capture:
-    """A copy of ``capture`` undistorted, resized (shorter side) and centre-cropped to ``height`` x
-    ``width`` with intrinsics updated, keeping frames ``[start, start + num_frames)``.
+                start: int = 0, fit: str = "crop") -> Capture:
+    """A copy of ``capture`` undistorted, resized and centre-cropped (``fit="crop"``: the shorter side
+    fits) or letterboxed (``fit="pad"``: the whole picture, black bars) to ``height`` x ``width`` with
+    intrinsics updated, keeping frames ``[start, start + num_frames)``.
 
     The result has no distortion terms; metadata records the fit under ``"fit"``.
     """
     sel = select_frames(capture.num_frames, num_frames=num_frames, start=start)
+    check_fit(fit)
     cameras, frames, depth = {}, {}, {}
     for name, traj in capture.cameras.items():
-        plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width)
+        plan = plan_fit(traj.width, traj.height, out_height=height, out_width=width, fit=fit)
         d = capture.depth[name] if capture.has_depth(name) else None
         cameras[name], frames[name], dd = _fitted_camera(traj, capture.frames[name], d, plan, sel)
         if dd is not None:
             depth[name] = dd
     metadata = dict(capture.metadata)
-    metadata["fit"] = {"height": height, "width": width, "start": sel.start, "num_frames": len(sel)}
+    metadata["fit"] = {"height": height, "width": width, "start": sel.start, "num_frames": len(sel), "mode": fit}
     return Capture(cameras=cameras, frames=frames, depth=depth or None, fps=capture.fps,
                    capture_id=capture.capture_id, metadata=metadata)

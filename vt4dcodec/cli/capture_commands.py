@@ -13,10 +13,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..capture.contact_sheet import write_contact_sheet
+from ..capture.contact_sheet import read_sheet_frames, write_contact_sheet
 from ..capture.calibration import CALIBRATION_FORMATS
 from ..capture.importer import IMPORT_MEDIA, import_capture
-from ..capture.io import read_capture, read_manifest
+from ..capture.io import read_manifest
 from ..capture.probe import check_capture
 from . import add_command, emit, positive_int
 from .synth_commands import add_synth_parser
@@ -106,8 +106,8 @@ def _run_import(args: argparse.Namespace) -> int:
 
 
 def _run_contact_sheet(args: argparse.Namespace) -> int:
-    capture = read_capture(args.directory)
-    w, h = write_contact_sheet(capture, args.output, max_frames=args.frames, thumb_height=args.thumb_height)
+    capture, numbers = read_sheet_frames(args.directory, args.frames)  # only the frames shown are decoded
+    w, h = write_contact_sheet(capture, args.output, thumb_height=args.thumb_height, frame_numbers=numbers)
     emit(args, {"output": args.output, "width": w, "height": h, "cameras": len(capture.cameras)},
          [f"wrote {args.output} ({w}x{h}, {len(capture.cameras)} cameras)"])
     return 0

@@ -10,7 +10,8 @@ from typing import Any
 
 from .. import codec
 from ..archive import ArchiveWriter, is_archive, open_archive
-from ..capture.io import MANIFEST_NAME, read_capture, read_manifest
+from ..capture.io import MANIFEST_NAME, read_manifest
+from ..capture.resample import FITS
 from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
                      parse_camera_list)
@@ -27,6 +28,7 @@ ENCODE_EXAMPLES = [
     "vt4d encode demo_out/capture -o scene.vt4d                 one capture -> one scene file",
     "vt4d encode demo_out/capture --camera cam03 --start 0 -o s.vt4d",
     "vt4d encode demo_out/capture --cameras cam00,cam02,cam04 -o multi.vt4d   one scene from 3 cameras",
+    "vt4d encode portrait_capture --fit pad -o s.vt4d           keep the whole portrait frame (black bars)",
     "vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive",
     "vt4d encode captures/ --archive train.vt4da --replace      again, replacing the scenes already there",
     "vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips",
@@ -36,8 +38,10 @@ ENCODE_EXAMPLES = [
 ]
 ENCODE_NOTES = """\
 A model encodes clips of exactly its frame count (vt4d-tiny: 8 frames at 64x64).  Larger frames are
-undistorted, resized and centre-cropped with the intrinsics updated; longer captures take the clip at
---start, or all consecutive clips with --split (a shorter tail is dropped).  Archive keys are
+undistorted, resized and centre-cropped with the intrinsics updated (--fit pad: letterboxed instead,
+keeping the whole picture); longer captures take the clip at --start, or all consecutive clips with
+--split (a shorter tail is dropped).  Only the clip's frames of the encoded cameras are read (videos
+are seeked): the cost follows the clip, not the length of the capture.  Archive keys are
 CAPTURE_ID/CAMERA/CLIP_START (CAMERA: the encoded cameras joined by '.', or 'all').  The time printed is the encoding alone; loading the model is timed apart.
 """
 
@@ -137,13 +141,13 @@ def cmd_encode(args: argparse.Namespace) -> int:
         writer = ArchiveWriter(shard)
     try:
         for cap_dir in progress(args, mine, len(mine), "encode", "capture"):
-            cap = read_capture(cap_dir)
+            cap = read_manifest(cap_dir)  # the encode reads only each clip's frames of the encoded cameras
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                            seed=args.seed)
+                                            seed=args.seed, fit=args.fit)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                       start=args.start, seed=args.seed)]
+                                       start=args.start, seed=args.seed, fit=args.fit)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -253,6 +257,10 @@ def register(subparsers: Any) -> None:
                         "reference camera whose trajectory the scene stores); instead of --camera")
     p.add_argument("--start", type=nonneg_int, default=0, help="first frame of the clip (default 0)")
     p.add_argument("--split", action="store_true", help="encode every consecutive clip of a long capture")
+    p.add_argument("--fit", choices=FITS, default="crop",
+                   help="frames that are not square: 'crop' (default: resize the shorter side, centre-crop; a "
+                        "portrait 9:16 frame loses 44 %% of its picture) or 'pad' (resize the longer side, black "
+                        "bars: the whole picture is kept)")
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
                    help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
                         "tokens on held-out views, see docs/BENCHMARKS.md)")

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..capture.io import read_capture
+from ..capture.io import read_capture, read_manifest
 from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import DEFAULT_STEPS, SceneDecoder, load_model, model_fingerprint
 from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
@@ -66,11 +66,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise CaptureError(f"-o {out_dir} is a file; give a folder")
-    cap = read_capture(args.capture)
-    camera = args.camera or cap.camera_names[0]
-    if camera not in cap.cameras:
-        raise CaptureError(f"capture {cap.capture_id!r} has no camera {camera!r} (--camera); it has "
-                           f"{cap.camera_names}")
+    manifest = read_manifest(args.capture)
+    camera = args.camera or manifest.camera_names[0]
+    if camera not in manifest.camera_names:
+        raise CaptureError(f"capture {manifest.capture_id!r} has no camera {camera!r} (--camera); it has "
+                           f"{manifest.camera_names}")
+    cap = read_capture(manifest, cameras=[camera])  # the conditioning camera alone
     loading = time.perf_counter()
     with working(args, "loading the prior and its tokenizer"):
         try:
