@@ -4,7 +4,8 @@ Python blocks run in order, in one namespace, in a folder holding the demo's cap
 made as `vt4d demo` makes it).  The `vt4d` block runs line by line through the command's entry point,
 with its placeholders (<one>, <key>, the example URL) filled in.  The install blocks cannot run here
 (they build a venv from the network); CI runs them, and tests/cli/test_packaging.py checks what they
-install.  A block of any other kind fails the test until it is taught here.
+install.  The `sh` block (real footage) runs on the caliscope sample capture where it is present (CI
+requires it).  A block of any other kind fails the test until it is taught here.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def http_root(demo_folder):
 
 def test_every_block_is_known():
     kinds = [(lang, _is_install(code)) for lang, code in readme_blocks()]
-    assert set(kinds) == {("bash", True), ("bash", False), ("python", False)}, kinds
+    assert set(kinds) == {("bash", True), ("bash", False), ("python", False), ("sh", False)}, kinds
 
 
 def test_python_blocks_run(demo_folder):
@@ -95,3 +96,36 @@ def test_command_block_runs(demo_folder, http_root, capsys):
         ran += 1
     assert ran >= 14
     assert (demo_folder / "copy.vt4da").is_file() and (demo_folder / "views").is_dir()
+
+
+def test_real_footage_block_runs(tmp_path, monkeypatch, capsys):
+    """import -> encode -> decode -> evaluation on the real capture, exactly as the README writes it."""
+    import json
+    import os
+
+    from vt4dcodec.capture.caliscope import find_sample_capture
+    from vt4dcodec.cli import main
+    from vt4dcodec.eval import real_footage
+
+    data = find_sample_capture()
+    if data is None:
+        if os.environ.get("VT4D_REQUIRE_SAMPLE_DATA"):
+            pytest.fail("caliscope_4cam sample data not present")
+        pytest.skip("caliscope_4cam sample data not present")
+    (block,) = [code for lang, code in readme_blocks() if lang == "sh"]
+    monkeypatch.chdir(tmp_path)
+    commands = _commands(block)
+    assert [c.split()[:2] for c in commands] == [["vt4d", "import"], ["vt4d", "encode"], ["vt4d", "decode"],
+                                                 ["python", "-m"]]
+    for cmd in commands:
+        argv = shlex.split(cmd.replace("../shared/data/caliscope_4cam", str(data)))
+        if argv[0] == "vt4d":
+            assert main(argv[1:]) == 0, (cmd, capsys.readouterr().err)
+        else:
+            assert argv[2] == "vt4dcodec.eval.real_footage"
+            assert real_footage.main(argv[3:]) == 0, cmd
+    assert sorted(p.name for p in (tmp_path / "real_views").iterdir()) == [
+        "real_01_camera_cam_1.mp4", "real_source.mp4"]
+    assert (tmp_path / "real_sheet.png").is_file()
+    result = json.loads((tmp_path / "real_eval.json").read_text())
+    assert result, "the evaluation wrote an empty result"
