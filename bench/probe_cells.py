@@ -29,7 +29,7 @@ import torch
 from safetensors.torch import load_file
 
 from vt4dcodec.model.configs import ModelConfig
-from vt4dcodec.model.inputs.source_inputs import SourceBatch, SourceInputs
+from vt4dcodec.model.inputs.source_inputs import SourceBatch
 from vt4dcodec.model.train.data import ScenePool
 from vt4dcodec.model.videotok4d import VideoTok4D
 
@@ -49,11 +49,8 @@ def collect(model: VideoTok4D, pool: ScenePool, scenes: int) -> tuple[np.ndarray
     tokens, content, rendered = [], [], []
     with torch.no_grad():
         for seed in range(scenes):
-            sc, pr = pool.scene(seed), pool.prepared(seed)
-            src = SourceInputs(frames=sc["frames"][0], K=sc["K"][0].astype(np.float32),
-                               w2c=sc["w2c"][0].astype(np.float32), motion_mask=pr["motion_mask"][0],
-                               track_xy=pr["track_xy"][0], track_valid=pr["track_valid"][0])
-            z_s, z_d = model.encode(SourceBatch.collate([src]))
+            sc = pool.scene(seed)
+            z_s, z_d = model.encode(SourceBatch.collate(pool.source_inputs(seed, [0])))
             truth = torch.from_numpy(sc["frames"][0]).permute(0, 3, 1, 2).float()[None] / 255.0
             out = model.render(z_s, z_d, torch.from_numpy(sc["K"][[0]]).float(),
                                torch.from_numpy(sc["w2c"][[0]]).float(), steps=1, seed=0)

@@ -24,7 +24,7 @@ from safetensors.torch import load_file
 
 from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.diagnostics import psnr_db, token_health
-from vt4dcodec.model.inputs.source_inputs import SourceBatch, SourceInputs
+from vt4dcodec.model.inputs.source_inputs import SourceBatch
 from vt4dcodec.model.train.data import ScenePool, axis_angles_deg
 from vt4dcodec.model.videotok4d import VideoTok4D
 
@@ -51,11 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     zs, zd, truths, Ks, w2cs = [], [], [], [], []
     with torch.no_grad():
         for seed in range(args.scenes):
-            sc, pr = pool.scene(seed), pool.prepared(seed)
-            src = SourceInputs(frames=sc["frames"][0], K=sc["K"][0].astype(np.float32),
-                               w2c=sc["w2c"][0].astype(np.float32), motion_mask=pr["motion_mask"][0],
-                               track_xy=pr["track_xy"][0], track_valid=pr["track_valid"][0])
-            z_s, z_d = model.encode(SourceBatch.collate([src]))
+            sc = pool.scene(seed)
+            z_s, z_d = model.encode(SourceBatch.collate(pool.source_inputs(seed, [0])))
             zs.append(z_s)
             zd.append(z_d)
             order = np.argsort(axis_angles_deg(sc["w2c"])[0])

@@ -95,6 +95,13 @@ class ScenePool:
         """motion_mask (C,T,h,w), track_xy (C,N,T,2), track_valid (C,N,T) of every camera as source."""
         return _cached_prepared(self, seed)
 
+    def source_inputs(self, seed: int, cameras: list[int]) -> list[SourceInputs]:
+        """The encoder inputs of each of ``cameras`` of scene ``seed`` as a source (float32 cameras)."""
+        scene, prep = self.scene(seed), self.prepared(seed)
+        return [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
+                             w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
+                             track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c]) for c in cameras]
+
     def build_scene(self, seed: int) -> dict[str, np.ndarray]:
         path = self.cache / f"scene-{self._stem(seed)}.npz"
         if path.is_file():
@@ -338,7 +345,7 @@ class PairDataset(Dataset):
         index, views = index if isinstance(index, tuple) else (index, 1)
         seed = self.seeds[index // len(self.pairs)]
         src, tgt = self.pairs[index % len(self.pairs)]
-        scene, prep = self.pool.scene(seed), self.pool.prepared(seed)
+        scene = self.pool.scene(seed)
         encoded = [src]
         if views > 1:
             if not self.sampled:
@@ -348,9 +355,7 @@ class PairDataset(Dataset):
             encoded += [rest[i] for i in pick]
         if self.sampled:
             tgt = self._draw_target(src, scene["w2c"], encoded)
-        sources = [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
-                                w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
-                                track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c]) for c in encoded]
+        sources = self.pool.source_inputs(seed, encoded)
         item = (sources if views > 1 else sources[0], scene["frames"][tgt], scene["K"][tgt], scene["w2c"][tgt])
         if self.latent_key is None:
             return item

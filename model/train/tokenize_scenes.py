@@ -39,7 +39,7 @@ from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
 from vt4dcodec.format import Provenance, Scene
 
-from ..inputs.source_inputs import SourceBatch, SourceInputs
+from ..inputs.source_inputs import SourceBatch
 from ..weights_io import from_pretrained
 from .data import ScenePool, rank_seeds
 
@@ -125,12 +125,7 @@ class ClipStore:
 @torch.no_grad()
 def tokenize_event(tokenizer: Any, pool: ScenePool, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(Z_s, Z_d) of every camera of one event, encoded as one batch by the frozen tokenizer."""
-    scene, prep = pool.scene(seed), pool.prepared(seed)
-    items = [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
-                          w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
-                          track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c])
-             for c in range(pool.cameras)]
-    z_s, z_d = tokenizer.encode(SourceBatch.collate(items))
+    z_s, z_d = tokenizer.encode(SourceBatch.collate(pool.source_inputs(seed, list(range(pool.cameras)))))
     return [(z_s[c].numpy().astype(np.float32), z_d[c].numpy().astype(np.float32)) for c in range(pool.cameras)]
 
 
