@@ -82,7 +82,7 @@ def main() -> int:
         results["encode_s_per_clip"] = median_seconds(lambda: model.encode(batch), args.repeats)
         z_s, z_d = model.encode(batch)
     results["render_8_steps_s_per_trajectory"] = median_seconds(
-        lambda: model.render(z_s, z_d, batch.K, batch.w2c, steps=8), args.repeats)
+        lambda: model.render(z_s, z_d, batch.K, batch.w2c, steps=8, source=batch.source), args.repeats)
     ae = model.autoencoder
     ae.requires_grad_(True)
     images = torch.rand(32, 3, cfg.image_size, cfg.image_size)

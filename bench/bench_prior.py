@@ -58,8 +58,11 @@ def _tensor(a: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
 
 
-def render(tokenizer: Any, z_s: torch.Tensor, z_d: torch.Tensor, K: np.ndarray, w2c: np.ndarray, steps: int) -> np.ndarray:
-    return _to_video(tokenizer.render(z_s, z_d, _tensor(K), _tensor(w2c), steps=steps, seed=0))
+def render(tokenizer: Any, z_s: torch.Tensor, z_d: torch.Tensor, K: np.ndarray, w2c: np.ndarray, steps: int,
+           source: dict[str, np.ndarray]) -> np.ndarray:
+    """``source``: the clip whose camera the tokens belong to (its K, w2c place them, where the model needs it)."""
+    return _to_video(tokenizer.render(z_s, z_d, _tensor(K), _tensor(w2c), steps=steps, seed=0,
+                                      source=(_tensor(source["K"]), _tensor(source["w2c"]))))
 
 
 def condition(clip_c: dict[str, np.ndarray], K_a: np.ndarray, w2c_a: np.ndarray) -> Any:
@@ -96,16 +99,16 @@ def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam
     for event, cams in events.items():
         clip_c, clip_a = cams[cond_cam]["clip"], cams[anchor_cam]["clip"]
         z_s, z_d = prior.sample(condition(clip_c, clip_a["K"], clip_a["w2c"]), steps=prior_steps, seed=seed)
-        states = {"co4dgen": (z_s, z_d), "encoded_anchor": (cams[anchor_cam]["z_s"], cams[anchor_cam]["z_d"]),
-                  "encoded_conditioning": (cams[cond_cam]["z_s"], cams[cond_cam]["z_d"]),
-                  "mean_tokens": (mean_s, mean_d)}
+        states = {"co4dgen": (z_s, z_d, clip_a), "encoded_anchor": (cams[anchor_cam]["z_s"], cams[anchor_cam]["z_d"], clip_a),
+                  "encoded_conditioning": (cams[cond_cam]["z_s"], cams[cond_cam]["z_d"], clip_c),
+                  "mean_tokens": (mean_s, mean_d, clip_a)}
         fig = {"event": event, "cond": clip_c["frames"], "truth": {}, "pred": {}}
         for k, cam in sorted(cams.items()):
             kind = "anchor" if k == anchor_cam else "conditioning" if k == cond_cam else "other"
             truth = cam["clip"]["frames"]
             fig["truth"][k] = truth
-            for method, (s, d) in states.items():
-                pred = render(tokenizer, s, d, cam["clip"]["K"], cam["clip"]["w2c"], render_steps)
+            for method, (s, d, src) in states.items():
+                pred = render(tokenizer, s, d, cam["clip"]["K"], cam["clip"]["w2c"], render_steps, src)
                 psnr, ssim = quality(pred, truth)
                 rows.append({"event": event, "camera": k, "view": kind, "method": method, "psnr": psnr, "ssim": ssim})
                 if method == "co4dgen":
@@ -142,12 +145,12 @@ def timing(tokenizer: Any, prior: Any, event: dict, cond_cam: int, anchor_cam: i
     def one_sample() -> None:
         z_s, z_d = prior.sample(cond, steps=prior_steps, seed=0)
         for v in views:
-            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps)
+            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps, clip_a)
 
     def independent() -> None:
         for i, v in enumerate(views):
             z_s, z_d = prior.sample(cond, steps=prior_steps, seed=i)
-            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps)
+            render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps, clip_a)
 
     def sample_only() -> None:
         prior.sample(cond, steps=prior_steps, seed=0)

@@ -52,8 +52,8 @@ def collect(model: VideoTok4D, pool: ScenePool, scenes: int) -> tuple[np.ndarray
             sc = pool.scene(seed)
             z_s, z_d = model.encode(SourceBatch.collate(pool.source_inputs(seed, [0])))
             truth = torch.from_numpy(sc["frames"][0]).permute(0, 3, 1, 2).float()[None] / 255.0
-            out = model.render(z_s, z_d, torch.from_numpy(sc["K"][[0]]).float(),
-                               torch.from_numpy(sc["w2c"][[0]]).float(), steps=1, seed=0)
+            K, w2c = torch.from_numpy(sc["K"][[0]]).float(), torch.from_numpy(sc["w2c"][[0]]).float()
+            out = model.render(z_s, z_d, K, w2c, steps=1, seed=0, source=(K, w2c))
             cells = _cells(model.autoencoder.encode(truth)[0].mean(0), g, p)
             mean = cells.mean(0, keepdims=True)
             per_cell = np.zeros((g * g, z_s.shape[-1]))

@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed in range(args.scenes):
             sc = pool.scene(seed)
             z_s, z_d = model.encode(SourceBatch.collate(pool.source_inputs(seed, [0])))
+            src = (torch.from_numpy(sc["K"][[0]]).float(), torch.from_numpy(sc["w2c"][[0]]).float())
             zs.append(z_s)
             zd.append(z_d)
             order = np.argsort(axis_angles_deg(sc["w2c"])[0])
@@ -61,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
                 K = torch.from_numpy(sc["K"][cams]).float()
                 w2c = torch.from_numpy(sc["w2c"][cams]).float()
                 n = len(cams)
-                out = model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=1, seed=0)
+                out = model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=1, seed=0,
+                                   source=(src[0].expand(n, -1, -1, -1), src[1].expand(n, -1, -1, -1)))
                 truth = torch.from_numpy(sc["frames"][cams]).permute(0, 1, 4, 2, 3).float() / 255.0
                 res[group] += psnr_db(out, truth).tolist()
                 res["flat_" + group] += psnr_db(flat[None, None, :, None, None].expand_as(truth), truth).tolist()
@@ -71,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                     w2cs.append(w2c)
         z_s, z_d = torch.cat(zs), torch.cat(zd)
         K, w2c, truth = torch.cat(Ks), torch.cat(w2cs), torch.cat(truths)
-        own = model.render(z_s, z_d, K, w2c, steps=1)
-        swapped = model.render(z_s.roll(1, 0), z_d.roll(1, 0), K, w2c, steps=1)
+        own = model.render(z_s, z_d, K, w2c, steps=1, source=(K, w2c))  # K, w2c: the source cameras
+        swapped = model.render(z_s.roll(1, 0), z_d.roll(1, 0), K, w2c, steps=1, source=(K.roll(1, 0), w2c.roll(1, 0)))
     result: dict[str, float | int] = {k: round(float(np.mean(v)), 2) for k, v in res.items()}
     result.update({k: round(v, 3) for k, v in token_health(z_s, z_d).items()})
     result["swap_drop_db"] = round(float(psnr_db(own, truth).mean() - psnr_db(swapped, truth).mean()), 2)

@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         capture = generate_scene(seed, split="test", config=SynthConfig(num_cameras=10)).capture
         cams = capture.camera_names
         blob = vt4dcodec.format.dumps(codec.encode(capture, args.model, camera=cams[0]))
-        decoder = codec.SceneDecoder.open(blob)
+        decoder = codec.SceneDecoder.open(blob, model=args.model)
         source = decoder.render("source")
         for cam in cams[1:]:
             render, truth = decoder.render(capture.cameras[cam]), capture.frames[cam]

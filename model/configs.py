@@ -114,6 +114,16 @@ class ModelConfig(_Config):
         a linear map (zero at initialisation) of its anchor cell's feature averaged over the frames, so
         the token has a direct path to the content of its cell instead of only the cross-attention
         (vt4d-tiny 0.4.0's anchored tokens explain a third of their cell's latent variance linearly).
+        project_anchors: with locality_sigma > 0, the renderer's locality bias follows the scene's
+        geometry instead of the source image grid: anchored token i's cell centre is unprojected from
+        the source camera (the first encoded camera, middle frame) at a depth the renderer reads from
+        the token (the depth of the world origin times a learned factor in [e^-2, e^2], factor 1 at
+        initialisation) and projected into every target frame; render patch j's bias is the Gaussian
+        of its distance to that projection. At the source camera it equals the grid prior, so a
+        model warm-started without it renders its source view unchanged; elsewhere tokens move with
+        the target pose (vt4d-tiny 0.5.0's fixed grid bias made renders at other cameras a blurred
+        copy of the source view: bench/probe_pose_dependence.py). Rendering then needs the source
+        trajectory.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -147,10 +157,11 @@ class ModelConfig(_Config):
     render_patch_size: int = 0
     locality_sigma: float = 0.0
     query_from_grid: bool = False
+    project_anchors: bool = False
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
-                                               "query_from_grid": False}
+                                               "query_from_grid": False, "project_anchors": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -179,6 +190,10 @@ class ModelConfig(_Config):
             raise ModelError(f"config query_from_grid must be true or false, got {self.query_from_grid!r}")
         if self.query_from_grid and not self.locality_sigma > 0:
             raise ModelError("config query_from_grid needs locality_sigma > 0 (it reads each query's anchor cell)")
+        if not isinstance(self.project_anchors, bool):
+            raise ModelError(f"config project_anchors must be true or false, got {self.project_anchors!r}")
+        if self.project_anchors and not self.locality_sigma > 0:
+            raise ModelError("config project_anchors needs locality_sigma > 0 (it moves the locality prior)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

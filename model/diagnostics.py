@@ -67,10 +67,15 @@ def psnr_db(video: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def swap_drop_db(model: Any, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
-                 truth: torch.Tensor, *, steps: int = 1, seed: int = 0) -> dict[str, float]:
+                 truth: torch.Tensor, *, steps: int = 1, seed: int = 0,
+                 source: tuple[torch.Tensor, torch.Tensor] | None = None) -> dict[str, float]:
     """Render targets with each scene's own tokens and with the next scene's (rolled by one), same
-    cameras and noise; returns mean PSNRs and their difference (``swap_drop_db``). B >= 2."""
-    own = model.render(z_s, z_d, K_tgt, w2c_tgt, steps=steps, seed=seed)
-    swapped = model.render(z_s.roll(1, 0), z_d.roll(1, 0), K_tgt, w2c_tgt, steps=steps, seed=seed)
+    cameras and noise; returns mean PSNRs and their difference (``swap_drop_db``). B >= 2.
+    ``source``: each scene's source trajectory (``SourceBatch.source``), for models that need it; the
+    swapped tokens are placed with the other scene's source camera, the one they were encoded from."""
+    swapped_source = None if source is None else (source[0].roll(1, 0), source[1].roll(1, 0))
+    own = model.render(z_s, z_d, K_tgt, w2c_tgt, steps=steps, seed=seed, source=source)
+    swapped = model.render(z_s.roll(1, 0), z_d.roll(1, 0), K_tgt, w2c_tgt, steps=steps, seed=seed,
+                           source=swapped_source)
     p_own, p_swap = psnr_db(own, truth).mean(), psnr_db(swapped, truth).mean()
     return {"psnr_own_db": float(p_own), "psnr_swapped_db": float(p_swap), "swap_drop_db": float(p_own - p_swap)}

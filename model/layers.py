@@ -33,7 +33,8 @@ def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor,
     Args:
         q: (B, heads, Lq, Dh); k, v: (B, heads, Lk, Dh).
         key_valid: optional (B, Lk) bool, False keys are ignored.
-        bias: optional float (heads, Lq, Lk) added to the attention logits (a positional prior).
+        bias: optional float (heads, Lq, Lk) or (B, heads, Lq, Lk) added to the attention logits (a
+            positional prior).
     Returns:
         (B, heads, Lq, Dh); rows whose batch item has no valid key are exactly zero.
     """
@@ -45,7 +46,7 @@ def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor,
     safe = key_valid | ~any_valid[:, None]  # rows without keys attend everywhere, then get zeroed
     mask = safe[:, None, None, :]
     if bias is not None:
-        mask = torch.where(mask, bias[None], torch.tensor(float("-inf"), dtype=q.dtype, device=q.device))
+        mask = torch.where(mask, bias if bias.ndim == 4 else bias[None], torch.tensor(float("-inf"), dtype=q.dtype, device=q.device))
     out = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
     return out * any_valid[:, None, None, None].to(out.dtype)
 
@@ -156,7 +157,7 @@ class AdaLNBlock(nn.Module):
     def forward(self, x: torch.Tensor, cond: torch.Tensor, tokens: torch.Tensor,
                 tokens_valid: torch.Tensor | None, token_bias: torch.Tensor | None = None) -> torch.Tensor:
         """x: (B, T, P, D) video patch tokens; cond: (B, D) tau embedding; tokens: (B, N, D);
-        tokens_valid: (B, N) bool or None; token_bias: (heads, T P, N) float added to the
+        tokens_valid: (B, N) bool or None; token_bias: (heads, T P, N) or (B, heads, T P, N) float added to the
         cross-attention logits. Returns (B, T, P, D)."""
         B, T, P, D = x.shape
         mods = self.modulation(F.silu(cond)).view(B, self.N_BRANCHES, 3, 1, 1, D)

@@ -5,6 +5,12 @@ Target latents Y^tau (B, T, C, h, w) are patchified together with the Plücker r
 through tau-modulated (AdaLN) blocks of spatial, temporal and token cross-attention, and are
 unpatchified into a velocity of the same shape. Token masking (the ablation of Table 4): a dropped group
 (Z_s or Z_d) is removed from the keys of every cross-attention.
+
+Token locality (``config.locality_sigma``): half of the heads of every token cross-attention get a
+Gaussian logit bias that ties render patch j to the static tokens anchored near it. Without
+``config.project_anchors`` the bias is a learned (heads, P, N) table on the source image grid, the same
+at every target pose; with it the anchors are placed in 3-D (the source camera's cell ray at a depth read
+from the token) and projected into each target frame, so the bias moves with the target camera.
 """
 
 from __future__ import annotations
@@ -16,7 +22,11 @@ from torch import nn
 from .configs import ModelConfig
 from .layers import AdaLNBlock, grid_positions, locality_prior, patchify, timestep_embedding, unpatchify
 
-__all__ = ["Renderer"]
+__all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH"]
+
+MAX_DEPTH_LOG_FACTOR = 2.0  # a token's depth is d_ref * exp(f), f in (-2, 2): 0.14x .. 7.4x the reference
+MIN_ANCHOR_DEPTH = 0.1  # metres; the reference depth (of the world origin) is clamped to at least this
+FAR_LOGIT = -1.0e4  # bias of an anchor behind the target camera, and the floor of every Gaussian logit
 
 
 class Renderer(nn.Module):
@@ -37,14 +47,23 @@ class Renderer(nn.Module):
         self.final_mod = nn.Linear(D, 2 * D)
         self.out = nn.Linear(D, C * p * p)
         self.token_bias = None
+        self.depth_head: nn.Linear | None = None
+        self.n_anchored = 0
         if cfg.locality_sigma > 0:  # render patch j prefers the static tokens anchored near it (configs)
             cells = grid_positions(cfg.patches_per_side)  # encoder grid, in encoder patches
-            n_anchored = n_tokens if cfg.unified_tokens else cfg.n_static
-            anchors = cells[torch.arange(n_anchored) % cells.shape[0]]
+            self.n_anchored = n_tokens if cfg.unified_tokens else cfg.n_static
+            anchors = cells[torch.arange(self.n_anchored) % cells.shape[0]]
             patches = grid_positions(cfg.renderer_patches_per_side, cfg.renderer_patch / cfg.patch_size)
-            prior = torch.zeros(cfg.heads, patches.shape[0], n_tokens)
-            prior[:, :, :n_anchored] = locality_prior(patches, anchors, cfg.heads, cfg.locality_sigma)
-            self.token_bias = nn.Parameter(prior)
+            if cfg.project_anchors:  # anchors (row, col) in encoder patches; patch centres likewise
+                self.register_buffer("anchor_cells", anchors, persistent=False)
+                self.register_buffer("patch_cells", patches, persistent=False)
+                self.depth_head = nn.Linear(cfg.token_dim, 1)  # log depth factor; zero: the reference depth
+                nn.init.zeros_(self.depth_head.weight)
+                nn.init.zeros_(self.depth_head.bias)
+            else:
+                prior = torch.zeros(cfg.heads, patches.shape[0], n_tokens)
+                prior[:, :, :self.n_anchored] = locality_prior(patches, anchors, cfg.heads, cfg.locality_sigma)
+                self.token_bias = nn.Parameter(prior)
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -69,18 +88,69 @@ class Renderer(nn.Module):
         keep[:, n_s:] &= ~drops[1][:, None]
         return tokens, keep
 
+    def anchor_depths(self, z_s: torch.Tensor, z_d: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
+        """Depth (B, N_anchored) in metres of each anchored token along its source cell's ray: the depth of
+        the world origin in the source camera (w2c_src (B, 4, 4), at least MIN_ANCHOR_DEPTH) times
+        exp(f(token)), f bounded to (-MAX_DEPTH_LOG_FACTOR, MAX_DEPTH_LOG_FACTOR)."""
+        if self.depth_head is None:
+            raise RuntimeError("anchor_depths needs config.project_anchors")
+        tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.depth_head.weight.dtype)
+        log_factor = MAX_DEPTH_LOG_FACTOR * torch.tanh(self.depth_head(tokens)[..., 0].float())
+        reference = w2c_src[:, 2, 3].float().clamp_min(MIN_ANCHOR_DEPTH)
+        return reference[:, None] * torch.exp(log_factor)
+
+    def projected_bias(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                       K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
+        """The geometric locality bias (B, heads, T P, N) of ``config.project_anchors``.
+
+        K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
+        K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens."""
+        cfg = self.cfg
+        B, T = K_tgt.shape[:2]
+        cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
+        # anchor centres in pixel coordinates (u = col, v = row; pixel centres at integers)
+        uv = self.anchor_cells.flip(-1) * cell_px - 0.5  # (Na, 2)
+        pix = torch.cat([uv, torch.ones_like(uv[:, :1])], dim=-1)  # (Na, 3)
+        depth = self.anchor_depths(z_s, z_d, w2c_src)  # (B, Na)
+        K_src, w2c_src = K_src.float(), w2c_src.float()
+        x_cam = torch.linalg.solve(K_src, pix.T.expand(B, 3, -1)).transpose(1, 2) * depth[..., None]  # (B, Na, 3)
+        R, t = w2c_src[:, :3, :3], w2c_src[:, :3, 3]
+        x_world = torch.einsum("bji,bnj->bni", R, x_cam - t[:, None])  # R^T (x - t)
+        Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
+        x_tgt = torch.einsum("btij,bnj->btni", Rt, x_world) + tt[:, :, None]  # (B, T, Na, 3)
+        proj = torch.einsum("btij,btnj->btni", K_tgt.float(), x_tgt)
+        z = proj[..., 2]
+        in_front = z > 1e-3
+        cells = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / cell_px  # (B, T, Na, 2) (col, row)
+        d2 = ((self.patch_cells.flip(-1)[None, None, :, None] - cells[:, :, None]) ** 2).sum(-1)  # (B, T, P, Na)
+        logit = (-d2 / (2.0 * cfg.locality_sigma ** 2)).clamp_min(FAR_LOGIT)
+        logit = torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
+        P = self.patch_cells.shape[0]
+        n_tokens = cfg.n_static + cfg.n_dynamic
+        bias = logit.new_zeros(B, cfg.heads, T * P, n_tokens)
+        geometric = cfg.heads // 2 if cfg.heads > 1 else cfg.heads  # as locality_prior: the others read anywhere
+        bias[:, :geometric, :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
+        return bias
+
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
                 tau: torch.Tensor, *, drop_static: bool | torch.Tensor = False,
-                drop_dynamic: bool | torch.Tensor = False) -> torch.Tensor:
+                drop_dynamic: bool | torch.Tensor = False,
+                cameras: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """y_tau: (B, T, C, h, w); z_s: (B, N_s, d); z_d: (B, N_d, d); rays: (B, T, 6, h, w) of P_tgt;
-        tau: (B,) in [0, 1]. Returns the velocity v (B, T, C, h, w)."""
+        tau: (B,) in [0, 1]; cameras: (K_tgt, w2c_tgt, K_src, w2c_src) as :meth:`projected_bias`,
+        required with ``config.project_anchors`` and ignored otherwise. Returns (B, T, C, h, w)."""
         B, T, C, h, w = y_tau.shape
         p = self.cfg.renderer_patch
         x = self.embed(patchify(torch.cat([y_tau, rays.to(y_tau.dtype)], dim=2), p))
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
         cond = self.tau_mlp(timestep_embedding(tau, x.shape[-1]))
         tokens, keep = self.embed_tokens(z_s, z_d, drop_static, drop_dynamic)
-        bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
+        if self.depth_head is not None:
+            if cameras is None:
+                raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
+            bias = self.projected_bias(z_s, z_d, *cameras).to(x.dtype)
+        else:
+            bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
         for block in self.blocks:
             x = block(x, cond, tokens, keep, bias)
         shift, scale = self.final_mod(F.silu(cond)).view(B, 1, 1, 2, -1).unbind(dim=3)

@@ -1,11 +1,13 @@
 """VideoTok4D: the tokenizer E = (E_s, E_d) and the renderer D_theta, around a frozen autoencoder.
 
     z_s, z_d = model.encode(batch)                       # Eq. 1, tokens (B, N_s, d), (B, N_d, d)
-    frames = model.render(z_s, z_d, K_tgt, w2c_tgt)      # Euler integration of the rectified flow
+    frames = model.render(z_s, z_d, K_tgt, w2c_tgt, source=(K_src, w2c_src))  # Euler integration
     loss, logs = model.rectified_flow_loss(batch, target_frames, K_tgt, w2c_tgt)   # Eq. 2
 
 Rendering takes tokens, never source frames, so one token state renders any number of target
-trajectories without re-running the encoder. Sampling noise comes from a ``torch.Generator`` seeded
+trajectories without re-running the encoder. A model with ``config.project_anchors`` also needs the
+source trajectory (the first encoded camera's: ``source=(K, w2c)``), whose middle frame places the
+anchored tokens in 3-D; ``model.needs_source`` says so. Sampling noise comes from a ``torch.Generator`` seeded
 with ``seed``: the same tokens and seed give the same frames.
 """
 
@@ -89,6 +91,31 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if not K.is_meta and not (torch.isfinite(K).all() and torch.isfinite(w2c).all()):
             raise ModelError(f"{what}: cameras hold non-finite values")
 
+    @property
+    def needs_source(self) -> bool:
+        """Whether rendering needs the source trajectory (``config.project_anchors``)."""
+        return bool(self.config.project_anchors)
+
+    def render_cameras(self, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                       source: tuple[torch.Tensor, torch.Tensor] | None
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None:
+        """The renderer's camera input: (K_tgt, w2c_tgt, K_src, w2c_src) with the source camera at the
+        middle frame of ``source`` = (K (B, T_s, 3, 3), w2c (B, T_s, 4, 4)); None for models that do
+        not use it (then ``source`` is ignored)."""
+        if not self.needs_source:
+            return None
+        if source is None:
+            raise ModelError("this model places its tokens with the source camera: pass source=(K, w2c), the "
+                             "trajectory of the first encoded camera (a Scene's cameras)")
+        K_src, w2c_src = source
+        B = K_tgt.shape[0]
+        if K_src.ndim != 4 or K_src.shape[0] != B:
+            raise ModelError(f"source cameras: K must be ({B}, T, 3, 3), got {tuple(K_src.shape)}")
+        self._check_cameras(K_src, w2c_src, B, K_src.shape[1], "source cameras")
+        mid = K_src.shape[1] // 2
+        device = K_tgt.device
+        return K_tgt, w2c_tgt, K_src[:, mid].to(device), w2c_src[:, mid].to(device)
+
     def rays(self, K: torch.Tensor, w2c: torch.Tensor) -> torch.Tensor:
         """Plücker rays of cameras (B, T) at latent resolution: (B, T, 6, h, w), always float32."""
         with torch.autocast("cuda" if K.device.type == "cuda" else "cpu", enabled=False):
@@ -153,11 +180,13 @@ class VideoTok4D(ModelIdentity, nn.Module):
     @torch.no_grad()
     def render_latents(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                        *, steps: int | None = None, seed: int = 0, drop_static: bool = False,
-                       drop_dynamic: bool = False) -> torch.Tensor:
+                       drop_dynamic: bool = False,
+                       source: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0, in ``steps`` steps
         (None: ``self.decode_steps``, the model's recorded best-fidelity setting).
 
-        K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4). Returns Y^0 (B, T, C, h, w).
+        K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4); source: the source trajectory
+        (:meth:`render_cameras`; needed when ``needs_source``). Returns Y^0 (B, T, C, h, w).
         """
         self._check_tokens(z_s, z_d)
         steps = self.decode_steps if steps is None else steps
@@ -174,18 +203,23 @@ class VideoTok4D(ModelIdentity, nn.Module):
         h = cfg.latent_size
         y = torch.randn((B, T, cfg.latent_channels, h, h), generator=generator).to(device)
         rays = self.rays(K_tgt.to(device), w2c_tgt.to(device))
+        cameras = self.render_cameras(K_tgt.to(device), w2c_tgt.to(device), source)
         z_s, z_d = z_s.float(), z_d.float()
         for i in range(steps):
             tau = torch.full((B,), 1.0 - i / steps, device=device)
-            v = self.velocity(y, z_s, z_d, rays, tau, drop_static=drop_static, drop_dynamic=drop_dynamic)
+            v = self.velocity(y, z_s, z_d, rays, tau, cameras=cameras, drop_static=drop_static,
+                              drop_dynamic=drop_dynamic)
             y = y - v / steps
         return y
 
     def velocity(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
-                 tau: torch.Tensor, **drop: bool) -> torch.Tensor:
+                 tau: torch.Tensor, cameras: tuple[torch.Tensor, ...] | None = None, **drop: bool) -> torch.Tensor:
         """v(Y^tau, Z_s, Z_d, P_tgt, tau) (B, T, C, h, w) float32, whatever the renderer predicts
-        (``config.prediction``); rays are those of P_tgt at latent resolution, tau (B,) in (0, 1]."""
-        out = self.renderer(y_tau, z_s, z_d, rays, tau, **drop).float()
+        (``config.prediction``); rays are those of P_tgt at latent resolution, tau (B,) in (0, 1];
+        cameras: :meth:`render_cameras` (None for models without projected anchors)."""
+        if self.needs_source and cameras is None:
+            raise ModelError("this model places its tokens with the source camera: pass cameras=render_cameras(...)")
+        out = self.renderer(y_tau, z_s, z_d, rays, tau, cameras=cameras, **drop).float()
         if self.config.prediction == "velocity":
             return out
         t = tau.float().clamp_min(MIN_TAU).view(-1, 1, 1, 1, 1)
@@ -242,7 +276,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         t = tau.view(B, 1, 1, 1, 1)
         y_tau = (1.0 - t) * y0 + t * y1
         drop = {} if drop_static is None else {"drop_static": drop_static.to(y0.device)}
-        out = self.renderer(y_tau, z_s, z_d, self.rays(K_tgt, w2c_tgt), tau, **drop).float()
+        cameras = self.render_cameras(K_tgt, w2c_tgt, batch.source)
+        out = self.renderer(y_tau, z_s, z_d, self.rays(K_tgt, w2c_tgt), tau, cameras=cameras, **drop).float()
         sat = saturation_penalty(torch.cat([a_s, a_d], dim=1))
         if self.config.prediction == "velocity":
             v, x0_hat = out, y_tau - t * out

@@ -110,3 +110,9 @@ class SourceBatch:
     @property
     def num_scenes(self) -> int:
         return self.batch_size // self.views
+
+    @property
+    def source(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each scene's first camera, (K (S, T, 3, 3), w2c (S, T, 4, 4)): the trajectory a renderer with
+        projected anchors places the scene's tokens with (``VideoTok4D.render(..., source=...)``)."""
+        return self.K[::self.views], self.w2c[::self.views]

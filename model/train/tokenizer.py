@@ -87,7 +87,7 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
     idx = np.linspace(0, len(dataset) - 1, count).astype(int).tolist()
     batch = collate_pairs([dataset[i] for i in idx])
     z_s, z_d = model.encode(batch.source)
-    frames = model.render(z_s, z_d, batch.K_tgt, batch.w2c_tgt, steps=steps, seed=0)
+    frames = model.render(z_s, z_d, batch.K_tgt, batch.w2c_tgt, steps=steps, seed=0, source=batch.source.source)
     mse = ((frames - batch.target_frames) ** 2).mean(dim=(1, 2, 3, 4)).clamp_min(1e-10)
     psnr = (10 * torch.log10(1.0 / mse)).tolist()
     T = frames.shape[1]

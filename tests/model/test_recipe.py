@@ -132,7 +132,7 @@ def test_health_statistics(B, N, d, seed):
 class _FakeModel:
     """Renders the first token value as a flat grey video: own tokens match, swapped ones do not."""
 
-    def render(self, z_s, z_d, K, w2c, steps=1, seed=0):
+    def render(self, z_s, z_d, K, w2c, steps=1, seed=0, source=None):
         return z_s[:, :1, :1, None, None].expand(-1, 2, 3, 4, 4).clamp(0, 1)
 
 
@@ -314,3 +314,62 @@ def test_query_from_grid_starts_as_the_model_without_it_and_reads_the_anchor_cel
         get_config("tiny", **SMALL, query_from_grid=True)
     with pytest.raises(ModelError, match="query_from_grid"):
         get_config("tiny", **SMALL, locality_sigma=1.0, query_from_grid=1)
+
+
+def test_projected_anchors_equal_the_grid_prior_at_the_source_and_follow_the_target_pose():
+    base = get_config("tiny", **SMALL, locality_sigma=0.5)
+    cfg = get_config("tiny", **SMALL, locality_sigma=0.5, project_anchors=True)
+    assert get_config("tiny", **SMALL, locality_sigma=0.5, project_anchors=False).sha256() == base.sha256()
+    assert cfg.sha256() != base.sha256()
+    torch.manual_seed(0)
+    old, new = VideoTok4D(base).eval(), VideoTok4D(cfg).eval()
+    missing, unexpected = new.load_state_dict(old.state_dict(), strict=False)
+    assert sorted(missing) == ["renderer.depth_head.bias", "renderer.depth_head.weight"]
+    assert unexpected == ["renderer.token_bias"]
+    assert new.needs_source and not old.needs_source
+    batch = random_batch(cfg, B=2)
+    K, w2c = batch.K[:, :1].expand_as(batch.K).clone(), batch.w2c[:, :1].expand_as(batch.w2c).clone()  # static
+    z_s, z_d = new.encode(batch)
+    r = new.renderer
+    # at the source camera every anchor lands on its own cell, whatever its depth: the grid prior
+    bias = r.projected_bias(z_s, z_d, K, w2c, K[:, 0], w2c[:, 0])
+    T, P, n = cfg.frames, cfg.renderer_patches_per_side ** 2, cfg.n_static + cfg.n_dynamic
+    assert bias.shape == (2, cfg.heads, T * P, n)
+    grid = old.renderer.token_bias.detach().repeat(1, T, 1)
+    torch.testing.assert_close(bias[0], grid.clamp_min(-1.0e4), atol=1e-3, rtol=1e-4)
+    h = cfg.latent_size
+    y, tau = torch.randn(2, T, cfg.latent_channels, h, h), torch.full((2,), 0.7)
+    with torch.no_grad():  # so a warm start renders its source view exactly as before
+        v_old = old.velocity(y, z_s, z_d, old.rays(K, w2c), tau)
+        v_new = new.velocity(y, z_s, z_d, new.rays(K, w2c), tau, cameras=new.render_cameras(K, w2c, (K, w2c)))
+    torch.testing.assert_close(v_old, v_new, atol=1e-4, rtol=1e-4)
+    # a target camera moved 0.5 m along its own x axis sees every anchor shifted left by f * 0.5 / depth
+    moved = w2c.clone()
+    moved[..., 0, 3] -= 0.5
+    depth = r.anchor_depths(z_s, z_d, w2c[:, 0])  # (B, Na): the world origin's depth at initialisation
+    assert torch.allclose(depth, w2c[:, 0, 2, 3, None].expand_as(depth))
+    shifted = r.projected_bias(z_s, z_d, K, moved, K[:, 0], w2c[:, 0])
+    assert not torch.allclose(shifted, bias)
+    f, cell_px = float(K[0, 0, 0, 0]), cfg.image_size / cfg.patches_per_side
+    shift_cells = f * 0.5 / float(depth[0, 0].detach()) / cell_px
+    side = cfg.renderer_patches_per_side
+    # token anchored at cell (row 1, col side-1) now peaks about shift_cells columns to the left
+    token = 1 * side + side - 1
+    peak = int(shifted[0, 0, :P, token].argmax())
+    assert abs((side - 1 - peak % side) - shift_cells) <= 0.5 + 1e-6 and peak // side == 1
+    # tokens that end up behind the target camera get the floor logit
+    behind = w2c.clone()
+    behind[..., :3, :3] = -behind[..., :3, :3]
+    behind[..., :3, 3] = -behind[..., :3, 3]
+    far = r.projected_bias(z_s, z_d, K, behind, K[:, 0], w2c[:, 0])
+    assert float(far[:, 0, :, :cfg.n_static].max()) == -1.0e4
+    assert torch.equal(far[:, cfg.heads // 2:], torch.zeros_like(far[:, cfg.heads // 2:]))
+    # rendering needs the source trajectory, and says so
+    with pytest.raises(ModelError, match="source"):
+        new.render(z_s, z_d, K, w2c, steps=1)
+    assert new.render(z_s, z_d, K, w2c, steps=1, source=batch.source).shape == batch.frames.shape
+    loss, _ = new.rectified_flow_loss(batch, batch.frames, K, w2c)
+    loss.backward()
+    assert new.renderer.depth_head.weight.grad is not None
+    with pytest.raises(ModelError, match="locality_sigma"):
+        get_config("tiny", **SMALL, project_anchors=True)
