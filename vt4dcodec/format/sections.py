@@ -26,13 +26,14 @@ SECTION_DYNAMIC_QUANT = "QDYN"
 KNOWN_SECTIONS = (SECTION_CAMERAS, SECTION_STATIC_QUANT, SECTION_STATIC, SECTION_DYNAMIC_QUANT, SECTION_DYNAMIC)
 
 
-def compress_payload(raw: bytes, level: int | None) -> tuple[int, bytes]:
-    """(compression code, stored bytes): zstd at ``level`` when it is smaller, else raw.  ``level=None``
-    always stores raw (aligned, so readers get zero-copy arrays)."""
+def compress_payload(raw: bytes, level: int | None, *, min_saving: float = 0.0) -> tuple[int, bytes]:
+    """(compression code, stored bytes): zstd at ``level`` when it is smaller by more than ``min_saving``
+    (a fraction of the raw length), else raw.  ``level=None`` always stores raw (aligned, so readers get
+    zero-copy arrays)."""
     if level is None or not raw:
         return COMPRESSION_RAW, raw
     packed = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=False).compress(raw)
-    if len(packed) >= len(raw):
+    if len(packed) >= len(raw) or len(raw) - len(packed) < min_saving * len(raw):
         return COMPRESSION_RAW, raw
     return COMPRESSION_ZSTD, packed
 

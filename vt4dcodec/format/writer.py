@@ -27,6 +27,8 @@ HEADER_MODES = ("compact", "legacy")  # what save(header=...) offers: see dumps
 DEFAULT_COMPRESSION_LEVEL = 9  # zstd level; see docs/benchmarks/format.md for the size/speed trade
 
 
+TOKEN_ZSTD_MIN_SAVING = 0.125  # compact containers: fixed-width token arrays stay raw unless zstd saves this much
+
 # (type, critical, compression, stored bytes, raw length[, aligned])
 SectionParts = tuple[str, bool, int, bytes, int] | tuple[str, bool, int, bytes, int, bool]
 
@@ -77,8 +79,9 @@ def dumps(scene: Scene, *, encoding: str | None = None,
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
-        compression_level: zstd level for every section (a section that does not shrink is stored raw);
-            ``None`` stores every section raw and 64-byte aligned, for zero-copy reading.
+        compression_level: zstd level for every section (a section that does not shrink is stored raw; in a
+            compact container a fixed-width token section that zstd shrinks by less than 1/8 is stored raw
+            and aligned too, for zero-copy reading); ``None`` stores every section raw and 64-byte aligned.
         groups: channel groups sharing one scale/offset in the ``int<b>-rans`` encodings (1 = one pair per
             token matrix, d = per channel; must divide d).  Ignored by the other encodings.
         cameras: how the cameras section stores the trajectory (FORMAT.md I.5, I.5.1): ``"compact"``
@@ -122,7 +125,11 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         tokens_section = name in (SECTION_STATIC, SECTION_DYNAMIC)
         # rANS streams are incompressible: their sections are stored raw without trying zstd (FORMAT.md I.6.1)
         level = None if entropy_coded and tokens_section else compression_level
-        compression, stored = compress_payload(raw, level)
+        # in a compact container a fixed-width token array is worth zstd only when it saves 1/8 of it: raw,
+        # it is read in place (aligned), while decompressing e.g. int8 tokens, which zstd shrinks by ~7 %,
+        # costs a verified load a sixth of its time (bench/bench_format.py)
+        saving = TOKEN_ZSTD_MIN_SAVING if compact and tokens_section else 0.0
+        compression, stored = compress_payload(raw, level, min_saving=saving)
         # a compact container aligns only what a reader can use in place: raw fixed-width token arrays
         aligned = tokens_section and not entropy_coded and compression == COMPRESSION_RAW
         sections.append((name, True, compression, stored, len(raw), aligned))
