@@ -48,11 +48,12 @@ __all__ = [
 
 DEFAULT_MODEL = "vt4d-tiny"
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
-# The encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen for each
-# shipped model (docs/benchmarks/rate_distortion.md; vt4d-tiny 0.5.0: int4-rans, worst view +0.07 dB,
-# 1,215 token bytes). int2-rans is 632 bytes smaller and within 0.1 dB on average but loses up to
-# 0.24 dB on single views. Re-measure with bench/bench_rate_distortion.py when the model changes.
-DEFAULT_ENCODING = "int4-rans"
+# The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
+# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.6.0: int5-rans, worst view
+# +0.052 dB, 1,737 token bytes; int4-rans (the default up to 0.5.0) is 396 bytes smaller but loses
+# +0.103 dB on its worst view, int3-rans +0.22. Re-measure with bench/bench_rate_distortion.py when the
+# model changes.
+DEFAULT_ENCODING = "int5-rans"
 
 
 # --- models -----------------------------------------------------------------------------------------
