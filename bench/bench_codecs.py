@@ -72,7 +72,6 @@ SETTINGS = (  # (row name, stored set, evaluated views)
     ("half/captured", "half", "captured"),
     ("half/novel", "half", "novel"),
 )
-DEFAULT_ENCODING = "int4-rans"
 TABLE_BEGIN, TABLE_END = "<!-- codecs-table:begin -->", "<!-- codecs-table:end -->"
 
 
@@ -559,7 +558,7 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
     net = codec.load_model(args.model).eval()
     cfg = net.config
     encodings = ENCODINGS if args.encodings == "all" else tuple(e.strip() for e in args.encodings.split(","))
-    reference = DEFAULT_ENCODING if DEFAULT_ENCODING in encodings else encodings[0]
+    reference = codec.DEFAULT_ENCODING if codec.DEFAULT_ENCODING in encodings else encodings[0]
     codecs = available_codecs([c.strip() for c in args.codecs.split(",")])
     fp = codec.model_fingerprint(net)
     started, cpu0 = time.perf_counter(), time.process_time()
