@@ -22,7 +22,10 @@ _UTC = re.compile(r"\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z")
 def _check_calendar(stamp: str) -> None:
     """``created_utc`` must name a real UTC instant (FORMAT.md "Text"): 2026-02-30 and 24:00 are out."""
     try:
-        datetime.datetime.strptime(stamp[:19], "%Y-%m-%dT%H:%M:%S")
+        # the _UTC pattern has fixed the layout; the constructor checks the calendar (strptime did the same
+        # at ~4x the cost of a verified load's header work)
+        datetime.datetime(int(stamp[0:4]), int(stamp[5:7]), int(stamp[8:10]), int(stamp[11:13]), int(stamp[14:16]),
+                          int(stamp[17:19]))
     except ValueError:
         raise MalformedHeaderError(f"provenance.created_utc {stamp!r:.44} is not a valid calendar date and "
                                    "time (ISO-8601 UTC, seconds 00-59)") from None
