@@ -15,7 +15,7 @@ from torch import nn
 
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
-    "timestep_embedding", "patchify", "unpatchify", "locality_prior", "grid_positions",
+    "timestep_embedding", "patchify", "unpatchify", "locality_prior", "locality_heads", "grid_positions",
 ]
 
 
@@ -51,6 +51,12 @@ def masked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor,
     return out * any_valid[:, None, None, None].to(out.dtype)
 
 
+def locality_heads(heads: int) -> int:
+    """How many of the first heads carry a locality prior: half of them (all of a single head), so every
+    token keeps heads that may read anywhere."""
+    return heads // 2 if heads > 1 else heads
+
+
 def locality_prior(anchors: torch.Tensor, positions: torch.Tensor, heads: int, sigma: float) -> torch.Tensor:
     """A Gaussian attention-logit prior between anchored items and positions on one image grid.
 
@@ -59,7 +65,7 @@ def locality_prior(anchors: torch.Tensor, positions: torch.Tensor, heads: int, s
     every token keeps heads that may read anywhere)."""
     d2 = ((anchors[:, None, :] - positions[None, :, :]) ** 2).sum(-1)
     prior = (-d2 / (2.0 * sigma ** 2))[None].repeat(heads, 1, 1)
-    prior[heads // 2 if heads > 1 else heads:] = 0.0
+    prior[locality_heads(heads):] = 0.0
     return prior
 
 

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import AdaLNBlock, grid_positions, locality_prior, patchify, timestep_embedding, unpatchify
+from .layers import AdaLNBlock, grid_positions, locality_heads, locality_prior, patchify, timestep_embedding, unpatchify
 
 __all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH"]
 
@@ -128,8 +128,7 @@ class Renderer(nn.Module):
         P = self.patch_cells.shape[0]
         n_tokens = cfg.n_static + cfg.n_dynamic
         bias = logit.new_zeros(B, cfg.heads, T * P, n_tokens)
-        geometric = cfg.heads // 2 if cfg.heads > 1 else cfg.heads  # as locality_prior: the others read anywhere
-        bias[:, :geometric, :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
+        bias[:, :locality_heads(cfg.heads), :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
         return bias
 
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,

@@ -202,8 +202,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         generator = torch.Generator(device="cpu").manual_seed(int(seed))
         h = cfg.latent_size
         y = torch.randn((B, T, cfg.latent_channels, h, h), generator=generator).to(device)
-        rays = self.rays(K_tgt.to(device), w2c_tgt.to(device))
-        cameras = self.render_cameras(K_tgt.to(device), w2c_tgt.to(device), source)
+        K_tgt, w2c_tgt = K_tgt.to(device), w2c_tgt.to(device)
+        rays = self.rays(K_tgt, w2c_tgt)
+        cameras = self.render_cameras(K_tgt, w2c_tgt, source)
         z_s, z_d = z_s.float(), z_d.float()
         for i in range(steps):
             tau = torch.full((B,), 1.0 - i / steps, device=device)

@@ -369,15 +369,14 @@ class SceneDecoder:
 
         z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
         z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
-        source = None
-        if self.model.needs_source:  # the scene's cameras are its first encoded camera's trajectory
-            ref = self.trajectory("source")
-            source = (torch.from_numpy(ref.K.astype(np.float32))[None], torch.from_numpy(ref.w2c.astype(np.float32))[None])
+        def camera_tensors(traj: Trajectory) -> tuple["torch.Tensor", "torch.Tensor"]:
+            return torch.from_numpy(traj.K.astype(np.float32))[None], torch.from_numpy(traj.w2c.astype(np.float32))[None]
+
+        # the scene's cameras are its first encoded camera's trajectory, which places the tokens
+        source = camera_tensors(self.trajectory("source")) if self.model.needs_source else None
         out = []
         for spec in trajectories:
-            traj = self.trajectory(spec, capture=capture)
-            K = torch.from_numpy(traj.K.astype(np.float32))[None]
-            w2c = torch.from_numpy(traj.w2c.astype(np.float32))[None]
+            K, w2c = camera_tensors(self.trajectory(spec, capture=capture))
             frames = self.model.render(z_s, z_d, K, w2c, steps=steps, seed=seed, drop_static=drop_static,
                                        drop_dynamic=drop_dynamic, source=source)
             video = (frames[0].permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)

@@ -133,6 +133,7 @@ class SceneFile:
         compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
         self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR, compressed=compact)
         self._check_encoding_version()
+        self._table_end = table_end
         self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length,
                                                         compact=compact)
         self._by_type = {e.type: e for e in self.sections}
@@ -322,8 +323,7 @@ class SceneFile:
     def verify(self) -> None:
         """Check every byte: padding is zero, every section's checksum, size, and decoded content
         (including ancillary sections' checksums).  Raises the FormatError subclass of the first problem."""
-        end = (PREAMBLE_SIZE + self.preamble.header_length
-               + self.preamble.section_count * entry_size(self.preamble.required_flags))
+        end = self._table_end
         for entry in self.sections:
             if any(self._data[end:entry.offset]):
                 raise MalformedSectionError(f"padding before section {entry.type} is not zero")

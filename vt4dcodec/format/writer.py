@@ -9,10 +9,9 @@ from typing import BinaryIO
 
 from ..errors import FormatError
 from .encodings import ENCODINGS, encode_tokens
-from .header import HeaderInfo, pack_header
+from .header import HeaderInfo, compress_header, pack_header
 from .encodings import is_entropy_coded
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
-from .header import compress_header
 from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble,
                      SectionEntry, align, crc32, entry_size, pack_preamble, pack_table)
 from .limits import PREAMBLE_SIZE
