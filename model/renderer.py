@@ -10,7 +10,8 @@ Token locality (``config.locality_sigma``): half of the heads of every token cro
 Gaussian logit bias that ties render patch j to the static tokens anchored near it. Without
 ``config.project_anchors`` the bias is a learned (heads, P, N) table on the source image grid, the same
 at every target pose; with it the anchors are placed in 3-D (the source camera's cell ray at a depth read
-from the token) and projected into each target frame, so the bias moves with the target camera.
+from the token) and projected into each target frame, so the bias moves with the target camera. With
+``config.anchor_views`` and V encoded cameras, token i's cell ray is that of encoded camera i mod V.
 """
 
 from __future__ import annotations
@@ -88,34 +89,48 @@ class Renderer(nn.Module):
         keep[:, n_s:] &= ~drops[1][:, None]
         return tokens, keep
 
+    def token_cameras(self, views: int) -> torch.Tensor:
+        """(N_anchored,) index of the encoded camera each anchored token sits in: i mod V with
+        ``config.anchor_views``, else 0 (every token in the first camera)."""
+        index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
+        return index % views if self.cfg.anchor_views else torch.zeros_like(index)
+
     def anchor_depths(self, z_s: torch.Tensor, z_d: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
         """Depth (B, N_anchored) in metres of each anchored token along its source cell's ray: the depth of
-        the world origin in the source camera (w2c_src (B, 4, 4), at least MIN_ANCHOR_DEPTH) times
-        exp(f(token)), f bounded to (-MAX_DEPTH_LOG_FACTOR, MAX_DEPTH_LOG_FACTOR)."""
+        the world origin in the token's source camera (w2c_src (B, 4, 4), or (B, N_anchored, 4, 4) one per
+        token; at least MIN_ANCHOR_DEPTH) times exp(f(token)), f bounded to (-MAX_DEPTH_LOG_FACTOR,
+        MAX_DEPTH_LOG_FACTOR)."""
         if self.depth_head is None:
             raise RuntimeError("anchor_depths needs config.project_anchors")
         tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.depth_head.weight.dtype)
         log_factor = MAX_DEPTH_LOG_FACTOR * torch.tanh(self.depth_head(tokens)[..., 0].float())
-        reference = w2c_src[:, 2, 3].float().clamp_min(MIN_ANCHOR_DEPTH)
-        return reference[:, None] * torch.exp(log_factor)
+        reference = w2c_src[..., 2, 3].float().clamp_min(MIN_ANCHOR_DEPTH)
+        if reference.ndim == 1:
+            reference = reference[:, None]
+        return reference * torch.exp(log_factor)
 
     def projected_bias(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                        K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
         """The geometric locality bias (B, heads, T P, N) of ``config.project_anchors``.
 
         K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
-        K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens."""
+        K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
+        (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
+        anchors each token)."""
         cfg = self.cfg
         B, T = K_tgt.shape[:2]
+        if K_src.ndim == 3:
+            K_src, w2c_src = K_src[:, None], w2c_src[:, None]
+        cam = self.token_cameras(K_src.shape[1])
+        K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, Na, 3, 3), (B, Na, 4, 4)
         cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
         # anchor centres in pixel coordinates (u = col, v = row; pixel centres at integers)
         uv = self.anchor_cells.flip(-1) * cell_px - 0.5  # (Na, 2)
         pix = torch.cat([uv, torch.ones_like(uv[:, :1])], dim=-1)  # (Na, 3)
-        depth = self.anchor_depths(z_s, z_d, w2c_src)  # (B, Na)
-        K_src, w2c_src = K_src.float(), w2c_src.float()
-        x_cam = torch.linalg.solve(K_src, pix.T.expand(B, 3, -1)).transpose(1, 2) * depth[..., None]  # (B, Na, 3)
-        R, t = w2c_src[:, :3, :3], w2c_src[:, :3, 3]
-        x_world = torch.einsum("bji,bnj->bni", R, x_cam - t[:, None])  # R^T (x - t)
+        depth = self.anchor_depths(z_s, z_d, w2c_tok)  # (B, Na)
+        x_cam = torch.linalg.solve(K_tok, pix.expand(B, -1, -1)[..., None])[..., 0] * depth[..., None]  # (B, Na, 3)
+        R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
+        x_world = torch.einsum("bnji,bnj->bni", R, x_cam - t)  # R^T (x - t)
         Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
         x_tgt = torch.einsum("btij,bnj->btni", Rt, x_world) + tt[:, :, None]  # (B, T, Na, 3)
         proj = torch.einsum("btij,btnj->btni", K_tgt.float(), x_tgt)

@@ -49,6 +49,7 @@ class SpatialBranch(nn.Module):
         self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
         self.query_bias = None
         self.query_content: nn.Linear | None = None
+        self.anchor_views = cfg.anchor_views
         if cfg.locality_sigma > 0:  # static query i anchored at grid cell i mod P (configs.ModelConfig)
             cells = grid_positions(cfg.patches_per_side)
             self.register_buffer("anchor", torch.arange(n_queries) % cells.shape[0], persistent=False)
@@ -63,19 +64,31 @@ class SpatialBranch(nn.Module):
 
         With ``views`` > 1 the B clips are ``views`` cameras per scene (scene-major): each camera's
         grid is built on its own (its rays say where it looks), then the queries of a scene attend to
-        the grids of all its cameras at once."""
+        the grids of all its cameras at once. With ``config.anchor_views`` query i is anchored in
+        camera i mod V (its locality bias and grid feature come from that camera's cell i); without
+        it, in every camera's cell i alike."""
         x = self.embed(patchify(torch.cat([latents, rays], dim=2), self.patch_size))
-        T = x.shape[1]
+        B, T, P, D = x.shape
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
         for block in self.blocks:
             x = block(x)
-        grid = x.flatten(1, 2)  # camera-aware feature grid (B, T P, D)
-        grid = grid.reshape(grid.shape[0] // views, views * grid.shape[1], grid.shape[2])  # (B/V, V T P, D)
-        q = self.queries[None].expand(grid.shape[0], -1, -1)
-        if self.query_content is not None:  # + W * mean over frames (and cameras) of the anchor cell's feature
-            cell = x.reshape(x.shape[0] // views, views * T, x.shape[2], x.shape[3]).mean(1)  # (B/V, P, D)
-            q = q + self.query_content(cell[:, self.anchor])
-        bias = None if self.query_bias is None else self.query_bias.repeat(1, 1, grid.shape[1] // self.query_bias.shape[-1])
+        S = B // views
+        grid = x.reshape(S, views * T * P, D)  # camera-aware feature grids of a scene's cameras (V T P)
+        q = self.queries[None].expand(S, -1, -1)
+        own = self.anchor_views and views > 1
+        if own:
+            camera = torch.arange(q.shape[1], device=x.device) % views  # each query's camera
+        if self.query_content is not None:  # + W * mean over frames of the anchor cell's feature
+            cells = x.reshape(S, views, T, P, D).mean(2)  # (S, V, P, D)
+            cell = cells[:, camera, self.anchor] if own else cells.mean(1)[:, self.anchor]
+            q = q + self.query_content(cell)
+        bias = None
+        if self.query_bias is not None:  # (heads, n_queries, P) -> (heads, n_queries, V T P)
+            per_camera = self.query_bias[:, :, None, None, :].expand(-1, -1, views, T, -1)
+            if own:  # other cameras' cells: the bias of the query's farthest cell in its own camera
+                mine = (camera[:, None] == torch.arange(views, device=x.device)[None])[None, :, :, None, None]
+                per_camera = torch.where(mine, per_camera, self.query_bias.amin(-1)[:, :, None, None, None])
+            bias = per_camera.reshape(self.query_bias.shape[0], q.shape[1], views * T * P)
         for block in self.query_blocks:
             q = block(q, grid, bias=bias)
         return q

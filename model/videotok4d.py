@@ -6,7 +6,7 @@
 
 Rendering takes tokens, never source frames, so one token state renders any number of target
 trajectories without re-running the encoder. A model with ``config.project_anchors`` also needs the
-source trajectory (the first encoded camera's: ``source=(K, w2c)``), whose middle frame places the
+source trajectories (the encoded cameras': ``source=(K, w2c)``), whose middle frames place the
 anchored tokens in 3-D; ``model.needs_source`` says so. Sampling noise comes from a ``torch.Generator`` seeded
 with ``seed``: the same tokens and seed give the same frames.
 """
@@ -99,22 +99,27 @@ class VideoTok4D(ModelIdentity, nn.Module):
     def render_cameras(self, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                        source: tuple[torch.Tensor, torch.Tensor] | None
                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None:
-        """The renderer's camera input: (K_tgt, w2c_tgt, K_src, w2c_src) with the source camera at the
-        middle frame of ``source`` = (K (B, T_s, 3, 3), w2c (B, T_s, 4, 4)); None for models that do
-        not use it (then ``source`` is ignored)."""
+        """The renderer's camera input: (K_tgt, w2c_tgt, K_src (B, V, 3, 3), w2c_src (B, V, 4, 4)) with the
+        encoded cameras at the middle frame of ``source`` = (K (B, T_s, 3, 3), w2c (B, T_s, 4, 4)) for one
+        camera, or (K (B, V, T_s, 3, 3), w2c (B, V, T_s, 4, 4)) for V encoded cameras in encoding order;
+        None for models that do not use it (then ``source`` is ignored)."""
         if not self.needs_source:
             return None
         if source is None:
-            raise ModelError("this model places its tokens with the source camera: pass source=(K, w2c), the "
-                             "trajectory of the first encoded camera (a Scene's cameras)")
+            raise ModelError("this model places its tokens with the source cameras: pass source=(K, w2c), the "
+                             "trajectories of the encoded cameras (a Scene's cameras and extra_cameras)")
         K_src, w2c_src = source
         B = K_tgt.shape[0]
-        if K_src.ndim != 4 or K_src.shape[0] != B:
-            raise ModelError(f"source cameras: K must be ({B}, T, 3, 3), got {tuple(K_src.shape)}")
-        self._check_cameras(K_src, w2c_src, B, K_src.shape[1], "source cameras")
-        mid = K_src.shape[1] // 2
+        if K_src.ndim == 4:
+            K_src, w2c_src = K_src[:, None], w2c_src[:, None]
+        if K_src.ndim != 5 or K_src.shape[0] != B or w2c_src.shape[:3] != K_src.shape[:3]:
+            raise ModelError(f"source cameras: K must be ({B}, T, 3, 3) or ({B}, V, T, 3, 3) and w2c alike, "
+                             f"got {tuple(K_src.shape)} and {tuple(w2c_src.shape)}")
+        V, T_s = K_src.shape[1:3]
+        self._check_cameras(K_src.flatten(0, 1), w2c_src.flatten(0, 1), B * V, T_s, "source cameras")
+        mid = T_s // 2
         device = K_tgt.device
-        return K_tgt, w2c_tgt, K_src[:, mid].to(device), w2c_src[:, mid].to(device)
+        return K_tgt, w2c_tgt, K_src[:, :, mid].to(device), w2c_src[:, :, mid].to(device)
 
     def rays(self, K: torch.Tensor, w2c: torch.Tensor) -> torch.Tensor:
         """Plücker rays of cameras (B, T) at latent resolution: (B, T, 6, h, w), always float32."""

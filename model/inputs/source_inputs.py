@@ -113,6 +113,10 @@ class SourceBatch:
 
     @property
     def source(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each scene's first camera, (K (S, T, 3, 3), w2c (S, T, 4, 4)): the trajectory a renderer with
-        projected anchors places the scene's tokens with (``VideoTok4D.render(..., source=...)``)."""
-        return self.K[::self.views], self.w2c[::self.views]
+        """Each scene's encoded cameras, the trajectories a renderer with projected anchors places the
+        scene's tokens with (``VideoTok4D.render(..., source=...)``): (K (S, T, 3, 3), w2c (S, T, 4, 4))
+        for one view per scene, else (K (S, V, T, 3, 3), w2c (S, V, T, 4, 4)) in encoding order."""
+        if self.views == 1:
+            return self.K, self.w2c
+        S, V = self.num_scenes, self.views
+        return self.K.reshape(S, V, *self.K.shape[1:]), self.w2c.reshape(S, V, *self.w2c.shape[1:])

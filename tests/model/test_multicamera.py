@@ -140,3 +140,67 @@ def test_views_batch_sampler_and_collate(pool):
         ViewsBatchSampler(8, 2, multi_share=0.5, multi_views=(1,), generator=torch.Generator())
     with pytest.raises(ValueError):
         PairDataset(pool, [0])[(0, 2)]  # all ordered pairs: no sampled target for a multi-camera item
+
+
+ANCHORED = dict(locality_sigma=0.5, query_from_grid=True, project_anchors=True)
+
+
+def test_anchor_views_is_the_same_model_for_one_camera_and_anchors_each_token_in_its_own_camera():
+    base, own = small_model(**ANCHORED), small_model(**ANCHORED, anchor_views=True)
+    assert own.config.sha256() != base.config.sha256()
+    assert small_model(**ANCHORED, anchor_views=False).config.sha256() == base.config.sha256()
+    assert own.load_state_dict(base.state_dict()) is not None  # no new weights: a warm start is exact
+    with torch.no_grad():
+        own.spatial_branch.query_content.weight.normal_(std=0.5)
+        base.spatial_branch.query_content.weight.copy_(own.spatial_branch.query_content.weight)
+        own.renderer.depth_head.weight.normal_(std=0.5)
+        base.renderer.depth_head.weight.copy_(own.renderer.depth_head.weight)
+    batch = random_batch(own.config, B=4)
+    cfg, h = own.config, own.config.latent_size
+    y, tau = torch.randn(4, cfg.frames, cfg.latent_channels, h, h), torch.full((4,), 0.6)
+    with torch.no_grad():  # one camera: identical tokens and velocities
+        zb, zo = base.encode(batch), own.encode(batch)
+        torch.testing.assert_close(zo[0], zb[0])
+        vb = base.velocity(y, *zb, base.rays(batch.K, batch.w2c), tau,
+                           cameras=base.render_cameras(batch.K, batch.w2c, batch.source))
+        vo = own.velocity(y, *zo, own.rays(batch.K, batch.w2c), tau,
+                          cameras=own.render_cameras(batch.K, batch.w2c, batch.source))
+        torch.testing.assert_close(vo, vb, atol=1e-5, rtol=1e-5)
+    # two cameras per scene: the source cameras of each scene, in encoding order
+    pair = dataclasses.replace(batch, views=2)
+    K_src, w2c_src = pair.source
+    assert K_src.shape == (2, 2, cfg.frames, 3, 3) and torch.equal(w2c_src[1, 1], batch.w2c[3])
+    r = own.renderer
+    assert r.token_cameras(2).tolist() == [i % 2 for i in range(cfg.n_static)]
+    assert base.renderer.token_cameras(2).tolist() == [0] * cfg.n_static
+    with torch.no_grad():
+        z = own.encode(pair)
+        # rendered at encoded camera 1 (static trajectory), camera 1's tokens peak on their own cells
+        K1 = batch.K[1::2, :1].expand(-1, cfg.frames, -1, -1).clone()
+        w1 = batch.w2c[1::2, :1].expand(-1, cfg.frames, -1, -1).clone()
+        cams = own.render_cameras(K1, w1, (K_src[:, :, :1].expand_as(K_src), w2c_src[:, :, :1].expand_as(w2c_src)))
+        bias = r.projected_bias(*z, *cams)
+        P = cfg.renderer_patches_per_side ** 2
+        nearest = ((r.patch_cells[:, None] - r.anchor_cells[None]) ** 2).sum(-1).argmin(0)  # (Na,) patch
+        peaks = bias[:, 0, :P, :cfg.n_static].argmax(1)  # (S, Na)
+        assert torch.equal(peaks[:, 1::2], nearest[1::2].expand(2, -1))
+        assert not torch.equal(peaks[:, 0::2], nearest[0::2].expand(2, -1))  # camera 0's tokens land elsewhere
+        # the grid feature each query starts from comes from its own camera's cell only
+        seen = []
+        hook = own.spatial_branch.query_content.register_forward_hook(lambda m, a, out: seen.append(a[0]))
+        assert pair.latents is None
+        frames = pair.frames.clone()
+        frames[1] = torch.rand_like(frames[1])  # scene 0, camera 1 only
+        own.encode(pair)
+        own.encode(dataclasses.replace(pair, frames=frames))
+        hook.remove()
+        before, after = seen
+        moved = (after[0] - before[0]).abs().amax(-1) > 1e-6  # (n_queries,)
+        assert moved[1::2].all() and not moved[0::2].any()
+        assert torch.equal(after[1], before[1])  # scene 1 untouched
+    with pytest.raises(ModelError, match="project_anchors"):
+        get_config("tiny", **SMALL, locality_sigma=0.5, anchor_views=True)
+    with pytest.raises(ModelError, match="anchor_views"):
+        get_config("tiny", **SMALL, **ANCHORED, anchor_views=1)
+    with pytest.raises(ModelError, match="source cameras"):
+        own.render_cameras(K1, w1, (K_src[:, :, 0], w2c_src))
