@@ -35,8 +35,8 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
-                                     FLAG_ENTROPY_CODED_TOKENS, PREAMBLE_SIZE, crc32, entry_size, parse_preamble,
-                                     parse_table)
+                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, PREAMBLE_SIZE, crc32, entry_size,
+                                     parse_preamble, parse_table)
 from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
@@ -106,13 +106,18 @@ def rebuild(header: dict | bytes, sections: list[list], **kw: Any) -> bytes:
     Without ``minor`` / ``required_flags`` the preamble says 1.0 with no flags, unless the sections came
     from a 1.2 file with compact cameras (a ``CAMS`` raw length below the 1.0 length the header implies,
     which only the compact encoding has): then 1.2 with flag bit 1 (and bit 0 for an ``-rans`` encoding),
-    as the writer would say; sections from a compact container (with their aligned flag) make one again."""
+    as the writer would say; with an ``XCAM`` section 1.4 with flag bit 3 too (and bit 0 for ``-rans``);
+    sections from a compact container (with their aligned flag) make one again."""
     if "minor" not in kw and "required_flags" not in kw and any(len(s) == 6 for s in sections):
         return rebuild_1_3(header, sections, **kw)  # split() of a compact container: build one again
     raw = header if isinstance(header, bytes) else msgpack.packb(header, use_bin_type=True)
-    if "minor" not in kw and "required_flags" not in kw and _compact_cameras(header, sections):
-        rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
-        kw = dict(kw, minor=2, required_flags=FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0))
+    if "minor" not in kw and "required_flags" not in kw:
+        rans = FLAG_ENTROPY_CODED_TOKENS if str(_header_map(header).get("encoding", "")).endswith("-rans") else 0
+        compact_cams = FLAG_COMPACT_CAMERAS if _compact_cameras(header, sections) else 0
+        if _extra_cameras(sections):
+            kw = dict(kw, minor=4, required_flags=FLAG_EXTRA_CAMERAS | compact_cams | rans)
+        elif compact_cams:
+            kw = dict(kw, minor=2, required_flags=compact_cams | rans)
     return build_container(raw, [tuple(s) for s in sections], **kw)
 
 
@@ -125,15 +130,21 @@ def binary_digests(header: dict) -> dict:
     return dict(header, fingerprint=dict(fp, **{k: bytes.fromhex(fp[k]) for k in DIGESTS if isinstance(fp[k], str)}))
 
 
-def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = True, minor: int = 3,
+def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = True, minor: int | None = None,
                 required_flags: int | None = None, **kw: Any) -> bytes:
     """A compact container (1.3) with correct checksums: the header map (its digests made binary) or raw
     msgpack bytes, compressed with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as
-    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding)."""
+    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding), and bit 3 with
+    an ``XCAM`` section; the minor version to 3, or 4 with an ``XCAM`` section."""
     raw = header if isinstance(header, bytes) else msgpack.packb(binary_digests(header), use_bin_type=True)
+    if minor is None:
+        minor = 4 if _extra_cameras(sections) else 3
     if required_flags is None:
         rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
-        required_flags = FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
+        legacy_cameras = _legacy_cameras(header, sections)  # bit 1 unless CAMS is known to be the 1.0 section
+        required_flags = (FLAG_COMPACT_CONTAINER | (0 if legacy_cameras else FLAG_COMPACT_CAMERAS)
+                          | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
+                          | (FLAG_EXTRA_CAMERAS if _extra_cameras(sections) else 0))
     stored = compress_header(raw) if compress else raw
     return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)
 
@@ -148,14 +159,24 @@ def _header_map(header: dict | bytes) -> dict:
     return value if isinstance(value, dict) else {}
 
 
+def _extra_cameras(sections: list[list]) -> bool:
+    return any(s[0] == "XCAM" for s in sections)
+
+
 def _compact_cameras(header: dict | bytes, sections: list[list]) -> bool:
+    return _legacy_cameras(header, sections) is False
+
+
+def _legacy_cameras(header: dict | bytes, sections: list[list]) -> bool | None:
+    """Whether CAMS has the 1.0 length the header implies (the compact encoding is always shorter); None when
+    the header or CAMS cannot be read."""
     try:
         cams = _header_map(header)["cameras"]
         t = cams["num_frames"]
         legacy = 8 * (25 * t + cams["distortion_terms"] + (t if cams["has_timestamps"] else 0))
-        return find(sections, "CAMS")[4] < legacy
+        return bool(find(sections, "CAMS")[4] >= legacy)
     except (KeyError, TypeError, StopIteration):
-        return False
+        return None
 
 
 def patch_preamble(data: bytes, offset: int, fmt: str, value: int, *, fix_crc: bool = True) -> bytes:
@@ -213,6 +234,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
     out.update(rans_valid_vectors())
     out.update(compact_valid_vectors())
     out.update(container_valid_vectors())
+    out.update(extra_cameras_valid_vectors())
     return out
 
 
@@ -424,6 +446,132 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
               "layout flag bit 2 with 12-value pose records: the length does not match")
     with_cams("cameras_flag_bit_3", compact_payload(4, 1 | 8, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
               "compact cameras layout flag bit 3 (undefined in 1.3)")
+    return out
+
+
+# --- format 1.4: extra cameras (FORMAT.md I.5.3) --------------------------------------------------------------
+def shifted(traj: Trajectory, dx: float, *, turn: tuple[int, int, int] | None = None, fx: float | None = None,
+            static: bool = False) -> Trajectory:
+    """Another camera of the same rig: ``traj`` moved ``dx`` metres along its x axis (exact in binary), turned
+    about y by the Pythagorean triple ``turn`` (a, b, c: cos = a / c, sin = b / c), with focal length ``fx``;
+    ``static``: every frame takes frame 0's pose.  No timestamps (an extra camera shares CAMS' own)."""
+    w2c, K = traj.w2c.copy(), traj.K.copy()
+    if static:
+        w2c[:] = w2c[0]
+    if turn is not None:
+        a, b, c = turn
+        w2c[:, :3, :3] = np.array([[a / c, 0.0, b / c], [0.0, 1.0, 0.0], [-b / c, 0.0, a / c]]) @ w2c[:, :3, :3]
+    w2c[:, 0, 3] += dx
+    if fx is not None:
+        K[:, 0, 0] = K[:, 1, 1] = fx
+    return Trajectory(K=K, w2c=w2c, width=traj.width, height=traj.height)
+
+
+def with_extra(s: Scene, cams: Trajectory, extras: list[Trajectory]) -> Scene:
+    return Scene(s.static_tokens, s.dynamic_tokens, cams, s.fingerprint, s.metadata, s.provenance, s.encoding,
+                 extra_cameras=extras)
+
+
+RIG_METADATA = {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture",
+                         "source_cameras": ["cam00", "cam01", "cam02", "cam03"]}}
+
+
+def extra_cameras_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    one = cameras(1)
+    minimal = with_extra(scene(2, 1, 3), one, [shifted(one, -0.5), shifted(one, 0.0, turn=(4, 3, 5), fx=120.0)])
+    rig = orbit(8)
+    rig_scene = with_extra(scene(64, 32, 4, provenance=PROVENANCE, metadata=RIG_METADATA), rig,
+                           [shifted(rig, -0.25), shifted(rig, 0.5, turn=(12, 5, 13)),
+                            shifted(rig, 1.0, turn=(24, 7, 25), static=True)])
+    two = cameras(2, timestamps=True)
+    pair = with_extra(scene(4, 2, 4, frames=2, provenance=PROVENANCE), two,
+                      [shifted(two, 0.25), shifted(two, -0.75, turn=(15, 8, 17), static=True)])
+    zoom = orbit(5, zoom=True)
+    return {
+        "extra_cameras_minimal": (
+            dumps(minimal, encoding="float32", compression_level=None),
+            "1.4: the compact_container_minimal scene with 2 extra static cameras (one shifted, one turned with "
+            "another focal length), every section raw (the FORMAT.md I.5.3 example)"),
+        "extra_cameras_orbit_rans": (
+            dumps(rig_scene, encoding="int4-rans"),
+            "1.4: a 4-camera encode as the encoder writes it: int4-rans tokens, 8 frames of an orbit with "
+            "timestamps in CAMS, 3 extra cameras (two moving, one static) as float32 quaternions, zstd"),
+        "extra_cameras_exact_f64": (
+            dumps(with_extra(scene(4, 2, 4), zoom, [shifted(zoom, 0.5), shifted(zoom, -0.5, turn=(4, 3, 5))]),
+                  encoding="float16", cameras="exact"),
+            "1.4: compact container, cameras=\"exact\": CAMS and both extra cameras as float64 matrices with "
+            "per-frame intrinsics (zoom), bit for bit"),
+        "extra_cameras_legacy_layout": (
+            dumps(pair, encoding="int8", cameras="legacy", header="legacy", compression_level=None),
+            "1.4 in the 1.0 layout (msgpack header, 40-byte entries, 64-aligned payloads) with the 1.0 float64 "
+            "cameras section: required flags 8 only; the extra cameras are I.5 float64 K and w2c"),
+        "extra_cameras_legacy_header_compact_cameras": (
+            dumps(pair, encoding="int4", header="legacy"),
+            "1.4 in the 1.0-1.2 layout with compact cameras (required flags 10): float32 matrix records, no "
+            "quaternions (those need a compact container)"),
+    }
+
+
+def extra_cameras_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    two = cameras(2)
+    good_scene = with_extra(scene(4, 2, 4, frames=2, provenance=PROVENANCE), two,
+                            [shifted(two, 0.25), shifted(two, -0.75, static=True)])
+    good = dumps(good_scene, encoding="int8", compression_level=None)
+    header, sections = split(good)
+    legacy = dumps(good_scene, encoding="int8", compression_level=None, header="legacy", cameras="legacy")
+    legacy_header, legacy_sections = split(legacy)
+    xcam = find(sections, "XCAM")[3]
+    records = [xcam[9:9 + struct.unpack_from("<I", xcam, 1)[0]], xcam[9 + struct.unpack_from("<I", xcam, 1)[0]:]]
+    K = [100.0, 0.0, 31.5, 100.0, 23.5]
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def add(name: str, data: bytes, error: str, why: str) -> None:
+        out[f"extra_cameras_{name}"] = (data, error, why)
+
+    def with_xcam(name: str, payload: bytes, error: str, why: str, *, legacy_layout: bool = False) -> None:
+        bad = [list(x) for x in (legacy_sections if legacy_layout else sections)]
+        find(bad, "XCAM")[2:5] = [0, payload, len(payload)]
+        add(name, rebuild(legacy_header if legacy_layout else header, bad), error, why)
+
+    def pack(*recs: bytes) -> bytes:
+        return bytes([len(recs)]) + struct.pack(f"<{len(recs)}I", *map(len, recs)) + b"".join(recs)
+
+    assert xcam == pack(*records)  # the writer and the text agree
+    add("flag_without_section", rebuild_1_3(header, [x for x in sections if x[0] != "XCAM"], minor=4,
+                                            required_flags=FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS
+                                            | FLAG_EXTRA_CAMERAS),
+        "MalformedSectionError", "required flag bit 3 but no XCAM section")
+    add("section_without_flag", rebuild_1_3(header, sections, minor=4,
+                                            required_flags=FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS),
+        "MalformedSectionError", "an XCAM section in a file whose required flag bit 3 is clear")
+    add("in_1_3_file", rebuild_1_3(header, sections, minor=3), "UnsupportedFeatureError",
+        "required flag bit 3 in a file that says minor version 3 (unknown there)")
+    ancillary = [list(x) for x in sections]
+    find(ancillary, "XCAM")[1] = False
+    add("ancillary", rebuild(header, ancillary), "MalformedSectionError", "the XCAM section is marked ancillary")
+    with_xcam("count_zero", b"\x00", "MalformedSectionError", "N = 0 (the section exists only with extra cameras)")
+    with_xcam("count_64", bytes([64]) + struct.pack("<64I", *([len(records[1])] * 64)) + records[1] * 64,
+              "LimitExceededError", "64 extra cameras (the limit is 63)")
+    with_xcam("table_cut_short", xcam[:6], "MalformedSectionError", "N = 2 but only 5 bytes of length table follow")
+    with_xcam("trailing_byte", xcam + b"\x00", "MalformedSectionError",
+              "one byte after the last record (the lengths do not add up to the section)")
+    with_xcam("record_one_byte_long", pack(records[0], records[1] + b"\x00"), "MalformedSectionError",
+              "record 1 is one byte longer than its P, F and the header give (the lengths agree with it)")
+    with_xcam("record_empty", pack(records[0], b""), "MalformedSectionError",
+              "record 1 is 0 bytes (no room for P and F)")
+    with_xcam("nan_focal", pack(records[0], compact_payload(4, 3, [[float("nan")] + K[1:]],
+                                                            [[1.0, 0, 0, -0.75, 0, 1.0, 0, 0, 0, 0, 1.0, 2.0]])),
+              "MalformedSectionError", "record 1's fx is a float32 NaN")
+    with_xcam("distortion_in_record", pack(records[0], records[1] + np.zeros(4, "<f8").tobytes()),
+              "MalformedSectionError", "record 1 carries 4 float64 distortion terms, which extra cameras do not have")
+    first = find(legacy_sections, "XCAM")[3][9:9 + 400]  # 2 frames of I.5 float64 K and w2c
+    three = cameras(3)
+    with_xcam("legacy_three_frames", pack(first, np.concatenate([three.K.ravel(), three.w2c.ravel()]).astype("<f8")
+                                          .tobytes()), "MalformedSectionError",
+              "a float64 record of 3 frames in a 2-frame file", legacy_layout=True)
+    with_xcam("legacy_compact_record", pack(first, records[1]), "MalformedSectionError",
+              "a compact cameras record in a file without required flag bit 1 (its records are I.5 float64)",
+              legacy_layout=True)
     return out
 
 
@@ -652,6 +800,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     out.update(rans_invalid_vectors())
     out.update(compact_invalid_vectors())
     out.update(container_invalid_vectors())
+    out.update(extra_cameras_invalid_vectors())
     return out
 
 
@@ -691,7 +840,8 @@ def expected_content(data: bytes, description: str) -> dict[str, Any]:
         "static_tokens_sha256": hashlib.sha256(s.static_tokens.astype("<f4").tobytes()).hexdigest(),
         "dynamic_tokens_sha256": hashlib.sha256(s.dynamic_tokens.astype("<f4").tobytes()).hexdigest(),
         "sections": [e.type for e in f.sections],
-    }
+    } | ({"extra_cameras": [{"K": float_list(x.K), "w2c": float_list(x.w2c)} for x in s.extra_cameras]}
+         if f.has_extra_cameras else {})
 
 
 def uses_zstd(data: bytes) -> bool:

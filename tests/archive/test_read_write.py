@@ -42,6 +42,32 @@ def test_scene_objects_are_accepted(tmp_path):
         assert ar.open_scene("s").static_shape == (8, 4)
 
 
+def test_a_scene_with_extra_cameras_survives_append_and_read(tmp_path):
+    """Format 1.4 scene bytes (an XCAM section) are stored and read back as they are, summary as before."""
+    from vt4dcodec.archive.examples import example_scene
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.format import Scene, dumps
+
+    base = example_scene(5, static_shape=(8, 4), dynamic_shape=(4, 4), frames=3)
+    extras = []
+    for k in range(3):
+        w2c = base.cameras.w2c.copy()
+        w2c[:, 0, 3] += 0.5 * (k + 1)
+        extras.append(Trajectory(base.cameras.K, w2c, base.cameras.width, base.cameras.height))
+    scene = Scene(base.static_tokens, base.dynamic_tokens, base.cameras, base.fingerprint, base.metadata,
+                  base.provenance, "float32", extra_cameras=extras)
+    data = dumps(scene, cameras="exact")
+    with ArchiveWriter(tmp_path / "a.vt4da") as w:
+        w.append("rig", scene)
+        w.append("rig-bytes", data)
+    verify_archive(tmp_path / "a.vt4da")
+    with open_archive(tmp_path / "a.vt4da") as ar:
+        assert ar.open_scene("rig").num_extra_cameras == 3 and ar.summary("rig")["frames"] == 3
+        assert ar.read_bytes("rig-bytes") == data and ar.load("rig-bytes") == scene
+        back = ar.load("rig")  # the writer's default compact cameras: within 0.01 px, as CAMS
+        assert len(back.extra_cameras) == 3 and back.static_tokens.tobytes() == scene.static_tokens.tobytes()
+
+
 def test_invalid_record_is_refused(tmp_path):
     with ArchiveWriter(tmp_path / "a.vt4da") as w:
         with pytest.raises(FormatError):

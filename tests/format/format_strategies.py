@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,37 @@ def simple_scene(ns=4, nd=3, d=2, frames=2, seed=0, **kw) -> Scene:
     cams = Trajectory(np.tile(K, (frames, 1, 1)), w2c, 32, 24)
     return Scene(rng.standard_normal((ns, d)).astype(np.float32), rng.standard_normal((nd, d)).astype(np.float32),
                  cams, fingerprint((ns, d), (nd, d)), **kw)
+
+
+def camera(rng: np.random.Generator, frames: int, *, static: bool = False, zoom: bool = False,
+           size: tuple[int, int] = (32, 24)) -> Trajectory:
+    """A random rigid camera (random rotations and translations), constant or zooming K."""
+    q = rng.standard_normal((frames, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, :3, :3] = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+                               np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+                               np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], 1)
+    w2c[:, :3, 3] = rng.uniform(-4, 4, (frames, 3))
+    if static:
+        w2c[:] = w2c[0]
+    K = np.tile(np.array([[50.0, 0.0, 16.0], [0.0, 50.0, 12.0], [0.0, 0.0, 1.0]]), (frames, 1, 1))
+    if zoom:
+        K[:, 0, 0] = K[:, 1, 1] = rng.uniform(30, 90, frames)
+    return Trajectory(K, w2c, *size)
+
+
+def rig_scene(count: int = 2, frames: int = 2, seed: int = 0, *, timestamps: bool = True, **kw) -> Scene:
+    """simple_scene with ``count`` extra cameras (alternately moving and static, one zooming)."""
+    rng = np.random.default_rng(seed)
+    base = simple_scene(frames=frames, seed=seed, **kw)
+    cams = base.cameras
+    if timestamps:
+        cams = replace(cams, timestamps=np.arange(frames) / 30.0)
+    extras = [camera(rng, frames, static=i % 2 == 1, zoom=i == 2) for i in range(count)]
+    return Scene(base.static_tokens, base.dynamic_tokens, cams, base.fingerprint, base.metadata, base.provenance,
+                 base.encoding, extra_cameras=extras)
 
 
 finite_f32 = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False, width=32)

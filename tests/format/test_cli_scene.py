@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from format_strategies import simple_scene
+from format_strategies import rig_scene, simple_scene
 from vt4dcodec.cli import main
 from vt4dcodec.format import save
 
@@ -43,6 +43,18 @@ def test_info_and_verify_read_both_layouts(tmp_path, capsys):
     capsys.readouterr()
     assert main(["verify", "--json", str(tmp_path / "bad.vt4d")]) == 1
     assert json.loads(capsys.readouterr().out)[0]["error"] == "ChecksumError"
+
+
+def test_info_counts_the_extra_encoded_cameras(tmp_path, capsys):
+    """Format 1.4: `vt4d info` says how many further encoded cameras the file holds (0 for a single camera)."""
+    for count, name in ((0, "one.vt4d"), (1, "two.vt4d"), (3, "four.vt4d")):
+        save(rig_scene(count), tmp_path / name)
+        assert main(["info", "--json", str(tmp_path / name)]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["extra_cameras"] == count and summary["format_version"] == ("1.4" if count else "1.3")
+        assert main(["info", str(tmp_path / name)]) == 0
+        cams = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("cameras"))
+        assert cams.endswith({0: "quaternion", 1: ", 1 extra encoded camera", 3: ", 3 extra encoded cameras"}[count])
 
 
 def test_verify_exit_codes(tmp_path, capsys):

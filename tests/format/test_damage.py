@@ -12,7 +12,7 @@ import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
 
-from format_strategies import load_vector_tool, simple_scene
+from format_strategies import load_vector_tool, rig_scene, simple_scene
 from vt4dcodec.errors import (BadMagicError, FormatError, LimitExceededError, MalformedHeaderError,
                               MalformedSectionError, TruncatedError)
 from vt4dcodec.format import dumps, load, loads, open_scene, verify
@@ -27,6 +27,10 @@ SMALL = {
                         header="legacy"),
     "zstd_legacy": dumps(simple_scene(ns=3, nd=2, d=3, frames=2, encoding="int4", metadata={"k": [1, 2]}),
                          header="legacy"),
+    # format 1.4: the extra cameras section (XCAM) in both layouts, zstd and raw
+    "extra_cameras": dumps(rig_scene(2, frames=2, ns=3, nd=2, d=3, encoding="int4")),
+    "extra_cameras_raw_legacy": dumps(rig_scene(2, frames=2, ns=3, nd=2, d=3, encoding="float32"),
+                                      compression_level=None, header="legacy", cameras="legacy"),
 }
 
 

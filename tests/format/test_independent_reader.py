@@ -62,9 +62,10 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 8 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 16 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
+    assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
@@ -99,6 +100,7 @@ def read_scene(data: bytes) -> dict:
     entropy = header["encoding"].endswith("-rans")
     assert bool(required & 1) == entropy and (minor >= 1 or not entropy)
     assert minor >= 2 or not required & 2  # compact cameras (I.5.1) since 1.2
+    assert ("XCAM" in sections) == bool(required & 8)  # I.5.3: present exactly with required flag bit 3
     return {"minor": minor, "optional": optional, "required": required, "header": header, "sections": sections}
 
 
@@ -116,11 +118,16 @@ def compact_block(raw: bytes, pos: int, records: int, count: int, width: int) ->
     return out, pos + width * n
 
 
-def read_cameras(scene: dict) -> dict:
-    """The cameras section: I.5 (float64 throughout) or, with required flag bit 1, I.5.1 (compact)."""
-    cams, raw = scene["header"]["cameras"], scene["sections"]["CAMS"]
+def read_cameras(scene: dict, raw: bytes | None = None, *, extra: bool = False) -> dict:
+    """The cameras section: I.5 (float64 throughout) or, with required flag bit 1, I.5.1 (compact); with
+    ``extra`` one record of the extra cameras section (I.5.3): the same encoding, without distortion and
+    timestamps."""
+    cams, raw = scene["header"]["cameras"], scene["sections"]["CAMS"] if raw is None else raw
     t, n, has_ts = cams["num_frames"], cams["distortion_terms"], cams["has_timestamps"]
+    if extra:
+        n, has_ts = 0, False
     if not scene["required"] & 2:
+        assert len(raw) == 8 * (25 * t + n + (t if has_ts else 0))
         values = struct.unpack(f"<{len(raw) // 8}d", raw)
         K = [[list(values[9 * f + 3 * r: 9 * f + 3 * r + 3]) for r in range(3)] for f in range(t)]
         w2c = [[list(values[9 * t + 16 * f + 4 * r: 9 * t + 16 * f + 4 * r + 4]) for r in range(4)] for f in range(t)]
@@ -142,6 +149,23 @@ def read_cameras(scene: dict) -> dict:
     assert all(math.isfinite(v) for v in values)
     return {"K": K, "w2c": w2c, "distortion": list(tail[:n]) or None,
             "timestamps": list(tail[n:]) if has_ts else None}
+
+
+def read_extra_cameras(scene: dict) -> list[dict]:
+    """FORMAT.md I.5.3: u8 N (1..63), N u32 record lengths, then the records back to back, each one camera's
+    K and w2c as read_cameras reads CAMS; none without required flag bit 3."""
+    raw = scene["sections"].get("XCAM")
+    if raw is None:
+        return []
+    count = raw[0]
+    assert 1 <= count <= 63 and len(raw) >= 1 + 4 * count
+    lengths = struct.unpack_from(f"<{count}I", raw, 1)
+    assert 1 + 4 * count + sum(lengths) == len(raw)
+    out, pos = [], 1 + 4 * count
+    for length in lengths:
+        out.append(read_cameras(scene, raw[pos:pos + length], extra=True))
+        pos += length
+    return out
 
 
 def quaternion_pose(p: list[float]) -> list[float]:
@@ -236,6 +260,8 @@ def test_format_md_alone_reads_every_valid_vector(path):
     cams = read_cameras(scene)
     for key in ("K", "w2c", "distortion", "timestamps"):
         assert cams[key] == expected["cameras"][key], key
+    extras = read_extra_cameras(scene)
+    assert [{"K": x["K"], "w2c": x["w2c"]} for x in extras] == expected.get("extra_cameras", [])
 
 
 @settings(max_examples=25, deadline=None)
@@ -300,6 +326,49 @@ def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mo
         assert np.array_equal(mine["timestamps"], ours.timestamps)
     if mode == "exact":
         assert np.array_equal(ours.K, traj.K) and np.array_equal(ours.w2c, traj.w2c)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 5), st.integers(0, 2**32 - 1), st.sampled_from(["compact", "exact", "legacy"]),
+       st.sampled_from(["compact", "legacy"]), st.booleans())
+def test_format_md_alone_reads_the_extra_cameras_the_writer_makes(frames, count, seed, mode, header, timestamps):
+    """I.5.3: the spec-only reader above decodes every extra camera of the library's XCAM section (in each
+    cameras mode and both layouts) to exactly the library's own trajectories, which share CAMS' timestamps."""
+    from format_strategies import simple_scene
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.format import Scene, dumps, loads
+
+    rng = np.random.default_rng(seed)
+
+    def camera() -> Trajectory:
+        w2c = np.tile(np.eye(4), (frames, 1, 1))
+        for i in range(frames):
+            q = rng.standard_normal(4)
+            w, x, y, z = q / np.linalg.norm(q)
+            w2c[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                              [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                              [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+            w2c[i, :3, 3] = rng.uniform(-5, 5, 3)
+        if rng.integers(2):
+            w2c[:] = w2c[0]
+        K = np.tile(np.array([[80.0, 0.0, 31.5], [0.0, 80.0, 31.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
+        K[:, 0, 0] = K[:, 1, 1] = rng.uniform(40, 200, 1 if rng.integers(2) else frames)
+        return Trajectory(K=K, w2c=w2c, width=64, height=64)
+
+    first = camera()
+    if timestamps:
+        first = Trajectory(first.K, first.w2c, 64, 64, timestamps=np.cumsum(rng.uniform(0, 0.1, frames)))
+    base = simple_scene(ns=3, nd=2, d=4, seed=seed % 1000)
+    scene = Scene(base.static_tokens, base.dynamic_tokens, first, base.fingerprint,
+                  extra_cameras=[camera() for _ in range(count)])
+    data = dumps(scene, cameras=mode, header=header)
+    mine, ours = read_extra_cameras(read_scene(data)), loads(data)
+    assert len(mine) == len(ours.extra_cameras) == count
+    for got, want in zip(mine, ours.extra_cameras):
+        assert np.array_equal(np.array(got["K"]), want.K) and np.array_equal(np.array(got["w2c"]), want.w2c)
+        assert want.timestamps is ours.cameras.timestamps or np.array_equal(want.timestamps, ours.cameras.timestamps)
+    if mode != "compact":  # float64 records: bit for bit
+        assert all(a.equals(b) for a, b in zip(ours.extra_cameras, scene.extra_cameras))
 
 
 # --- Part II: archives, read from FORMAT.md alone (struct + zlib; no vt4dcodec import) ----------------

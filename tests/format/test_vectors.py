@@ -35,6 +35,13 @@ def test_valid_vector_decodes_as_expected(name):
     for key in ("distortion", "timestamps"):
         got = getattr(scene.cameras, key)
         assert (got is None and cams[key] is None) or np.array_equal(got, cams[key])
+    extras = expected.get("extra_cameras", [])  # format 1.4 (I.5.3): they share CAMS' size and timestamps
+    assert len(scene.extra_cameras) == f.num_extra_cameras == len(extras)
+    for got, want in zip(scene.extra_cameras, extras):
+        assert np.array_equal(got.K, want["K"]) and np.array_equal(got.w2c, want["w2c"])
+        assert (got.width, got.height) == (cams["width"], cams["height"]) and got.distortion is None
+        assert (got.timestamps is None and cams["timestamps"] is None) or np.array_equal(got.timestamps,
+                                                                                          cams["timestamps"])
     for key in ("static_tokens", "dynamic_tokens"):
         tokens = getattr(scene, key)
         assert np.array_equal(tokens, np.array(expected[key], np.float32))

@@ -100,7 +100,7 @@ def run_info(args: argparse.Namespace) -> int:
     summary = scene.summary()
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
                 "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
-                "camera_encoding": scene.camera_encoding()}
+                "camera_encoding": scene.camera_encoding(), "extra_cameras": scene.num_extra_cameras}
     if args.json or args.quiet:
         emit(args, summary)
         return EXIT_OK
@@ -113,7 +113,9 @@ def run_info(args: argparse.Namespace) -> int:
         f"tokens          Z_s {summary['static_shape'][0]}x{summary['static_shape'][1]}, "
         f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}",
         f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "
-        f"{summary['camera_encoding']}",
+        f"{summary['camera_encoding']}"
+        + (f", {summary['extra_cameras']} extra encoded camera{'s' if summary['extra_cameras'] > 1 else ''}"
+           if summary["extra_cameras"] else ""),
         f"model           {fp['model_id']} {fp['model_version']} ({fp['token_dtype']})",
         f"  config sha256 {fp['config_sha256']}",
         f"  weights sha256 {fp['weights_sha256']}",

@@ -10,7 +10,7 @@ __all__ = [
     "PREAMBLE_SIZE", "SECTION_ENTRY_SIZE", "SECTION_ALIGNMENT",
     "MAX_HEADER_BYTES", "MAX_HEADER_DEPTH", "MAX_METADATA_BYTES", "MAX_METADATA_DEPTH",
     "MAX_STRING_CHARS", "MAX_CONTAINER_ITEMS", "MAX_SECTIONS", "MAX_TOKENS", "MAX_TOKEN_DIM",
-    "MAX_TOKEN_VALUES", "MAX_FRAMES", "MAX_IMAGE_SIDE", "MAX_SECTION_RAW_BYTES",
+    "MAX_TOKEN_VALUES", "MAX_FRAMES", "MAX_IMAGE_SIDE", "MAX_SECTION_RAW_BYTES", "MAX_EXTRA_CAMERAS",
 ]
 
 PREAMBLE_SIZE = 64            # bytes, fixed in v1
@@ -30,4 +30,5 @@ MAX_TOKEN_DIM = 4096          # d
 MAX_TOKEN_VALUES = 1 << 26    # N * d for one token section (256 MiB as float32)
 MAX_FRAMES = 1 << 16          # T, poses in the cameras section
 MAX_IMAGE_SIDE = 1 << 16      # width and height in pixels
+MAX_EXTRA_CAMERAS = 63        # trajectories in the extra cameras section (format 1.4): 64 encoded cameras in all
 MAX_SECTION_RAW_BYTES = 1 << 30  # any section's decompressed size

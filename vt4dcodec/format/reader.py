@@ -15,8 +15,10 @@ from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
 from .compact_cameras import unpack_compact_cameras
-from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MINOR, BytesLike,
-                     Preamble, SectionEntry, crc32, entry_size, parse_preamble, parse_table)
+from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
+                            unpack_extra_cameras)
+from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
+                     FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size, parse_preamble, parse_table)
 from .limits import PREAMBLE_SIZE
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -139,6 +141,7 @@ class SceneFile:
         self._by_type = {e.type: e for e in self.sections}
         self._check_section_set()
         self._cameras: Trajectory | None = None
+        self._extra_cameras: tuple[Trajectory, ...] | None = None
 
     # --- structure ---------------------------------------------------------------------------------
     def _check_encoding_version(self) -> None:
@@ -162,10 +165,15 @@ class SceneFile:
         required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
         if is_affine(self._info.encoding):
             required |= {SECTION_STATIC_QUANT, SECTION_DYNAMIC_QUANT}
+        if self.has_extra_cameras:
+            required.add(SECTION_EXTRA_CAMERAS)
         for entry in self.sections:
             if entry.type in required:
                 if not entry.critical:
                     raise MalformedSectionError(f"section {entry.type} must be marked critical")
+            elif entry.type == SECTION_EXTRA_CAMERAS:
+                raise MalformedSectionError(
+                    f"section {entry.type} (extra cameras) is present but required flag bit 3 is clear")
             elif entry.type in KNOWN_SECTIONS:
                 raise MalformedSectionError(
                     f"section {entry.type} is not allowed with encoding {self._info.encoding}"
@@ -184,7 +192,8 @@ class SceneFile:
         decompressed (FORMAT.md I.11): a tiny file cannot make a reader allocate more than its tokens,
         cameras and quantization need (an 18 KB scene must not make it allocate two declared 256 MiB sections)."""
         d = self._info.static_shape[1]
-        limits = {SECTION_CAMERAS: self._info.cameras.raw_length}
+        limits = {SECTION_CAMERAS: self._info.cameras.raw_length,
+                  SECTION_EXTRA_CAMERAS: extra_cameras_max_raw_length(self._info.cameras.num_frames)}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
                                    (SECTION_DYNAMIC, self._info.dynamic_shape)):
             if is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, <= 2 bytes a code
@@ -261,6 +270,21 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_COMPACT_CONTAINER)
 
     @property
+    def has_extra_cameras(self) -> bool:
+        """Whether the file holds the extra cameras section (format 1.4, required flag bit 3)."""
+        return bool(self.preamble.required_flags & FLAG_EXTRA_CAMERAS)
+
+    @property
+    def num_extra_cameras(self) -> int:
+        """How many extra cameras the file holds (0 without the section); reads the section's count and length
+        table only (checksum-verified), no trajectory is decoded."""
+        if not self.has_extra_cameras:
+            return 0
+        if self._extra_cameras is not None:
+            return len(self._extra_cameras)
+        return len(extra_camera_records(self.raw_section(SECTION_EXTRA_CAMERAS)))
+
+    @property
     def token_bytes(self) -> int:
         """Stored bytes of the token sections (``ZSTA``, ``ZDYN``; the ``Q`` sections are not counted)."""
         return sum(e.stored_length for e in self.sections if e.type in (SECTION_STATIC, SECTION_DYNAMIC))
@@ -276,6 +300,34 @@ class SceneFile:
             else:
                 self._cameras = unpack_cameras(raw, self._info.cameras)
         return self._cameras
+
+    @property
+    def extra_cameras(self) -> tuple[Trajectory, ...]:
+        """The trajectories of the further encoded cameras, in encoding order (``()`` without the section);
+        each shares :attr:`cameras`' timestamps (so decoding them decodes ``CAMS`` too)."""
+        if self._extra_cameras is None:
+            if not self.has_extra_cameras:
+                self._extra_cameras = ()
+            else:
+                self._extra_cameras = self._unpack_extra_cameras(None)
+        return self._extra_cameras
+
+    def extra_camera(self, index: int) -> Trajectory:
+        """Extra camera ``index`` (0-based) alone: the section's count and length table are checked and only
+        that record is decoded."""
+        if self._extra_cameras is not None:
+            if not 0 <= index < len(self._extra_cameras):
+                raise FormatError(f"extra camera {index} does not exist: the file holds {len(self._extra_cameras)}")
+            return self._extra_cameras[index]
+        if not self.has_extra_cameras:
+            raise FormatError(f"extra camera {index} does not exist: the file holds no extra cameras")
+        return self._unpack_extra_cameras(index)[0]
+
+    def _unpack_extra_cameras(self, index: int | None) -> tuple[Trajectory, ...]:
+        raw = self.raw_section(SECTION_EXTRA_CAMERAS)
+        return unpack_extra_cameras(raw, self._info.cameras, self.cameras.timestamps,
+                                    compact_cameras=self.compact_cameras, quaternions=self.compact_container,
+                                    index=index)
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only; for
@@ -342,7 +394,7 @@ class SceneFile:
             static_tokens=static if static.flags.writeable else static.copy(),
             dynamic_tokens=dynamic if dynamic.flags.writeable else dynamic.copy(), cameras=self.cameras,
             fingerprint=self.fingerprint, metadata=dict(self.metadata), provenance=self.provenance,
-            encoding=self.encoding)
+            encoding=self.encoding, extra_cameras=self.extra_cameras)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-able overview: format_version, bytes, frames, width, height, static_shape, dynamic_shape,

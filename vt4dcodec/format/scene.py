@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -11,10 +11,10 @@ from ..cameras import Trajectory
 from ..errors import FormatError, LimitExceededError
 from .encodings import ENCODINGS
 from .fingerprint import ModelFingerprint, Provenance
-from .limits import MAX_FRAMES, MAX_IMAGE_SIDE
+from .limits import MAX_EXTRA_CAMERAS, MAX_FRAMES, MAX_IMAGE_SIDE
 from .metadata import normalize_metadata
 
-__all__ = ["Scene"]
+__all__ = ["Scene", "normalize_extra_cameras"]
 
 
 def _tokens(value: Any, what: str) -> np.ndarray:
@@ -27,6 +27,37 @@ def _tokens(value: Any, what: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise FormatError(f"{what} holds NaN or inf (or values beyond float32's range)")
     return arr
+
+
+def normalize_extra_cameras(cameras: Trajectory, extras: Any) -> tuple[Trajectory, ...]:
+    """``extras`` (a tuple or list of trajectories) checked against ``cameras`` as the extra cameras section
+    can store them (FORMAT.md I.5.3): at most 63, each a Trajectory with ``cameras``' frame count and image
+    size, no distortion, and timestamps that are absent or ``cameras``' own.  Returned as a tuple in which
+    every trajectory carries ``cameras``' timestamps (the ones a reader gives back: the cameras are synchronized,
+    their frames are the same instants)."""
+    if not isinstance(extras, (tuple, list)):
+        raise FormatError(f"extra_cameras must be a tuple (or list) of Trajectory, got {type(extras).__name__}")
+    if len(extras) > MAX_EXTRA_CAMERAS:
+        raise LimitExceededError(f"{len(extras)} extra cameras exceed the limit of {MAX_EXTRA_CAMERAS}")
+    shared = cameras.timestamps
+    out = []
+    for i, traj in enumerate(extras):
+        if not isinstance(traj, Trajectory):
+            raise FormatError(f"extra_cameras[{i}] must be a vt4dcodec.cameras.Trajectory, got {type(traj).__name__}")
+        if traj.num_frames != cameras.num_frames:
+            raise FormatError(f"extra_cameras[{i}] has {traj.num_frames} frames but cameras has {cameras.num_frames}: "
+                              "every encoded camera covers the same frames")
+        if (traj.width, traj.height) != (cameras.width, cameras.height):
+            raise FormatError(f"extra_cameras[{i}] is {traj.width}x{traj.height} px but cameras is "
+                              f"{cameras.width}x{cameras.height}: every encoded camera has the same image size")
+        if traj.distortion is not None:
+            raise FormatError(f"extra_cameras[{i}] has distortion terms; extra cameras are stored as pinhole "
+                              "cameras (K and w2c only): undistort, then dataclasses.replace(traj, distortion=None)")
+        if traj.timestamps is not None and (shared is None or not np.array_equal(traj.timestamps, shared)):
+            raise FormatError(f"extra_cameras[{i}] has timestamps other than cameras': the scene stores one set of "
+                              "frame times for every encoded camera; use dataclasses.replace(traj, timestamps=None)")
+        out.append(traj if traj.timestamps is shared else replace(traj, timestamps=shared))
+    return tuple(out)
 
 
 @dataclass(eq=False)
@@ -43,6 +74,12 @@ class Scene:
         encoding: the token encoding used by :func:`save` unless overridden
             ("float32" | "float16" | "int8" | "int4" | "int2-rans" .. "int8-rans"); a loaded scene carries
             its file's encoding.
+        extra_cameras: the trajectories of the further encoded cameras of a multi-camera encode, in encoding
+            order (the first encoded camera is ``cameras``); at most 63, a list is stored as a tuple.  Each has
+            ``cameras``' frame count and image size and no distortion; they share ``cameras``' timestamps (one
+            given without timestamps takes them).  Stored in the extra cameras section (format 1.4), each as
+            ``cameras`` is stored (FORMAT.md I.5.3): bit for bit with ``cameras="exact"`` or ``"legacy"``, by
+            default within 0.01 px of reprojection.
     """
 
     static_tokens: np.ndarray
@@ -52,6 +89,7 @@ class Scene:
     metadata: dict[str, Any] = field(default_factory=dict)
     provenance: Provenance | None = None
     encoding: str = "int8"
+    extra_cameras: tuple[Trajectory, ...] = ()
 
     def __post_init__(self) -> None:
         self.static_tokens = _tokens(self.static_tokens, "static_tokens")
@@ -76,6 +114,7 @@ class Scene:
             raise LimitExceededError(f"{self.cameras.num_frames} frames exceed the limit of {MAX_FRAMES}")
         if max(self.cameras.width, self.cameras.height) > MAX_IMAGE_SIDE:
             raise LimitExceededError(f"image size exceeds {MAX_IMAGE_SIDE} pixels per side")
+        self.extra_cameras = normalize_extra_cameras(self.cameras, self.extra_cameras)
         self.metadata = normalize_metadata(self.metadata)
 
     @classmethod
@@ -89,6 +128,11 @@ class Scene:
     @property
     def num_frames(self) -> int:
         return self.cameras.num_frames
+
+    @property
+    def num_cameras(self) -> int:
+        """How many encoded cameras the scene records: ``cameras`` and the ``extra_cameras``."""
+        return 1 + len(self.extra_cameras)
 
     @property
     def static_shape(self) -> tuple[int, int]:
@@ -106,10 +150,13 @@ class Scene:
         return (self.encoding == other.encoding and self.fingerprint == other.fingerprint
                 and self.provenance == other.provenance and self.metadata == other.metadata
                 and self.cameras.equals(other.cameras)
+                and len(self.extra_cameras) == len(other.extra_cameras)
+                and all(a.equals(b) for a, b in zip(self.extra_cameras, other.extra_cameras))
                 and np.array_equal(self.static_tokens, other.static_tokens)
                 and np.array_equal(self.dynamic_tokens, other.dynamic_tokens))
 
     def __repr__(self) -> str:
         return (f"Scene(Z_s {self.static_shape[0]}x{self.static_shape[1]}, Z_d {self.dynamic_shape[0]}x"
-                f"{self.dynamic_shape[1]}, {self.num_frames} frames {self.cameras.width}x{self.cameras.height}, "
-                f"encoding={self.encoding}, model={self.fingerprint.short()})")
+                f"{self.dynamic_shape[1]}, {self.num_frames} frames {self.cameras.width}x{self.cameras.height}"
+                f"{f', {len(self.extra_cameras)} extra cameras' if self.extra_cameras else ''}"
+                f", encoding={self.encoding}, model={self.fingerprint.short()})")

@@ -15,7 +15,7 @@ from .header import CameraLayout
 from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, BytesLike, SectionEntry, crc32
 
 __all__ = ["SECTION_CAMERAS", "SECTION_STATIC", "SECTION_DYNAMIC", "SECTION_STATIC_QUANT",
-           "SECTION_DYNAMIC_QUANT", "KNOWN_SECTIONS", "compress_payload", "section_payload",
+           "SECTION_DYNAMIC_QUANT", "SECTION_EXTRA_CAMERAS", "KNOWN_SECTIONS", "compress_payload", "section_payload",
            "pack_cameras", "unpack_cameras"]
 
 SECTION_CAMERAS = "CAMS"
@@ -23,7 +23,9 @@ SECTION_STATIC = "ZSTA"
 SECTION_DYNAMIC = "ZDYN"
 SECTION_STATIC_QUANT = "QSTA"
 SECTION_DYNAMIC_QUANT = "QDYN"
-KNOWN_SECTIONS = (SECTION_CAMERAS, SECTION_STATIC_QUANT, SECTION_STATIC, SECTION_DYNAMIC_QUANT, SECTION_DYNAMIC)
+SECTION_EXTRA_CAMERAS = "XCAM"  # format 1.4, required flag bit 3: see extra_cameras.py
+KNOWN_SECTIONS = (SECTION_CAMERAS, SECTION_EXTRA_CAMERAS, SECTION_STATIC_QUANT, SECTION_STATIC, SECTION_DYNAMIC_QUANT,
+                  SECTION_DYNAMIC)
 
 
 def compress_payload(raw: bytes, level: int | None, *, min_saving: float = 0.0) -> tuple[int, bytes]:

@@ -12,10 +12,12 @@ from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, compress_header, pack_header
 from .encodings import is_entropy_coded
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
-from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FORMAT_MAJOR, Preamble,
-                     SectionEntry, align, crc32, entry_size, pack_preamble, pack_table)
+from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
+from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
+                     FLAG_EXTRA_CAMERAS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32, entry_size,
+                     pack_preamble, pack_table)
 from .limits import PREAMBLE_SIZE
-from .scene import Scene
+from .scene import Scene, normalize_extra_cameras
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
                        SECTION_STATIC_QUANT, compress_payload, pack_cameras)
 
@@ -71,10 +73,12 @@ def dumps(scene: Scene, *, encoding: str | None = None,
           cameras: str = "compact", header: str = "compact") -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
-    The file says the lowest format version that describes it: 1.3 with required flag bit 2 for the compact
-    container (the default); else 1.2 with required flag bit 1 for compact cameras; otherwise 1.0 for the
-    float, int8 and int4 encodings (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0
-    for ``int<b>-rans`` (bit 0 is set in 1.2 and 1.3 files too).
+    The file says the lowest format version that describes it: 1.4 with required flag bit 3 when the scene
+    has ``extra_cameras`` (in either layout; their ``XCAM`` section follows ``CAMS``, each trajectory stored
+    as ``cameras`` says); else 1.3 with required flag bit 2 for the compact container (the default); else 1.2
+    with required flag bit 1 for compact cameras; otherwise 1.0 for the float, int8 and int4 encodings
+    (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0 for ``int<b>-rans`` (bit 0 is set
+    in 1.2 to 1.4 files too).
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
@@ -88,6 +92,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             a constant K or a static pose), ``"exact"`` (format 1.2, float64: reads back bit for bit) or
             ``"legacy"`` (the 1.0 float64 section, for readers older than 1.2).  In a compact container
             ``"compact"`` may store rotations as float32 quaternions (FORMAT.md I.5.2) under the same 0.01 px rule.
+            Each extra camera (FORMAT.md I.5.3) is stored the same way, its precision chosen on its own.
         header: ``"compact"`` (format 1.3, FORMAT.md I.3.1 and I.4.1: the header as one zstd frame with the
             spec-fixed dictionary and binary digests, 18-byte table entries, payloads packed except raw fixed-width token arrays,
             which stay 64-aligned for zero-copy reading) or ``"legacy"`` (the msgpack header, 40-byte entries
@@ -112,6 +117,10 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     if compact:
         head = compress_header(head)
     parts = [(SECTION_CAMERAS, cams)]
+    # re-checked here: a scene is mutable, and an extra camera must still fit the cameras it is stored beside
+    extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
+    if extras:
+        parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact)))
     for tokens, tok_name, quant_name in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT),
                                          (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)):
         enc = encode_tokens(tokens, encoding, groups=groups)
@@ -133,8 +142,9 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         aligned = tokens_section and not entropy_coded and compression == COMPRESSION_RAW
         sections.append((name, True, compression, stored, len(raw), aligned))
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
-             | (FLAG_COMPACT_CONTAINER if compact else 0))
-    minor = 3 if compact else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0
+             | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0))
+    minor = (4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact else 2 if flags & FLAG_COMPACT_CAMERAS
+             else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
 
 
