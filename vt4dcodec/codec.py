@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import os
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
@@ -33,7 +34,7 @@ from .cameras import Trajectory
 from .capture.capture import Capture
 from .capture.io import MANIFEST_NAME, CaptureManifest, read_capture, read_manifest
 from .capture.resample import check_fit, fit_capture, fit_trajectory, plan_fit
-from .capture.targets import camera_target, cut_to_clip, is_camera_spec
+from .capture.targets import camera_target, check_camera_spec, cut_to_clip, is_camera_spec
 from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
 from .format import ModelFingerprint, Provenance, Scene, load
@@ -167,7 +168,9 @@ def encode(
     :class:`~vt4dcodec.format.Scene`.
 
     The token budget is per scene: encoding more cameras gives the same N_s static and N_d dynamic
-    tokens, fused from every encoded camera (the encoder's queries attend to all of them).
+    tokens, fused from every encoded camera (the encoder's queries attend to all of them; a model with
+    ``anchor_views`` gives each encoded camera its share of the static tokens, anchored in its view).
+    The file stores every encoded camera's trajectory (``Scene.extra_cameras`` after the first).
 
     Args:
         capture: a :class:`Capture`, or a capture directory (or its manifest): then only the clip's
@@ -178,8 +181,9 @@ def encode(
         camera: the source camera (default: the capture's first camera).
         cameras: several source cameras instead: ``"all"``, or names (a list or ``"cam00,cam02"``).
             The first is the reference camera: its trajectory is the scene's stored cameras
-            (``decode(..., "source")``); the metadata lists every encoded camera
-            (``metadata["vt4d"]["source_cameras"]``). Any trajectory, encoded or not, renders.
+            (``decode(..., "source")``), the others' are ``Scene.extra_cameras`` (pinhole, in order); the
+            metadata lists every encoded camera's name (``metadata["vt4d"]["source_cameras"]``). Any
+            trajectory, encoded or not, renders.
         start: first frame of the clip; the clip is ``model.config.frames`` frames long.
         seed: seeds track sampling, so the same capture and seed give the same tokens.
         metadata: user key/values stored in the file (bounded; see FORMAT.md "Metadata").
@@ -251,10 +255,14 @@ def _encode_clip(clip: Capture, net: "VideoTok4D", encoding: str, names: list[st
         info["source_cameras"] = list(names)
     if fit != "crop":
         info["fit"] = fit  # absent: "crop"
+    # the further encoded cameras as the extra cameras section stores them (pinhole, the reference camera's
+    # frame times): a model with config.anchor_views places its tokens in them, and the file says what was seen
+    extra = tuple(dataclasses.replace(fitted.cameras[n], distortion=None, timestamps=None) for n in names[1:])
     return Scene(
         static_tokens=z_s[0].numpy().astype(np.float32),
         dynamic_tokens=z_d[0].numpy().astype(np.float32),
         cameras=fitted.cameras[names[0]],
+        extra_cameras=extra,
         fingerprint=model_fingerprint(net),
         metadata={**(metadata or {}), "vt4d": info},
         provenance=Provenance.now(clip.capture_id, "encoded"),
@@ -345,11 +353,35 @@ class SceneDecoder:
 
     def trajectory(self, spec: "Trajectory | str | os.PathLike", *,
                    capture: "Capture | str | os.PathLike | None" = None) -> Trajectory:
-        """``spec`` resolved for this scene (:func:`resolve_trajectory`); ``capture`` serves ``"camera:NAME"``."""
+        """``spec`` resolved for this scene (:func:`resolve_trajectory`); ``capture`` serves ``"camera:NAME"``,
+        which for an encoded camera the file itself serves when no capture is given."""
         cfg = self.model.config
+        if capture is None and is_camera_spec(spec):
+            spec = self.encoded_cameras().get(check_camera_spec(str(spec)), spec)
         return resolve_trajectory(spec, self.scene.cameras, size=cfg.image_size, max_frames=cfg.frames,
                                   metadata=self.scene.metadata, capture=capture,
                                   source_capture_id=getattr(self.scene.provenance, "source_capture_id", None))
+
+    def encoded_cameras(self) -> dict[str, Trajectory]:
+        """Encoded camera name -> its stored trajectory (the scene's cameras, then its extra cameras, named
+        by ``metadata["vt4d"]``); empty when the metadata does not name them."""
+        info = self.scene.metadata.get("vt4d")
+        info = info if isinstance(info, dict) else {}
+        names = info.get("source_cameras", [info["source_camera"]] if "source_camera" in info else [])
+        stored = (self.scene.cameras, *self.scene.extra_cameras)
+        if not isinstance(names, list) or len(names) != len(stored) or not all(isinstance(n, str) for n in names):
+            return {}
+        return dict(zip(names, stored))
+
+    def source_cameras(self) -> tuple["torch.Tensor", "torch.Tensor"]:
+        """The encoded cameras that place the tokens (the scene's cameras, then its extra cameras), fitted to
+        the model's image: (K (1, V, T, 3, 3), w2c (1, V, T, 4, 4)) float32."""
+        import torch  # lazy: keeps torch out of `import vt4dcodec` / `vt4d`
+
+        encoded = [self.trajectory("source")] + [self.trajectory(t) for t in self.scene.extra_cameras]
+        K = np.stack([t.K for t in encoded]).astype(np.float32)
+        w2c = np.stack([t.w2c for t in encoded]).astype(np.float32)
+        return torch.from_numpy(K)[None], torch.from_numpy(w2c)[None]
 
     def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int | None = DEFAULT_STEPS,
                seed: int = 0, drop_static: bool = False, drop_dynamic: bool = False,
@@ -372,8 +404,7 @@ class SceneDecoder:
         def camera_tensors(traj: Trajectory) -> tuple["torch.Tensor", "torch.Tensor"]:
             return torch.from_numpy(traj.K.astype(np.float32))[None], torch.from_numpy(traj.w2c.astype(np.float32))[None]
 
-        # the scene's cameras are its first encoded camera's trajectory, which places the tokens
-        source = camera_tensors(self.trajectory("source")) if self.model.needs_source else None
+        source = self.source_cameras() if self.model.needs_source else None
         out = []
         for spec in trajectories:
             K, w2c = camera_tensors(self.trajectory(spec, capture=capture))

@@ -74,3 +74,39 @@ def test_cli_encode_cameras(tmp_path, synth_scene, model_dir):
     bad = subprocess.run([sys.executable, "-m", "vt4dcodec", "encode", str(cap_dir), "--cameras", "cam00,cam09",
                           "--model", str(model_dir), "-o", str(tmp_path / "x.vt4d")], capture_output=True, text=True)
     assert bad.returncode != 0 and "cam09" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_every_encoded_camera_is_stored_and_places_the_tokens_of_an_anchor_views_model(tmp_path, synth_scene,
+                                                                                     small_config):
+    import dataclasses
+
+    import torch
+
+    from vt4dcodec.model import VideoTok4D, save_pretrained
+
+    cfg = dataclasses.replace(small_config, locality_sigma=0.5, query_from_grid=True, project_anchors=True,
+                              anchor_views=True)
+    torch.manual_seed(0)
+    net = VideoTok4D(cfg).eval()
+    with torch.no_grad():  # tokens with depths other than the reference, so placement matters, and an
+        net.renderer.depth_head.weight.normal_(std=0.5)  # output layer that is not zero (the fresh one is)
+        net.renderer.out.weight.normal_(std=0.2)
+    model_dir = save_pretrained(net, tmp_path / "anchored", model_id="anchored", model_version="0.0")
+    cap = synth_scene.capture
+    scene = codec.encode(cap, model=model_dir, cameras=["cam01", "cam00", "cam02"], seed=0)
+    back = load(dumps(scene))
+    assert len(back.extra_cameras) == 2
+    for name, traj in zip(["cam00", "cam02"], back.extra_cameras):
+        np.testing.assert_allclose(traj.w2c, cap.cameras[name].w2c, atol=1e-4)
+    decoder = codec.SceneDecoder.open(dumps(scene), model=model_dir)
+    K, w2c = decoder.source_cameras()
+    assert K.shape == (1, 3, 8, 3, 3) and w2c.shape == (1, 3, 8, 4, 4)
+    # an encoded camera renders from the file alone, as it renders from the capture (the stored camera is
+    # within 0.01 px of it: an odd pixel may round the other way)
+    from_file = decoder.render("camera:cam02", steps=1)
+    assert np.abs(from_file.astype(int) - decoder.render("camera:cam02", steps=1, capture=cap)).max() <= 1
+    # the extra cameras place the tokens: the same tokens placed with the first camera only render otherwise
+    first_only = codec.SceneDecoder(scene=dataclasses.replace(back, extra_cameras=()), model=decoder.model)
+    assert np.abs(first_only.render("camera:cam02", steps=1, capture=cap).astype(int) - from_file).max() > 0
+    with pytest.raises(Vt4dError, match="capture"):
+        decoder.render("camera:cam03", steps=1)  # not encoded: the capture is needed
