@@ -2,27 +2,29 @@
 
 from __future__ import annotations
 
-import time
-
 from cli_helpers import vt4d
 
 
 def test_generate_rejects_a_bad_view_before_sampling(capture_dir, tmp_path):
-    out = tmp_path / "gen"
-    started = time.perf_counter()
-    r = vt4d("generate", capture_dir, "--views", "source,spiral", "-o", out)
+    # --prior names a model that does not exist: each refusal below being about its own flag, not the
+    # prior, proves the arguments were checked before anything was loaded (so before sampling)
+    out, prior = tmp_path / "gen", ["--prior", str(tmp_path / "no_such_prior")]
+    r = vt4d("generate", capture_dir, "--views", "source,spiral", "-o", out, *prior)
     assert r.returncode == 1 and "--views" in r.stderr and "spiral" in r.stderr, r.stderr
     assert not out.exists()  # the old order sampled, wrote gen/scene.vt4d, then failed
-    r = vt4d("generate", capture_dir, "--anchor", "orbit:degress=20", "-o", out)
+    r = vt4d("generate", capture_dir, "--anchor", "orbit:degress=20", "-o", out, *prior)
     assert r.returncode == 1 and "--anchor" in r.stderr and "degress" in r.stderr, r.stderr
-    r = vt4d("generate", capture_dir, "--views", "pan:degrees=abc", "-o", out)
+    r = vt4d("generate", capture_dir, "--views", "pan:degrees=abc", "-o", out, *prior)
     assert r.returncode == 1 and "'abc' is not a number" in r.stderr, r.stderr
-    r = vt4d("generate", capture_dir, "--camera", "cam99", "-o", out)
+    r = vt4d("generate", capture_dir, "--camera", "cam99", "-o", out, *prior)
     assert r.returncode == 1 and "--camera" in r.stderr and "cam99" in r.stderr, r.stderr
-    r = vt4d("generate", capture_dir, "--views", "missing_traj.json", "-o", out)
-    assert r.returncode == 3 and "missing_traj.json" in r.stderr, r.stderr
+    r = vt4d("generate", capture_dir, "--views", "missing_traj.json", "-o", out, *prior)
+    assert r.returncode == 3 and "missing_traj.json" in r.stderr and "no_such_prior" not in r.stderr, r.stderr
     assert not out.exists()
-    assert time.perf_counter() - started < 60  # five refusals, none of which sampled the prior
+    # and with valid arguments the same command does reach the prior (so the refusals above came first)
+    r = vt4d("generate", capture_dir, "-o", out, *prior)
+    assert r.returncode != 0 and "no_such_prior" in r.stderr and "--prior" in r.stderr, r.stderr
+    assert not out.exists()
 
 
 def test_decode_checks_trajectories_before_it_looks_for_the_model(scene_file, tmp_path):
