@@ -18,7 +18,7 @@ time: on a shared machine it moves far less with the other jobs' load.  Tokens a
 outputs are smoother.  Results: bench/results/format.json.
 
 Loader throughput (``--loader-scenes``, default 256; 0 skips it): the same paper-size scenes packed into one
-``.vt4da`` archive per encoding (``--loader-encodings``, default int8 and the codec's default int5-rans),
+``.vt4da`` archive per encoding (``--loader-encodings``, default int8 and the codec's default),
 then scenes/s (wall, and per CPU second of this process) through ``ArchiveDataset`` in this process (every index in order: dequantized float32 token
 tensors, K, w2c, metadata) and through a ``torch.utils.data.DataLoader`` with 2 worker processes
 (batches of 16, token/camera tensors stacked; persistent workers, one untimed warm-up epoch, then
@@ -44,6 +44,7 @@ import zstandard
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
+from vt4dcodec.codec import DEFAULT_ENCODING  # noqa: E402
 from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, dumps, load, open_scene  # noqa: E402
 from vt4dcodec.format import rans  # noqa: E402
 from vt4dcodec.format.encodings import V1_0_ENCODINGS  # noqa: E402
@@ -242,7 +243,7 @@ def main() -> int:
     parser.add_argument("--loader-scenes", type=int, default=256,
                         help="scenes per archive for the loader benchmark (0: skip it)")
     parser.add_argument("--loader-epochs", type=int, default=3, help="timed epochs of the loader benchmark")
-    parser.add_argument("--loader-encodings", default="int8,int5-rans",
+    parser.add_argument("--loader-encodings", default=f"int8,{DEFAULT_ENCODING}",
                         help="encodings of the loader benchmark (default: int8 and the codec's default)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
     args = parser.parse_args()

@@ -40,6 +40,8 @@ from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, Trajec
 from .format import ModelFingerprint, Provenance, Scene, load
 
 if TYPE_CHECKING:  # pragma: no cover
+    import torch
+
     from .model import VideoTok4D
 
 __all__ = [
@@ -50,11 +52,11 @@ __all__ = [
 DEFAULT_MODEL = "vt4d-tiny"
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
-# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.6.0: int5-rans, worst view
-# +0.052 dB, 1,737 token bytes; int4-rans (the default up to 0.5.0) is 396 bytes smaller but loses
-# +0.103 dB on its worst view, int3-rans +0.22. Re-measure with bench/bench_rate_distortion.py when the
-# model changes.
-DEFAULT_ENCODING = "int5-rans"
+# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.7.0: int4-rans, worst view
+# +0.091 dB, 1,316 token bytes (file 1,780 B); int3-rans loses +0.357 dB on its worst view. (0.6.0:
+# int5-rans, int4-rans +0.103 dB; 0.2.0-0.5.0: int4-rans.) Re-measure with
+# bench/bench_rate_distortion.py when the model changes.
+DEFAULT_ENCODING = "int4-rans"
 
 
 # --- models -----------------------------------------------------------------------------------------

@@ -64,6 +64,7 @@ def test_strip_sei_drops_only_sei_nal_units(bench):
 
 
 def test_study_runs_end_to_end_and_writes_json_figure_and_table(bench, tmp_path):
+    from vt4dcodec import codec
     from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
 
     torch.manual_seed(0)
@@ -75,24 +76,24 @@ def test_study_runs_end_to_end_and_writes_json_figure_and_table(bench, tmp_path)
     doc.write_text(f"intro\n{bench.TABLE_BEGIN}\nold\n{bench.TABLE_END}\nafter\n")
     out, fig = tmp_path / "codecs.json", tmp_path / "codecs.png"
     assert bench.main(["--model", str(model), "--quick", "--scenes", "1", "--cameras", "3", "--real-clips", "0",
-                       "--encodings", "int5-rans,int8", "--out", str(out), "--figure", str(fig),
+                       "--encodings", f"{codec.DEFAULT_ENCODING},int8", "--out", str(out), "--figure", str(fig),
                        "--doc", str(doc)]) == 0
     r = json.loads(out.read_text())
-    assert r["model"]["id"] == "test-codecs" and r["reference_encoding"] == "int5-rans"
+    assert r["model"]["id"] == "test-codecs" and r["reference_encoding"] == codec.DEFAULT_ENCODING
     assert set(r["codecs"]) <= {"h264", "h265", "av1"} and {"h264", "h265"} <= set(r["codecs"])
     s = r["datasets"]["synthetic"]["summary"]
     assert list(s) == [row for row, _, _ in bench.SETTINGS]
     assert [(s[row]["stored_cameras"], s[row]["views"]) for row in s] == [(1, 1), (1, 2), (3, 3), (2, 2), (2, 1)]
     assert s["half/novel"]["novel_served_by_nearest_stored_camera"] and s["single/novel"]["angle_deg_mean"] > 0
     for row in s.values():
-        assert set(row["vt4d"]) == {"int5-rans", "int8"}
+        assert set(row["vt4d"]) == {codec.DEFAULT_ENCODING, "int8"}
         for c in row["codecs"].values():
             assert all(p["bytes"] > 0 and 5 < p["psnr"] < 60 and -1 <= p["ssim"] <= 1 for p in c["curve"])
             assert {p["scale"] for p in c["low_rate"]} == {4}
             eq = c["equal_quality"]
             assert eq["bound"] in ("interpolated", "at_most", "unreachable")
             if eq["codec_bytes"] is not None:
-                assert eq["rate_ratio"] == pytest.approx(row["vt4d"]["int5-rans"]["bytes"] / eq["codec_bytes"], rel=1e-3)
+                assert eq["rate_ratio"] == pytest.approx(row["vt4d"][codec.DEFAULT_ENCODING]["bytes"] / eq["codec_bytes"], rel=1e-3)
     # the whole-capture file is one token set: about the size of one camera's, far below 3 separate files
     assert s["all/captured"]["vt4d"]["int8"]["bytes"] < 1.5 * s["single/captured"]["vt4d"]["int8"]["bytes"]
     # each stored camera's bytes are summed for the codecs: all cameras cost more than one
