@@ -288,6 +288,20 @@ def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(enco
         assert np.array_equal(np.array(got, dtype=np.float32), want)
 
 
+def _random_poses(rng: np.random.Generator, frames: int) -> np.ndarray:
+    """(frames, 4, 4) world-to-camera poses: per frame a uniformly random rotation (from a unit quaternion)
+    and a translation in [-5, 5] m, drawn in that order."""
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    for i in range(frames):
+        q = rng.standard_normal(4)
+        w, x, y, z = q / np.linalg.norm(q)
+        w2c[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+        w2c[i, :3, 3] = rng.uniform(-5, 5, 3)
+    return w2c
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.integers(1, 12), st.integers(0, 2**32 - 1), st.sampled_from(["compact", "exact"]), st.booleans(),
        st.booleans(), st.booleans(), st.sampled_from(["compact", "legacy"]))
@@ -301,14 +315,7 @@ def test_format_md_alone_reads_compact_cameras_the_writer_makes(frames, seed, mo
     from vt4dcodec.format import Scene, dumps, loads
 
     rng = np.random.default_rng(seed)
-    w2c = np.tile(np.eye(4), (frames, 1, 1))
-    for i in range(frames):
-        q = rng.standard_normal(4)
-        w, x, y, z = q / np.linalg.norm(q)
-        w2c[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-        w2c[i, :3, 3] = rng.uniform(-5, 5, 3)
+    w2c = _random_poses(rng, frames)
     if static:
         w2c[:] = w2c[0]
     K = np.tile(np.array([[80.0, 0.0, 31.5], [0.0, 80.0, 31.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
@@ -341,14 +348,7 @@ def test_format_md_alone_reads_the_extra_cameras_the_writer_makes(frames, count,
     rng = np.random.default_rng(seed)
 
     def camera() -> Trajectory:
-        w2c = np.tile(np.eye(4), (frames, 1, 1))
-        for i in range(frames):
-            q = rng.standard_normal(4)
-            w, x, y, z = q / np.linalg.norm(q)
-            w2c[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                              [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                              [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-            w2c[i, :3, 3] = rng.uniform(-5, 5, 3)
+        w2c = _random_poses(rng, frames)
         if rng.integers(2):
             w2c[:] = w2c[0]
         K = np.tile(np.array([[80.0, 0.0, 31.5], [0.0, 80.0, 31.5], [0.0, 0.0, 1.0]]), (frames, 1, 1))
