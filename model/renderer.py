@@ -12,6 +12,13 @@ Gaussian logit bias that ties render patch j to the static tokens anchored near 
 at every target pose; with it the anchors are placed in 3-D (the source camera's cell ray at a depth read
 from the token) and projected into each target frame, so the bias moves with the target camera. With
 ``config.anchor_views`` and V encoded cameras, token i's cell ray is that of encoded camera i mod V.
+
+Token splat (``config.token_splat``, x0 prediction with projected anchors): besides the attention, each
+anchored static token reaches the output directly. A linear map (zero at initialisation) turns the token
+into one render patch of latent content; it is placed at the token's projection in every target frame
+with the locality Gaussian's weights, normalised over the tokens that land on a patch plus a floor
+(``SPLAT_FLOOR``) so that a patch no token covers gets nothing, and added to the network's estimate of
+the clean latent X0; the network also sees the splat as an input, so it predicts the correction.
 """
 
 from __future__ import annotations
@@ -23,11 +30,12 @@ from torch import nn
 from .configs import ModelConfig
 from .layers import AdaLNBlock, grid_positions, locality_heads, locality_prior, patchify, timestep_embedding, unpatchify
 
-__all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH"]
+__all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR"]
 
 MAX_DEPTH_LOG_FACTOR = 2.0  # a token's depth is d_ref * exp(f), f in (-2, 2): 0.14x .. 7.4x the reference
 MIN_ANCHOR_DEPTH = 0.1  # metres; the reference depth (of the world origin) is clamped to at least this
 FAR_LOGIT = -1.0e4  # bias of an anchor behind the target camera, and the floor of every Gaussian logit
+SPLAT_FLOOR = 0.1  # token splat: weight of "nothing" in each patch's normalisation (a lone token on its cell: 0.91)
 
 
 class Renderer(nn.Module):
@@ -65,6 +73,13 @@ class Renderer(nn.Module):
                 prior = torch.zeros(cfg.heads, patches.shape[0], n_tokens)
                 prior[:, :, :self.n_anchored] = locality_prior(patches, anchors, cfg.heads, cfg.locality_sigma)
                 self.token_bias = nn.Parameter(prior)
+        self.splat: nn.Linear | None = None
+        if cfg.token_splat:  # token -> one render patch of latent content, placed where the token projects
+            self.splat = nn.Linear(cfg.token_dim, C * p * p)
+            self.splat_in = nn.Linear(C * p * p, D)
+            for layer in (self.splat, self.splat_in):
+                nn.init.zeros_(layer.weight)
+                nn.init.zeros_(layer.bias)
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -111,7 +126,21 @@ class Renderer(nn.Module):
 
     def projected_bias(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                        K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
-        """The geometric locality bias (B, heads, T P, N) of ``config.project_anchors``.
+        """The geometric locality bias (B, heads, T P, N) of ``config.project_anchors`` (arguments as
+        :meth:`projected_logit`): its Gaussian logits on the locality heads, zero elsewhere."""
+        return self._bias_from_logit(self.projected_logit(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src))
+
+    def _bias_from_logit(self, logit: torch.Tensor) -> torch.Tensor:
+        cfg = self.cfg
+        B, T, P, _ = logit.shape
+        bias = logit.new_zeros(B, cfg.heads, T * P, cfg.n_static + cfg.n_dynamic)
+        bias[:, :locality_heads(cfg.heads), :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
+        return bias
+
+    def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                        K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
+        """Gaussian logit (B, T, P, N_anchored) of render patch p's distance to anchored token n's projection
+        in target frame t (-d^2 / 2 sigma^2, floored at FAR_LOGIT; FAR_LOGIT behind the camera).
 
         K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
         K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
@@ -139,12 +168,20 @@ class Renderer(nn.Module):
         cells = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / cell_px  # (B, T, Na, 2) (col, row)
         d2 = ((self.patch_cells.flip(-1)[None, None, :, None] - cells[:, :, None]) ** 2).sum(-1)  # (B, T, P, Na)
         logit = (-d2 / (2.0 * cfg.locality_sigma ** 2)).clamp_min(FAR_LOGIT)
-        logit = torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
-        P = self.patch_cells.shape[0]
-        n_tokens = cfg.n_static + cfg.n_dynamic
-        bias = logit.new_zeros(B, cfg.heads, T * P, n_tokens)
-        bias[:, :locality_heads(cfg.heads), :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
-        return bias
+        return torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
+
+    def splat_latent(self, z_s: torch.Tensor, z_d: torch.Tensor, logit: torch.Tensor,
+                     keep: torch.Tensor | None) -> torch.Tensor:
+        """The token splat (B, T, P, C p p): each render patch's weighted sum of its anchored tokens'
+        linear patch content; weights exp(logit) / (sum over tokens + SPLAT_FLOOR), dropped tokens
+        (``keep`` False) weigh nothing."""
+        assert self.splat is not None
+        tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
+        g = torch.exp(logit.float())  # (B, T, P, Na)
+        if keep is not None:
+            g = g * keep[:, None, None, :self.n_anchored].to(g.dtype)
+        weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
+        return torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat(tokens))
 
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
                 tau: torch.Tensor, *, drop_static: bool | torch.Tensor = False,
@@ -159,14 +196,21 @@ class Renderer(nn.Module):
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
         cond = self.tau_mlp(timestep_embedding(tau, x.shape[-1]))
         tokens, keep = self.embed_tokens(z_s, z_d, drop_static, drop_dynamic)
+        splat = None
         if self.depth_head is not None:
             if cameras is None:
                 raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
-            bias = self.projected_bias(z_s, z_d, *cameras).to(x.dtype)
+            logit = self.projected_logit(z_s, z_d, *cameras)
+            bias = self._bias_from_logit(logit).to(x.dtype)
+            if self.splat is not None:
+                splat = self.splat_latent(z_s, z_d, logit, keep).to(x.dtype)  # (B, T, P, C p p)
+                x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
         for block in self.blocks:
             x = block(x, cond, tokens, keep, bias)
         shift, scale = self.final_mod(F.silu(cond)).view(B, 1, 1, 2, -1).unbind(dim=3)
         x = self.out(self.final_norm(x) * (1 + scale) + shift)
+        if splat is not None:
+            x = x + splat  # the x0 estimate: the splatted tokens plus the network's correction
         return unpatchify(x, p, C, h, w)

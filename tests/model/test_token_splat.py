@@ -1,0 +1,88 @@
+"""The token splat (config ``token_splat``): anchored static tokens reach the clean-latent estimate directly."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.renderer import SPLAT_FLOOR
+
+from network_fixtures import random_batch
+
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=16, n_dynamic=4, token_dim=8, n_tracks=8, patch_size=2)  # one token per cell
+SPLAT = dict(locality_sigma=0.35, query_from_grid=True, project_anchors=True, prediction="x0")
+
+
+def small_model(seed: int = 0, **overrides) -> VideoTok4D:
+    torch.manual_seed(seed)
+    return VideoTok4D(get_config("tiny", **{**SMALL, **overrides})).eval()
+
+
+def _velocity(model, batch, y, tau, **drop):
+    z = model.encode(batch)
+    return model.velocity(y, *z, model.rays(batch.K, batch.w2c), tau,
+                          cameras=model.render_cameras(batch.K, batch.w2c, batch.source), **drop)
+
+
+def test_config_hash_is_kept_while_off_and_the_switch_needs_projected_anchors_and_x0():
+    base = get_config("tiny", **SMALL, **SPLAT)
+    assert get_config("tiny", **SMALL, **SPLAT, token_splat=False).sha256() == base.sha256()
+    assert get_config("tiny", **SMALL, **SPLAT, token_splat=True).sha256() != base.sha256()
+    with pytest.raises(ModelError, match="token_splat"):
+        get_config("tiny", **SMALL, **{**SPLAT, "prediction": "velocity"}, token_splat=True)
+    with pytest.raises(ModelError, match="token_splat"):
+        get_config("tiny", **SMALL, **{**SPLAT, "project_anchors": False}, token_splat=True)
+    with pytest.raises(ModelError, match="token_splat"):
+        get_config("tiny", **SMALL, **SPLAT, token_splat=1)
+
+
+def test_a_warm_start_renders_exactly_as_the_model_without_it():
+    base, splat = small_model(**SPLAT), small_model(**SPLAT, token_splat=True)
+    missing, unexpected = splat.load_state_dict(base.state_dict(), strict=False)
+    assert sorted(missing) == ["renderer.splat.bias", "renderer.splat.weight", "renderer.splat_in.bias",
+                               "renderer.splat_in.weight"] and not unexpected
+    with torch.no_grad():  # give the shared zero-initialised output layers some weight, as a trained model has
+        for model in (base, splat):
+            torch.manual_seed(1)
+            for layer in (model.renderer.out, model.renderer.final_mod):
+                layer.weight.normal_(std=0.1)
+    cfg, h = base.config, base.config.latent_size
+    batch = random_batch(cfg, B=2)
+    y, tau = torch.randn(2, cfg.frames, cfg.latent_channels, h, h), torch.full((2,), 0.7)
+    with torch.no_grad():
+        torch.testing.assert_close(_velocity(splat, batch, y, tau), _velocity(base, batch, y, tau))
+
+
+def test_at_the_source_camera_each_patch_reads_its_own_token_and_dropped_tokens_add_nothing():
+    model = small_model(**SPLAT, token_splat=True)
+    cfg, r = model.config, model.renderer
+    batch = random_batch(cfg, B=2)
+    # a static trajectory: every frame at the source camera's first pose
+    K = batch.K[:, :1].expand(-1, cfg.frames, -1, -1).clone()
+    w2c = batch.w2c[:, :1].expand(-1, cfg.frames, -1, -1).clone()
+    with torch.no_grad():
+        z_s, z_d = model.encode(batch)
+        cams = model.render_cameras(K, w2c, (K, w2c))
+        logit = r.projected_logit(z_s, z_d, *cams)  # (B, T, P, Na)
+        r.splat.weight.normal_()
+        content = r.splat(z_s)  # (B, N_s, C p p)
+        splat = r.splat_latent(z_s, z_d, logit, None)
+        g = torch.exp(logit)
+        own = (g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)).diagonal(dim1=-2, dim2=-1)  # token j on patch j
+        assert bool((own > 0.85).all())  # 1 / (1 + SPLAT_FLOOR + the neighbours' small share)
+        torch.testing.assert_close(splat[:, 0], content, atol=0.2 * float(content.abs().max()), rtol=0)
+        keep = torch.ones(2, cfg.n_static + cfg.n_dynamic, dtype=torch.bool)
+        keep[:, :cfg.n_static] = False
+        assert float(r.splat_latent(z_s, z_d, logit, keep).abs().max()) == 0.0
+        # and the renderer adds it to its clean-latent estimate: v = (y - x0_hat) / tau
+        h = cfg.latent_size
+        y, tau = torch.randn(2, cfg.frames, cfg.latent_channels, h, h), torch.full((2,), 1.0)
+        rays = model.rays(K, w2c)
+        with_splat = model.velocity(y, z_s, z_d, rays, tau, cameras=cams)
+        r.splat.weight.zero_()
+        r.splat.bias.zero_()
+        without = model.velocity(y, z_s, z_d, rays, tau, cameras=cams)
+        assert float((with_splat - without).abs().max()) > 1e-3
