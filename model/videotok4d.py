@@ -27,6 +27,7 @@ from .bottleneck import TokenBottleneck, saturation_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
 from .identity import ModelIdentity, fingerprint_fields
+from .layers import patchify
 from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
@@ -243,7 +244,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             w2c_tgt: torch.Tensor, generator: torch.Generator | None = None, *,
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
-                            saturation_weight: float = 0.0, pixel_weight: float = 0.0
+                            saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0
                             ) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
@@ -262,6 +263,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         || D_ae(X0_hat) - target_frames ||^2 (gradients pass through the frozen decoder): the latent
         loss weighs every normalised channel alike, the pixel loss weighs them by what they do to the
         image -- what PSNR measures.
+        cell_weight: weight of :meth:`cell_loss` (``config.token_splat`` only): each anchored static
+        token, read by the splat's linear map alone, must give its own source cell's time-averaged latent.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -295,16 +298,38 @@ class VideoTok4D(ModelIdentity, nn.Module):
             x0_err = F.mse_loss(x0_hat, y0)
             flow = (((y_tau - x0_hat) / t.clamp_min(MIN_TAU) - (y1 - y0)) ** 2).mean().detach()
             loss = x0_err + saturation_weight * sat
+        cell = torch.zeros(())
+        if cell_weight > 0:
+            cell = self.cell_loss(batch, z_s)
+            loss = loss + cell_weight * cell
         pixel = torch.zeros(())
         if pixel_weight > 0:
             pixel = F.mse_loss(self.autoencoder.decode(x0_hat).float(), target_frames.float())
             loss = loss + pixel_weight * pixel
         logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
-                "pixel_mse": float(pixel.detach()),
+                "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}
         return loss, logs
+
+    def cell_loss(self, batch: SourceBatch, z_s: torch.Tensor) -> torch.Tensor:
+        """|| splat(z_i) - cell content ||^2 over the anchored static tokens: token i's cell is encoder cell
+        i mod P of its encoded camera (:meth:`Renderer.token_cameras`), its content the source latent
+        averaged over the frames (C p p values). Pushes each token to hold its cell in a form the
+        renderer's direct path reads linearly. z_s: (S, N_s, d) of ``batch`` (S scenes)."""
+        cfg, r = self.config, self.renderer
+        if r.splat is None or cfg.renderer_patch != cfg.patch_size:
+            raise ModelError("the cell loss needs config.token_splat with render_patch_size equal to patch_size")
+        B, T = batch.frames.shape[:2]
+        V = batch.views
+        x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
+        cells = patchify(x.mean(1, keepdim=True), cfg.patch_size)[:, 0]  # (B, P, C p p)
+        cells = cells.view(B // V, V, cells.shape[1], cells.shape[2])
+        n = r.n_anchored
+        index = torch.arange(n, device=cells.device)
+        target = cells[:, r.token_cameras(V), index % cells.shape[2]]  # (S, Na, C p p)
+        return F.mse_loss(r.splat(z_s[:, :n].to(r.splat.weight.dtype)).float(), target.float())
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                 generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:

@@ -86,3 +86,34 @@ def test_at_the_source_camera_each_patch_reads_its_own_token_and_dropped_tokens_
         r.splat.bias.zero_()
         without = model.velocity(y, z_s, z_d, rays, tau, cameras=cams)
         assert float((with_splat - without).abs().max()) > 1e-3
+
+
+def test_the_cell_loss_asks_each_token_for_its_own_cameras_cell_averaged_over_the_frames():
+    import dataclasses
+
+    import torch.nn.functional as F
+
+    from vt4dcodec.model.layers import patchify
+
+    model = small_model(**SPLAT, token_splat=True, anchor_views=True)
+    cfg, r = model.config, model.renderer
+    batch = random_batch(cfg, B=4)
+    pair = dataclasses.replace(batch, views=2)  # scenes (0, 1) and (2, 3)
+    with torch.no_grad():
+        r.splat.weight.normal_()
+        z_s, _ = model.encode(pair)
+        loss = model.cell_loss(pair, z_s)
+        x = model.latents(pair.frames).mean(1, keepdim=True)
+        cells = patchify(x, cfg.patch_size)[:, 0]  # (4, P, C p p)
+        want = torch.stack([torch.stack([cells[2 * s + i % 2, i % cells.shape[1]] for i in range(cfg.n_static)])
+                            for s in range(2)])
+        torch.testing.assert_close(loss, F.mse_loss(r.splat(z_s), want))
+        with pytest.raises(ModelError, match="token_splat"):
+            small_model(**SPLAT).cell_loss(pair, z_s)
+    # and it enters the training loss with its weight, logged
+    loss0, logs0 = model.rectified_flow_loss(pair, batch.frames[::2], batch.K[::2], batch.w2c[::2],
+                                             torch.Generator().manual_seed(0))
+    loss1, logs1 = model.rectified_flow_loss(pair, batch.frames[::2], batch.K[::2], batch.w2c[::2],
+                                             torch.Generator().manual_seed(0), cell_weight=2.0)
+    assert logs0["cell_mse"] == 0.0 and logs1["cell_mse"] > 0
+    torch.testing.assert_close(loss1 - loss0, torch.tensor(2.0 * logs1["cell_mse"]), atol=1e-4, rtol=1e-4)

@@ -194,3 +194,13 @@ def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(ru
     with pytest.raises(SystemExit):  # multi-camera batches need sampled targets
         stage2.main(["--init", str(first / "model"), "--out", str(tmp_path / "m"), "--steps", "1",
                      "--cache", str(runs / "cache"), "--multi-share", "0.5", *COMMON])
+    with pytest.raises(SystemExit):  # the cell loss trains the token splat: a model without it refuses
+        stage2.main(["--init", str(first / "model"), "--out", str(tmp_path / "c"), "--steps", "1",
+                     "--cache", str(runs / "cache"), "--cell-weight", "1", *COMMON])
+    splat = tmp_path / "splat"
+    assert stage2.main(["--init", str(first / "model"), "--init-partial", "--out", str(splat), "--steps", "1",
+                        "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), "--cell-weight", "1",
+                        *COMMON, "locality_sigma=0.35", "project_anchors=true", "prediction=x0",
+                        "token_splat=true"]) == 0
+    log = [json.loads(line) for line in (splat / "log.jsonl").read_text().splitlines()]
+    assert log[-1]["cell_mse"] > 0 and from_pretrained(splat / "model").config.token_splat
