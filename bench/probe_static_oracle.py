@@ -15,7 +15,8 @@ On held-out synthetic scenes (camera 0, its own trajectory), PSNR of the source 
 - ``render``: the checkpoint's 1-step render of its own tokens (camera 0 encoded);
 - ``flat``: the clip's mean colour (the reference every table prints).
 
-Prints one JSON line (means over scenes) and writes it to ``--out`` when given.
+SSIM (kornia's, 11x11 window, as the evaluation) of ``time_mean`` and ``render`` too. Prints one JSON
+line (means over scenes) and writes it to ``--out`` when given.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import kornia
 import torch.nn.functional as F
 from safetensors.torch import load_file
 
@@ -38,6 +40,11 @@ from vt4dcodec.model.videotok4d import VideoTok4D
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     """PSNR in dB of two clips in [0, 1] over all their values."""
     return float(10.0 * torch.log10(1.0 / ((a.float() - b.float()) ** 2).mean().clamp_min(1e-12)))
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean SSIM of two (1, T, 3, H, W) clips in [0, 1], frames as the batch."""
+    return float(kornia.metrics.ssim(a[0].float(), b[0].float(), 11).mean())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -56,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     model.eval()
     pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split="test")
     scores: dict[str, list[float]] = {k: [] for k in ("autoencoder", "time_mean", "time_mean_int4", "pooled_2x",
-                                                      "render", "flat")}
+                                                      "render", "flat", "ssim_time_mean", "ssim_render")}
     ae = model.autoencoder
     with torch.no_grad():
         for seed in range(args.scenes):
@@ -74,12 +81,15 @@ def main(argv: list[str] | None = None) -> int:
             K, w2c = torch.from_numpy(sc["K"][[0]]).float(), torch.from_numpy(sc["w2c"][[0]]).float()
             scores["autoencoder"].append(psnr(decoded(lat), truth))
             scores["time_mean"].append(psnr(decoded(mean), truth))
+            scores["ssim_time_mean"].append(ssim(decoded(mean), truth))
             scores["time_mean_int4"].append(psnr(decoded(torch.round(mean / scale * 7.0) / 7.0 * scale), truth))
             scores["pooled_2x"].append(psnr(decoded(pooled), truth))
-            scores["render"].append(psnr(model.render(z_s, z_d, K, w2c, steps=1, seed=0, source=(K, w2c)), truth))
+            render = model.render(z_s, z_d, K, w2c, steps=1, seed=0, source=(K, w2c))
+            scores["render"].append(psnr(render, truth))
+            scores["ssim_render"].append(ssim(render, truth))
             scores["flat"].append(psnr(truth.mean((1, 3, 4), keepdim=True).expand_as(truth), truth))
     result = {"run": str(args.run), "step": int(state["step"]), "scenes": args.scenes,
-              **{k: round(float(np.mean(v)), 2) for k, v in scores.items()}}
+              **{k: round(float(np.mean(v)), 3 if k.startswith('ssim') else 2) for k, v in scores.items()}}
     print(json.dumps(result))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1) + "\n")

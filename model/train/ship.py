@@ -83,7 +83,8 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
               else "")] if args.get("init") else []),
         f"- recipe: prediction={cfg.get('prediction', 'velocity')}, share of samples at tau = 1: "
         f"{args.get('tau_one', 0.0)}, static-token dropout {args.get('drop_static', 0.0)}, saturation penalty "
-        f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}",
+        f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}"
+        + (f", cell loss weight {args['cell_weight']}" if args.get("cell_weight") else ""),
     ]
     if summary:
         lines.append(f"- render PSNR on {len(summary.get('pairs', []))} training pairs: "
