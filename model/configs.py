@@ -139,6 +139,10 @@ class ModelConfig(_Config):
         also enters the renderer as an input. A time-averaged cell latent -- what one 32-value token per
         2x2x8 cell can hold -- reconstructs the source view of held-out scenes at 26.0 dB where
         vt4d-tiny 0.7.0's attention-only renderer gives 24.0 (docs/training.md).
+        token_from_cell: with project_anchors, each anchored static token's bottleneck pre-activation
+        also gets a linear map (zero at initialisation) of its own cell's source latent averaged over the
+        frames (C p p values of encoded camera i mod V), a direct path from the content a token should
+        hold to the token, next to the query's attention.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -175,11 +179,13 @@ class ModelConfig(_Config):
     project_anchors: bool = False
     anchor_views: bool = False
     token_splat: bool = False
+    token_from_cell: bool = False
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
                                                "query_from_grid": False, "project_anchors": False,
-                                               "anchor_views": False, "token_splat": False}
+                                               "anchor_views": False, "token_splat": False,
+                                               "token_from_cell": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -221,6 +227,11 @@ class ModelConfig(_Config):
         if self.token_splat and not (self.project_anchors and self.prediction == "x0"):
             raise ModelError("config token_splat needs project_anchors and prediction x0 (it adds the tokens "
                              "where they project to the renderer's clean-latent estimate)")
+        if not isinstance(self.token_from_cell, bool):
+            raise ModelError(f"config token_from_cell must be true or false, got {self.token_from_cell!r}")
+        if self.token_from_cell and (not self.project_anchors or self.unified_tokens):
+            raise ModelError("config token_from_cell needs project_anchors and separate static tokens (it reads "
+                             "each anchored static token's own cell)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

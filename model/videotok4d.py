@@ -65,6 +65,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.temporal_branch = TemporalBranch(cfg)
             self.dynamic_bottleneck = TokenBottleneck(cfg.width, cfg.token_dim, cfg.token_noise)
         self.renderer = Renderer(cfg)
+        self.cell_direct: nn.Linear | None = None
+        if cfg.token_from_cell:  # static pre-activation + W * its cell's time-averaged latent (zero at init)
+            self.cell_direct = nn.Linear(cfg.latent_channels * cfg.patch_size ** 2, cfg.token_dim)
+            nn.init.zeros_(self.cell_direct.weight)
+            nn.init.zeros_(self.cell_direct.bias)
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -172,8 +177,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             return a[:, :cfg.n_static], a[:, cfg.n_static:]
         dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid,
                                               views=V)
-        return (self.static_bottleneck.preactivation(static_states),
-                self.dynamic_bottleneck.preactivation(dynamic_states))
+        a_s = self.static_bottleneck.preactivation(static_states)
+        if self.cell_direct is not None:
+            cells = self.token_cells(x, V)  # (S, N_s, C p p)
+            a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
+        return a_s, self.dynamic_bottleneck.preactivation(dynamic_states)
 
     def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
         cfg = self.config
@@ -322,14 +330,21 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if r.splat is None or cfg.renderer_patch != cfg.patch_size:
             raise ModelError("the cell loss needs config.token_splat with render_patch_size equal to patch_size")
         B, T = batch.frames.shape[:2]
-        V = batch.views
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
-        cells = patchify(x.mean(1, keepdim=True), cfg.patch_size)[:, 0]  # (B, P, C p p)
-        cells = cells.view(B // V, V, cells.shape[1], cells.shape[2])
+        target = self.token_cells(x, batch.views)
         n = r.n_anchored
-        index = torch.arange(n, device=cells.device)
-        target = cells[:, r.token_cameras(V), index % cells.shape[2]]  # (S, Na, C p p)
         return F.mse_loss(r.splat(z_s[:, :n].to(r.splat.weight.dtype)).float(), target.float())
+
+    def token_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
+        """The time-averaged source latent inside each anchored static token's cell: (S, N_anchored, C p p)
+        from latents (B, T, C, h, w) of S = B / views scenes; token i's cell is encoder cell i mod P of
+        encoded camera :meth:`Renderer.token_cameras` (i mod V with ``config.anchor_views``, else 0)."""
+        cfg, r = self.config, self.renderer
+        B = latents.shape[0]
+        cells = patchify(latents.float().mean(1, keepdim=True), cfg.patch_size)[:, 0]  # (B, P, C p p)
+        cells = cells.view(B // views, views, cells.shape[1], cells.shape[2])
+        index = torch.arange(r.n_anchored, device=cells.device)
+        return cells[:, r.token_cameras(views), index % cells.shape[2]]
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                 generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:

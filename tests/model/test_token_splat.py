@@ -117,3 +117,31 @@ def test_the_cell_loss_asks_each_token_for_its_own_cameras_cell_averaged_over_th
                                              torch.Generator().manual_seed(0), cell_weight=2.0)
     assert logs0["cell_mse"] == 0.0 and logs1["cell_mse"] > 0
     torch.testing.assert_close(loss1 - loss0, torch.tensor(2.0 * logs1["cell_mse"]), atol=1e-4, rtol=1e-4)
+
+
+def test_token_from_cell_starts_as_the_model_without_it_and_feeds_each_token_its_own_cameras_cell():
+    import dataclasses
+
+    base = small_model(**SPLAT, token_splat=True, anchor_views=True)
+    direct = small_model(**SPLAT, token_splat=True, anchor_views=True, token_from_cell=True)
+    assert sorted(direct.load_state_dict(base.state_dict(), strict=False).missing_keys) == [
+        "cell_direct.bias", "cell_direct.weight"]
+    cfg = base.config
+    pair = dataclasses.replace(random_batch(cfg, B=4), views=2)
+    with torch.no_grad():
+        torch.testing.assert_close(direct.encode(pair)[0], base.encode(pair)[0])
+        direct.cell_direct.weight.normal_()
+        a_base, _ = base.encode_preactivations(pair)
+        a_direct, _ = direct.encode_preactivations(pair)
+        cells = direct.token_cells(direct.latents(pair.frames), 2)
+        torch.testing.assert_close(a_direct - a_base, direct.cell_direct(cells), atol=1e-4, rtol=1e-4)
+        # camera 1 of scene 0 changes: only the tokens anchored in it (odd i) see it through the direct path
+        frames = pair.frames.clone()
+        frames[1] = torch.rand_like(frames[1])
+        moved = direct.token_cells(direct.latents(frames), 2) - cells
+        assert bool((moved[0, 1::2].abs().amax(-1) > 1e-6).all()) and float(moved[0, 0::2].abs().max()) == 0.0
+        assert float(moved[1].abs().max()) == 0.0
+    with pytest.raises(ModelError, match="token_from_cell"):
+        get_config("tiny", **SMALL, locality_sigma=0.35, token_from_cell=True)
+    with pytest.raises(ModelError, match="token_from_cell"):
+        get_config("tiny", **SMALL, **SPLAT, token_from_cell="yes")
