@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import kornia
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -252,8 +253,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             w2c_tgt: torch.Tensor, generator: torch.Generator | None = None, *,
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
-                            saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0
-                            ) -> tuple[torch.Tensor, dict[str, float]]:
+                            saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
+                            ssim_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -273,6 +274,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         image -- what PSNR measures.
         cell_weight: weight of :meth:`cell_loss` (``config.token_splat`` only): each anchored static
         token, read by the splat's linear map alone, must give its own source cell's time-averaged latent.
+        ssim_weight: weight of 1 - SSIM (kornia's, 11x11 Gaussian window, as the evaluation) of the one-step
+        estimate decoded by the frozen autoencoder against ``target_frames``: the structure the latent
+        MSE leaves blurred.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -310,12 +314,19 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if cell_weight > 0:
             cell = self.cell_loss(batch, z_s)
             loss = loss + cell_weight * cell
-        pixel = torch.zeros(())
-        if pixel_weight > 0:
-            pixel = F.mse_loss(self.autoencoder.decode(x0_hat).float(), target_frames.float())
-            loss = loss + pixel_weight * pixel
+        pixel, ssim = torch.zeros(()), torch.ones(())
+        if pixel_weight > 0 or ssim_weight > 0:
+            decoded = self.autoencoder.decode(x0_hat).float()
+            if pixel_weight > 0:
+                pixel = F.mse_loss(decoded, target_frames.float())
+                loss = loss + pixel_weight * pixel
+            if ssim_weight > 0:
+                ssim = kornia.metrics.ssim(decoded.clamp(0.0, 1.0).flatten(0, 1),
+                                           target_frames.float().flatten(0, 1), 11).mean()
+                loss = loss + ssim_weight * (1.0 - ssim)
         logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
                 "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
+                "ssim": float(ssim.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}

@@ -68,13 +68,13 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
-              cell_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+              cell_weight: float = 0.0, ssim_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
-                  pixel_weight=pixel_weight, cell_weight=cell_weight)
+                  pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight)
 
 
 @torch.no_grad()
@@ -177,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="share of batches that encode several cameras of the event into one token set")
     recipe.add_argument("--multi-views", default="2,3,5", metavar="V,V,...",
                         help="numbers of encoded cameras a multi-camera batch draws from (default 2,3,5)")
+    recipe.add_argument("--ssim-weight", type=float, default=0.0,
+                        help="weight of 1 - SSIM of the one-step estimate through the frozen decoder")
     recipe.add_argument("--cell-weight", type=float, default=0.0,
                         help="weight of the cell loss (config token_splat): each anchored static token, read by the "
                              "splat's linear map, must give its source cell's time-averaged latent")
@@ -187,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
     cfg = get_config(args.config, **parse_overrides(args.set))
+    if args.ssim_weight < 0:
+        parser.error("--ssim-weight must be >= 0")
     if args.cell_weight < 0 or (args.cell_weight > 0 and not cfg.token_splat):
         parser.error("--cell-weight must be >= 0 and needs --set token_splat=true (it trains the splat's read)")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -220,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     batches = cycle(make_loader(dataset, args, info, collate_fn=collate_pairs, batch_sampler=sampler))
     step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
-                             pixel_weight=args.pixel_weight, cell_weight=args.cell_weight)
+                             pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
+                             ssim_weight=args.ssim_weight)
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:

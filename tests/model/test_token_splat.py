@@ -145,3 +145,25 @@ def test_token_from_cell_starts_as_the_model_without_it_and_feeds_each_token_its
         get_config("tiny", **SMALL, locality_sigma=0.35, token_from_cell=True)
     with pytest.raises(ModelError, match="token_from_cell"):
         get_config("tiny", **SMALL, **SPLAT, token_from_cell="yes")
+
+
+def test_the_ssim_term_is_one_minus_the_evaluations_ssim_of_the_decoded_one_step_estimate():
+    import kornia
+
+    model = small_model(**SPLAT)
+    cfg = model.config
+    batch = random_batch(cfg, B=2)
+    loss0, logs0 = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, torch.Generator().manual_seed(0),
+                                             tau=torch.ones(2))
+    loss1, logs1 = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, torch.Generator().manual_seed(0),
+                                             tau=torch.ones(2), ssim_weight=0.5)
+    assert logs0["ssim"] == 1.0 and 0.0 < logs1["ssim"] < 1.0
+    torch.testing.assert_close(loss1 - loss0, torch.tensor(0.5 * (1.0 - logs1["ssim"])), atol=1e-4, rtol=1e-4)
+    with torch.no_grad():  # the logged value is the evaluation's SSIM of the decoded x0 estimate at tau = 1
+        z = model.encode(batch)
+        h = cfg.latent_size
+        x0 = model.renderer(torch.randn(2, cfg.frames, cfg.latent_channels, h, h), *z, model.rays(batch.K, batch.w2c),
+                            torch.ones(2), cameras=model.render_cameras(batch.K, batch.w2c, batch.source))
+        want = kornia.metrics.ssim(model.autoencoder.decode(x0).clamp(0, 1).flatten(0, 1),
+                                   batch.frames.flatten(0, 1), 11).mean()
+    assert abs(float(want) - logs1["ssim"]) < 0.05  # a different noise draw: close, not equal

@@ -182,7 +182,7 @@ def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(ru
     assert stage2.main(["--init", str(first / "model"), "--init-partial", "--out", str(out), "--steps", "1",
                         "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0",
                         "--warmup", "1", "--recon-share", "0.5", "--multi-share", "1", "--multi-views", "2",
-                        "--pixel-weight", "1", *COMMON, "render_patch_size=2"]) == 0
+                        "--pixel-weight", "1", "--ssim-weight", "0.5", *COMMON, "render_patch_size=2"]) == 0
     before, after = from_pretrained(first / "model"), from_pretrained(out / "model")
     assert after.config.renderer_patch == 2 and before.config.renderer_patch == after.config.patch_size
     old, new = before.state_dict(), after.state_dict()
@@ -190,7 +190,7 @@ def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(ru
     assert fresh == {"renderer.embed.weight", "renderer.pos_space", "renderer.out.weight", "renderer.out.bias"}
     assert all(torch.equal(old[k], new[k]) for k in new if k not in fresh)
     log = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
-    assert log and "pixel_mse" in log[-1] and log[-1]["pixel_mse"] > 0
+    assert log and "pixel_mse" in log[-1] and log[-1]["pixel_mse"] > 0 and 0 < log[-1]["ssim"] < 1
     with pytest.raises(SystemExit):  # multi-camera batches need sampled targets
         stage2.main(["--init", str(first / "model"), "--out", str(tmp_path / "m"), "--steps", "1",
                      "--cache", str(runs / "cache"), "--multi-share", "0.5", *COMMON])
