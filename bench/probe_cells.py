@@ -26,10 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file
 
-from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.inputs.source_inputs import SourceBatch
+from vt4dcodec.model.train.common import model_from_run
 from vt4dcodec.model.train.data import ScenePool
 from vt4dcodec.model.videotok4d import VideoTok4D
 
@@ -74,13 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    state = json.loads((args.run / "checkpoint" / "state.json").read_text())
-    cfg = ModelConfig.from_dict(state["config"])
+    model, state = model_from_run(args.run)
+    cfg = model.config
     if not cfg.locality_sigma > 0:
         parser.error("the checkpoint's static tokens are not anchored (locality_sigma = 0): no cell to compare")
-    model = VideoTok4D(cfg)
-    model.load_state_dict(load_file(str(args.run / "checkpoint" / "model.safetensors")))
-    model.eval()
 
     def pool(split: str) -> ScenePool:
         return ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split=split)

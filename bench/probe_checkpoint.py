@@ -20,13 +20,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file
 
-from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.diagnostics import psnr_db, token_health
 from vt4dcodec.model.inputs.source_inputs import SourceBatch
+from vt4dcodec.model.train.common import model_from_run
 from vt4dcodec.model.train.data import ScenePool, axis_angles_deg
-from vt4dcodec.model.videotok4d import VideoTok4D
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,11 +39,8 @@ def main(argv: list[str] | None = None) -> int:
                              "says whether a run under- or overfits")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    state = json.loads((args.run / "checkpoint" / "state.json").read_text())
-    cfg = ModelConfig.from_dict(state["config"])
-    model = VideoTok4D(cfg)
-    model.load_state_dict(load_file(str(args.run / "checkpoint" / "model.safetensors")))
-    model.eval()
+    model, state = model_from_run(args.run)
+    cfg = model.config
     pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split=args.split)
     res: dict[str, list[float]] = {k: [] for k in ("source", "near", "far", "flat_source", "flat_near", "flat_far")}
     zs, zd, truths, Ks, w2cs = [], [], [], [], []

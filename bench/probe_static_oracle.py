@@ -29,12 +29,10 @@ import numpy as np
 import torch
 import kornia
 import torch.nn.functional as F
-from safetensors.torch import load_file
 
-from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.inputs.source_inputs import SourceBatch
+from vt4dcodec.model.train.common import model_from_run
 from vt4dcodec.model.train.data import ScenePool
-from vt4dcodec.model.videotok4d import VideoTok4D
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -56,11 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    state = json.loads((args.run / "checkpoint" / "state.json").read_text())
-    cfg = ModelConfig.from_dict(state["config"])
-    model = VideoTok4D(cfg)
-    model.load_state_dict(load_file(str(args.run / "checkpoint" / "model.safetensors")))
-    model.eval()
+    model, state = model_from_run(args.run)
+    cfg = model.config
     pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split="test")
     scores: dict[str, list[float]] = {k: [] for k in ("autoencoder", "time_mean", "time_mean_int4", "pooled_2x",
                                                       "render", "flat", "ssim_time_mean", "ssim_render")}

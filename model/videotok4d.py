@@ -13,6 +13,7 @@ with ``seed``: the same tokens and seed give the same frames.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import kornia
@@ -285,6 +286,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if batch.batch_size != B * batch.views:
             raise ModelError(f"{B} targets need {B} source scenes; the batch holds {batch.batch_size} clips "
                              f"of {batch.views} view(s) each")
+        if cell_weight > 0 and batch.latents is None:  # the encoder and the cell loss read the same latents
+            batch = dataclasses.replace(batch, latents=self.latents(batch.frames))
         a_s, a_d = self.encode_preactivations(batch)
         z_s, z_d = self._bound(a_s, a_d)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)

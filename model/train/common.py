@@ -137,6 +137,23 @@ def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
 
 
+def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
+    """The tokenizer of a training run's latest checkpoint (``run/checkpoint``), in eval mode, with the
+    checkpoint's state (step, arguments, config): what the probes under bench/ read."""
+    from ..configs import ModelConfig
+    from ..videotok4d import VideoTok4D
+
+    directory = Path(run) / "checkpoint"
+    try:
+        config = json.loads((directory / "state.json").read_text())["config"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise ModelError(f"{run} holds no complete training checkpoint: {exc}") from None
+    model = VideoTok4D(ModelConfig.from_dict(config))
+    state = load_checkpoint(directory, model, None)
+    assert state is not None  # state.json was read above
+    return model.eval(), state
+
+
 def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None
                     ) -> dict[str, Any] | None:
     """Restore a checkpoint written by :func:`save_checkpoint`; None when there is no complete one."""
