@@ -107,11 +107,32 @@ def render_samples(model: VideoTok4D, dataset: PairDataset, count: int, png: Pat
     return {"psnr_db": psnr, "mean_psnr_db": float(np.mean(psnr)), "pairs": idx, "render_steps": steps}
 
 
+def grown_static_tokens(state: dict[str, torch.Tensor], old: ModelConfig, new: ModelConfig) -> dict[str, torch.Tensor]:
+    """``state`` of a model with ``old.n_static`` static tokens, its per-token tensors repeated for
+    ``new.n_static`` = k * ``old.n_static`` (k > 1; otherwise ``state`` unchanged): static query i, its
+    locality bias and its renderer slot start as those of query i mod ``old.n_static``. Anchors are
+    i mod P and encoded cameras i mod V (configs), so the new query i has the cell of the old query it
+    copies; with one encoded camera a grown encoder gives each token k times, and with V cameras where
+    k is a multiple of V every camera gets a whole grid of tokens (with P coprime to V)."""
+    k, rem = divmod(new.n_static, old.n_static)
+    if k < 2 or rem or old.unified_tokens or new.unified_tokens or old.n_dynamic != new.n_dynamic:
+        return state
+    grown = dict(state)
+    for name, axis in (("spatial_branch.queries", 0), ("spatial_branch.query_bias", 1)):
+        if name in state:
+            grown[name] = torch.cat([state[name]] * k, dim=axis)
+    if "renderer.token_slot" in state:
+        slot = state["renderer.token_slot"]
+        grown["renderer.token_slot"] = torch.cat([slot[:old.n_static]] * k + [slot[old.n_static:]], dim=0)
+    return grown
+
+
 def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False) -> VideoTok4D:
     """A saved model (shipped id or directory) to continue training: its weights, autoencoder included
     (frozen), as float32. Its config must equal this run's; with ``partial`` it may differ in sizes
     outside the autoencoder (e.g. ``render_patch_size``): every tensor whose name and shape match is
-    copied, the others keep their fresh initialisation and are listed on stdout."""
+    copied, the others keep their fresh initialisation and are listed on stdout; a static token set grown
+    by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`)."""
     source = from_pretrained(name_or_path)
     if source.config == cfg:
         model = source
@@ -121,7 +142,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
                          f"or --init-partial to copy only the tensors that fit")
     else:
         model = VideoTok4D(cfg)
-        fresh, saved = model.state_dict(), source.state_dict()
+        fresh, saved = model.state_dict(), grown_static_tokens(source.state_dict(), source.config, cfg)
         fits = {k: v.to(fresh[k].dtype) for k, v in saved.items() if k in fresh and fresh[k].shape == v.shape}
         ae = [k for k in fresh if k.startswith("autoencoder.")]
         if any(k not in fits for k in ae):
@@ -157,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
                              "model's training on another machine; a checkpoint in --out still takes precedence")
     parser.add_argument("--init-partial", action="store_true",
                         help="with --init: the saved model's config may differ outside the autoencoder (e.g. "
-                             "render_patch_size); copy the tensors whose shapes fit, start the rest fresh")
+                             "render_patch_size); copy the tensors whose shapes fit, start the rest fresh; "
+                             "n_static = k x the saved one repeats each static token's query k times")
     parser.add_argument("--cache-latents", action="store_true",
                         help="encode every training frame once with the frozen autoencoder and read the latents "
                              "from the scene cache (saves the encoder pass of every step)")
