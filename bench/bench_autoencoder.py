@@ -36,8 +36,10 @@ def load_candidate(spec: str) -> LatentAutoencoder:
     path = Path(spec)
     if not path.is_file():  # a model directory, shipped id or $VT4D_MODEL_PATH name
         path = model_directory(spec) / "model.safetensors"
-    state = {k.removeprefix("autoencoder."): v.float() for k, v in load_file(str(path)).items()
-             if not k.startswith(("spatial_branch", "temporal_branch", "renderer", "static_", "dynamic_"))}
+    tensors = load_file(str(path))
+    if any(k.startswith("autoencoder.") for k in tensors):  # a whole model: its autoencoder's tensors only
+        tensors = {k.removeprefix("autoencoder."): v for k, v in tensors.items() if k.startswith("autoencoder.")}
+    state = {k: v.float() for k, v in tensors.items()}
     latent = state["encoder.{}.weight".format(max(int(k.split(".")[1]) for k in state if k.startswith("encoder.")
                                                   and k.endswith("weight") and state[k].ndim == 4))]
     cfg = get_config("tiny", latent_channels=int(latent.shape[0]), ae_width=int(state["encoder.0.weight"].shape[0]))

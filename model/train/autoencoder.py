@@ -5,9 +5,10 @@
 
 Data: every frame of every camera of the training scenes, plus (``--photo-share``) random crops of
 the training-split photos at full resolution, so real footage is not decoded by an autoencoder that
-has only seen rendered textures. ``--init`` warm-starts from earlier weights where shapes match.
+has only seen rendered textures. ``--init`` warm-starts from earlier weights where shapes match;
+with ``--decoder-only`` only the decoder trains, so the latents (and a tokenizer trained on them) stay.
 Loss: L1 + MSE between frames and their reconstructions. At the end the per-channel latent
-statistics are measured on training frames (so stage 2 sees unit-variance latents) and the frozen
+statistics are measured on training frames (unless ``--decoder-only``) (so stage 2 sees unit-variance latents) and the frozen
 autoencoder is written to ``<out>/autoencoder.safetensors`` with ``<out>/autoencoder.json``
 (the model config it belongs to). Re-running the same command resumes from ``<out>/checkpoint``.
 """
@@ -70,7 +71,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--init", type=Path, default=None,
                         help="warm start: copy every autoencoder tensor of this safetensors file (stage-1 "
                              "output or a model directory's model.safetensors) whose name and shape match")
+    parser.add_argument("--decoder-only", action="store_true",
+                        help="train the decoder alone (needs --init): the encoder and its latent statistics stay "
+                             "bit-identical, so a tokenizer trained on the --init latents stays valid")
     args = parser.parse_args(argv)
+    if args.decoder_only and args.init is None:
+        parser.error("--decoder-only needs --init (the encoder whose latents it keeps)")
     info = setup_distributed()
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
@@ -82,7 +88,9 @@ def main(argv: list[str] | None = None) -> int:
         copied = warm_start(ae, args.init)
         if info.is_main:
             print(f"warm start from {args.init}: {copied} of {len(ae.state_dict())} tensors copied")
-    optimizer = torch.optim.AdamW(ae.parameters(), lr=args.lr, weight_decay=0.0)
+    if args.decoder_only:
+        ae.encoder.requires_grad_(False)
+    optimizer = torch.optim.AdamW([p for p in ae.parameters() if p.requires_grad], lr=args.lr, weight_decay=0.0)
     module = DistributedDataParallel(ae) if info.distributed else ae
     frames = FrameDataset(*scene_pool_and_seeds(args, cfg, info))
     dataset = MixedFrames(frames, args.photo_share, seed=args.seed + info.rank) if args.photo_share > 0 else frames
@@ -93,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         ae.eval()
         # the statistics the tokenizer will see: rendered frames only
         sample = torch.stack([frames[i] for i in torch.randperm(len(frames))[:256].tolist()])
-        ae.set_latent_statistics(sample)
+        if not args.decoder_only:  # a kept encoder keeps the statistics the tokenizer was trained with
+            ae.set_latent_statistics(sample)
         with torch.no_grad():
             _, logs = reconstruction_step(ae, sample)
         save_file({k: v.contiguous() for k, v in ae.state_dict().items()}, str(args.out / AE_WEIGHTS))

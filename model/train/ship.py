@@ -1,7 +1,7 @@
 """Ship a trained model inside the package: float16 safetensors + config + a model card.
 
     python -m vt4dcodec.model.train.ship --run runs/tok --autoencoder-run runs/ae --id vt4d-tiny \
-        --version 0.1.0 [--dest model/weights] [--notes docs/card_notes.md]
+        --version 0.1.0 [--dest model/weights] [--notes docs/card_notes.md] [--decoder-from runs/aeD]
 
 Reads the stage-2 run's final model (``<run>/model``, written by ``train.tokenizer``), rounds its
 weights to float16 storage (half the file; loaded as float32), and writes
@@ -17,7 +17,15 @@ import json
 import sys
 from pathlib import Path
 
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file
+
+from vt4dcodec.errors import ModelError
+
+from ..videotok4d import VideoTok4D
 from ..weights_io import SHIPPED_DIR, from_pretrained, save_pretrained
+from .autoencoder import AE_WEIGHTS
 
 __all__ = ["main", "model_card"]
 
@@ -47,7 +55,8 @@ def _pairs_text(args: dict) -> str:
             f"(reconstruction), else another camera {near}")
 
 
-def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint: dict, notes: str) -> str:
+def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint: dict, notes: str,
+               decoder_run: Path | None = None) -> str:
     state = json.loads((run / "checkpoint" / "state.json").read_text())
     args, cfg = state["args"], state["config"]
     tok = _log_summary(run / "log.jsonl")
@@ -86,11 +95,36 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}"
         + (f", cell loss weight {args['cell_weight']}" if args.get("cell_weight") else ""),
     ]
+    if decoder_run is not None:
+        dec = _log_summary(decoder_run / "log.jsonl")
+        lines.append(f"- decoder fine-tuned alone afterwards (`--decoder-only`, encoder and latents unchanged): "
+                     f"{dec['steps']} steps, {dec['wall_seconds'] / 60:.0f} min wall ({decoder_run})")
     if summary:
         lines.append(f"- render PSNR on {len(summary.get('pairs', []))} training pairs: "
                      f"{summary.get('mean_psnr_db', float('nan')):.2f} dB ({summary.get('render_steps')} Euler steps)")
     lines += ["", notes.strip(), ""] if notes.strip() else [""]
     return "\n".join(lines)
+
+
+def swap_decoder(model: VideoTok4D, weights: Path) -> None:
+    """Load the decoder of a stage-1 ``weights`` file into ``model``'s autoencoder, after checking that
+    its encoder and latent statistics equal the model's at float16 storage precision (the shipped
+    weights are float16 values): the latents the tokenizer was trained on stay exactly what they were."""
+    try:
+        state = load_file(str(weights))
+    except (OSError, SafetensorError, ValueError) as exc:
+        raise ModelError(f"--decoder-from: cannot read {weights}: {exc}") from None
+    own = model.autoencoder.state_dict()
+    if set(state) != set(own):
+        raise ModelError(f"--decoder-from {weights}: not an autoencoder of this config")
+    for name, value in state.items():
+        if value.shape != own[name].shape:
+            raise ModelError(f"--decoder-from {weights}: {name} has shape {tuple(value.shape)}, "
+                             f"the model's is {tuple(own[name].shape)}")
+        if not name.startswith("decoder.") and not torch.equal(value.half().float(), own[name].half().float()):
+            raise ModelError(f"--decoder-from {weights}: its {name} differs from the model's: the decoder belongs to "
+                             f"another encoder (train it with --decoder-only --init on this model's autoencoder)")
+    model.autoencoder.load_state_dict({k: v for k, v in state.items() if k.startswith("decoder.")}, strict=False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,13 +138,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--notes", type=Path, help="markdown appended to the generated model card")
     parser.add_argument("--decode-steps", type=int, default=None,
                         help="the codec's default sampler steps for this model (measure: the best-fidelity setting)")
+    parser.add_argument("--decoder-from", type=Path, default=None,
+                        help="stage-1 run of a `--decoder-only` fine-tune: its decoder replaces the model's; its "
+                             "encoder and latent statistics must be the model's (the tokens stay valid)")
     args = parser.parse_args(argv)
     model = from_pretrained(args.run / "model")
+    if args.decoder_from is not None:
+        swap_decoder(model, args.decoder_from / AE_WEIGHTS)
     notes = args.notes.read_text() if args.notes else ""
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
                           storage_dtype="float16", decode_steps=args.decode_steps)
     fp = model.fingerprint(args.id, args.version).to_dict()
-    (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes))
+    (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
+                                                        args.decoder_from))
     size = (out / "model.safetensors").stat().st_size
     print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB)")
     return 0

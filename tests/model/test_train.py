@@ -72,6 +72,38 @@ def test_stage2_trains_and_saves_a_loadable_model(runs):
     assert all(torch.equal(model.autoencoder.state_dict()[k], v) for k, v in ae_state.items())
 
 
+def test_decoder_only_keeps_the_latents_and_ship_swaps_in_only_that_decoder(runs, tmp_path):
+    from safetensors.torch import load_file
+
+    from vt4dcodec.model.train.ship import swap_decoder
+
+    before = load_file(str(runs / "ae/autoencoder.safetensors"))
+    out = tmp_path / "dec"
+    assert stage1.main(["--out", str(out), "--steps", "2", "--batch-size", "4", "--cache", str(runs / "cache"),
+                        "--init", str(runs / "ae/autoencoder.safetensors"), "--decoder-only", *COMMON]) == 0
+    after = load_file(str(out / "autoencoder.safetensors"))
+    kept = [k for k in before if not k.startswith("decoder.")]
+    assert "latent_std" in kept and all(torch.equal(before[k], after[k]) for k in kept)
+    assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("decoder."))
+    with pytest.raises(SystemExit):  # nothing to keep without --init
+        stage1.main(["--out", str(tmp_path / "x"), "--steps", "1", "--decoder-only", *COMMON])
+
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "tok"),
+                        "--steps", "1", "--batch-size", "2", "--cache", str(runs / "cache"), *COMMON]) == 0
+    model = from_pretrained(tmp_path / "tok" / "model")
+    swap_decoder(model, out / "autoencoder.safetensors")
+    state = model.autoencoder.state_dict()
+    assert all(torch.equal(state[k], after[k]) for k in after)
+    # a decoder that belongs to another encoder would decode the tokens' latents wrongly: refused
+    other = tmp_path / "other"
+    assert stage1.main(["--out", str(other), "--steps", "1", "--batch-size", "4", "--cache", str(runs / "cache"),
+                        "--init", str(runs / "ae/autoencoder.safetensors"), *COMMON]) == 0
+    with pytest.raises(ModelError, match="encoder|latent"):
+        swap_decoder(model, other / "autoencoder.safetensors")
+    with pytest.raises(ModelError, match="cannot read"):
+        swap_decoder(model, tmp_path / "missing.safetensors")
+
+
 def test_stage2_refuses_a_mismatched_autoencoder(runs, tmp_path):
     with pytest.raises(ModelError):
         stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "x"),
