@@ -6,6 +6,9 @@ same arrays with np.savez_compressed and safetensors (+zstd), in one run.
     python bench/bench_format.py --scenes 100    # quicker
     python bench/bench_format.py --scenes 1000 --round-size 50 --encodings int8,int4-rans,int8-rans,float16
                                                  # the entropy-coded 1.1 encodings (C rANS coder)
+    python bench/bench_format.py --rans-lanes 0  # ... with one rANS chain per token section (the 1.1-1.4
+                                                 # layout) instead of the writer's policy (format 1.5 lanes)
+    python bench/bench_format.py --scenes 0 --loader-scenes 0 --decoder-micro   # the C rANS decoder alone
 
 Throughput is "logical" MB/s: float32 token megabytes (1536 x 64 x 4 B = 0.393 MB per scene) handled per
 second, the same yardstick for every format.  Write = encode + write the file (for vt4d exactly what save()
@@ -23,6 +26,13 @@ then scenes/s (wall, and per CPU second of this process) through ``ArchiveDatase
 tensors, K, w2c, metadata) and through a ``torch.utils.data.DataLoader`` with 2 worker processes
 (batches of 16, token/camera tensors stacked; persistent workers, one untimed warm-up epoch, then
 ``--loader-epochs`` timed epochs).  Encodings take turns epoch by epoch, like the formats above.
+
+rANS layout: every file is written with the writer's lane policy (``--rans-lanes policy``, the default: a
+paper-size scene's int<b>-rans sections both get 8 interleaved lanes, format 1.5, FORMAT.md I.6.1), or with
+``--rans-lanes 0`` (one chain per section, the 1.1-1.4 layout) or ``--rans-lanes K``; each result says the
+layout its files had ("layout": format version and the lanes of ZSTA / ZDYN).  ``--decoder-micro`` times the
+compiled decoder alone (``decode_mapped``: symbols to float32 tokens) on one 65,536-code int5 stream and on a
+paper-size pair (65,536 + 32,768 codes) in ns per code, one chain against 4 and 8 lanes (best of 50).
 """
 
 from __future__ import annotations
@@ -47,7 +57,8 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.codec import DEFAULT_ENCODING  # noqa: E402
 from vt4dcodec.format import ENCODINGS, ModelFingerprint, Provenance, Scene, dumps, load, open_scene  # noqa: E402
 from vt4dcodec.format import rans  # noqa: E402
-from vt4dcodec.format.encodings import V1_0_ENCODINGS  # noqa: E402
+from vt4dcodec.format.encodings import V1_0_ENCODINGS, is_entropy_coded  # noqa: E402
+from vt4dcodec.format.rans_tokens import _parse_payload, encode_rans_tokens  # noqa: E402
 
 NS, ND, D, FRAMES = 1024, 512, 64, 32
 TOKEN_MB = (NS + ND) * D * 4 / 1e6
@@ -77,12 +88,24 @@ def arrays_of(scene: Scene) -> dict[str, np.ndarray]:
 
 # --- the formats: (write(scene, path) -> None, read(path) -> (static, dynamic)) ---------------------------
 ENCODE_S = [0.0]  # seconds spent in dumps() (the CPU part of a vt4d write, without the durable file write)
+RANS_LANES: list[int | None] = [None]  # dumps(rans_lanes=...): None = the writer's policy (--rans-lanes)
+
+
+def layout_of(data: bytes) -> str:
+    """"1.5, lanes 8/8" (format version, rANS lanes of ZSTA / ZDYN; 1 where one chain) or "1.3"."""
+    f = open_scene(data)
+    version = f"{f.preamble.major}.{f.preamble.minor}"
+    if not is_entropy_coded(f.encoding):
+        return version
+    lanes = [_parse_payload(f.raw_section(name), f.encoding, *shape, lanes=f.rans_lanes).lanes
+             for name, shape in (("ZSTA", f.static_shape), ("ZDYN", f.dynamic_shape))]
+    return f"{version}, lanes {lanes[0]}/{lanes[1]}"
 
 
 def vt4d(encoding: str):
     def write(scene, path):
         t = time.perf_counter()
-        data = dumps(scene, encoding=encoding)
+        data = dumps(scene, encoding=encoding, rans_lanes=RANS_LANES[0])
         ENCODE_S[0] += time.perf_counter() - t
         save_bytes(data, path)
 
@@ -144,6 +167,7 @@ class Tally:
         self.name, self.write, self.read = name, write, read
         self.n, self.write_s, self.read_s, self.bytes, self.err, self.encode_s = 0, 0.0, 0.0, 0, 0.0, 0.0
         self.write_cpu_s, self.read_cpu_s = 0.0, 0.0
+        self.layout: str | None = None
 
     def round(self, scenes: list[Scene], start: int, count: int, workdir: str) -> None:
         paths = [os.path.join(workdir, f"{self.name}-{i}.bin") for i in range(count)]
@@ -152,6 +176,8 @@ class Tally:
             self.write(scenes[(start + k) % POOL], p)
         t1, c1 = time.perf_counter(), time.process_time()
         self.encode_s += ENCODE_S[0] - encode0
+        if self.layout is None and self.name.startswith("vt4d-"):
+            self.layout = layout_of(Path(paths[0]).read_bytes())
         for k, p in enumerate(paths):
             static, dynamic = self.read(p)
             if k < POOL:  # check decoded values against the originals
@@ -174,11 +200,12 @@ class Tally:
                "write_MBps": TOKEN_MB * self.n / self.write_s, "read_MBps": TOKEN_MB * self.n / self.read_s,
                "encode_MBps": TOKEN_MB * self.n / self.encode_s if self.encode_s else None,
                "write_cpu_MBps": TOKEN_MB * self.n / self.write_cpu_s, "read_cpu_MBps": TOKEN_MB * self.n / self.read_cpu_s,
-               "max_abs_error": self.err}
+               "max_abs_error": self.err, "layout": self.layout}
         encode = f"(encode {res['encode_MBps']:6.0f})" if self.encode_s else " " * 15
         print(f"{self.name:>24}: {res['bytes_per_scene']:>8} B/scene  write {res['write_MBps']:7.1f} MB/s {encode}  "
               f"read {res['read_MBps']:7.1f} MB/s  | per CPU second: write {res['write_cpu_MBps']:6.0f} read "
-              f"{res['read_cpu_MBps']:6.0f}  max err {self.err:.3g}", flush=True)
+              f"{res['read_cpu_MBps']:6.0f}  max err {self.err:.3g}"
+              + (f"  [{self.layout}]" if self.layout else ""), flush=True)
         return res
 
 
@@ -198,7 +225,7 @@ def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, e
     datasets, loaders, rows = {}, {}, {}
     for enc in encodings:
         path = os.path.join(workdir, f"loader-{enc}.vt4da")
-        records = [dumps(s, encoding=enc) for s in scenes]
+        records = [dumps(s, encoding=enc, rans_lanes=RANS_LANES[0]) for s in scenes]
         with ArchiveWriter(path, "w", durable=False) as w:
             for i in range(n):
                 w.append(f"scene-{i:06d}", records[i % POOL])
@@ -207,7 +234,7 @@ def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, e
                                   persistent_workers=True)
         for _ in loaders[enc]:  # warm-up epoch: worker start-up and first page-cache touch, not timed
             pass
-        rows[enc] = {"encoding": enc, "scenes": n, "archive_bytes": os.path.getsize(path),
+        rows[enc] = {"encoding": enc, "scenes": n, "archive_bytes": os.path.getsize(path), "layout": layout_of(records[0]),
                      "dataset_s": 0.0, "dataset_cpu_s": 0.0, "dataloader_s": 0.0, "epochs": epochs}
     for _ in range(epochs):
         for enc in encodings:
@@ -229,9 +256,45 @@ def loader_throughput(scenes: list[Scene], encodings: tuple[str, ...], n: int, e
         r["dataloader_2w_scenes_per_s"] = n * epochs / r["dataloader_s"]
         print(f"{'loader ' + enc:>24}: ArchiveDataset {r['dataset_scenes_per_s']:7.0f} scenes/s "
               f"({r['dataset_scenes_per_cpu_s']:5.0f} per CPU second)  "
-              f"DataLoader(2 workers) {r['dataloader_2w_scenes_per_s']:7.0f} scenes/s", flush=True)
+              f"DataLoader(2 workers) {r['dataloader_2w_scenes_per_s']:7.0f} scenes/s  [{r['layout']}]", flush=True)
         out.append(r)
     return out
+
+
+def decoder_micro(reps: int = 50) -> dict:
+    """ns per code of the compiled decoder alone (``decode_mapped``, symbols to float32 tokens), int5-rans
+    payloads of i.i.d. N(0, 1) tokens as the writer makes them: one 65,536-code matrix (1024x64) and a
+    paper-size pair (1024x64 + 512x64, one call), one chain (the 1.1 layout) against 4 and 8 lanes; best of
+    ``reps`` calls."""
+    if not rans.NATIVE:
+        return {}
+    rng = np.random.default_rng(1)
+    mats = [rng.standard_normal((NS, D)).astype(np.float32), rng.standard_normal((ND, D)).astype(np.float32)]
+    out: dict = {}
+    for lanes in (None, 4, 8):
+        specs = []
+        for x in mats:
+            p = _parse_payload(encode_rans_tokens(x, "int5-rans", 1, lanes=lanes), "int5-rans", *x.shape,
+                               lanes=lanes is not None)
+            lut = (np.arange(32) * np.float64(p.scale[0]) + np.float64(p.offset[0])).astype(np.float32)
+            specs.append((bytes(p.stream), np.asarray(p.freqs, np.uint32), np.empty(x.shape, np.float32), D,
+                          np.zeros(D, np.uint32), lut, b"" if p.centre is None else p.centre.tobytes(), 31, p.lanes))
+        row = {}
+        for label, jobs in (("matrix_65536", (specs[0],)), ("pair_98304", tuple(specs))):
+            best = min(_timed(rans._rans_native.decode_mapped, jobs) for _ in range(reps))
+            row[label] = best / sum(j[2].size for j in jobs) * 1e9
+        key = "one_chain" if lanes is None else f"lanes_{lanes}"
+        out[key] = row
+        print(f"{'rANS decoder ' + key:>24}: {row['matrix_65536']:.2f} ns/code (one 1024x64 matrix), "
+              f"{row['pair_98304']:.2f} ns/code (paper-size pair: {row['pair_98304'] * 98304 / 1e3:.0f} us a scene)",
+              flush=True)
+    return out
+
+
+def _timed(fn, arg) -> float:
+    t = time.perf_counter()
+    fn(arg)
+    return time.perf_counter() - t
 
 
 def main() -> int:
@@ -245,8 +308,14 @@ def main() -> int:
     parser.add_argument("--loader-epochs", type=int, default=3, help="timed epochs of the loader benchmark")
     parser.add_argument("--loader-encodings", default=f"int8,{DEFAULT_ENCODING}",
                         help="encodings of the loader benchmark (default: int8 and the codec's default)")
+    parser.add_argument("--rans-lanes", default="policy",
+                        help="rANS lanes of the int<b>-rans files: 'policy' (the writer's default), 0 (one chain, "
+                             "the 1.1-1.4 layout) or 1..32")
+    parser.add_argument("--decoder-micro", action="store_true",
+                        help="also time the compiled rANS decoder alone (one chain vs 4 and 8 lanes)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "format.json"))
     args = parser.parse_args()
+    RANS_LANES[0] = None if args.rans_lanes == "policy" else int(args.rans_lanes)
     encodings = ENCODINGS if args.encodings == "all" else tuple(args.encodings.split(","))
     unknown = set(encodings) - set(ENCODINGS)
     if unknown:
@@ -256,7 +325,8 @@ def main() -> int:
     formats += [("vt4d-int8-tokens-only", *vt4d_lazy_tokens("int8"))]
     formats += [("npz_compressed-float32", *savez()), ("safetensors+zstd-float32", *safetensors_zstd())]
     tallies = [Tally(name, w, r) for name, w, r in formats]
-    rounds = max(1, args.scenes // args.round_size)
+    rounds = max(1, args.scenes // args.round_size) if args.scenes else 0
+    micro = decoder_micro() if args.decoder_micro else None
     with tempfile.TemporaryDirectory(prefix="vt4d-bench-") as workdir:
         # Formats take turns, round by round, so a shared machine's changing load hits them all alike.
         for r in range(rounds):
@@ -264,7 +334,7 @@ def main() -> int:
             for tally in tallies:
                 tally.round(scenes, r * args.round_size, count, workdir)
             print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
-        results = [t.result() for t in tallies]
+        results = [t.result() for t in tallies] if rounds else []
         loader = (loader_throughput(scenes, tuple(args.loader_encodings.split(",")), args.loader_scenes,
                                     args.loader_epochs, workdir) if args.loader_scenes else [])
     report = {"command": " ".join(["python bench/bench_format.py", *sys.argv[1:]]), "token_MB_per_scene": TOKEN_MB,
@@ -273,7 +343,9 @@ def main() -> int:
                           "load_average_at_end": os.getloadavg(),
                           "zstd": ".".join(map(str, zstandard.ZSTD_VERSION))},
               "rans_coder": "C (_rans_native)" if rans.NATIVE else "pure Python (no C compiler at install)",
-              "results": results, "loader": loader}
+              "rans_lanes": args.rans_lanes, "results": results, "loader": loader}
+    if micro is not None:
+        report["rans_decoder_ns_per_code"] = micro
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

@@ -35,9 +35,11 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
-                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, PREAMBLE_SIZE, crc32, entry_size,
-                                     parse_preamble, parse_table)
-from vt4dcodec.format.rans import pack_table, rans_encode  # noqa: E402
+                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_RANS_LANES, PREAMBLE_SIZE,
+                                     crc32, entry_size, parse_preamble, parse_table)
+from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode  # noqa: E402
+from vt4dcodec.format.rans import parse_table as parse_rans_table  # noqa: E402
+from vt4dcodec.format.rans_tokens import decode_rans_codes, encode_rans_tokens  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
 
 VECTORS = ROOT / "vectors"
@@ -232,6 +234,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
                                      "minor version 7, unknown optional flag, unknown header key and two "
                                      "unknown ancillary sections (one with an unknown compression code)")
     out.update(rans_valid_vectors())
+    out.update(lanes_valid_vectors())
     out.update(compact_valid_vectors())
     out.update(container_valid_vectors())
     out.update(extra_cameras_valid_vectors())
@@ -690,6 +693,99 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     return out
 
 
+# --- format 1.5: interleaved rANS lanes (FORMAT.md I.6.1, required flag bit 4) -------------------------------
+LANE_FLAGS = FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | FLAG_ENTROPY_CODED_TOKENS | FLAG_RANS_LANES
+
+
+def narrow_scene(rows: int, dynamic_rows: int) -> Scene:
+    """Z_s with narrow channels (centre prediction pays), Z_d the usual ramp (it does not)."""
+    s = scene(rows, dynamic_rows, 4, provenance=PROVENANCE)
+    i, c = np.meshgrid(np.arange(rows), np.arange(4), indexing="ij")
+    s.static_tokens[:] = (c / 4.0 - 0.5 + ((i * (c + 1)) % 3 - 1) / 64.0).astype(np.float32)
+    return s
+
+
+def lanes_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    both = dumps(narrow_scene(24, 16), encoding="int5-rans", rans_lanes=4)
+    prediction = [split(both)[1][k][3][2 + 8] for k in (1, 2)]  # (sections CAMS, ZSTA, ZDYN; G = 1)
+    assert [x[0] for x in split(both)[1]] == ["CAMS", "ZSTA", "ZDYN"] and prediction == [1, 0], prediction
+    # one section a single chain (K = 1), the other 32 lanes for 16 codes: lanes 16..31 decode nothing
+    base = scene(16, 4, 4, provenance=PROVENANCE)
+    header, sections = split(dumps(base, encoding="int4-rans", rans_lanes=1))
+    for name, tokens, lanes in (("ZSTA", base.static_tokens, 1), ("ZDYN", base.dynamic_tokens, 32)):
+        payload = encode_rans_tokens(tokens, "int4-rans", 1, lanes=lanes)
+        find(sections, name)[3:5] = [payload, len(payload)]
+    return {
+        "int5_rans_lanes_both_predictions": (
+            both, "1.5: int5-rans with 4 interleaved rANS lanes in both token sections (required flag bit 4, flags "
+                  "23): Z_s coded as residuals from centre codes (prediction 1), Z_d without prediction; "
+                  "compact container"),
+        "int3_rans_lanes_3_uneven": (
+            dumps(scene(5, 2, 4, frames=2, timestamps=True), encoding="int3-rans", rans_lanes=3, cameras="legacy",
+                  header="legacy"),
+            "1.5 in the 1.0-1.2 layout (required flags 17): int3-rans with K = 3 lanes over 20 and 8 codes, "
+            "neither a multiple of 3 (lanes 0 and 1 decode one code more than lane 2)"),
+        "int4_rans_lanes_1_and_32": (
+            rebuild_1_3(header, sections, minor=5, required_flags=LANE_FLAGS),
+            "1.5: int4-rans whose Z_s payload says K = 1 (one chain, the 1.1 stream after its K byte) and Z_d "
+            "K = 32 for 16 codes: lanes 16 to 31 decode nothing, start and end in state L"),
+    }
+
+
+def lanes_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    good = dumps(scene(4, 2, 4, provenance=PROVENANCE), encoding="int2-rans", compression_level=None, rans_lanes=4)
+    header, sections = split(good)
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def with_payload(name: str, payload: bytes, error: str, why: str) -> None:
+        bad = [list(x) for x in sections]
+        find(bad, "ZSTA")[3:5] = [payload, len(payload)]
+        out[f"rans_lanes_{name}"] = (rebuild_1_3(header, bad, minor=5, required_flags=LANE_FLAGS), error, why)
+
+    head = struct.pack("<HffB", 1, 0.5, -1.0, 0) + pack_table([4096] * 4)  # G = 1, P = 0, uniform 2-bit table
+    codes = np.array([0, 1, 2, 3] * 4)
+    stream = rans_encode(codes, [4096] * 4, 4)
+    written = find(sections, "ZSTA")[3]  # the writer and the text agree: K = 4 right after the table
+    table_end = 11 + parse_rans_table(written[11:], 4)[1]  # (G = 1 and P = 0 there too)
+    assert written[10] == 0 and written[table_end] == 4 and len(written) >= table_end + 1 + 16
+    assert decode_rans_codes(head + bytes([4]) + stream, "int2-rans", 4, 4, lanes=True)[0].reshape(-1).tolist() \
+        == codes.tolist()
+    with_payload("zero", head + bytes([0]) + stream, "MalformedSectionError", "lane count K = 0")
+    with_payload("33", head + bytes([33]) + stream, "MalformedSectionError", "lane count K = 33 (at most 32)")
+    with_payload("count_missing", head, "TruncatedError", "the payload ends after the frequency table, before K")
+    with_payload("states_cut_short", head + bytes([4]) + stream[:15], "TruncatedError",
+                 "K = 4 but the stream ends inside the fourth initial state (15 bytes)")
+    low = bytearray(stream)
+    struct.pack_into("<I", low, 8, STATE_LOWER - 1)
+    with_payload("state_below_l", head + bytes([4]) + bytes(low), "MalformedSectionError",
+                 "the initial state of lane 2 is L - 1")
+    forged = bytearray(stream)
+    forged[4] ^= 0x01  # lane 1's lowest state bit: it runs through lane 1's steps to its final state
+    with_payload("bad_final_state", head + bytes([4]) + bytes(forged), "MalformedSectionError",
+                 "lane 1 ends in state L + 256 (the lowest bit of its initial state flipped): every lane MUST end in L")
+    with_payload("truncated_stream", head + bytes([4]) + stream[:-1], "TruncatedError",
+                 "the shared byte stream lost its last byte")
+    with_payload("trailing_byte", head + bytes([4]) + stream + b"\x00", "MalformedSectionError",
+                 "one byte after the end of the shared byte stream")
+    out["rans_lanes_in_1_4_file"] = (rebuild_1_3(header, sections, minor=4, required_flags=LANE_FLAGS),
+                                     "UnsupportedFeatureError",
+                                     "required flag bit 4 in a file that says minor version 4 (unknown there)")
+    int8 = dumps(scene(4, 2, 4), encoding="int8", compression_level=None)
+    out["rans_lanes_flag_without_rans"] = (
+        patch_preamble(patch_preamble(int8, 12, "<H", 5), 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS
+                       | FLAG_RANS_LANES), "MalformedHeaderError",
+        "required flag bit 4 (rANS lanes) on an int8 file, without bit 0")
+    constant = scene(3, 2, 2)
+    constant.static_tokens[:] = 0.5
+    constant.dynamic_tokens[:] = 0.75
+    old = dumps(constant, encoding="int3-rans", rans_lanes=0)  # streams 00 00 80 00: one chain, no K byte
+    assert find(split(old)[1], "ZSTA")[3].endswith(b"\x00\x00\x80\x00")
+    out["rans_lanes_flag_on_1_1_payloads"] = (
+        patch_preamble(patch_preamble(old, 12, "<H", 5), 16, "<Q", LANE_FLAGS), "MalformedSectionError",
+        "required flag bit 4 on a file whose payloads have no K byte: K reads as the stream's first byte, 0")
+    return out
+
+
 def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     good = dumps_1_1(scene(4, 2, 4, provenance=PROVENANCE), encoding="int8", compression_level=None)
     header, sections = split(good)
@@ -798,6 +894,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(cams, "CAMS")[3] = cam.tobytes()
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
     out.update(rans_invalid_vectors())
+    out.update(lanes_invalid_vectors())
     out.update(compact_invalid_vectors())
     out.update(container_invalid_vectors())
     out.update(extra_cameras_invalid_vectors())

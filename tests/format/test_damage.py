@@ -27,6 +27,11 @@ SMALL = {
                         header="legacy"),
     "zstd_legacy": dumps(simple_scene(ns=3, nd=2, d=3, frames=2, encoding="int4", metadata={"k": [1, 2]}),
                          header="legacy"),
+    # format 1.5: entropy-coded tokens in interleaved rANS lanes (K = 3 over 15 and 6 codes), both layouts
+    "rans_lanes": dumps(simple_scene(ns=5, nd=2, d=3, frames=1, encoding="int5-rans"), compression_level=None,
+                        rans_lanes=3),
+    "rans_lanes_legacy": dumps(simple_scene(ns=5, nd=2, d=3, frames=1, encoding="int6-rans"), rans_lanes=4,
+                               header="legacy", cameras="legacy"),
     # format 1.4: the extra cameras section (XCAM) in both layouts, zstd and raw
     "extra_cameras": dumps(rig_scene(2, frames=2, ns=3, nd=2, d=3, encoding="int4")),
     "extra_cameras_raw_legacy": dumps(rig_scene(2, frames=2, ns=3, nd=2, d=3, encoding="float32"),

@@ -62,10 +62,12 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 16 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 32 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
+    assert minor >= 5 or not required & 16  # I.6.1: rANS lanes since 1.5
+    assert required & 1 or not required & 16  # ... only beside bit 0
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
@@ -190,8 +192,10 @@ def read_varint(raw: bytes, pos: int) -> tuple[int, int]:
             return value, pos
 
 
-def rans_codes(raw: bytes, bits: int, rows: int, cols: int) -> tuple[list[int], list[float], list[float]]:
-    """FORMAT.md I.6.1: (codes in row-major order, per-channel scale, per-channel offset)."""
+def rans_codes(raw: bytes, bits: int, rows: int, cols: int, lanes: bool = False) -> tuple[list[int], list[float],
+                                                                                           list[float]]:
+    """FORMAT.md I.6.1: (codes in row-major order, per-channel scale, per-channel offset); ``lanes``: the file
+    sets required flag bit 4 (1.5), so a lane count K follows the table and the stream has K lanes."""
     M, L = 1 << 14, 1 << 23
     (groups,) = struct.unpack_from("<H", raw, 0)
     scale = struct.unpack_from(f"<{groups}f", raw, 2)
@@ -208,16 +212,23 @@ def rans_codes(raw: bytes, bits: int, rows: int, cols: int) -> tuple[list[int], 
         freq[first + k], pos = read_varint(raw, pos)
     assert sum(freq) == M
     cum = [sum(freq[:s]) for s in range(alphabet)]
-    x, pos = struct.unpack_from("<I", raw, pos)[0], pos + 4
+    K = 1
+    if lanes:  # 1.5: u8 K, then K initial states, lane 0 first, and one shared byte stream
+        K, pos = raw[pos], pos + 1
+        assert 1 <= K <= 32
+    assert len(raw) >= pos + 4 * K
+    x, pos = list(struct.unpack_from(f"<{K}I", raw, pos)), pos + 4 * K
+    assert all(v >= L for v in x)
     symbols = []
-    for _ in range(rows * cols):
-        slot = x % M
+    for k in range(rows * cols):
+        j = k % K  # symbol k is lane (k mod K)'s
+        slot = x[j] % M
         s = max(t for t in range(alphabet) if freq[t] and cum[t] <= slot)
-        x = freq[s] * (x // M) + slot - cum[s]
-        while x < L:
-            x, pos = x * 256 + raw[pos], pos + 1
+        x[j] = freq[s] * (x[j] // M) + slot - cum[s]
+        while x[j] < L:
+            x[j], pos = x[j] * 256 + raw[pos], pos + 1
         symbols.append(s)
-    assert pos == len(raw) and x == L
+    assert pos == len(raw) and all(v == L for v in x)  # every lane, those without a symbol too
     codes = symbols if mode == 0 else [s - (1 << bits) + 1 + centre[k % cols] for k, s in enumerate(symbols)]
     assert all(0 <= q < (1 << bits) for q in codes)
     width = cols // groups
@@ -233,7 +244,7 @@ def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[l
         values = list(struct.unpack(f"<{n}e", raw))
     else:
         if enc.endswith("-rans"):
-            codes, scale, offset = rans_codes(raw, int(enc[3]), rows, cols)
+            codes, scale, offset = rans_codes(raw, int(enc[3]), rows, cols, bool(scene["required"] & 16))
         else:
             q = scene["sections"][quant]
             scale, offset = struct.unpack(f"<{cols}f", q[:4 * cols]), struct.unpack(f"<{cols}f", q[4 * cols:])
@@ -264,13 +275,15 @@ def test_format_md_alone_reads_every_valid_vector(path):
     assert [{"K": x["K"], "w2c": x["w2c"]} for x in extras] == expected.get("extra_cameras", [])
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(st.sampled_from([f"int{b}-rans" for b in range(2, 9)]), st.integers(1, 40), st.sampled_from([1, 2, 4]),
-       st.integers(0, 2**32 - 1), st.booleans())
-def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(encoding, rows, groups, seed, narrow):
+       st.integers(0, 2**32 - 1), st.booleans(), st.sampled_from([None, 0, 1, 2, 3, 4, 8, 32]))
+def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(encoding, rows, groups, seed, narrow,
+                                                                            lanes):
     """The library's compiled rANS encoder writes streams that the spec-only decoder above reads to the
-    library's own decoded values (both predictions: ``narrow`` channels favour centre prediction).  The
-    library is imported here only to make and compare files; the reader above uses none of it."""
+    library's own decoded values (both predictions: ``narrow`` channels favour centre prediction; with
+    ``lanes`` 1..32 the 1.5 lane layout, I.6.1).  The library is imported here only to make and compare files;
+    the reader above uses none of it."""
     from format_strategies import simple_scene
     from vt4dcodec.format import Scene, dumps, loads
 
@@ -280,8 +293,9 @@ def test_format_md_alone_reads_what_the_writer_makes_in_every_rans_encoding(enco
         x = (np.arange(4) * 10.0 + 0.01 * x).astype(np.float32)
     scene = simple_scene(ns=rows, nd=3, d=4, seed=seed % 1000)
     scene = Scene(x, scene.dynamic_tokens, scene.cameras, scene.fingerprint)
-    data = dumps(scene, encoding=encoding, groups=groups)
+    data = dumps(scene, encoding=encoding, groups=groups, rans_lanes=lanes)
     mine = read_scene(data)
+    assert bool(mine["required"] & 16) == bool(lanes) and (mine["minor"] == 5) == bool(lanes)
     ours = loads(data)
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         got = decode_tokens(mine, tok, tok.replace("Z", "Q", 1), mine["header"][f"{shape_key}_shape"])

@@ -1,13 +1,19 @@
 /* The static rANS coder of FORMAT.md I.6.1 in C: the same stream bytes as the pure-Python reference in
- * rans.py, about 1,000x faster.  Integer arithmetic only (uint32 state, uint64 never needed), so every
+ * rans.py, about 1,000x faster.  Integer arithmetic only (uint32 states; uint64 only to shift a state and the
+ * next two stream bytes as one value), so every
  * machine produces and accepts the same bytes.
+ *
+ * A stream has K = 1..32 interleaved lanes (format 1.5, required flag bit 4; K = 1 is the single chain of
+ * 1.1-1.4): K initial u32 states, lane 0 first, then one shared run of renormalisation bytes; symbol k is
+ * decoded by lane k mod K.  Lanes are independent chains of dependent steps, so a core runs K of them at
+ * once where one chain leaves it waiting on each step's table look-ups and multiply.
  *
  * Both functions take frequency tables that rans.py has already validated (parse_table / normalize_counts);
  * they re-check the sum and every symbol index anyway, so no input can make them read or write out of
  * bounds.  Work is bounded by the declared symbol count: each decoded symbol reads at most 2 stream bytes
  * and each encoded symbol writes at most 2.  The GIL is released while coding.
  *
- *   decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)
+ *   decode(stream, freqs_u32, out_u16[, lanes]) -> (symbols_decoded, stream_pos, final_states)
  *   decode_mapped(...): decode, symbols -> codes -> float32 by table in the same pass (see below)
  *   encode(jobs) -> [bytes, or None if a symbol has frequency 0 or lies outside the table] for 1-2 streams
  *   column_histograms(codes_u8, cols, size, out_i64) -> None: out[(k % cols) * size + codes[k]] += 1, or
@@ -23,6 +29,13 @@
 #define STATE_LOWER (1u << 23)
 #define UPPER_SHIFT (23 - PROB_BITS + 8) /* x_max(s) = f[s] << 17 */
 #define MAX_ALPHABET 65536
+#define MAX_LANES 32
+
+#if defined(__GNUC__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
 
 /* freqs_u32 -> cum[]; returns 0 unless the table sums to PROB_SCALE with every entry <= PROB_SCALE. */
 static int build_cum(const uint32_t *freqs, Py_ssize_t alphabet, uint32_t *cum) {
@@ -44,14 +57,22 @@ static int table_arg(Py_buffer *fb, Py_ssize_t *alphabet) {
     return 1;
 }
 
+static int lanes_arg(int lanes) {
+    if (lanes < 1 || lanes > MAX_LANES) {
+        PyErr_SetString(PyExc_ValueError, "lanes must be 1..32");
+        return 0;
+    }
+    return 1;
+}
+
 /* Decoder tables: cum[] and the slot -> symbol map (caller frees both with PyMem_Free). */
-static int decoder_tables(Py_buffer *fb, Py_buffer *sb, uint32_t **cum, uint16_t **slot_sym) {
+static int decoder_tables(Py_buffer *fb, Py_buffer *sb, int lanes, uint32_t **cum, uint16_t **slot_sym) {
     Py_ssize_t alphabet;
     *cum = NULL;
     *slot_sym = NULL;
-    if (!table_arg(fb, &alphabet)) return 0;
-    if (sb->len < 4) {
-        PyErr_SetString(PyExc_ValueError, "stream shorter than its initial state");
+    if (!table_arg(fb, &alphabet) || !lanes_arg(lanes)) return 0;
+    if (sb->len < 4 * (Py_ssize_t)lanes) {
+        PyErr_SetString(PyExc_ValueError, "stream shorter than its initial states");
         return 0;
     }
     const uint32_t *freqs = (const uint32_t *)fb->buf;
@@ -70,13 +91,24 @@ static int decoder_tables(Py_buffer *fb, Py_buffer *sb, uint32_t **cum, uint16_t
     return 1;
 }
 
-static uint32_t initial_state(const uint8_t *data) {
+static uint32_t read_u32(const uint8_t *data) {
     return (uint32_t)data[0] | (uint32_t)data[1] << 8 | (uint32_t)data[2] << 16 | (uint32_t)data[3] << 24;
 }
 
-/* One decoding step of FORMAT.md I.6.1: symbol s from state x, then renormalise from data[pos..end);
+/* The final states as a tuple of ints, lane 0 first. */
+static PyObject *states_tuple(const uint32_t *x, int lanes) {
+    PyObject *t = PyTuple_New(lanes);
+    for (int l = 0; t && l < lanes; l++) {
+        PyObject *v = PyLong_FromUnsignedLong((unsigned long)x[l]);
+        if (!v) Py_CLEAR(t);
+        else PyTuple_SET_ITEM(t, l, v);
+    }
+    return t;
+}
+
+/* One decoding step of FORMAT.md I.6.1 on state x: symbol s, then renormalise from data[pos..end);
  * `break`s out of the caller's loop (before storing symbol i) when the stream runs out. */
-#define DECODE_STEP(s)                                                  \
+#define DECODE_STEP(x, s)                                               \
     uint32_t slot = x & (PROB_SCALE - 1);                               \
     uint16_t s = slot_sym[slot];                                        \
     x = freqs[s] * (x >> PROB_BITS) + slot - cum[s];                    \
@@ -91,11 +123,12 @@ static uint32_t initial_state(const uint8_t *data) {
 
 static PyObject *rans_decode(PyObject *self, PyObject *args) {
     Py_buffer sb, fb, ob;
-    if (!PyArg_ParseTuple(args, "y*y*w*", &sb, &fb, &ob)) return NULL;
+    int lanes = 1;
+    if (!PyArg_ParseTuple(args, "y*y*w*|i", &sb, &fb, &ob, &lanes)) return NULL;
     PyObject *result = NULL;
     uint32_t *cum = NULL;
     uint16_t *slot_sym = NULL;
-    if (!decoder_tables(&fb, &sb, &cum, &slot_sym)) goto done;
+    if (!decoder_tables(&fb, &sb, lanes, &cum, &slot_sym)) goto done;
     if (ob.len % 2) {
         PyErr_SetString(PyExc_ValueError, "out must be a uint16 buffer");
         goto done;
@@ -104,15 +137,30 @@ static PyObject *rans_decode(PyObject *self, PyObject *args) {
     const uint8_t *data = (const uint8_t *)sb.buf;
     const Py_ssize_t end = sb.len, count = ob.len / 2;
     uint16_t *out = (uint16_t *)ob.buf;
-    uint32_t x = initial_state(data);
-    Py_ssize_t pos = 4, i = 0;
+    uint32_t states[MAX_LANES];
+    for (int l = 0; l < lanes; l++) states[l] = read_u32(data + 4 * l);
+    Py_ssize_t pos = 4 * (Py_ssize_t)lanes, i = 0;
     Py_BEGIN_ALLOW_THREADS
-    for (; i < count; i++) {
-        DECODE_STEP(s)
-        out[i] = s;
+    if (lanes == 1) {
+        uint32_t x = states[0];
+        for (; i < count; i++) {
+            DECODE_STEP(x, s)
+            out[i] = s;
+        }
+        states[0] = x;
+    } else {
+        int lane = 0;
+        for (; i < count; i++) {
+            uint32_t x = states[lane];
+            DECODE_STEP(x, s)
+            out[i] = s;
+            states[lane] = x;
+            if (++lane == lanes) lane = 0;
+        }
     }
     Py_END_ALLOW_THREADS
-    result = Py_BuildValue("(nnk)", i, pos, (unsigned long)x);
+    PyObject *st = states_tuple(states, lanes);
+    if (st) result = Py_BuildValue("(nnN)", i, pos, st);
 done:
     PyMem_Free(cum);
     PyMem_Free(slot_sym);
@@ -131,13 +179,15 @@ typedef struct {
     int nbuf; /* how many of the buffers above are held */
     uint32_t *cum;
     uint16_t *slot_sym;
+    uint8_t *slot_sym8; /* the same map in bytes, where the alphabet has at most 256 symbols (else NULL) */
     const uint32_t *freqs, *colbase;
     const float *lut;
     const uint8_t *centre, *data;
     float *out;
     Py_ssize_t end, pos, count, i, cols, c;
-    uint32_t x;
-    int top, bad;
+    int top, bad, lanes, lane; /* lane: the lane of symbol i */
+    int checked; /* whether codes need the range check (centre given, or symbols beyond top) */
+    uint32_t x[MAX_LANES];
 } mapped_job;
 
 static void job_release(mapped_job *j) {
@@ -146,21 +196,25 @@ static void job_release(mapped_job *j) {
     j->nbuf = 0;
     PyMem_Free(j->cum);
     PyMem_Free(j->slot_sym);
+    PyMem_Free(j->slot_sym8);
     j->cum = NULL;
     j->slot_sym = NULL;
+    j->slot_sym8 = NULL;
 }
 
-/* Parse (stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top); 0 on error. */
+/* Parse (stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top[, lanes]); 0 on
+ * error. */
 static int job_setup(mapped_job *j, PyObject *spec) {
     memset(j, 0, sizeof(*j));
-    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*w*ny*y*y*i", &j->sb, &j->fb, &j->ob, &j->cols, &j->cb,
-                                                  &j->lb, &j->zb, &j->top)) {
+    j->lanes = 1;
+    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*w*ny*y*y*i|i", &j->sb, &j->fb, &j->ob, &j->cols, &j->cb,
+                                                  &j->lb, &j->zb, &j->top, &j->lanes)) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "decode_mapped: each job must be a tuple");
         return 0;
     }
     j->nbuf = 6;
-    if (!decoder_tables(&j->fb, &j->sb, &j->cum, &j->slot_sym)) return 0;
-    const Py_ssize_t lut_len = j->lb.len / 4;
+    if (!decoder_tables(&j->fb, &j->sb, j->lanes, &j->cum, &j->slot_sym)) return 0;
+    const Py_ssize_t lut_len = j->lb.len / 4, alphabet = j->fb.len / 4;
     if (j->ob.len % 4 || j->cols < 1 || (j->ob.len / 4) % j->cols || j->cb.len != 4 * j->cols || j->lb.len % 4 ||
         j->top < 0 || j->top > 255 || (j->zb.len != 0 && j->zb.len != j->cols)) {
         PyErr_SetString(PyExc_ValueError, "decode_mapped: shapes do not match");
@@ -174,46 +228,161 @@ static int job_setup(mapped_job *j, PyObject *spec) {
         }
     }
     j->freqs = (const uint32_t *)j->fb.buf;
+    if (alphabet <= 256 && j->lanes > 1) { /* for job_lanes */
+        j->slot_sym8 = PyMem_Malloc(PROB_SCALE);
+        if (!j->slot_sym8) {
+            PyErr_NoMemory();
+            return 0;
+        }
+        for (Py_ssize_t s = 0; s < alphabet; s++) memset(j->slot_sym8 + j->cum[s], (int)s, j->freqs[s]);
+    }
     j->lut = (const float *)j->lb.buf;
     j->centre = j->zb.len ? (const uint8_t *)j->zb.buf : NULL;
+    j->checked = j->centre != NULL || alphabet > j->top + 1;
     j->data = (const uint8_t *)j->sb.buf;
     j->end = j->sb.len;
     j->count = j->ob.len / 4;
     j->out = (float *)j->ob.buf;
-    j->x = initial_state(j->data);
-    j->pos = 4;
+    for (int l = 0; l < j->lanes; l++) j->x[l] = read_u32(j->data + 4 * l);
+    j->pos = 4 * (Py_ssize_t)j->lanes;
     return 1;
 }
 
-/* Decode and store symbol j->i; 0 (nothing stored) when the stream runs out. */
-#if defined(__GNUC__)
-#define ALWAYS_INLINE inline __attribute__((always_inline))
-#else
-#define ALWAYS_INLINE inline
-#endif
+/* Map decoded symbol s of column c to its float and store it as out[i]. */
+#define MAP_STORE(j, s, i, c)                                                       \
+    do {                                                                            \
+        int code_ = (j)->centre ? (int)(s) + (int)(j)->centre[c] - (j)->top : (int)(s); \
+        if (code_ < 0 || code_ > (j)->top) {                                        \
+            (j)->bad = 1;                                                           \
+            code_ = 0;                                                              \
+        }                                                                           \
+        (j)->out[i] = (j)->lut[(j)->colbase[c] + (uint32_t)code_];                  \
+    } while (0)
 
-static ALWAYS_INLINE int job_step(mapped_job *j) {
+/* Decode and store symbol j->i with its lane's state (LANES: whether there may be more than one lane); 0
+ * (nothing stored) when the stream runs out. */
+static ALWAYS_INLINE int job_step_any(mapped_job *j, const int LANES) {
     const uint16_t *slot_sym = j->slot_sym;
     const uint32_t *freqs = j->freqs, *cum = j->cum;
     const uint8_t *data = j->data;
     const Py_ssize_t end = j->end;
-    uint32_t x = j->x;
+    uint32_t x = j->x[LANES ? j->lane : 0];
     Py_ssize_t pos = j->pos;
     int ok = 0;
     do {
-        DECODE_STEP(s)
-        int code = j->centre ? (int)s + (int)j->centre[j->c] - j->top : (int)s;
-        if (code < 0 || code > j->top) {
-            j->bad = 1;
-            code = 0;
-        }
-        j->out[j->i++] = j->lut[j->colbase[j->c] + (uint32_t)code];
+        DECODE_STEP(x, s)
+        MAP_STORE(j, s, j->i, j->c);
+        j->i++;
         if (++j->c == j->cols) j->c = 0;
         ok = 1;
     } while (0);
-    j->x = x;
+    if (LANES) {
+        j->x[j->lane] = x;
+        if (++j->lane == j->lanes) j->lane = 0;
+    } else {
+        j->x[0] = x;
+    }
     j->pos = pos;
     return ok;
+}
+#define job_step(j) job_step_any(j, 1)
+#define job_step1(j) job_step_any(j, 0)
+
+/* The lane path (K >= 2): job j's symbols a round at a time, one symbol of each lane (lane l: symbol
+ * i + l), while a round cannot run out of stream (K symbols read at most 2 K bytes), with the step of
+ * DECODE_STEP made branch-free: after a step x >= 2^9 (x >= L before it, so x div M >= 2^9, and f >= 1),
+ * so the checked loop reads exactly n = [x < L] + [x < L / 256] bytes (x * 256 + byte < L exactly when
+ * x < 2^15); x then takes the next n of the next 2 bytes: (x * 2^16 + next 2 bytes) >> (16 - 8 n).
+ * Everything hot is a local, the K states too (K is a constant in each copy the compiler makes), and
+ * symbols come from the byte-wide slot map where the alphabet allows (half the cache).  What is left
+ * (fewer than K symbols, or the last 2 K bytes of the stream) is job_step's. */
+#define LANE_SYMBOL(slot) (SYM8 ? (uint32_t)slot_sym8[slot] : (uint32_t)slot_sym[slot])
+#define LANE_DECODE(l)                                                                      \
+    uint32_t xl = x[l];                                                                     \
+    const uint32_t slot = xl & (PROB_SCALE - 1);                                            \
+    const uint32_t s = LANE_SYMBOL(slot);                                                   \
+    xl = freqs[s] * (xl >> PROB_BITS) + slot - cum[s];                                      \
+    {                                                                                       \
+        const uint32_t nb = (xl < STATE_LOWER) + (xl < (STATE_LOWER >> 8));                 \
+        const uint64_t v = (uint64_t)xl << 16 | (uint32_t)data[pos] << 8 | data[pos + 1];   \
+        x[l] = (uint32_t)(v >> (16 - 8 * nb));                                              \
+        pos += nb;                                                                          \
+    }
+
+/* Whole rows (cols a multiple of K, c = 0 at the start): the column is the loop index, one check a row. */
+static ALWAYS_INLINE void job_rows(mapped_job *j, const int K, const int SYM8, const int CENTRE) {
+    const uint16_t *slot_sym = j->slot_sym;
+    const uint8_t *slot_sym8 = j->slot_sym8;
+    const uint32_t *freqs = j->freqs, *cum = j->cum, *colbase = j->colbase;
+    const uint8_t *data = j->data, *centre = j->centre;
+    const float *lut = j->lut;
+    float *out = j->out;
+    const Py_ssize_t cols = j->cols, count = j->count, end = j->end;
+    const unsigned top = (unsigned)j->top;
+    Py_ssize_t pos = j->pos, i = j->i;
+    unsigned bad = 0;
+    uint32_t x[8];
+    for (int l = 0; l < K; l++) x[l] = j->x[l];
+    while (count - i >= cols && end - pos >= 2 * cols) {
+        float *row = out + i;
+        for (Py_ssize_t c0 = 0; c0 < cols; c0 += K) {
+#pragma GCC unroll 8
+            for (int l = 0; l < K; l++) {
+                LANE_DECODE(l)
+                unsigned code = s;
+                if (CENTRE) {
+                    code = s + centre[c0 + l] - top;
+                    const unsigned out_of_range = code > top;
+                    bad |= out_of_range;
+                    code = out_of_range ? 0 : code;
+                }
+                row[c0 + l] = lut[colbase[c0 + l] + code];
+            }
+        }
+        i += cols;
+    }
+    for (int l = 0; l < K; l++) j->x[l] = x[l];
+    j->pos = pos;
+    j->i = i;
+    j->bad |= (int)bad;
+}
+
+/* Rounds of K symbols from any column (cols not a multiple of K, or a file of few rows). */
+static void job_rounds(mapped_job *j) {
+    const int K = j->lanes, SYM8 = j->slot_sym8 != NULL;
+    const uint16_t *slot_sym = j->slot_sym;
+    const uint8_t *slot_sym8 = j->slot_sym8;
+    const uint32_t *freqs = j->freqs, *cum = j->cum;
+    const uint8_t *data = j->data;
+    const Py_ssize_t count = j->count, end = j->end;
+    Py_ssize_t pos = j->pos;
+    uint32_t x[MAX_LANES];
+    for (int l = 0; l < K; l++) x[l] = j->x[l];
+    while (count - j->i >= K && end - pos >= 2 * (Py_ssize_t)K) {
+        for (int l = 0; l < K; l++) {
+            LANE_DECODE(l)
+            MAP_STORE(j, s, j->i, j->c);
+            j->i++;
+            if (++j->c == j->cols) j->c = 0;
+        }
+    }
+    for (int l = 0; l < K; l++) j->x[l] = x[l];
+    j->pos = pos;
+}
+
+/* The rows of job j (where they apply), then its rounds; job_step finishes it. */
+static void job_lanes(mapped_job *j) {
+    if (j->checked && !j->centre) return; /* symbols beyond top without prediction: only job_step checks them */
+    if (j->c == 0 && j->lane == 0 && j->cols % j->lanes == 0 && (j->lanes == 4 || j->lanes == 8)) {
+        const int sym8 = j->slot_sym8 != NULL, centre = j->centre != NULL;
+#define ROWS(K) (sym8 ? (centre ? job_rows(j, K, 1, 1) : job_rows(j, K, 1, 0)) \
+                      : (centre ? job_rows(j, K, 0, 1) : job_rows(j, K, 0, 0)))
+        if (j->lanes == 4) ROWS(4);
+        else ROWS(8);
+#undef ROWS
+        j->c = j->i % j->cols;
+    }
+    if (j->lane == 0) job_rounds(j);
 }
 
 /* The jobs tuple of decode_mapped / encode: 1 or 2 entries; -1 with an exception otherwise. */
@@ -242,9 +411,27 @@ static Py_ssize_t job_count(PyObject *args, PyObject **jobs, const char *name) {
 #define DECODE_MORE(j) ((j).i < (j).count)
 #define ENCODE_MORE(j) ((j).i > 0)
 
-/* decode_mapped(jobs) -> [(symbols_decoded, stream_pos, final_state, bad), ...] for 1 or 2 jobs.  Two
- * independent streams (a scene's two token sections) are decoded in one loop, a symbol of each in turn:
- * each stream is a chain of dependent steps, and two chains keep the core busy ~1.4x as well as one. */
+/* The symbol-by-symbol steps of jobs a and b in turn (local copies, so their fields can live in
+ * registers): the whole decode of single chains, the last symbols of lanes. */
+static void steps_single(mapped_job *pa, mapped_job *pb, Py_ssize_t n) {
+    mapped_job a = *pa, b = *pb;
+    INTERLEAVE(a, b, n, DECODE_MORE, job_step1);
+    *pa = a;
+    *pb = b;
+}
+
+static void steps_lanes(mapped_job *pa, mapped_job *pb, Py_ssize_t n) {
+    mapped_job a = *pa, b = *pb;
+    INTERLEAVE(a, b, n, DECODE_MORE, job_step);
+    *pa = a;
+    *pb = b;
+}
+
+/* decode_mapped(jobs) -> [(symbols_decoded, stream_pos, final_states, bad), ...] for 1 or 2 jobs.  A
+ * stream of K >= 2 lanes keeps the core busy on its own (job_lanes); single chains (K = 1, the 1.1-1.4
+ * layout) of a scene's two token sections are decoded in one loop, a symbol of each in turn: two chains
+ * keep the core busy ~1.4x as well as one.  Every stream ends symbol by symbol (job_step), which also
+ * catches truncation exactly as the Python reference does. */
 static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
     PyObject *jobs, *result = NULL;
     const Py_ssize_t n = job_count(args, &jobs, "decode_mapped");
@@ -255,14 +442,17 @@ static PyObject *rans_decode_mapped(PyObject *self, PyObject *args) {
     for (Py_ssize_t k = 0; k < n && ready; k++) ready = job_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
     if (ready) {
         Py_BEGIN_ALLOW_THREADS
-        mapped_job a = j[0], b = j[1];
-        INTERLEAVE(a, b, n, DECODE_MORE, job_step);
-        j[0].i = a.i, j[0].pos = a.pos, j[0].x = a.x, j[0].bad = a.bad;
-        j[1].i = b.i, j[1].pos = b.pos, j[1].x = b.x, j[1].bad = b.bad;
+        for (Py_ssize_t k = 0; k < n; k++)
+            if (j[k].lanes > 1) job_lanes(&j[k]);
+        if (j[0].lanes == 1 && j[1].lanes <= 1) /* (j[1].lanes is 0 where there is no second job) */
+            steps_single(&j[0], &j[1], n);
+        else
+            steps_lanes(&j[0], &j[1], n);
         Py_END_ALLOW_THREADS
         result = PyList_New(n);
         for (Py_ssize_t k = 0; result && k < n; k++) {
-            PyObject *item = Py_BuildValue("(nnki)", j[k].i, j[k].pos, (unsigned long)j[k].x, j[k].bad);
+            PyObject *st = states_tuple(j[k].x, j[k].lanes);
+            PyObject *item = st ? Py_BuildValue("(nnNi)", j[k].i, j[k].pos, st, j[k].bad) : NULL;
             if (!item) Py_CLEAR(result);
             else PyList_SET_ITEM(result, k, item);
         }
@@ -305,8 +495,8 @@ typedef struct {
     const uint16_t *sym;
     Py_ssize_t alphabet, i; /* i: symbols left to encode (encoding runs from the last to the first) */
     size_t cap;
-    uint32_t x;
-    int bad;
+    int bad, lanes, lane; /* lane: the lane of symbol i - 1, the next to encode */
+    uint32_t x[MAX_LANES];
 } enc_job;
 
 static void enc_release(enc_job *j) {
@@ -323,15 +513,16 @@ static void enc_release(enc_job *j) {
     j->buf = NULL;
 }
 
-/* Parse (symbols_u16, freqs_u32) and prepare the tables and output; 0 on error. */
+/* Parse (symbols_u16, freqs_u32[, lanes]) and prepare the tables and output; 0 on error. */
 static int enc_setup(enc_job *j, PyObject *spec) {
     memset(j, 0, sizeof(*j));
-    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*", &j->yb, &j->fb)) {
+    j->lanes = 1;
+    if (!PyTuple_Check(spec) || !PyArg_ParseTuple(spec, "y*y*|i", &j->yb, &j->fb, &j->lanes)) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "encode: each job must be a tuple");
         return 0;
     }
     j->nbuf = 1;
-    if (!table_arg(&j->fb, &j->alphabet)) return 0;
+    if (!table_arg(&j->fb, &j->alphabet) || !lanes_arg(j->lanes)) return 0;
     if (j->yb.len % 2) {
         PyErr_SetString(PyExc_ValueError, "symbols must be a uint16 buffer");
         return 0;
@@ -350,22 +541,23 @@ static int enc_setup(enc_job *j, PyObject *spec) {
     for (Py_ssize_t k = 0; k < j->alphabet; k++) enc_symbol_init(&j->tab[k], freqs[k], j->cum[k]);
     j->sym = (const uint16_t *)j->yb.buf;
     j->i = j->yb.len / 2;
-    if (j->i > (PY_SSIZE_T_MAX - 4) / 2) {
+    if (j->i > (PY_SSIZE_T_MAX - 4 * MAX_LANES) / 2) {
         PyErr_NoMemory();
         return 0;
     }
-    j->cap = 2 * (size_t)j->i + 4; /* each symbol emits at most 2 bytes, plus the final state */
+    j->cap = 2 * (size_t)j->i + 4 * (size_t)j->lanes; /* each symbol emits at most 2 bytes, plus the states */
     j->buf = PyMem_Malloc(j->cap);
     if (!j->buf) {
         PyErr_NoMemory();
         return 0;
     }
     j->p = j->buf + j->cap; /* bytes are written backwards, so the stream reads forwards */
-    j->x = STATE_LOWER;
+    for (int l = 0; l < j->lanes; l++) j->x[l] = STATE_LOWER;
+    j->lane = j->i ? (int)((j->i - 1) % j->lanes) : 0;
     return 1;
 }
 
-/* Encode symbol j->i - 1; 0 (and bad) if it has no frequency. */
+/* Encode symbol j->i - 1 with its lane's state; 0 (and bad) if it has no frequency. */
 static ALWAYS_INLINE int enc_step(enc_job *j) {
     uint16_t s = j->sym[j->i - 1];
     if (s >= j->alphabet || j->tab[s].x_max == 0) {
@@ -373,21 +565,76 @@ static ALWAYS_INLINE int enc_step(enc_job *j) {
         return 0;
     }
     const enc_symbol *e = &j->tab[s];
-    uint32_t x = j->x;
+    uint32_t x = j->x[j->lane];
     uint8_t *p = j->p;
     while (x >= e->x_max) {
         *--p = (uint8_t)(x & 0xFF);
         x >>= 8;
     }
     uint32_t q = (uint32_t)(((uint64_t)x * e->rcp) >> 32) >> e->shift;
-    j->x = x + e->bias + q * e->cmpl;
+    j->x[j->lane] = x + e->bias + q * e->cmpl;
+    j->lane = j->lane ? j->lane - 1 : j->lanes - 1;
     j->p = p;
     j->i--;
     return 1;
 }
 
+/* The lane path of the encoder (K >= 2, the symbols left a multiple of K, so symbol i - 1 is lane K - 1's):
+ * rounds of K symbols, lanes K - 1 down to 0, the states in locals (K a constant in each copy the compiler
+ * makes).  Stops at a symbol without frequency (bad); the caller finishes with enc_step. */
+static ALWAYS_INLINE void enc_rounds(enc_job *j, const int K) {
+    const enc_symbol *tab = j->tab;
+    const uint16_t *sym = j->sym;
+    const Py_ssize_t alphabet = j->alphabet;
+    uint8_t *p = j->p;
+    Py_ssize_t i = j->i;
+    uint32_t x[MAX_LANES];
+    for (int l = 0; l < K; l++) x[l] = j->x[l];
+    while (i >= K) {
+        for (int l = K - 1; l >= 0; l--) {
+            const uint16_t s = sym[i - K + l];
+            if (s >= alphabet || tab[s].x_max == 0) {
+                j->bad = 1;
+                j->i = 0; /* nothing more to encode: the result is None */
+                return;
+            }
+            const enc_symbol *e = &tab[s];
+            uint32_t xl = x[l];
+            /* the while loop of enc_step without branches: it emits nb <= 2 bytes (x < 2^32 <= x_max * 2^15),
+             * the low one first; both are written, p moves by nb (a byte written below the new p is overwritten
+             * later, by the next bytes or the final states, and p - 2 >= buf as 2 bytes a symbol are reserved) */
+            const uint32_t nb = (xl >= e->x_max) + ((xl >> 8) >= e->x_max);
+            p[-1] = (uint8_t)xl;
+            p[-2] = (uint8_t)(xl >> 8);
+            p -= nb;
+            xl = (uint32_t)((uint64_t)xl >> (8 * nb));
+            const uint32_t q = (uint32_t)(((uint64_t)xl * e->rcp) >> 32) >> e->shift;
+            x[l] = xl + e->bias + q * e->cmpl;
+        }
+        i -= K;
+    }
+    for (int l = 0; l < K; l++) j->x[l] = x[l];
+    j->p = p;
+    j->i = i;
+}
+
+static void enc_lanes(enc_job *j) {
+    while (j->i % j->lanes && enc_step(j)) {} /* the last n mod K symbols first */
+    if (j->bad) {
+        j->i = 0;
+        return;
+    }
+    switch (j->lanes) {
+    case 2: enc_rounds(j, 2); break;
+    case 4: enc_rounds(j, 4); break;
+    case 8: enc_rounds(j, 8); break;
+    default: enc_rounds(j, j->lanes); break;
+    }
+}
+
 /* encode(jobs) -> [stream bytes or None (a symbol without frequency), ...] for 1 or 2 (symbols_u16,
- * freqs_u32) jobs; two streams are encoded in one loop, a symbol of each in turn (as decode_mapped). */
+ * freqs_u32[, lanes]) jobs; two streams are encoded in one loop, a symbol of each in turn.  A stream is
+ * the K final states (lane 0 first) and then the emitted bytes in reverse order of emission. */
 static PyObject *rans_encode(PyObject *self, PyObject *args) {
     PyObject *jobs, *result = NULL;
     const Py_ssize_t n = job_count(args, &jobs, "encode");
@@ -398,10 +645,12 @@ static PyObject *rans_encode(PyObject *self, PyObject *args) {
     for (Py_ssize_t k = 0; k < n && ready; k++) ready = enc_setup(&j[k], PyTuple_GET_ITEM(jobs, k));
     if (ready) {
         Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t k = 0; k < n; k++) /* lanes keep the core busy on their own; single chains in turn */
+            if (j[k].lanes > 1) enc_lanes(&j[k]);
         enc_job a = j[0], b = j[1];
         INTERLEAVE(a, b, n, ENCODE_MORE, enc_step);
-        j[0].p = a.p, j[0].x = a.x, j[0].bad = a.bad;
-        j[1].p = b.p, j[1].x = b.x, j[1].bad = b.bad;
+        j[0] = a;
+        j[1] = b;
         Py_END_ALLOW_THREADS
         result = PyList_New(n);
         for (Py_ssize_t k = 0; result && k < n; k++) {
@@ -409,12 +658,14 @@ static PyObject *rans_encode(PyObject *self, PyObject *args) {
             if (j[k].bad) {
                 item = Py_NewRef(Py_None);
             } else {
-                uint8_t *p = j[k].p - 4;
-                const uint32_t x = j[k].x;
-                p[0] = (uint8_t)x;
-                p[1] = (uint8_t)(x >> 8);
-                p[2] = (uint8_t)(x >> 16);
-                p[3] = (uint8_t)(x >> 24);
+                uint8_t *p = j[k].p - 4 * j[k].lanes;
+                for (int l = 0; l < j[k].lanes; l++) {
+                    const uint32_t x = j[k].x[l];
+                    p[4 * l] = (uint8_t)x;
+                    p[4 * l + 1] = (uint8_t)(x >> 8);
+                    p[4 * l + 2] = (uint8_t)(x >> 16);
+                    p[4 * l + 3] = (uint8_t)(x >> 24);
+                }
                 item = PyBytes_FromStringAndSize((const char *)p, (Py_ssize_t)(j[k].buf + j[k].cap - p));
             }
             if (!item) Py_CLEAR(result);
@@ -463,13 +714,13 @@ done:
 
 static PyMethodDef methods[] = {
     {"decode", rans_decode, METH_VARARGS,
-     "decode(stream, freqs_u32, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
+     "decode(stream, freqs_u32, out_u16[, lanes]) -> (symbols_decoded, stream_pos, final_states)"},
     {"decode_mapped", rans_decode_mapped, METH_VARARGS,
-     "decode_mapped(((stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top), ...))"
-     " -> [(symbols_decoded, stream_pos, final_state, bad_code), ...] for 1 or 2 streams"},
+     "decode_mapped(((stream, freqs_u32, out_f32, cols, colbase_u32, lut_f32, centre_u8_or_empty, top[, lanes]),"
+     " ...)) -> [(symbols_decoded, stream_pos, final_states, bad_code), ...] for 1 or 2 streams"},
     {"encode", rans_encode, METH_VARARGS,
-     "encode(((symbols_u16, freqs_u32), ...)) -> [stream bytes, or None if a symbol has frequency 0, ...]"
-     " for 1 or 2 streams"},
+     "encode(((symbols_u16, freqs_u32[, lanes]), ...)) -> [stream bytes, or None if a symbol has frequency 0,"
+     " ...] for 1 or 2 streams"},
     {"column_histograms", column_histograms, METH_VARARGS,
      "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
     {NULL, NULL, 0, NULL},

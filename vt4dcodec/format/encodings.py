@@ -10,7 +10,7 @@ int8       u8 code, per-channel affine  scale_c / 2 * (1 + 2^-20) + 2^-23 * max(
                                         + (2^b - 1) * 2^-150 (scales rounded in the subnormal range)
 int4       u4 code, two per byte        same formula with the 4-bit scale
 int<b>-rans  b-bit code (b = 2..8),     same formula with the b-bit scale of the code's channel group
-           rANS entropy-coded           (format 1.1; see rans_tokens.py)
+           rANS entropy-coded           (format 1.1, interleaved lanes 1.5; see rans_tokens.py)
 =========  ===========================  =============================================================
 
 Affine encodings (b = 8 or 4 bits, channel c = column of the token matrix):
@@ -72,15 +72,16 @@ def _affine_params(x: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
     return group_params(x, bits, x.shape[1])  # per channel
 
 
-def encode_tokens(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> EncodedTokens:
+def encode_tokens(tokens: np.ndarray, encoding: str, *, groups: int = 1, lanes: int | None = None) -> EncodedTokens:
     """Encode finite float32 tokens (N, d) with ``encoding``; deterministic (round half to even).
 
     ``groups``: channel groups of the ``int<b>-rans`` encodings (1 = one scale/offset for the matrix,
-    d = per channel; must divide d); ignored by the other encodings.
+    d = per channel; must divide d); ``lanes``: their rANS lanes, None for the 1.1 layout (one chain) or
+    K = 1..32 for the 1.5 layout (a file with required flag bit 4).  Both are ignored by the other encodings.
     """
     x = np.ascontiguousarray(tokens, dtype=np.float32)
     if encoding in RANS_BITS:
-        return EncodedTokens(encode_rans_tokens(x, encoding, groups), None)
+        return EncodedTokens(encode_rans_tokens(x, encoding, groups, lanes=lanes), None)
     if encoding == "float32":
         return EncodedTokens(x.astype("<f4", copy=False).tobytes(), None)
     if encoding == "float16":
@@ -105,15 +106,16 @@ def encode_tokens(tokens: np.ndarray, encoding: str, *, groups: int = 1) -> Enco
     return EncodedTokens(packed.tobytes(), quant)
 
 
-def codes_from_payload(payload: BytesLike, encoding: str, rows: int, cols: int) -> np.ndarray:
+def codes_from_payload(payload: BytesLike, encoding: str, rows: int, cols: int, *, lanes: bool = False) -> np.ndarray:
     """The stored values as an (rows, cols) array without dequantizing.
 
     float32 / float16 / int8 payloads are returned as zero-copy read-only views of ``payload``; int4
-    codes are unpacked and ``int<b>-rans`` codes entropy-decoded into new uint8 arrays.  Raises
-    MalformedSectionError if the size is wrong or an int4 padding nibble is not zero.
+    codes are unpacked and ``int<b>-rans`` codes entropy-decoded into new uint8 arrays (``lanes``: the file
+    sets required flag bit 4, so each payload holds its lane count).  Raises MalformedSectionError if the
+    size is wrong or an int4 padding nibble is not zero.
     """
     if encoding in RANS_BITS:
-        return decode_rans_codes(payload, encoding, rows, cols)[0]
+        return decode_rans_codes(payload, encoding, rows, cols, lanes=lanes)[0]
     expected = payload_size(encoding, rows, cols)
     if len(payload) != expected:
         raise MalformedSectionError(
@@ -157,16 +159,17 @@ def parse_quant(payload: BytesLike, cols: int) -> tuple[np.ndarray, np.ndarray]:
     return scale, offset
 
 
-def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, rows: int, cols: int) -> np.ndarray:
-    """Decode a token payload into (rows, cols) float32 values.
+def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, rows: int, cols: int, *,
+                  lanes: bool = False) -> np.ndarray:
+    """Decode a token payload into (rows, cols) float32 values (``lanes`` as in :func:`codes_from_payload`).
 
     float32 payloads come back as zero-copy read-only views.  Every decoded value must be finite,
     otherwise MalformedSectionError (a reader never hands out NaN/inf tokens).
     """
     if encoding in RANS_BITS:
-        out = decode_rans_tokens(payload, encoding, rows, cols)  # the compiled one-pass path
+        out = decode_rans_tokens(payload, encoding, rows, cols, lanes=lanes)  # the compiled one-pass path
         if out is None:
-            codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols)
+            codes, scale, offset = decode_rans_codes(payload, encoding, rows, cols, lanes=lanes)
             out = dequantize(codes, scale, offset, RANS_BITS[encoding], encoding)
         return out
     codes = codes_from_payload(payload, encoding, rows, cols)

@@ -9,10 +9,10 @@ Preamble (64 bytes)::
       0    9 magic            89 56 54 34 44 0D 0A 1A 0A  ("\\x89VT4D\\r\\n\\x1a\\n")
       9    1 zero             00
      10    2 major            u16 = 1
-     12    2 minor            u16 = 0, 1, 2, 3 or 4 (the lowest that describes the file)
+     12    2 minor            u16 = 0, 1, 2, 3, 4 or 5 (the lowest that describes the file)
      14    2 reserved         u16 = 0
-     16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2, bit 2 since 1.3, bit 3 since 1.4: a reader
-                                  refuses any set bit it does not know)
+     16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2, bit 2 since 1.3, bit 3 since 1.4, bit 4
+                                  since 1.5: a reader refuses any set bit it does not know)
      24    8 optional_flags   u64 (none defined in 1.0: unknown bits are ignored)
      32    8 file_length      u64, total container bytes
      40    4 header_length    u32, msgpack header bytes (starts at offset 64)
@@ -62,7 +62,7 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
            "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
-           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
+           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
            "BytesLike"]
 
 # What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
@@ -72,18 +72,20 @@ SCENE_MAGIC = b"\x89VT4D\r\n\x1a\n"
 FORMAT_MAJOR = 1
 # 1.1 adds the entropy-coded token encodings (required flag bit 0), 1.2 compact cameras (bit 1), 1.3 the compact
 # container (bit 2): zstd header with a spec-fixed dictionary, 18-byte table entries, unaligned payloads; 1.4 the
-# extra cameras section (bit 3): the trajectories of the further cameras of a multi-camera encode
-FORMAT_MINOR = 4
+# extra cameras section (bit 3): the trajectories of the further cameras of a multi-camera encode; 1.5 interleaved
+# rANS lanes in the entropy-coded token sections (bit 4, only beside bit 0)
+FORMAT_MINOR = 5
 FLAG_ENTROPY_CODED_TOKENS = 1 << 0  # required flag: token sections use an int<b>-rans encoding (1.1)
 FLAG_COMPACT_CAMERAS = 1 << 1  # required flag: the cameras section uses the compact encoding (1.2, I.5.1)
 FLAG_COMPACT_CONTAINER = 1 << 2  # required flag: compact header, table and quaternion poses (1.3, I.3.1, I.4.1)
 FLAG_EXTRA_CAMERAS = 1 << 3  # required flag: the file holds the extra cameras section XCAM (1.4, I.5.3)
+FLAG_RANS_LANES = 1 << 4  # required flag: entropy-coded token payloads hold K interleaved rANS lanes (1.5, I.6.1)
 KNOWN_REQUIRED_FLAGS = (FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS | FLAG_COMPACT_CONTAINER
-                        | FLAG_EXTRA_CAMERAS)
+                        | FLAG_EXTRA_CAMERAS | FLAG_RANS_LANES)
 # The version that introduced each required flag: in a file that says an older minor version the flag is
 # unknown, and the file is refused as a reader of that version would (UnsupportedFeatureError).  Bit 1 keeps its
 # 1.2 rule (MalformedHeaderError in files below 1.2, checked by the reader), which its golden vectors pin.
-FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3, FLAG_EXTRA_CAMERAS: 4}
+FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3, FLAG_EXTRA_CAMERAS: 4, FLAG_RANS_LANES: 5}
 FLAG_CRITICAL = 0x0001
 FLAG_ALIGNED = 0x0002  # compact table entries only: the payload starts at a multiple of 64
 COMPACT_ENTRY_SIZE = 18

@@ -18,7 +18,9 @@ from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size, parse_preamble, parse_table)
+                     FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     parse_preamble, parse_table)
+from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
 from .scene import Scene
 from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -146,7 +148,8 @@ class SceneFile:
     # --- structure ---------------------------------------------------------------------------------
     def _check_encoding_version(self) -> None:
         """Entropy-coded encodings exist from 1.1 on and are announced by required flag bit 0 (and the
-        flag announces nothing else); compact cameras (required flag bit 1) exist from 1.2 on."""
+        flag announces nothing else); compact cameras (required flag bit 1) exist from 1.2 on; rANS lanes
+        (required flag bit 4, 1.5) only beside bit 0 (the minor version of bits 2 to 4 is parse_preamble's)."""
         if self.preamble.required_flags & FLAG_COMPACT_CAMERAS and self.preamble.minor < 2:
             raise MalformedHeaderError(
                 f"required flag bit 1 (compact cameras) was introduced in format 1.2 but the file says "
@@ -160,6 +163,9 @@ class SceneFile:
             raise MalformedHeaderError(
                 f"encoding {self._info.encoding} {'requires' if entropy else 'must not set'} required feature flag "
                 "bit 0 (entropy-coded tokens)")
+        if self.rans_lanes and not flagged:
+            raise MalformedHeaderError(
+                "required flag bit 4 (rANS lanes) is set without bit 0 (entropy-coded tokens), which it needs")
 
     def _check_section_set(self) -> None:
         required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
@@ -196,8 +202,9 @@ class SceneFile:
                   SECTION_EXTRA_CAMERAS: extra_cameras_max_raw_length(self._info.cameras.num_frames)}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
                                    (SECTION_DYNAMIC, self._info.dynamic_shape)):
-            if is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, <= 2 bytes a code
-                limits[name] = 2 + 8 * cols + 1 + cols + 4 + 3 * 511 + 4 + 2 * rows * cols
+            if is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, [K, K - 1 more states,] <= 2 bytes a code
+                limits[name] = (2 + 8 * cols + 1 + cols + 4 + 3 * 511 + 4 + 2 * rows * cols
+                                + (1 + 4 * (MAX_LANES - 1) if self.rans_lanes else 0))
             else:
                 limits[name] = payload_size(self._info.encoding, rows, cols)
         if is_affine(self._info.encoding):
@@ -270,6 +277,12 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_COMPACT_CONTAINER)
 
     @property
+    def rans_lanes(self) -> bool:
+        """Whether the entropy-coded token payloads hold interleaved rANS lanes (format 1.5, required flag bit 4:
+        each payload says its lane count K, FORMAT.md I.6.1)."""
+        return bool(self.preamble.required_flags & FLAG_RANS_LANES)
+
+    @property
     def has_extra_cameras(self) -> bool:
         """Whether the file holds the extra cameras section (format 1.4, required flag bit 3)."""
         return bool(self.preamble.required_flags & FLAG_EXTRA_CAMERAS)
@@ -335,7 +348,7 @@ class SceneFile:
         tok_name, quant_name = _TOKENS[which]
         if is_entropy_coded(self.encoding):
             rows, cols = self.static_shape if which == "static" else self.dynamic_shape
-            return decode_rans_codes(self.raw_section(tok_name), self.encoding, rows, cols)[1:]
+            return decode_rans_codes(self.raw_section(tok_name), self.encoding, rows, cols, lanes=self.rans_lanes)[1:]
         if not is_affine(self.encoding):
             raise FormatError(f"encoding {self.encoding} has no quantization parameters")
         return parse_quant(self.raw_section(quant_name), self.static_shape[1])
@@ -345,9 +358,9 @@ class SceneFile:
         rows, cols = self.static_shape if which == "static" else self.dynamic_shape
         payload = self.raw_section(tok_name)
         if not dequantize:
-            return codes_from_payload(payload, self.encoding, rows, cols)
+            return codes_from_payload(payload, self.encoding, rows, cols, lanes=self.rans_lanes)
         quant = self.raw_section(quant_name) if is_affine(self.encoding) else None
-        return decode_tokens(payload, quant, self.encoding, rows, cols)
+        return decode_tokens(payload, quant, self.encoding, rows, cols, lanes=self.rans_lanes)
 
     def static_tokens(self, dequantize: bool = True) -> np.ndarray:
         """Z_s as (N_s, d) float32 (zero-copy read-only view for raw-stored float32); with
@@ -361,11 +374,13 @@ class SceneFile:
     def tokens(self, dequantize: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(Z_s, Z_d) exactly as :meth:`static_tokens` and :meth:`dynamic_tokens` give them (same values,
         same errors in the same order); for ``int<b>-rans`` both sections are decoded in one interleaved
-        pass of the compiled coder, ~1.4x faster than one after the other."""
+        pass of the compiled coder, ~1.4x faster than one after the other (with rANS lanes, format 1.5, each
+        section is fast on its own)."""
         if dequantize and is_entropy_coded(self.encoding):
             try:
                 pair = decode_rans_token_pair([(self.raw_section(SECTION_STATIC), *self.static_shape),
-                                               (self.raw_section(SECTION_DYNAMIC), *self.dynamic_shape)], self.encoding)
+                                               (self.raw_section(SECTION_DYNAMIC), *self.dynamic_shape)], self.encoding,
+                                              lanes=self.rans_lanes)
             except FormatError:
                 pair = None  # decode one by one below, so the first problem in file order is the one raised
             if pair is not None:

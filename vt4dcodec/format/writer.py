@@ -7,6 +7,8 @@ import os
 from collections.abc import Sequence
 from typing import BinaryIO
 
+import numpy as np
+
 from ..errors import FormatError
 from .encodings import ENCODINGS, encode_tokens
 from .header import HeaderInfo, compress_header, pack_header
@@ -14,8 +16,9 @@ from .encodings import is_entropy_coded
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
 from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
-                     FLAG_EXTRA_CAMERAS, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32, entry_size,
-                     pack_preamble, pack_table)
+                     FLAG_EXTRA_CAMERAS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
+                     entry_size, pack_preamble, pack_table)
+from .rans_tokens import check_lanes, policy_lanes
 from .limits import PREAMBLE_SIZE
 from .scene import Scene, normalize_extra_cameras
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
@@ -70,15 +73,16 @@ def build_container(header: bytes, sections: Sequence[SectionParts], *,
 
 def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
-          cameras: str = "compact", header: str = "compact") -> bytes:
+          cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
-    The file says the lowest format version that describes it: 1.4 with required flag bit 3 when the scene
-    has ``extra_cameras`` (in either layout; their ``XCAM`` section follows ``CAMS``, each trajectory stored
-    as ``cameras`` says); else 1.3 with required flag bit 2 for the compact container (the default); else 1.2
-    with required flag bit 1 for compact cameras; otherwise 1.0 for the float, int8 and int4 encodings
-    (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0 for ``int<b>-rans`` (bit 0 is set
-    in 1.2 to 1.4 files too).
+    The file says the lowest format version that describes it: 1.5 with required flag bit 4 when its
+    ``int<b>-rans`` token sections use interleaved rANS lanes (``rans_lanes``); else 1.4 with required flag
+    bit 3 when the scene has ``extra_cameras`` (in either layout; their ``XCAM`` section follows ``CAMS``, each
+    trajectory stored as ``cameras`` says); else 1.3 with required flag bit 2 for the compact container (the
+    default); else 1.2 with required flag bit 1 for compact cameras; otherwise 1.0 for the float, int8 and
+    int4 encodings (byte-identical to a 1.0 writer's output), 1.1 with required flag bit 0 for ``int<b>-rans``
+    (bit 0 is set in 1.2 to 1.5 files too).
 
     Args:
         encoding: token encoding; defaults to ``scene.encoding``.
@@ -98,6 +102,12 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             which stay 64-aligned for zero-copy reading) or ``"legacy"`` (the msgpack header, 40-byte entries
             and 64-aligned payloads of 1.0 to 1.2, for readers older than 1.3; with ``cameras="legacy"`` too,
             the file reads in 1.0 and 1.1 readers).
+        rans_lanes: the rANS lanes of the ``int<b>-rans`` token sections (FORMAT.md I.6.1; ignored by the other
+            encodings).  ``None``, the writer's policy: 8 lanes for a token matrix of 2^15 values or more (a
+            paper-size scene: ~2.6x the decoding speed of one chain), 1 for a smaller one in the same file, and
+            no lanes at all (the 1.1 layout, byte for byte as before 1.5) when both matrices are smaller.
+            ``0``: no lanes (for readers older than 1.5).  ``1`` to ``32``: that many lanes in both sections
+            (format 1.5, required flag bit 4).
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -108,6 +118,17 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         raise FormatError(f"unknown cameras mode {cameras!r}; choose one of {CAMERA_MODES}")
     if header not in HEADER_MODES:
         raise FormatError(f"unknown header mode {header!r}; choose one of {HEADER_MODES}")
+    check_lanes(rans_lanes)
+    entropy_coded = is_entropy_coded(encoding)
+    matrices = (scene.static_tokens, scene.dynamic_tokens)
+    if not entropy_coded or rans_lanes == 0:
+        lanes: list[int | None] = [None, None]
+    elif rans_lanes is not None:
+        lanes = [rans_lanes, rans_lanes]
+    else:  # the policy: lanes only where they pay, so small scenes keep their 1.1-1.4 bytes and version
+        lanes = [policy_lanes(int(np.size(m))) for m in matrices]
+        if any(k is not None for k in lanes):
+            lanes = [1 if k is None else k for k in lanes]
     compact = header == "compact"
     layout, cams = pack_cameras(scene.cameras)
     if cameras != "legacy":
@@ -121,14 +142,13 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
     if extras:
         parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact)))
-    for tokens, tok_name, quant_name in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT),
-                                         (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT)):
-        enc = encode_tokens(tokens, encoding, groups=groups)
+    for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
+                                            (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, lanes[1])):
+        enc = encode_tokens(tokens, encoding, groups=groups, lanes=k)
         if enc.quant is not None:
             parts.append((quant_name, enc.quant))
         parts.append((tok_name, enc.tokens))
     sections: list[SectionParts] = []
-    entropy_coded = is_entropy_coded(encoding)
     for name, raw in parts:
         tokens_section = name in (SECTION_STATIC, SECTION_DYNAMIC)
         # rANS streams are incompressible: their sections are stored raw without trying zstd (FORMAT.md I.6.1)
@@ -142,21 +162,22 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         aligned = tokens_section and not entropy_coded and compression == COMPRESSION_RAW
         sections.append((name, True, compression, stored, len(raw), aligned))
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
-             | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0))
-    minor = (4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact else 2 if flags & FLAG_COMPACT_CAMERAS
-             else 1 if flags else 0)
+             | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0)
+             | (FLAG_RANS_LANES if lanes[0] is not None else 0))
+    minor = (5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
+             else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
 
 
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
-         header: str = "compact") -> int:
+         header: str = "compact", rans_lanes: int | None = None) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
     data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
-                 header=header)
+                 header=header, rans_lanes=rans_lanes)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)
