@@ -87,13 +87,17 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         f"- data: {args['scenes']} synthetic training scenes (seeds {args['scene_seed']}..."
         f"{args['scene_seed'] + args['scenes'] - 1}, split 'train'), {args['cameras']} cameras each, 8 frames at "
         "64x64; " + _pairs_text(args),
-        *([f"- warm start: the weights of {args['init']} (this model's predecessor, itself trained from scratch)"
-           + (", every tensor whose shape fits; tensors new in this config start fresh" if args.get("init_partial")
-              else "")] if args.get("init") else []),
+        *([f"- warm start: the weights of {args['init']} (this model's predecessor; its own training is in "
+            "docs/training.md)"
+           + (", every tensor whose shape fits (a static token set grown by a whole factor starts as copies); "
+              "tensors new in this config start fresh" if args.get("init_partial") else "")]
+          if args.get("init") else []),
         f"- recipe: prediction={cfg.get('prediction', 'velocity')}, share of samples at tau = 1: "
         f"{args.get('tau_one', 0.0)}, static-token dropout {args.get('drop_static', 0.0)}, saturation penalty "
         f"{args.get('saturation_weight', 0.0)}, x0 weight {args.get('x0_weight', 0.0)}"
-        + (f", cell loss weight {args['cell_weight']}" if args.get("cell_weight") else ""),
+        + (f", cell loss weight {args['cell_weight']}" if args.get("cell_weight") else "")
+        + (f", SSIM loss weight {args['ssim_weight']}" if args.get("ssim_weight") else "")
+        + (f", multi-camera batches {args['multi_share']}" if args.get("multi_share") else ""),
     ]
     if decoder_run is not None:
         dec = _log_summary(decoder_run / "log.jsonl")
