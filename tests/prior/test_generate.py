@@ -91,7 +91,7 @@ def test_cli_generate_saves_one_sample_and_renders_every_view(capture, trained_p
     result = json.loads(capsys.readouterr().out)
     assert [v["view"] for v in result["views"]] == ["source", "pan:degrees=10", "dolly_in"]
     scene = load(out / "scene.vt4d")
-    assert scene.provenance.kind == "generated" and scene.encoding == "int5-rans"  # one default with encode
+    assert scene.provenance.kind == "generated" and scene.encoding == "int4"  # one default with encode
     assert scene.provenance.source_capture_id == capture.capture_id  # `vt4d info` names the capture
     for v in result["views"]:
         with np.load(v["path"], allow_pickle=False) as npz:
