@@ -8,7 +8,8 @@ the training-split photos at full resolution, so real footage is not decoded by 
 has only seen rendered textures. ``--init`` warm-starts from earlier weights where shapes match;
 with ``--decoder-only`` only the decoder trains, so the latents (and a tokenizer trained on them) stay.
 Loss: L1 + MSE between frames and their reconstructions. At the end the per-channel latent
-statistics are measured on training frames (unless ``--decoder-only``) (so stage 2 sees unit-variance latents) and the frozen
+statistics are measured on training frames, so stage 2 sees unit-variance latents (with ``--decoder-only``
+they stay the --init ones), and the frozen
 autoencoder is written to ``<out>/autoencoder.safetensors`` with ``<out>/autoencoder.json``
 (the model config it belongs to). Re-running the same command resumes from ``<out>/checkpoint``.
 """

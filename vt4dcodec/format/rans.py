@@ -50,7 +50,7 @@ except ImportError:  # built without a C compiler: the pure-Python coder below d
     NATIVE = False
 
 __all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "MAX_LANES", "NATIVE", "normalize_counts", "pack_table",
-           "parse_table", "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped"]
+           "parse_table", "is_lane_count", "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped"]
 
 PROB_BITS = 14
 PROB_SCALE = 1 << PROB_BITS          # M: frequencies sum to this
@@ -177,8 +177,13 @@ def _cumulative(freqs: list[int]) -> list[int]:
     return cum
 
 
+def is_lane_count(lanes: object) -> bool:
+    """Whether ``lanes`` is a lane count of one stream: an int K, 1 <= K <= MAX_LANES (bools excluded)."""
+    return isinstance(lanes, int) and not isinstance(lanes, bool) and 1 <= lanes <= MAX_LANES
+
+
 def _check_lanes(lanes: int) -> int:
-    if isinstance(lanes, bool) or not isinstance(lanes, int) or not 1 <= lanes <= MAX_LANES:
+    if not is_lane_count(lanes):
         raise ValueError(f"a rANS stream has 1 to {MAX_LANES} lanes, not {lanes!r}")
     return lanes
 

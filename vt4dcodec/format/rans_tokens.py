@@ -65,7 +65,8 @@ def check_groups(groups: int, cols: int) -> None:
 
 def check_lanes(lanes: int | None) -> None:
     """``None`` (the writer's policy), 0 (no lanes: the 1.1 layout) or a lane count 1..32 (format 1.5)."""
-    if lanes is not None and (isinstance(lanes, bool) or not isinstance(lanes, int) or not 0 <= lanes <= MAX_LANES):
+    no_lanes = lanes is None or (isinstance(lanes, int) and not isinstance(lanes, bool) and lanes == 0)
+    if not no_lanes and not rans.is_lane_count(lanes):
         raise FormatError(f"rans_lanes must be None (the writer's policy), 0 (no lanes, format 1.1) or a lane count "
                           f"1..{MAX_LANES} (format 1.5), got {lanes!r}")
 
@@ -118,7 +119,7 @@ def encode_rans_tokens(x: np.ndarray, encoding: str, groups: int = 1, *, lanes: 
     bits = RANS_BITS[encoding]
     n, d = x.shape
     check_groups(groups, d)
-    if lanes is not None and (isinstance(lanes, bool) or not isinstance(lanes, int) or not 1 <= lanes <= MAX_LANES):
+    if lanes is not None and not rans.is_lane_count(lanes):
         raise FormatError(f"a 1.5 payload has 1 to {MAX_LANES} rANS lanes, got {lanes!r}")
     if n * d > MAX_RANS_VALUES:
         raise LimitExceededError(f"{n}x{d} tokens exceed the {MAX_RANS_VALUES} values an entropy-coded "
