@@ -10,12 +10,14 @@ On held-out synthetic scenes (camera 0, its own trajectory), PSNR of the source 
   (p x p latent pixels x C channels; 2 x 2 x 8 = 32 values for vt4d-tiny) exactly what one token of
   width d = 32 could hold if it copied its cell: a static picture, no motion;
 - ``time_mean_int4``: the same, rounded to 15 levels of its absolute maximum (int4 storage);
+- ``frame_groups``: every frame's latent replaced by the mean over its group of frames (4 groups of 2
+  frames for 8 frames): what a cell's time-mean token plus one copy per frame group could hold;
 - ``pooled_2x``: the per-frame latent averaged over 2 x 2 latent pixels (one value per channel per cell:
   what a token would hold if it kept only its cell's mean);
 - ``render``: the checkpoint's 1-step render of its own tokens (camera 0 encoded);
 - ``flat``: the clip's mean colour (the reference every table prints).
 
-SSIM (kornia's, 11x11 window, as the evaluation) of ``time_mean`` and ``render`` too. Prints one JSON
+SSIM (kornia's, 11x11 window, as the evaluation) of ``time_mean``, ``frame_groups`` and ``render`` too. Prints one JSON
 line (means over scenes) and writes it to ``--out`` when given.
 """
 
@@ -58,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = model.config
     pool = ScenePool(args.cache, 10, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, split="test")
     scores: dict[str, list[float]] = {k: [] for k in ("autoencoder", "time_mean", "time_mean_int4", "pooled_2x",
-                                                      "render", "flat", "ssim_time_mean", "ssim_render")}
+                                                      "frame_groups", "render", "flat", "ssim_time_mean",
+                                                      "ssim_frame_groups", "ssim_render")}
     ae = model.autoencoder
     with torch.no_grad():
         for seed in range(args.scenes):
@@ -71,6 +74,9 @@ def main(argv: list[str] | None = None) -> int:
 
             mean = lat.mean(1, keepdim=True).expand_as(lat)
             scale = mean.abs().amax().clamp_min(1e-8)
+            T = lat.shape[1]
+            groups = torch.arange(T) * 4 // T  # frame t -> its group of T / 4 frames
+            group_mean = torch.stack([lat[:, groups == g].mean(1) for g in range(4)], 1)[:, groups]
             pooled = F.interpolate(F.avg_pool2d(lat[0], 2), scale_factor=2, mode="nearest")[None]
             z_s, z_d = model.encode(SourceBatch.collate(pool.source_inputs(seed, [0])))
             K, w2c = torch.from_numpy(sc["K"][[0]]).float(), torch.from_numpy(sc["w2c"][[0]]).float()
@@ -78,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
             scores["time_mean"].append(psnr(decoded(mean), truth))
             scores["ssim_time_mean"].append(ssim(decoded(mean), truth))
             scores["time_mean_int4"].append(psnr(decoded(torch.round(mean / scale * 7.0) / 7.0 * scale), truth))
+            scores["frame_groups"].append(psnr(decoded(group_mean), truth))
+            scores["ssim_frame_groups"].append(ssim(decoded(group_mean), truth))
             scores["pooled_2x"].append(psnr(decoded(pooled), truth))
             render = model.render(z_s, z_d, K, w2c, steps=1, seed=0, source=(K, w2c))
             scores["render"].append(psnr(render, truth))

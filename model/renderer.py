@@ -19,6 +19,10 @@ into one render patch of latent content; it is placed at the token's projection 
 with the locality Gaussian's weights, normalised over the tokens that land on a patch plus a floor
 (``SPLAT_FLOOR``) so that a patch no token covers gets nothing, and added to the network's estimate of
 the clean latent X0; the network also sees the splat as an input, so it predicts the correction.
+
+Frame copies (``config.frame_copies``): anchored tokens sharing an anchor (camera and cell) split the clip's
+frames (:meth:`Renderer.copy_frames`); a second zero-initialised linear map of each copy is splatted only
+in the target frames of its group, normalised over the copies covering that frame.
 """
 
 from __future__ import annotations
@@ -80,6 +84,11 @@ class Renderer(nn.Module):
             for layer in (self.splat, self.splat_in):
                 nn.init.zeros_(layer.weight)
                 nn.init.zeros_(layer.bias)
+        self.splat_frames: nn.Linear | None = None
+        if cfg.frame_copies:  # a frame copy -> its frame group's latent content, splatted in those frames
+            self.splat_frames = nn.Linear(cfg.token_dim, C * p * p)
+            nn.init.zeros_(self.splat_frames.weight)
+            nn.init.zeros_(self.splat_frames.bias)
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -109,6 +118,24 @@ class Renderer(nn.Module):
         ``config.anchor_views``, else 0 (every token in the first camera)."""
         index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
         return index % views if self.cfg.anchor_views else torch.zeros_like(index)
+
+    def copy_frames(self, views: int) -> torch.Tensor:
+        """(N_anchored, frames) float: 1 where anchored token n is a frame copy (``config.frame_copies``)
+        covering clip frame t, else 0. Tokens with the same encoded camera (:meth:`token_cameras`) and
+        cell (n mod P) are copies in index order; copy r >= 1 of n covers the frames t with
+        floor(t (n - 1) / frames) = r - 1, copy 0 (the time average) none. All zero without frame_copies."""
+        cfg = self.cfg
+        frames = cfg.frames
+        index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
+        if not cfg.frame_copies:
+            return torch.zeros(self.n_anchored, frames, device=index.device)
+        key = self.token_cameras(views) * cfg.patches_per_side ** 2 + index % cfg.patches_per_side ** 2
+        same = key[:, None] == key[None, :]
+        rank = (same & (index[None, :] < index[:, None])).sum(1)  # earlier tokens on the same anchor
+        groups = same.sum(1) - 1  # n - 1 frame groups per anchor
+        t = torch.arange(frames, device=index.device)
+        group_of_frame = t[None, :] * groups[:, None] // frames  # (Na, frames)
+        return ((rank[:, None] >= 1) & (group_of_frame == rank[:, None] - 1)).float()
 
     def anchor_depths(self, z_s: torch.Tensor, z_d: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
         """Depth (B, N_anchored) in metres of each anchored token along its source cell's ray: the depth of
@@ -171,17 +198,25 @@ class Renderer(nn.Module):
         return torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
 
     def splat_latent(self, z_s: torch.Tensor, z_d: torch.Tensor, logit: torch.Tensor,
-                     keep: torch.Tensor | None) -> torch.Tensor:
+                     keep: torch.Tensor | None, views: int = 1) -> torch.Tensor:
         """The token splat (B, T, P, C p p): each render patch's weighted sum of its anchored tokens'
         linear patch content; weights exp(logit) / (sum over tokens + SPLAT_FLOOR), dropped tokens
-        (``keep`` False) weigh nothing."""
+        (``keep`` False) weigh nothing. With ``config.frame_copies`` plus, in target frame t, the frame
+        copies covering t (:meth:`copy_frames` for ``views`` encoded cameras) through their own map,
+        normalised alike over those copies."""
         assert self.splat is not None
         tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
         g = torch.exp(logit.float())  # (B, T, P, Na)
         if keep is not None:
             g = g * keep[:, None, None, :self.n_anchored].to(g.dtype)
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
-        return torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat(tokens))
+        splat = torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat(tokens))
+        if self.splat_frames is None:
+            return splat
+        covers = self.copy_frames(views)[:, :logit.shape[1]].T.to(g.dtype)  # (T, Na): copy n covers frame t
+        g = g * covers[None, :, None, :]
+        weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
+        return splat + torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat_frames(tokens))
 
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
                 tau: torch.Tensor, *, drop_static: bool | torch.Tensor = False,
@@ -203,7 +238,8 @@ class Renderer(nn.Module):
             logit = self.projected_logit(z_s, z_d, *cameras)
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
-                splat = self.splat_latent(z_s, z_d, logit, keep).to(x.dtype)  # (B, T, P, C p p)
+                views = 1 if cameras[2].ndim == 3 else cameras[2].shape[1]
+                splat = self.splat_latent(z_s, z_d, logit, keep, views).to(x.dtype)  # (B, T, P, C p p)
                 x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p

@@ -72,6 +72,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.cell_direct = nn.Linear(cfg.latent_channels * cfg.patch_size ** 2, cfg.token_dim)
             nn.init.zeros_(self.cell_direct.weight)
             nn.init.zeros_(self.cell_direct.bias)
+        self.cell_frames: nn.Linear | None = None
+        if cfg.frame_copies:  # a frame copy's pre-activation + W * (its frame group's cell - time average)
+            self.cell_frames = nn.Linear(cfg.latent_channels * cfg.patch_size ** 2, cfg.token_dim)
+            nn.init.zeros_(self.cell_frames.weight)
+            nn.init.zeros_(self.cell_frames.bias)
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -183,6 +188,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if self.cell_direct is not None:
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
+        if self.cell_frames is not None:
+            covers = self.renderer.copy_frames(V)  # (N_s, frames)
+            change = self.token_frame_cells(x, V)  # zero for the time-average copies
+            a_s = a_s + self.cell_frames(change.to(self.cell_frames.weight.dtype)).float() \
+                * (covers.sum(1) > 0)[None, :, None]
         return a_s, self.dynamic_bottleneck.preactivation(dynamic_states)
 
     def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
@@ -347,7 +357,13 @@ class VideoTok4D(ModelIdentity, nn.Module):
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
         target = self.token_cells(x, batch.views)
         n = r.n_anchored
-        return F.mse_loss(r.splat(z_s[:, :n].to(r.splat.weight.dtype)).float(), target.float())
+        loss = F.mse_loss(r.splat(z_s[:, :n].to(r.splat.weight.dtype)).float(), target.float())
+        copies = r.copy_frames(batch.views).sum(1) > 0  # frame copies: their map gives their group's change
+        if r.splat_frames is None or not bool(copies.any()):  # e.g. 5 cameras of 320 tokens: one per anchor
+            return loss
+        change = self.token_frame_cells(x, batch.views)[:, copies]
+        return loss + F.mse_loss(r.splat_frames(z_s[:, :n][:, copies].to(r.splat_frames.weight.dtype)).float(),
+                                 change.float())
 
     def token_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
         """The time-averaged source latent inside each anchored static token's cell: (S, N_anchored, C p p)
@@ -359,6 +375,22 @@ class VideoTok4D(ModelIdentity, nn.Module):
         cells = cells.view(B // views, views, cells.shape[1], cells.shape[2])
         index = torch.arange(r.n_anchored, device=cells.device)
         return cells[:, r.token_cameras(views), index % cells.shape[2]]
+
+    def token_frame_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
+        """Each anchored static token's cell (as :meth:`token_cells`) averaged over the frames of its frame
+        group (:meth:`Renderer.copy_frames`) minus the time average: (S, N_anchored, C p p), zero for a
+        token that covers no frame (the time-average copies, and groups beyond the clip's T frames)."""
+        cfg, r = self.config, self.renderer
+        B, T = latents.shape[:2]
+        P = cfg.patches_per_side ** 2
+        cells = patchify(latents.float(), cfg.patch_size)  # (B, T, P, C p p)
+        cells = cells.view(B // views, views, T, P, cells.shape[-1]).transpose(2, 3)  # (S, V, P, T, C p p)
+        index = torch.arange(r.n_anchored, device=cells.device)
+        mine = cells[:, r.token_cameras(views), index % P]  # (S, N_a, T, C p p)
+        covers = r.copy_frames(views)[:, :T].to(cells.device)  # (N_a, T)
+        count = covers.sum(1)
+        group = torch.einsum("sntc,nt->snc", mine, covers / count.clamp_min(1.0)[:, None])
+        return (group - mine.mean(2)) * (count > 0)[None, :, None]
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                 generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:

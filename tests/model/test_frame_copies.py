@@ -1,0 +1,153 @@
+"""Frame copies (config ``frame_copies``): static tokens sharing an anchor split the clip's frames."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.layers import patchify
+
+from network_fixtures import random_batch
+
+# 32 px, latent 8, patch 2: P = 16 cells; 80 static tokens = 5 per cell with one camera; 4 frames
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=80, n_dynamic=4, token_dim=8, n_tracks=8, patch_size=2)
+FULL = dict(locality_sigma=0.35, query_from_grid=True, project_anchors=True, prediction="x0", anchor_views=True,
+            token_splat=True, token_from_cell=True)
+
+
+def small_model(seed: int = 0, **overrides) -> VideoTok4D:
+    torch.manual_seed(seed)
+    return VideoTok4D(get_config("tiny", **{**SMALL, **FULL, **overrides})).eval()
+
+
+def _render(model: VideoTok4D, batch, y, tau):
+    z = model.encode(batch)
+    return model.velocity(y, *z, model.rays(batch.K, batch.w2c), tau,
+                          cameras=model.render_cameras(batch.K, batch.w2c, batch.source))
+
+
+def test_config_hash_is_kept_while_off_and_the_switch_needs_the_cell_path_and_the_splat():
+    base = get_config("tiny", **SMALL, **FULL)
+    assert get_config("tiny", **SMALL, **FULL, frame_copies=False).sha256() == base.sha256()
+    assert get_config("tiny", **SMALL, **FULL, frame_copies=True).sha256() != base.sha256()
+    with pytest.raises(ModelError, match="frame_copies"):
+        get_config("tiny", **SMALL, **{**FULL, "token_from_cell": False}, frame_copies=True)
+    with pytest.raises(ModelError, match="frame_copies"):
+        get_config("tiny", **SMALL, **{**FULL, "token_splat": False, "token_from_cell": False}, frame_copies=True)
+    with pytest.raises(ModelError, match="frame_copies"):
+        get_config("tiny", **SMALL, **FULL, frame_copies="yes")
+
+
+def test_copies_of_an_anchor_split_the_frames_in_index_order():
+    r = small_model(frame_copies=True).renderer
+    one = r.copy_frames(1)  # 5 copies per cell: copy 0 none, copy k frame k - 1
+    assert one.shape == (80, 4)
+    assert float(one[:16].sum()) == 0.0
+    for k in range(1, 5):
+        assert torch.equal(one[16 * k:16 * (k + 1)], F.one_hot(torch.full((16,), k - 1), 4).float())
+    # two cameras: token i sits in camera i mod 2, cell i mod 16 -- still 5 copies of 8 cells per camera
+    assert torch.equal(r.copy_frames(2), one)
+    # five cameras: every (camera, cell) has one token, so none is a copy
+    assert float(r.copy_frames(5).sum()) == 0.0
+    # three copies per anchor (n_static 48): copies 1 and 2 cover two frames each
+    three = small_model(frame_copies=True, n_static=48).renderer.copy_frames(1)
+    assert three[16:32].tolist() == [[1.0, 1.0, 0.0, 0.0]] * 16 and three[32:].tolist() == [[0.0, 0.0, 1.0, 1.0]] * 16
+    assert float(small_model(frame_copies=False).renderer.copy_frames(1).sum()) == 0.0
+
+
+def test_a_warm_start_encodes_and_renders_exactly_as_the_model_without_it():
+    base, copies = small_model(), small_model(frame_copies=True)
+    missing = copies.load_state_dict(base.state_dict(), strict=False).missing_keys
+    assert sorted(missing) == ["cell_frames.bias", "cell_frames.weight", "renderer.splat_frames.bias",
+                               "renderer.splat_frames.weight"]
+    with torch.no_grad():  # a trained model has non-zero direct paths and output layers
+        for model in (base, copies):
+            torch.manual_seed(1)
+            for layer in (model.renderer.out, model.renderer.final_mod, model.renderer.splat, model.cell_direct):
+                layer.weight.normal_(std=0.1)
+    cfg, h = base.config, base.config.latent_size
+    batch = random_batch(cfg, B=2)
+    y, tau = torch.randn(2, cfg.frames, cfg.latent_channels, h, h), torch.full((2,), 0.7)
+    with torch.no_grad():
+        torch.testing.assert_close(copies.encode(batch)[0], base.encode(batch)[0])
+        torch.testing.assert_close(_render(copies, batch, y, tau), _render(base, batch, y, tau))
+
+
+def test_each_copy_reads_its_frame_groups_change_and_is_splatted_in_those_frames_only():
+    model = small_model(frame_copies=True)
+    cfg, r = model.config, model.renderer
+    batch = random_batch(cfg, B=2)
+    with torch.no_grad():
+        x = model.latents(batch.frames)  # (2, T, C, h, w)
+        cells = patchify(x.float(), cfg.patch_size)  # (2, T, P, C p p)
+        change = model.token_frame_cells(x, 1)  # (2, 80, C p p)
+        assert float(change[:, :16].abs().max()) == 0.0
+        for k in range(1, 5):  # copy k: frame k - 1 minus the time average, cell i mod 16
+            torch.testing.assert_close(change[:, 16 * k:16 * (k + 1)], cells[:, k - 1] - cells.mean(1))
+        # the encoder's new path adds W * change to the copies only
+        a0, _ = model.encode_preactivations(batch)
+        model.cell_frames.weight.normal_()
+        model.cell_frames.bias.normal_()
+        a1, _ = model.encode_preactivations(batch)
+        torch.testing.assert_close(a1[:, :16], a0[:, :16])
+        torch.testing.assert_close(a1[:, 16:] - a0[:, 16:], model.cell_frames(change[:, 16:]), atol=1e-4, rtol=1e-4)
+        # the copies of a cell now differ (equal queries, biases and slots in a grown set cannot do that)
+        z_s, z_d = model.encode(batch)
+        assert float((z_s[:, 16:32] - z_s[:, 32:48]).abs().max()) > 1e-3
+        # renderer: only the copy covering frame t reaches frame t through splat_frames
+        K = batch.K[:, :1].expand(-1, cfg.frames, -1, -1).clone()
+        w2c = batch.w2c[:, :1].expand(-1, cfg.frames, -1, -1).clone()
+        cams = model.render_cameras(K, w2c, (K, w2c))
+        logit = r.projected_logit(z_s, z_d, *cams)
+        frame_map = torch.randn_like(r.splat_frames.weight)
+
+        def extra(z: torch.Tensor) -> torch.Tensor:  # what splat_frames adds, per target frame
+            r.splat_frames.weight.zero_()
+            without = r.splat_latent(z, z_d, logit, None)
+            r.splat_frames.weight.copy_(frame_map)
+            return r.splat_latent(z, z_d, logit, None) - without
+
+        before = extra(z_s)
+        assert float(before.abs().max()) > 1e-3
+        other = z_s.clone()
+        other[:, 48:64] = torch.rand_like(other[:, 48:64]) * 2 - 1  # the copies covering frame 2 change
+        after = extra(other)
+        for t in range(cfg.frames):
+            if t == 2:
+                assert float((after[:, t] - before[:, t]).abs().max()) > 1e-3
+            else:
+                torch.testing.assert_close(after[:, t], before[:, t])
+
+
+def test_the_cell_loss_also_asks_each_copy_for_its_frame_groups_change():
+    model = small_model(frame_copies=True)
+    cfg, r = model.config, model.renderer
+    batch = random_batch(cfg, B=2)
+    with torch.no_grad():
+        r.splat.weight.normal_()
+        r.splat_frames.weight.normal_()
+        z_s, _ = model.encode(batch)
+        x = model.latents(batch.frames)
+        want = F.mse_loss(r.splat(z_s), model.token_cells(x, 1)) \
+            + F.mse_loss(r.splat_frames(z_s[:, 16:]), model.token_frame_cells(x, 1)[:, 16:])
+        torch.testing.assert_close(model.cell_loss(batch, z_s), want)
+    # and a two-camera batch runs end to end through training's loss
+    pair = dataclasses.replace(random_batch(cfg, B=4), views=2)
+    loss, logs = model.rectified_flow_loss(pair, pair.frames[::2], pair.K[::2], pair.w2c[::2],
+                                           torch.Generator().manual_seed(0), cell_weight=1.0)
+    assert torch.isfinite(loss) and logs["cell_mse"] > 0
+    loss.backward()
+    assert model.cell_frames.weight.grad is not None and float(model.cell_frames.weight.grad.abs().sum()) > 0
+    assert float(r.splat_frames.weight.grad.abs().sum()) > 0
+    # five cameras: no token is a copy, and the loss is the time-average term alone (not NaN)
+    five = dataclasses.replace(random_batch(cfg, B=5), views=5)
+    with torch.no_grad():
+        z5, _ = model.encode(five)
+        alone = F.mse_loss(r.splat(z5), model.token_cells(model.latents(five.frames), 5))
+        torch.testing.assert_close(model.cell_loss(five, z5), alone)
