@@ -149,8 +149,9 @@ class ModelConfig(_Config):
         content as before, copy r >= 1 of n covers frame group r - 1 of n - 1 equal groups (frame t of
         ``frames`` is in group floor(t (n - 1) / frames)). Copy r's pre-activation also gets a linear
         map (zero at initialisation) of its group's cell latent minus the time average, and the renderer
-        splats a second linear map (zero at initialisation) of it, in the target frames of its group
-        only, normalised over the copies landing on a patch in that frame. Equal copies get equal
+        splats a second linear map of its difference from copy 0 in the target frames of its group only,
+        normalised over the copies landing on a patch in that frame (equal copies add nothing; a warm
+        start from a model without it copies the cell and splat maps into the two new ones). Equal copies get equal
         gradients and stay equal (vt4d-tiny 0.9.0's 5 copies per cell, 0.005 apart against 2.26
         between cells); a time-averaged latent caps the source view at 26.0 dB / SSIM 0.76 where 4
         frame-group averages give 29.4 / 0.86 (bench/probe_static_oracle.py).

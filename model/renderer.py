@@ -21,8 +21,9 @@ with the locality Gaussian's weights, normalised over the tokens that land on a 
 the clean latent X0; the network also sees the splat as an input, so it predicts the correction.
 
 Frame copies (``config.frame_copies``): anchored tokens sharing an anchor (camera and cell) split the clip's
-frames (:meth:`Renderer.copy_frames`); a second zero-initialised linear map of each copy is splatted only
-in the target frames of its group, normalised over the copies covering that frame.
+frames (:meth:`Renderer.copy_frames`); a second linear map of each copy's difference from its anchor's
+time-average copy (:meth:`Renderer.copy_origin`) is splatted only in the target frames of its group,
+normalised over the copies covering that frame. Equal copies add nothing, so a warm start renders as before.
 """
 
 from __future__ import annotations
@@ -85,10 +86,9 @@ class Renderer(nn.Module):
                 nn.init.zeros_(layer.weight)
                 nn.init.zeros_(layer.bias)
         self.splat_frames: nn.Linear | None = None
-        if cfg.frame_copies:  # a frame copy -> its frame group's latent content, splatted in those frames
-            self.splat_frames = nn.Linear(cfg.token_dim, C * p * p)
-            nn.init.zeros_(self.splat_frames.weight)
-            nn.init.zeros_(self.splat_frames.bias)
+        if cfg.frame_copies:  # a frame copy's difference from its time-average copy -> its frame group's change
+            self.splat_frames = nn.Linear(cfg.token_dim, C * p * p)  # random weight: equal copies add nothing,
+            nn.init.zeros_(self.splat_frames.bias)  # and the encoder's zero map still gets a gradient
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -136,6 +136,20 @@ class Renderer(nn.Module):
         t = torch.arange(frames, device=index.device)
         group_of_frame = t[None, :] * groups[:, None] // frames  # (Na, frames)
         return ((rank[:, None] >= 1) & (group_of_frame == rank[:, None] - 1)).float()
+
+    def copy_origin(self, views: int) -> torch.Tensor:
+        """(N_anchored,) index of the time-average copy (the first token) of each anchored token's anchor
+        (same encoded camera and cell; :meth:`copy_frames`): the token itself for a time-average copy."""
+        P = self.cfg.patches_per_side ** 2
+        index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
+        key = self.token_cameras(views) * P + index % P
+        return (key[:, None] == key[None, :]).int().argmax(1)  # the first token with the same anchor
+
+    def frame_difference(self, z_s: torch.Tensor, views: int) -> torch.Tensor:
+        """(B, N_anchored, d): each anchored static token minus its anchor's time-average copy (held fixed:
+        the frame term trains the copies, not the time average), the input of the frame splat."""
+        z = z_s[:, :self.n_anchored]
+        return z - z[:, self.copy_origin(views)].detach()
 
     def anchor_depths(self, z_s: torch.Tensor, z_d: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
         """Depth (B, N_anchored) in metres of each anchored token along its source cell's ray: the depth of
@@ -202,8 +216,8 @@ class Renderer(nn.Module):
         """The token splat (B, T, P, C p p): each render patch's weighted sum of its anchored tokens'
         linear patch content; weights exp(logit) / (sum over tokens + SPLAT_FLOOR), dropped tokens
         (``keep`` False) weigh nothing. With ``config.frame_copies`` plus, in target frame t, the frame
-        copies covering t (:meth:`copy_frames` for ``views`` encoded cameras) through their own map,
-        normalised alike over those copies."""
+        copies covering t (:meth:`copy_frames` for ``views`` encoded cameras): the frame map of their
+        :meth:`frame_difference`, normalised alike over those copies."""
         assert self.splat is not None
         tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
         g = torch.exp(logit.float())  # (B, T, P, Na)
@@ -216,7 +230,8 @@ class Renderer(nn.Module):
         covers = self.copy_frames(views)[:, :logit.shape[1]].T.to(g.dtype)  # (T, Na): copy n covers frame t
         g = g * covers[None, :, None, :]
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
-        return splat + torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat_frames(tokens))
+        change = self.splat_frames(self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype))
+        return splat + torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), change)
 
     def forward(self, y_tau: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor, rays: torch.Tensor,
                 tau: torch.Tensor, *, drop_static: bool | torch.Tensor = False,

@@ -362,8 +362,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if r.splat_frames is None or not bool(copies.any()):  # e.g. 5 cameras of 320 tokens: one per anchor
             return loss
         change = self.token_frame_cells(x, batch.views)[:, copies]
-        return loss + F.mse_loss(r.splat_frames(z_s[:, :n][:, copies].to(r.splat_frames.weight.dtype)).float(),
-                                 change.float())
+        difference = r.frame_difference(z_s, batch.views)[:, copies].to(r.splat_frames.weight.dtype)
+        return loss + F.mse_loss(r.splat_frames(difference).float(), change.float())
 
     def token_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
         """The time-averaged source latent inside each anchored static token's cell: (S, N_anchored, C p p)

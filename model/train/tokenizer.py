@@ -127,12 +127,30 @@ def grown_static_tokens(state: dict[str, torch.Tensor], old: ModelConfig, new: M
     return grown
 
 
+def frame_copy_maps(state: dict[str, torch.Tensor], old: ModelConfig, new: ModelConfig) -> dict[str, torch.Tensor]:
+    """``state`` of a model without ``frame_copies``, given the two maps a model with it adds, when ``new``
+    has it: the encoder's frame map starts as its cell map (``cell_direct``) and the renderer's frame
+    splat as its splat, biases zero, so a copy holds its frame group's change from the time average in
+    the code its time-average copy uses for the cell, and the frame splat reads it back from the first
+    step (two zero maps would start at a saddle: each one's gradient is zero while the other is zero).
+    Otherwise ``state`` unchanged."""
+    if not new.frame_copies or old.frame_copies or "cell_direct.weight" not in state \
+            or "renderer.splat.weight" not in state:
+        return state
+    maps = dict(state)
+    for into, source in (("cell_frames", "cell_direct"), ("renderer.splat_frames", "renderer.splat")):
+        maps[f"{into}.weight"] = state[f"{source}.weight"].clone()
+        maps[f"{into}.bias"] = torch.zeros_like(state[f"{source}.bias"])
+    return maps
+
+
 def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False) -> VideoTok4D:
     """A saved model (shipped id or directory) to continue training: its weights, autoencoder included
     (frozen), as float32. Its config must equal this run's; with ``partial`` it may differ in sizes
     outside the autoencoder (e.g. ``render_patch_size``): every tensor whose name and shape match is
     copied, the others keep their fresh initialisation and are listed on stdout; a static token set grown
-    by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`)."""
+    by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`), and
+    ``frame_copies`` switched on starts from the saved cell and splat maps (:func:`frame_copy_maps`)."""
     source = from_pretrained(name_or_path)
     if source.config == cfg:
         model = source
@@ -142,7 +160,8 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
                          f"or --init-partial to copy only the tensors that fit")
     else:
         model = VideoTok4D(cfg)
-        fresh, saved = model.state_dict(), grown_static_tokens(source.state_dict(), source.config, cfg)
+        fresh = model.state_dict()
+        saved = frame_copy_maps(grown_static_tokens(source.state_dict(), source.config, cfg), source.config, cfg)
         fits = {k: v.to(fresh[k].dtype) for k, v in saved.items() if k in fresh and fresh[k].shape == v.shape}
         ae = [k for k in fresh if k.startswith("autoencoder.")]
         if any(k not in fits for k in ae):

@@ -59,13 +59,19 @@ def test_copies_of_an_anchor_split_the_frames_in_index_order():
     three = small_model(frame_copies=True, n_static=48).renderer.copy_frames(1)
     assert three[16:32].tolist() == [[1.0, 1.0, 0.0, 0.0]] * 16 and three[32:].tolist() == [[0.0, 0.0, 1.0, 1.0]] * 16
     assert float(small_model(frame_copies=False).renderer.copy_frames(1).sum()) == 0.0
+    # each token's time-average copy: cell i mod 16's first token with one camera, itself with five
+    assert r.copy_origin(1).tolist() == [i % 16 for i in range(80)]
+    assert r.copy_origin(2).tolist() == [i % 16 for i in range(80)]
+    assert r.copy_origin(5).tolist() == list(range(80))
 
 
-def test_a_warm_start_encodes_and_renders_exactly_as_the_model_without_it():
+def test_with_the_frame_maps_at_zero_it_encodes_and_renders_exactly_as_the_model_without_it():
     base, copies = small_model(), small_model(frame_copies=True)
     missing = copies.load_state_dict(base.state_dict(), strict=False).missing_keys
     assert sorted(missing) == ["cell_frames.bias", "cell_frames.weight", "renderer.splat_frames.bias",
                                "renderer.splat_frames.weight"]
+    with torch.no_grad():  # (a fresh frame splat is random; it adds nothing only while copies are equal)
+        copies.renderer.splat_frames.weight.zero_()
     with torch.no_grad():  # a trained model has non-zero direct paths and output layers
         for model in (base, copies):
             torch.manual_seed(1)
@@ -134,8 +140,9 @@ def test_the_cell_loss_also_asks_each_copy_for_its_frame_groups_change():
         r.splat_frames.weight.normal_()
         z_s, _ = model.encode(batch)
         x = model.latents(batch.frames)
+        difference = z_s[:, 16:] - z_s[:, :16].repeat(1, 4, 1)  # each copy minus its cell's copy 0
         want = F.mse_loss(r.splat(z_s), model.token_cells(x, 1)) \
-            + F.mse_loss(r.splat_frames(z_s[:, 16:]), model.token_frame_cells(x, 1)[:, 16:])
+            + F.mse_loss(r.splat_frames(difference), model.token_frame_cells(x, 1)[:, 16:])
         torch.testing.assert_close(model.cell_loss(batch, z_s), want)
     # and a two-camera batch runs end to end through training's loss
     pair = dataclasses.replace(random_batch(cfg, B=4), views=2)
@@ -151,3 +158,41 @@ def test_the_cell_loss_also_asks_each_copy_for_its_frame_groups_change():
         z5, _ = model.encode(five)
         alone = F.mse_loss(r.splat(z5), model.token_cells(model.latents(five.frames), 5))
         torch.testing.assert_close(model.cell_loss(five, z5), alone)
+
+
+def test_a_warm_start_from_a_model_without_it_starts_the_frame_maps_from_the_cell_and_splat_maps():
+    from vt4dcodec.model.train.tokenizer import frame_copy_maps
+
+    base = small_model()
+    with torch.no_grad():
+        for layer in (base.renderer.splat, base.cell_direct):
+            layer.weight.normal_(std=0.1)
+            layer.bias.normal_(std=0.1)
+    old, new = base.config, base.config.replace(frame_copies=True)
+    state = frame_copy_maps(base.state_dict(), old, new)
+    model = VideoTok4D(new).eval()
+    model.load_state_dict(state, strict=True)
+    torch.testing.assert_close(model.cell_frames.weight, base.cell_direct.weight)
+    torch.testing.assert_close(model.renderer.splat_frames.weight, base.renderer.splat.weight)
+    assert float(model.cell_frames.bias.abs().max()) == 0.0 and float(model.renderer.splat_frames.bias.abs().max()) == 0.0
+    # each copy now holds its frame group: copies of a cell differ where the clip changes
+    with torch.no_grad():
+        z_s, _ = model.encode(random_batch(new, B=1))
+    assert float((z_s[0, 16:32] - z_s[0, :16]).abs().max()) > 1e-3
+    # nothing to do when the saved model has them already, or the new one does not
+    saved = model.state_dict()
+    assert frame_copy_maps(saved, new, new) is saved
+    assert frame_copy_maps(base.state_dict(), old, old) is not state
+    plain = base.state_dict()
+    assert frame_copy_maps(plain, old, old) is plain
+
+
+def test_a_fresh_model_starts_off_the_saddle_of_two_zero_maps():
+    model = small_model(frame_copies=True).train()
+    cfg = model.config
+    assert float(model.cell_frames.weight.abs().max()) == 0.0 and float(model.renderer.splat_frames.weight.abs().max()) > 0
+    batch = random_batch(cfg, B=2)
+    loss, _ = model.rectified_flow_loss(batch, batch.frames, batch.K, batch.w2c, torch.Generator().manual_seed(0),
+                                        cell_weight=1.0)
+    loss.backward()
+    assert float(model.cell_frames.weight.grad.abs().sum()) > 0
