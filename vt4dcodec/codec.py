@@ -52,12 +52,11 @@ __all__ = [
 DEFAULT_MODEL = "vt4d-tiny"
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
-# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.9.0: int4, worst view +0.086 dB,
-# file 2,762 B; int5-rans +0.096 dB at 6,730 B, int4-rans +0.233 dB. With one camera encoded, 0.9.0's 320
-# static tokens are five near-identical copies of 64 (the grown token set keeps the copies' symmetry,
-# docs/training.md), which int4's zstd-compressed section finds and an order-0 rANS coder cannot. (0.8.0:
-# int5-rans, +0.079 dB; 0.7.0: int4-rans, +0.091 dB; 0.6.0: int5-rans; 0.2.0-0.5.0: int4-rans.) Re-measure
-# with bench/bench_rate_distortion.py when the model changes.
+# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.10.0: int4, worst view +0.099 dB,
+# file 6,410 B (its five tokens per cell now split the frames, so they no longer repeat: 0.9.0's copies
+# made int4 2,762 B); int5-rans +0.048 dB at 6,646 B. (0.9.0: int4, +0.086 dB; 0.8.0: int5-rans, +0.079 dB;
+# 0.7.0: int4-rans, +0.091 dB; 0.6.0: int5-rans; 0.2.0-0.5.0: int4-rans.) Re-measure with
+# bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4"
 
 

@@ -89,8 +89,9 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         "64x64; " + _pairs_text(args),
         *([f"- warm start: the weights of {args['init']} (this model's predecessor; its own training is in "
             "docs/training.md)"
-           + (", every tensor whose shape fits (a static token set grown by a whole factor starts as copies); "
-              "tensors new in this config start fresh" if args.get("init_partial") else "")]
+           + (", every tensor whose shape fits (a static token set grown by a whole factor starts as copies, "
+              "frame-copy maps switched on start from the cell and splat maps); other tensors new in this "
+              "config start fresh" if args.get("init_partial") else "")]
           if args.get("init") else []),
         f"- recipe: prediction={cfg.get('prediction', 'velocity')}, share of samples at tau = 1: "
         f"{args.get('tau_one', 0.0)}, static-token dropout {args.get('drop_static', 0.0)}, saturation penalty "
