@@ -28,6 +28,8 @@ normalised over the copies covering that frame. Equal copies add nothing, so a w
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -178,19 +180,15 @@ class Renderer(nn.Module):
         bias[:, :locality_heads(cfg.heads), :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
         return bias
 
-    def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
-                        K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
-        """Gaussian logit (B, T, P, N_anchored) of render patch p's distance to anchored token n's projection
-        in target frame t (-d^2 / 2 sigma^2, floored at FAR_LOGIT; FAR_LOGIT behind the camera).
-
-        K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
-        K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
-        (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
-        anchors each token)."""
+    def anchor_points(self, z_s: torch.Tensor, z_d: torch.Tensor, K_src: torch.Tensor,
+                      w2c_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """World positions (B, N_anchored, 3) of the anchored tokens (each on its cell's ray of its encoded
+        camera at :meth:`anchor_depths`) and the centres (B, N_anchored, 3) of those cameras, metres.
+        K_src, w2c_src as :meth:`projected_logit`."""
         cfg = self.cfg
-        B, T = K_tgt.shape[:2]
         if K_src.ndim == 3:
             K_src, w2c_src = K_src[:, None], w2c_src[:, None]
+        B = K_src.shape[0]
         cam = self.token_cameras(K_src.shape[1])
         K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, Na, 3, 3), (B, Na, 4, 4)
         cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
@@ -201,6 +199,35 @@ class Renderer(nn.Module):
         x_cam = torch.linalg.solve(K_tok, pix.expand(B, -1, -1)[..., None])[..., 0] * depth[..., None]  # (B, Na, 3)
         R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
         x_world = torch.einsum("bnji,bnj->bni", R, x_cam - t)  # R^T (x - t)
+        return x_world, -torch.einsum("bnji,bnj->bni", R, t)
+
+    def frame_gate(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                   K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
+        """(B, T, N_anchored) in (0, 1]: exp(-a^2 / 2 s^2) with a^2 = 2 (1 - cos), a the angle at anchored token n between the rays
+        from its encoded camera and from target frame t's camera, s = ``config.frame_gate_deg``. A frame
+        copy holds what its cell did as seen along the source trajectory; the gate keeps it where the
+        target sees the token from (nearly) the same direction. Arguments as :meth:`projected_logit`."""
+        x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
+        R, t = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
+        target = -torch.einsum("btji,btj->bti", R, t)  # (B, T, 3) target camera centres
+        from_source = F.normalize(x_world - centre, dim=-1)  # (B, Na, 3)
+        from_target = F.normalize(x_world[:, None] - target[:, :, None], dim=-1)  # (B, T, Na, 3)
+        cos = (from_target * from_source[:, None]).sum(-1)
+        sigma = math.radians(self.cfg.frame_gate_deg)
+        return torch.exp(-(1.0 - cos) / sigma ** 2)  # 2 (1 - cos a) = a^2 + O(a^4); smooth where a = 0
+
+    def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                        K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
+        """Gaussian logit (B, T, P, N_anchored) of render patch p's distance to anchored token n's projection
+        in target frame t (-d^2 / 2 sigma^2, floored at FAR_LOGIT; FAR_LOGIT behind the camera).
+
+        K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
+        K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
+        (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
+        anchors each token)."""
+        cfg = self.cfg
+        cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
+        x_world, _ = self.anchor_points(z_s, z_d, K_src, w2c_src)
         Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
         x_tgt = torch.einsum("btij,bnj->btni", Rt, x_world) + tt[:, :, None]  # (B, T, Na, 3)
         proj = torch.einsum("btij,btnj->btni", K_tgt.float(), x_tgt)
@@ -212,7 +239,7 @@ class Renderer(nn.Module):
         return torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
 
     def splat_latent(self, z_s: torch.Tensor, z_d: torch.Tensor, logit: torch.Tensor,
-                     keep: torch.Tensor | None, views: int = 1) -> torch.Tensor:
+                     keep: torch.Tensor | None, views: int = 1, gate: torch.Tensor | None = None) -> torch.Tensor:
         """The token splat (B, T, P, C p p): each render patch's weighted sum of its anchored tokens'
         linear patch content; weights exp(logit) / (sum over tokens + SPLAT_FLOOR), dropped tokens
         (``keep`` False) weigh nothing. With ``config.frame_copies`` plus, in target frame t, the frame
@@ -230,6 +257,8 @@ class Renderer(nn.Module):
         covers = self.copy_frames(views)[:, :logit.shape[1]].T.to(g.dtype)  # (T, Na): copy n covers frame t
         g = g * covers[None, :, None, :]
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
+        if gate is not None:
+            weights = weights * gate[:, :, None].to(weights.dtype)
         change = self.splat_frames(self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype))
         return splat + torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), change)
 
@@ -254,7 +283,8 @@ class Renderer(nn.Module):
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
                 views = 1 if cameras[2].ndim == 3 else cameras[2].shape[1]
-                splat = self.splat_latent(z_s, z_d, logit, keep, views).to(x.dtype)  # (B, T, P, C p p)
+                gate = self.frame_gate(z_s, z_d, *cameras) if self.cfg.frame_gate_deg > 0 else None
+                splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
                 x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
