@@ -189,7 +189,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
         if self.cell_frames is not None:
-            covers = self.renderer.copy_frames(V)  # (N_s, frames)
+            covers = self.renderer.copy_frames(V)[:, :T]  # (N_s, T): copies covering none of the T frames get nothing
             change = self.token_frame_cells(x, V)  # zero for the time-average copies
             a_s = a_s + self.cell_frames(change.to(self.cell_frames.weight.dtype)).float() \
                 * (covers.sum(1) > 0)[None, :, None]
