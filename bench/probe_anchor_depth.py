@@ -25,9 +25,8 @@ import numpy as np
 import torch
 
 from vt4dcodec import codec
+from vt4dcodec.eval.command import resolve_model
 from vt4dcodec.eval.protocol import nearest_cameras
-from vt4dcodec.model.train.common import model_from_run
-from vt4dcodec.model.weights_io import from_pretrained
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 
@@ -63,9 +62,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    path = Path(args.model)
-    model = model_from_run(path)[0] if (path / "checkpoint").is_dir() else from_pretrained(args.model)
-    model.eval()
+    model = resolve_model(args.model)
     cfg, renderer = model.config, model.renderer
     if renderer.depth_head is None:
         raise SystemExit(f"{args.model}: this model does not place its tokens in depth (config project_anchors)")

@@ -23,10 +23,9 @@ import numpy as np
 import torch
 
 from vt4dcodec import codec
+from vt4dcodec.eval.command import resolve_model
 from vt4dcodec.eval.protocol import nearest_cameras
 from vt4dcodec.model import VideoTok4D
-from vt4dcodec.model.train.common import model_from_run
-from vt4dcodec.model.weights_io import from_pretrained
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 
@@ -43,9 +42,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    path = Path(args.model)
-    model = model_from_run(path)[0] if (path / "checkpoint").is_dir() else from_pretrained(args.model)
-    model.eval()
+    model = resolve_model(args.model)
     frame_map = model.renderer.splat_frames
     if frame_map is None:
         raise SystemExit(f"{args.model}: this model has no frame copies (config frame_copies)")

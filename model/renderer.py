@@ -128,11 +128,9 @@ class Renderer(nn.Module):
         floor(t (n - 1) / frames) = r - 1, copy 0 (the time average) none. All zero without frame_copies."""
         cfg = self.cfg
         frames = cfg.frames
-        index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
         if not cfg.frame_copies:
-            return torch.zeros(self.n_anchored, frames, device=index.device)
-        key = self.token_cameras(views) * cfg.patches_per_side ** 2 + index % cfg.patches_per_side ** 2
-        same = key[:, None] == key[None, :]
+            return torch.zeros(self.n_anchored, frames, device=self.anchor_cells.device)
+        index, same = self._same_anchor(views)
         rank = (same & (index[None, :] < index[:, None])).sum(1)  # earlier tokens on the same anchor
         groups = same.sum(1) - 1  # n - 1 frame groups per anchor
         t = torch.arange(frames, device=index.device)
@@ -142,10 +140,15 @@ class Renderer(nn.Module):
     def copy_origin(self, views: int) -> torch.Tensor:
         """(N_anchored,) index of the time-average copy (the first token) of each anchored token's anchor
         (same encoded camera and cell; :meth:`copy_frames`): the token itself for a time-average copy."""
+        return self._same_anchor(views)[1].int().argmax(1)  # the first token with the same anchor
+
+    def _same_anchor(self, views: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(index (N_anchored,), same (N_anchored, N_anchored) bool): whether two anchored tokens share an
+        anchor, the same encoded camera (:meth:`token_cameras`) and cell (index mod P)."""
         P = self.cfg.patches_per_side ** 2
         index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
         key = self.token_cameras(views) * P + index % P
-        return (key[:, None] == key[None, :]).int().argmax(1)  # the first token with the same anchor
+        return index, key[:, None] == key[None, :]
 
     def frame_difference(self, z_s: torch.Tensor, views: int) -> torch.Tensor:
         """(B, N_anchored, d): each anchored static token minus its anchor's time-average copy (held fixed:
@@ -207,7 +210,10 @@ class Renderer(nn.Module):
         from its encoded camera and from target frame t's camera, s = ``config.frame_gate_deg``. A frame
         copy holds what its cell did as seen along the source trajectory; the gate keeps it where the
         target sees the token from (nearly) the same direction. Arguments as :meth:`projected_logit`."""
-        x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
+        return self._gate_at(*self.anchor_points(z_s, z_d, K_src, w2c_src), w2c_tgt)
+
+    def _gate_at(self, x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
+        """:meth:`frame_gate` of anchors at x_world seen from their cameras' centres (B, N_anchored, 3)."""
         R, t = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
         target = -torch.einsum("btji,btj->bti", R, t)  # (B, T, 3) target camera centres
         from_source = F.normalize(x_world - centre, dim=-1)  # (B, Na, 3)
@@ -225,9 +231,12 @@ class Renderer(nn.Module):
         K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
         (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
         anchors each token)."""
+        return self._logit_at(self.anchor_points(z_s, z_d, K_src, w2c_src)[0], K_tgt, w2c_tgt)
+
+    def _logit_at(self, x_world: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
+        """:meth:`projected_logit` of anchors at world positions x_world (B, N_anchored, 3)."""
         cfg = self.cfg
         cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
-        x_world, _ = self.anchor_points(z_s, z_d, K_src, w2c_src)
         Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
         x_tgt = torch.einsum("btij,bnj->btni", Rt, x_world) + tt[:, :, None]  # (B, T, Na, 3)
         proj = torch.einsum("btij,btnj->btni", K_tgt.float(), x_tgt)
@@ -279,11 +288,13 @@ class Renderer(nn.Module):
         if self.depth_head is not None:
             if cameras is None:
                 raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
-            logit = self.projected_logit(z_s, z_d, *cameras)
+            K_tgt, w2c_tgt, K_src, w2c_src = cameras
+            x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
+            logit = self._logit_at(x_world, K_tgt, w2c_tgt)
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
-                views = 1 if cameras[2].ndim == 3 else cameras[2].shape[1]
-                gate = self.frame_gate(z_s, z_d, *cameras) if self.cfg.frame_gate_deg > 0 else None
+                views = 1 if K_src.ndim == 3 else K_src.shape[1]
+                gate = self._gate_at(x_world, centre, w2c_tgt) if self.cfg.frame_gate_deg > 0 else None
                 splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
                 x = x + self.splat_in(splat)
         else:

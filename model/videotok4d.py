@@ -358,8 +358,10 @@ class VideoTok4D(ModelIdentity, nn.Module):
         target = self.token_cells(x, batch.views)
         n = r.n_anchored
         loss = F.mse_loss(r.splat(z_s[:, :n].to(r.splat.weight.dtype)).float(), target.float())
+        if r.splat_frames is None:
+            return loss
         copies = r.copy_frames(batch.views).sum(1) > 0  # frame copies: their map gives their group's change
-        if r.splat_frames is None or not bool(copies.any()):  # e.g. 5 cameras of 320 tokens: one per anchor
+        if not bool(copies.any()):  # e.g. 5 cameras of 320 tokens: one per anchor
             return loss
         change = self.token_frame_cells(x, batch.views)[:, copies]
         difference = r.frame_difference(z_s, batch.views)[:, copies].to(r.splat_frames.weight.dtype)
