@@ -16,6 +16,7 @@ from torch import nn
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
     "timestep_embedding", "patchify", "unpatchify", "locality_prior", "locality_heads", "grid_positions",
+    "token_cameras",
 ]
 
 
@@ -74,6 +75,18 @@ def grid_positions(side: int, cell: float = 1.0) -> torch.Tensor:
     idx = (torch.arange(side, dtype=torch.float32) + 0.5) * cell
     rows, cols = torch.meshgrid(idx, idx, indexing="ij")
     return torch.stack([rows, cols], dim=-1).reshape(-1, 2)
+
+
+def token_cameras(n: int, views: int, cells: int, spread: bool = False,
+                  device: torch.device | None = None) -> torch.Tensor:
+    """(n,) index of the encoded camera (of ``views``) that anchored token i belongs to; its cell is
+    i mod ``cells``. i mod V, or with ``spread`` and V sharing a factor with ``cells``,
+    (i + floor(i / cells)) mod V: token blocks of ``cells`` shift by one camera, so each camera's tokens
+    cover distinct cells (config ``spread_views``)."""
+    index = torch.arange(n, device=device)
+    if spread and math.gcd(views, cells) > 1:
+        index = index + index // cells
+    return index % views
 
 
 class Attention(nn.Module):

@@ -11,7 +11,8 @@ Gaussian logit bias that ties render patch j to the static tokens anchored near 
 ``config.project_anchors`` the bias is a learned (heads, P, N) table on the source image grid, the same
 at every target pose; with it the anchors are placed in 3-D (the source camera's cell ray at a depth read
 from the token) and projected into each target frame, so the bias moves with the target camera. With
-``config.anchor_views`` and V encoded cameras, token i's cell ray is that of encoded camera i mod V.
+``config.anchor_views`` and V encoded cameras, token i's cell ray is that of encoded camera i mod V
+(``config.spread_views``: :func:`layers.token_cameras`).
 
 Token splat (``config.token_splat``, x0 prediction with projected anchors): besides the attention, each
 anchored static token reaches the output directly. A linear map (zero at initialisation) turns the token
@@ -35,7 +36,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import AdaLNBlock, grid_positions, locality_heads, locality_prior, patchify, timestep_embedding, unpatchify
+from .layers import (AdaLNBlock, grid_positions, locality_heads, locality_prior, patchify, timestep_embedding,
+                     token_cameras, unpatchify)
 
 __all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR"]
 
@@ -116,10 +118,13 @@ class Renderer(nn.Module):
         return tokens, keep
 
     def token_cameras(self, views: int) -> torch.Tensor:
-        """(N_anchored,) index of the encoded camera each anchored token sits in: i mod V with
-        ``config.anchor_views``, else 0 (every token in the first camera)."""
-        index = torch.arange(self.n_anchored, device=self.anchor_cells.device)
-        return index % views if self.cfg.anchor_views else torch.zeros_like(index)
+        """(N_anchored,) index of the encoded camera each anchored token sits in: with
+        ``config.anchor_views`` :func:`layers.token_cameras` (i mod V, spread with ``config.spread_views``),
+        else 0 (every token in the first camera)."""
+        device = self.anchor_cells.device
+        if not self.cfg.anchor_views:
+            return torch.zeros(self.n_anchored, dtype=torch.long, device=device)
+        return token_cameras(self.n_anchored, views, self.cfg.patches_per_side ** 2, self.cfg.spread_views, device)
 
     def copy_frames(self, views: int) -> torch.Tensor:
         """(N_anchored, frames) float: 1 where anchored token n is a frame copy (``config.frame_copies``)

@@ -13,7 +13,8 @@ import torch
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, grid_positions, locality_prior, patchify
+from .layers import (QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, grid_positions, locality_prior, patchify,
+                     token_cameras)
 
 __all__ = ["SpatialBranch"]
 
@@ -49,7 +50,7 @@ class SpatialBranch(nn.Module):
         self.query_blocks = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.static_query_layers))
         self.query_bias = None
         self.query_content: nn.Linear | None = None
-        self.anchor_views = cfg.anchor_views
+        self.anchor_views, self.spread_views = cfg.anchor_views, cfg.spread_views
         if cfg.locality_sigma > 0:  # static query i anchored at grid cell i mod P (configs.ModelConfig)
             cells = grid_positions(cfg.patches_per_side)
             self.register_buffer("anchor", torch.arange(n_queries) % cells.shape[0], persistent=False)
@@ -65,8 +66,8 @@ class SpatialBranch(nn.Module):
         With ``views`` > 1 the B clips are ``views`` cameras per scene (scene-major): each camera's
         grid is built on its own (its rays say where it looks), then the queries of a scene attend to
         the grids of all its cameras at once. With ``config.anchor_views`` query i is anchored in
-        camera i mod V (its locality bias and grid feature come from that camera's cell i); without
-        it, in every camera's cell i alike."""
+        camera i mod V (``config.spread_views``: :func:`layers.token_cameras`), its locality bias and grid
+        feature coming from that camera's cell i mod P; without it, in every camera's cell alike."""
         x = self.embed(patchify(torch.cat([latents, rays], dim=2), self.patch_size))
         B, T, P, D = x.shape
         x = x + self.pos_space[None, None] + self.pos_time[None, :T, None]
@@ -77,7 +78,7 @@ class SpatialBranch(nn.Module):
         q = self.queries[None].expand(S, -1, -1)
         own = self.anchor_views and views > 1
         if own:
-            camera = torch.arange(q.shape[1], device=x.device) % views  # each query's camera
+            camera = token_cameras(q.shape[1], views, P, self.spread_views, x.device)  # each query's camera
         if self.query_content is not None:  # + W * mean over frames of the anchor cell's feature
             cells = x.reshape(S, views, T, P, D).mean(2)  # (S, V, P, D)
             cell = cells[:, camera, self.anchor] if own else cells.mean(1)[:, self.anchor]
