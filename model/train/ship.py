@@ -1,13 +1,16 @@
 """Ship a trained model inside the package: float16 safetensors + config + a model card.
 
     python -m vt4dcodec.model.train.ship --run runs/tok --autoencoder-run runs/ae --id vt4d-tiny \
-        --version 0.1.0 [--dest model/weights] [--notes docs/card_notes.md] [--decoder-from runs/aeD]
+        --version 0.1.0 [--dest model/weights] [--notes docs/card_notes.md] [--decoder-from runs/aeD] \
+        [--set spread_views=true]
 
 Reads the stage-2 run's final model (``<run>/model``, written by ``train.tokenizer``), rounds its
 weights to float16 storage (half the file; loaded as float32), and writes
 ``<dest>/<id>/{config.json, model.safetensors, MODEL_CARD.md}``.  The card is generated from the runs'
 own records (arguments, steps, wall time from the JSONL logs, training-pair PSNR) so it cannot drift
-from what was trained; ``--notes`` appends hand-written sections (evaluation, known limits).
+from what was trained; ``--notes`` appends hand-written sections (evaluation, known limits). ``--set``
+changes config fields that add no weights (the trained weights must load into the changed config exactly);
+the card names them as set at ship time.
 """
 
 from __future__ import annotations
@@ -26,8 +29,9 @@ from vt4dcodec.errors import ModelError
 from ..videotok4d import VideoTok4D
 from ..weights_io import SHIPPED_DIR, from_pretrained, save_pretrained
 from .autoencoder import AE_WEIGHTS
+from .common import parse_overrides
 
-__all__ = ["main", "model_card"]
+__all__ = ["main", "model_card", "reconfigure"]
 
 
 def _log_summary(log: Path) -> dict:
@@ -56,9 +60,9 @@ def _pairs_text(args: dict) -> str:
 
 
 def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint: dict, notes: str,
-               decoder_run: Path | None = None) -> str:
+               decoder_run: Path | None = None, shipped_set: dict | None = None) -> str:
     state = json.loads((run / "checkpoint" / "state.json").read_text())
-    args, cfg = state["args"], state["config"]
+    args, cfg = state["args"], {**state["config"], **(shipped_set or {})}
     tok = _log_summary(run / "log.jsonl")
     ae = _log_summary(ae_run / "log.jsonl")
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
@@ -104,6 +108,9 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         dec = _log_summary(decoder_run / "log.jsonl")
         lines.append(f"- decoder fine-tuned alone afterwards (`--decoder-only`, encoder and latents unchanged): "
                      f"{dec['steps']} steps, {dec['wall_seconds'] / 60:.0f} min wall ({decoder_run})")
+    if shipped_set:
+        lines.append("- set at ship time, no weights added (trained without them): "
+                     + ", ".join(f"{k}={v}" for k, v in sorted(shipped_set.items())))
     if summary:
         lines.append(f"- render PSNR on {len(summary.get('pairs', []))} training pairs: "
                      f"{summary.get('mean_psnr_db', float('nan')):.2f} dB ({summary.get('render_steps')} Euler steps)")
@@ -132,6 +139,19 @@ def swap_decoder(model: VideoTok4D, weights: Path) -> None:
     model.autoencoder.load_state_dict({k: v for k, v in state.items() if k.startswith("decoder.")}, strict=False)
 
 
+def reconfigure(model: VideoTok4D, overrides: dict) -> VideoTok4D:
+    """``model`` under its config with ``overrides``: the same weights, which must fit the new config exactly
+    (a field that adds, removes or reshapes weights is refused with ModelError)."""
+    new = VideoTok4D(model.config.replace(**overrides)).eval()
+    try:
+        new.load_state_dict(model.state_dict(), strict=True)
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ModelError(f"--set {overrides}: the trained weights do not fit the changed config ({first})") from None
+    new.freeze_autoencoder()
+    return new
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.ship", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -146,8 +166,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--decoder-from", type=Path, default=None,
                         help="stage-1 run of a `--decoder-only` fine-tune: its decoder replaces the model's; its "
                              "encoder and latent statistics must be the model's (the tokens stay valid)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="config fields to change at ship time that add no weights, e.g. spread_views=true")
     args = parser.parse_args(argv)
+    overrides = parse_overrides(args.set)
     model = from_pretrained(args.run / "model")
+    if overrides:
+        model = reconfigure(model, overrides)
     if args.decoder_from is not None:
         swap_decoder(model, args.decoder_from / AE_WEIGHTS)
     notes = args.notes.read_text() if args.notes else ""
@@ -155,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                           storage_dtype="float16", decode_steps=args.decode_steps)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
-                                                        args.decoder_from))
+                                                        args.decoder_from, overrides))
     size = (out / "model.safetensors").stat().st_size
     print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB)")
     return 0

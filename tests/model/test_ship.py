@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import json
 
-from vt4dcodec.model.train.ship import model_card
+import pytest
+import torch
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.train.ship import model_card, reconfigure
 
 FINGERPRINT = {"config_sha256": "c" * 64, "weights_sha256": "w" * 64, "static_shape": [64, 32],
                "dynamic_shape": [32, 32]}
@@ -34,3 +39,25 @@ def test_card_states_steps_wall_time_recipe_and_warm_start(tmp_path):
     warm = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok2", init="vt4d-tiny", init_partial=True), ae,
                       FINGERPRINT, "")
     assert "warm start: the weights of vt4d-tiny" in warm and "start fresh" in warm
+
+
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=32, n_dynamic=4, token_dim=8, n_tracks=8, patch_size=2,
+             locality_sigma=0.35, project_anchors=True, prediction="x0", anchor_views=True)
+
+
+def test_set_at_ship_time_keeps_the_weights_refuses_fields_that_need_new_ones_and_is_on_the_card(tmp_path):
+    torch.manual_seed(0)
+    model = VideoTok4D(get_config("tiny", **SMALL)).eval()
+    spread = reconfigure(model, {"spread_views": True})
+    assert spread.config.spread_views and not model.config.spread_views
+    for name, value in model.state_dict().items():
+        assert torch.equal(spread.state_dict()[name], value)
+    with pytest.raises(ModelError, match="do not fit"):
+        reconfigure(model, {"token_splat": True})  # adds the splat map
+    with pytest.raises(ModelError, match="unknown"):
+        reconfigure(model, {"no_such_field": 1})
+    card = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok"), _run(tmp_path, "ae"), FINGERPRINT, "",
+                      shipped_set={"spread_views": True})
+    assert "set at ship time, no weights added (trained without them): spread_views=True" in card
+    assert "spread_views=True" in card.split("- config: ")[1].splitlines()[0]
