@@ -160,12 +160,19 @@ class ModelConfig(_Config):
         the target camera, s this many degrees: a frame copy holds what its cell did as seen along the
         source trajectory, which a camera elsewhere sees differently (vt4d-tiny 0.10.0's frame splat gives
         the source view +2.1 dB and costs the near views 0.1 dB). 0 = no gate.
-        spread_views: with anchor_views, V encoded cameras that share a factor with the P cells (V = 2,
-        4, 8 of P = 64) take token i in camera (i + floor(i / P)) mod V instead of i mod V, so each
-        camera's tokens cover distinct cells (4 cameras: 64 cells each instead of the same 16, repeated
-        5 times as frame copies); V sharing no factor with P (1, 3, 5, 7) are unchanged. Cell i mod P
+        spread_views: with anchor_views, when V encoded cameras share a factor g with the P cells and a
+        camera has more tokens than the P / g cells i mod V lets it reach (320 tokens, P = 64: V = 2, 4,
+        8), token i goes to camera (i + floor(i / P)) mod V instead of i mod V, so each camera's tokens
+        cover distinct cells (4 cameras: 64 cells each instead of the same 16, repeated 5 times as frame
+        copies); other V (1, 3, 5, 7, 10) are unchanged (layers.token_cameras). Cell i mod P
         and everything learned per token stay as they are, so a model trained without it renders odd V
         exactly as before.
+        view_gate_deg: with project_anchors, > 0 lowers each anchored token's locality logit (attention bias
+        and splat) in target frame t by (1 - cos a) / s^2 relative to the lowest of that frame, a the angle
+        at the token between the rays from its encoded camera and from the target camera, s this many
+        degrees: the splat has no depth order, so with several encoded cameras a token holding the far
+        side of an object (seen from across the scene) lands on the near side's pixels; the gate lets the
+        tokens seen from the target's direction win. Renderer only, no weights. 0 = off.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -206,13 +213,15 @@ class ModelConfig(_Config):
     frame_copies: bool = False
     frame_gate_deg: float = 0.0
     spread_views: bool = False
+    view_gate_deg: float = 0.0
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
                                                "query_from_grid": False, "project_anchors": False,
                                                "anchor_views": False, "token_splat": False,
                                                "token_from_cell": False, "frame_copies": False,
-                                               "frame_gate_deg": 0.0, "spread_views": False}
+                                               "frame_gate_deg": 0.0, "spread_views": False,
+                                               "view_gate_deg": 0.0}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -273,6 +282,11 @@ class ModelConfig(_Config):
             raise ModelError(f"config spread_views must be true or false, got {self.spread_views!r}")
         if self.spread_views and not self.anchor_views:
             raise ModelError("config spread_views needs anchor_views (it says which encoded camera holds each token)")
+        if isinstance(self.view_gate_deg, bool) or not isinstance(self.view_gate_deg, (int, float)) \
+                or not 0.0 <= self.view_gate_deg <= 180.0:
+            raise ModelError(f"config view_gate_deg must be a number of degrees in [0, 180], got {self.view_gate_deg!r}")
+        if self.view_gate_deg > 0 and not self.project_anchors:
+            raise ModelError("config view_gate_deg needs project_anchors (it weighs the anchors by where they are seen from)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

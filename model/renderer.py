@@ -25,6 +25,11 @@ Frame copies (``config.frame_copies``): anchored tokens sharing an anchor (camer
 frames (:meth:`Renderer.copy_frames`); a second linear map of each copy's difference from its anchor's
 time-average copy (:meth:`Renderer.copy_origin`) is splatted only in the target frames of its group,
 normalised over the copies covering that frame. Equal copies add nothing, so a warm start renders as before.
+
+View gate (``config.view_gate_deg``): each anchored token's locality logit (attention bias and splat alike)
+loses (1 - cos a) / s^2, a the angle at the token between the rays from its encoded camera and from the
+target, relative to the best-aligned token of that target frame: with several encoded cameras, a token
+described from the other side of the scene yields to those seen from nearly the target's direction.
 """
 
 from __future__ import annotations
@@ -219,24 +224,46 @@ class Renderer(nn.Module):
 
     def _gate_at(self, x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
         """:meth:`frame_gate` of anchors at x_world seen from their cameras' centres (B, N_anchored, 3)."""
+        sigma = math.radians(self.cfg.frame_gate_deg)
+        return torch.exp(-self._one_minus_cos(x_world, centre, w2c_tgt) / sigma ** 2)
+
+    @staticmethod
+    def _one_minus_cos(x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
+        """(B, T, N_anchored): 1 - cos a, a the angle at each anchor (x_world (B, Na, 3)) between the rays from
+        its encoded camera's centre (B, Na, 3) and from target frame t's camera; 2 (1 - cos a) = a^2 + O(a^4)."""
         R, t = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
         target = -torch.einsum("btji,btj->bti", R, t)  # (B, T, 3) target camera centres
         from_source = F.normalize(x_world - centre, dim=-1)  # (B, Na, 3)
         from_target = F.normalize(x_world[:, None] - target[:, :, None], dim=-1)  # (B, T, Na, 3)
-        cos = (from_target * from_source[:, None]).sum(-1)
-        sigma = math.radians(self.cfg.frame_gate_deg)
-        return torch.exp(-(1.0 - cos) / sigma ** 2)  # 2 (1 - cos a) = a^2 + O(a^4); smooth where a = 0
+        return 1.0 - (from_target * from_source[:, None]).sum(-1)
+
+    def _view_penalty(self, x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
+        """(B, T, 1, N_anchored) <= 0: the logit term of ``config.view_gate_deg``, -(1 - cos a) / s^2 relative to
+        the anchor seen from the most similar direction in that target frame (so one camera's tokens, all seen
+        alike, keep their weight against the unanchored tokens)."""
+        sigma = math.radians(self.cfg.view_gate_deg)
+        term = self._one_minus_cos(x_world, centre, w2c_tgt) / sigma ** 2
+        return -(term - term.amin(-1, keepdim=True))[:, :, None]
+
+    def _placed_logit(self, x_world: torch.Tensor, centre: torch.Tensor, K_tgt: torch.Tensor,
+                      w2c_tgt: torch.Tensor) -> torch.Tensor:
+        """:meth:`projected_logit` of anchors at x_world from cameras at centre (both (B, N_anchored, 3))."""
+        logit = self._logit_at(x_world, K_tgt, w2c_tgt)
+        if self.cfg.view_gate_deg > 0:
+            logit = (logit + self._view_penalty(x_world, centre, w2c_tgt)).clamp_min(FAR_LOGIT)
+        return logit
 
     def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                         K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
         """Gaussian logit (B, T, P, N_anchored) of render patch p's distance to anchored token n's projection
-        in target frame t (-d^2 / 2 sigma^2, floored at FAR_LOGIT; FAR_LOGIT behind the camera).
+        in target frame t (-d^2 / 2 sigma^2, floored at FAR_LOGIT; FAR_LOGIT behind the camera), plus the
+        view penalty of ``config.view_gate_deg`` when it is on.
 
         K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4): the target trajectory, px of the model's image;
         K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
         (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
         anchors each token)."""
-        return self._logit_at(self.anchor_points(z_s, z_d, K_src, w2c_src)[0], K_tgt, w2c_tgt)
+        return self._placed_logit(*self.anchor_points(z_s, z_d, K_src, w2c_src), K_tgt, w2c_tgt)
 
     def _logit_at(self, x_world: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
         """:meth:`projected_logit` of anchors at world positions x_world (B, N_anchored, 3)."""
@@ -295,7 +322,7 @@ class Renderer(nn.Module):
                 raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
             K_tgt, w2c_tgt, K_src, w2c_src = cameras
             x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
-            logit = self._logit_at(x_world, K_tgt, w2c_tgt)
+            logit = self._placed_logit(x_world, centre, K_tgt, w2c_tgt)
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
                 views = 1 if K_src.ndim == 3 else K_src.shape[1]

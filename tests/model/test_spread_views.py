@@ -45,7 +45,8 @@ def test_each_camera_gets_as_many_distinct_cells_as_it_can(blocks, views, cells)
     plain, spread = token_cameras(n, views, cells), token_cameras(n, views, cells, spread=True)
     index = torch.arange(n)
     assert torch.equal(plain, index % views)
-    assert torch.equal(spread, plain) == (math.gcd(views, cells) == 1 or blocks == 1)
+    reach = cells // math.gcd(views, cells)  # distinct cells a camera reaches under i mod V
+    assert torch.equal(spread, plain) == (math.gcd(views, cells) == 1 or -(-n // views) <= reach)
     if cells % views == 0:  # each camera: n / V tokens on min(n / V, P) distinct cells
         for v in range(views):
             mine = index[spread == v]
@@ -63,6 +64,9 @@ def test_four_cameras_of_320_tokens_on_64_cells_each_cover_every_cell():
         assert int((spread == v).sum()) == 80
     eight = token_cameras(320, 8, 64, spread=True)
     assert all(len(set(cells[eight == v].tolist())) == 40 for v in range(8))  # 40 tokens, 40 cells
+    # ten cameras: i mod 10 already gives each camera 32 distinct cells, and shifting would cluster them
+    # (vt4d-tiny 0.11.0, all ten cameras of 20 synthetic captures stored: 22.24 dB shifted, 23.1 before)
+    assert torch.equal(token_cameras(320, 10, 64, spread=True), token_cameras(320, 10, 64))
 
 
 def test_odd_camera_counts_render_exactly_as_without_it_and_even_ones_move_the_anchors():
