@@ -12,7 +12,7 @@ from co4dgen_helpers import SMALL_TOKENIZER
 
 from vt4dcodec.cli import main as vt4d
 from vt4dcodec.cli.generate_commands import split_view_specs
-from vt4dcodec.codec import SceneDecoder
+from vt4dcodec.codec import DEFAULT_ENCODING, SceneDecoder
 from vt4dcodec.errors import CaptureError, ModelMismatchError, TrajectoryError, Vt4dError
 from vt4dcodec.format import load
 from vt4dcodec.generate import generate
@@ -91,7 +91,7 @@ def test_cli_generate_saves_one_sample_and_renders_every_view(capture, trained_p
     result = json.loads(capsys.readouterr().out)
     assert [v["view"] for v in result["views"]] == ["source", "pan:degrees=10", "dolly_in"]
     scene = load(out / "scene.vt4d")
-    assert scene.provenance.kind == "generated" and scene.encoding == "int4"  # one default with encode
+    assert scene.provenance.kind == "generated" and scene.encoding == DEFAULT_ENCODING  # one default with encode
     assert scene.provenance.source_capture_id == capture.capture_id  # `vt4d info` names the capture
     for v in result["views"]:
         with np.load(v["path"], allow_pickle=False) as npz:
