@@ -81,9 +81,10 @@ def token_cameras(n: int, views: int, cells: int, spread: bool = False,
                   device: torch.device | None = None) -> torch.Tensor:
     """(n,) index of the encoded camera (of ``views``) that anchored token i belongs to; its cell is
     i mod ``cells``. i mod V, under which a camera reaches only cells / gcd(V, cells) distinct cells; with
-    ``spread``, when gcd(V, cells) > 1 and a camera has more tokens than that, (i + floor(i / cells)) mod V: each block of
-    ``cells`` tokens shifts by one camera, so each camera's tokens cover distinct cells (config
-    ``spread_views``; 320 tokens on 64 cells: V = 2, 4, 8 spread, V = 10 already has 32 distinct cells)."""
+    ``spread``, when gcd(V, cells) > 1 and a camera has more tokens than that, (i + floor(i / cells)) mod V:
+    each block of ``cells`` tokens shifts by one camera, so each camera's tokens cover distinct cells
+    (config ``spread_views``; 320 tokens on 64 cells: V = 2, 4, 8 spread, V = 10 already has 32 distinct
+    cells each)."""
     index = torch.arange(n, device=device)
     common = math.gcd(views, cells)
     if spread and common > 1 and -(-n // views) > cells // common:
