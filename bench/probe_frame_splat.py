@@ -25,7 +25,7 @@ import torch
 from vt4dcodec import codec
 from vt4dcodec.eval.command import resolve_model
 from vt4dcodec.eval.protocol import nearest_cameras
-from vt4dcodec.model import VideoTok4D
+from vt4dcodec.model.train.ship import reconfigure
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 
@@ -50,8 +50,7 @@ def main() -> int:
     gates = [float(g) for g in args.gate_deg.split(",") if g.strip()]
     gated = {}
     for g in gates:  # the same weights under another frame_gate_deg (the gate has no weights)
-        gated[f"gate{g:g}"] = VideoTok4D(model.config.replace(frame_gate_deg=g)).eval()
-        gated[f"gate{g:g}"].load_state_dict(model.state_dict(), strict=True)
+        gated[f"gate{g:g}"] = reconfigure(model, {"frame_gate_deg": g})
     modes = ["with", "without", *gated]
     scores: dict[str, list[float]] = {f"{s}_{m}": [] for s in ("source", "near") for m in modes}
     for seed in range(args.scenes):

@@ -25,7 +25,7 @@ import torch
 from vt4dcodec import codec
 from vt4dcodec.eval.command import resolve_model
 from vt4dcodec.media import psnr
-from vt4dcodec.model import VideoTok4D
+from vt4dcodec.model.train.ship import reconfigure
 from vt4dcodec.synth import SynthConfig, generate_scene
 
 RIG = 8  # cameras per synthetic scene: V = 2, 4, 8 evenly spaced
@@ -51,10 +51,8 @@ def main() -> int:
     views = [int(v) for v in args.views.split(",") if v.strip()]
     if any(not 2 <= v <= RIG or RIG % v for v in views):
         raise SystemExit(f"--views: each must divide {RIG} and be >= 2, got {args.views!r}")
-    layouts = {"plain": VideoTok4D(model.config.replace(spread_views=False)).eval(),
-               "spread": VideoTok4D(model.config.replace(spread_views=True)).eval()}
-    for net in layouts.values():
-        net.load_state_dict(model.state_dict(), strict=True)
+    layouts = {"plain": reconfigure(model, {"spread_views": False}),
+               "spread": reconfigure(model, {"spread_views": True})}
     scores: dict[str, list[float]] = {}
     for seed in range(args.scenes):
         capture = generate_scene(seed, split="test", config=SynthConfig(num_cameras=RIG)).capture

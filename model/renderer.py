@@ -220,15 +220,15 @@ class Renderer(nn.Module):
         from its encoded camera and from target frame t's camera, s = ``config.frame_gate_deg``. A frame
         copy holds what its cell did as seen along the source trajectory; the gate keeps it where the
         target sees the token from (nearly) the same direction. Arguments as :meth:`projected_logit`."""
-        return self._gate_at(*self.anchor_points(z_s, z_d, K_src, w2c_src), w2c_tgt)
+        return self._gate_from(self._off_axis(*self.anchor_points(z_s, z_d, K_src, w2c_src), w2c_tgt))
 
-    def _gate_at(self, x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
-        """:meth:`frame_gate` of anchors at x_world seen from their cameras' centres (B, N_anchored, 3)."""
+    def _gate_from(self, off_axis: torch.Tensor) -> torch.Tensor:
+        """:meth:`frame_gate` from :meth:`_off_axis`."""
         sigma = math.radians(self.cfg.frame_gate_deg)
-        return torch.exp(-self._one_minus_cos(x_world, centre, w2c_tgt) / sigma ** 2)
+        return torch.exp(-off_axis / sigma ** 2)
 
     @staticmethod
-    def _one_minus_cos(x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
+    def _off_axis(x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
         """(B, T, N_anchored): 1 - cos a, a the angle at each anchor (x_world (B, Na, 3)) between the rays from
         its encoded camera's centre (B, Na, 3) and from target frame t's camera; 2 (1 - cos a) = a^2 + O(a^4)."""
         R, t = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
@@ -237,20 +237,17 @@ class Renderer(nn.Module):
         from_target = F.normalize(x_world[:, None] - target[:, :, None], dim=-1)  # (B, T, Na, 3)
         return 1.0 - (from_target * from_source[:, None]).sum(-1)
 
-    def _view_penalty(self, x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
-        """(B, T, 1, N_anchored) <= 0: the logit term of ``config.view_gate_deg``, -(1 - cos a) / s^2 relative to
-        the anchor seen from the most similar direction in that target frame (so one camera's tokens, all seen
-        alike, keep their weight against the unanchored tokens)."""
-        sigma = math.radians(self.cfg.view_gate_deg)
-        term = self._one_minus_cos(x_world, centre, w2c_tgt) / sigma ** 2
-        return -(term - term.amin(-1, keepdim=True))[:, :, None]
-
-    def _placed_logit(self, x_world: torch.Tensor, centre: torch.Tensor, K_tgt: torch.Tensor,
+    def _placed_logit(self, x_world: torch.Tensor, off_axis: torch.Tensor | None, K_tgt: torch.Tensor,
                       w2c_tgt: torch.Tensor) -> torch.Tensor:
-        """:meth:`projected_logit` of anchors at x_world from cameras at centre (both (B, N_anchored, 3))."""
+        """:meth:`projected_logit` of anchors at x_world (B, N_anchored, 3); ``off_axis`` (:meth:`_off_axis`) is
+        needed with ``config.view_gate_deg``: the logit then loses (1 - cos a) / s^2 relative to the anchor seen
+        from the most similar direction in that target frame (so one camera's tokens, all seen alike, keep
+        their weight against the unanchored tokens)."""
         logit = self._logit_at(x_world, K_tgt, w2c_tgt)
         if self.cfg.view_gate_deg > 0:
-            logit = (logit + self._view_penalty(x_world, centre, w2c_tgt)).clamp_min(FAR_LOGIT)
+            assert off_axis is not None
+            term = off_axis / math.radians(self.cfg.view_gate_deg) ** 2
+            logit = (logit - (term - term.amin(-1, keepdim=True))[:, :, None]).clamp_min(FAR_LOGIT)
         return logit
 
     def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
@@ -263,7 +260,9 @@ class Renderer(nn.Module):
         K_src (B, 3, 3), w2c_src (B, 4, 4): the camera whose image grid anchors the tokens, or
         (B, V, 3, 3), (B, V, 4, 4): the V encoded cameras (:meth:`token_cameras` says whose grid
         anchors each token)."""
-        return self._placed_logit(*self.anchor_points(z_s, z_d, K_src, w2c_src), K_tgt, w2c_tgt)
+        x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
+        off_axis = self._off_axis(x_world, centre, w2c_tgt) if self.cfg.view_gate_deg > 0 else None
+        return self._placed_logit(x_world, off_axis, K_tgt, w2c_tgt)
 
     def _logit_at(self, x_world: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
         """:meth:`projected_logit` of anchors at world positions x_world (B, N_anchored, 3)."""
@@ -322,11 +321,13 @@ class Renderer(nn.Module):
                 raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
             K_tgt, w2c_tgt, K_src, w2c_src = cameras
             x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
-            logit = self._placed_logit(x_world, centre, K_tgt, w2c_tgt)
+            gated = self.cfg.frame_gate_deg > 0 or self.cfg.view_gate_deg > 0
+            off_axis = self._off_axis(x_world, centre, w2c_tgt) if gated else None  # once for both gates
+            logit = self._placed_logit(x_world, off_axis, K_tgt, w2c_tgt)
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
                 views = 1 if K_src.ndim == 3 else K_src.shape[1]
-                gate = self._gate_at(x_world, centre, w2c_tgt) if self.cfg.frame_gate_deg > 0 else None
+                gate = self._gate_from(off_axis) if off_axis is not None and self.cfg.frame_gate_deg > 0 else None
                 splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
                 x = x + self.splat_in(splat)
         else:
