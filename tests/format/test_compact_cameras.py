@@ -14,6 +14,7 @@ from format_strategies import load_vector_tool, simple_scene, trajectories
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import FormatError, MalformedSectionError, UnsupportedFeatureError
 from vt4dcodec.format import Scene, dumps, layout, loads, open_scene
+from vt4dcodec.format.header import CameraLayout
 from vt4dcodec.format.compact_cameras import (REPROJECTION_TOLERANCE_PX, pack_compact_cameras, reprojection_change,
                                               unpack_compact_cameras)
 from vt4dcodec.format.sections import pack_cameras
@@ -150,3 +151,62 @@ def test_hostile_width_byte_is_refused_before_anything_is_allocated():
     cams[3] = bytes([255]) + cams[3][1:]
     with pytest.raises(MalformedSectionError, match="precision"):
         loads(mv.rebuild(header, sections))
+
+
+def _one_frame(K: list, w2c: list) -> Trajectory:
+    return Trajectory(np.array([K], dtype=np.float64), np.array([w2c], dtype=np.float64), 1, 1)
+
+
+# Regression: cameras where one float32 ulp of rotation moves a probe point about the 0.01 px tolerance
+# (fy ~ 1,500-2,300 px, |t| 20-50 m, probes at 0.1 m).  The writer used to decide again from the decoded
+# trajectory and choose differently: float32 matrices re-saved as float64 (the probe metric lifted points
+# with R^T, so a float32 camera "moved" against itself), or as quaternions (the decoded rotation passed where
+# the original had not); a loaded float32 scene then saved to other bytes (file length + 64).
+SENSITIVE = [
+    ([[2.311974851933834, 0.0, -0.44621759190925836], [0.0, 1669.5578810875593, -0.6786959824497463],
+      [0.0, 0.0, 1.0]],
+     [[1.0, 0.0, 0.0, 39.766861045437324], [0.0, -0.9485916724113482, -0.31650251030890963, -20.88052031541904],
+      [0.0, 0.31650251030890963, -0.9485916724113482, -7.090325367154192], [0.0, 0.0, 0.0, 1.0]]),
+    ([[1.429636424675265, 0.0, -0.7447586270078608], [0.0, 1483.5146163483134, -0.5549862681074551],
+      [0.0, 0.0, 1.0]],
+     [[0.9358016795238137, -0.312646458300236, -0.1628723693961875, 47.87584701651077],
+      [0.2958967996287892, 0.9477554659136762, -0.11918330755684979, -25.235130749875736],
+      [0.19162541733770494, 0.0633385265306134, 0.9794222432062084, 8.835738359885164], [0.0, 0.0, 0.0, 1.0]]),
+]
+
+
+@pytest.mark.parametrize("K,w2c", SENSITIVE)
+@pytest.mark.parametrize("quaternions", [False, True])
+def test_compact_cameras_are_a_fixed_point_on_ulp_sensitive_cameras(K, w2c, quaternions):
+    traj = _one_frame(K, w2c)
+    raw = pack_compact_cameras(traj, quaternions=quaternions)
+    back = unpack_compact_cameras(raw, CameraLayout(1, 1, 1, 0, False), quaternions=quaternions)
+    assert reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX
+    assert pack_compact_cameras(back, quaternions=quaternions) == raw
+    scene = with_cameras(traj, encoding="float32")
+    data = dumps(scene, cameras="compact")
+    assert dumps(loads(data), cameras="compact") == data
+
+
+def test_a_camera_does_not_move_against_itself():
+    """The probe metric inverts the stored pose exactly: zero (to rounding) for a float32 rotation that is
+    orthonormal only to ~1e-7, where R^T as the inverse gave several hundredths of a pixel."""
+    traj = _one_frame(*SENSITIVE[0])
+    r32 = Trajectory(traj.K, traj.w2c.astype(np.float32).astype(np.float64), 1, 1)
+    assert reprojection_change(r32, r32) < 1e-6
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.floats(0.5, 3.0), st.floats(100.0, 3000.0), st.floats(-3.0, 3.0),
+       st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda v: np.linalg.norm(v) > 0.1),
+       st.tuples(*[st.floats(-50.0, 50.0)] * 3), st.booleans())
+def test_compact_cameras_of_any_steep_camera_are_a_fixed_point(fx, fy, angle, axis, t, quaternions):
+    axis = np.array(axis) / np.linalg.norm(axis)
+    A = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(angle) * A + (1 - np.cos(angle)) * A @ A  # Rodrigues
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = R, t
+    traj = _one_frame([[fx, 0, 0], [0, fy, 0], [0, 0, 1]], w2c.tolist())
+    raw = pack_compact_cameras(traj, quaternions=quaternions)
+    back = unpack_compact_cameras(raw, CameraLayout(1, 1, 1, 0, False), quaternions=quaternions)
+    assert pack_compact_cameras(back, quaternions=quaternions) == raw

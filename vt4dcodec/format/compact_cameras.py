@@ -26,6 +26,7 @@ instead of 9, which is what brings a default 8-frame scene's non-token bytes und
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -208,7 +209,8 @@ def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = N
 def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     """The largest pixel distance between where camera ``a`` and camera ``b`` (same frame) put the same
     world point, over the reference writer's probe points: a 5 x 5 grid over each frame's image
-    (corner pixels' outer edges included) lifted through ``a`` to depths 0.1, 1, 10 and 100 m.
+    (corner pixels' outer edges included) lifted through ``a`` (its exact inverse) to depths 0.1, 1, 10 and
+    100 m.
     Distortion is ignored (the compact encoding stores it unchanged)."""
     W, H = a.width, a.height
     u, v = np.meshgrid(np.linspace(-0.5, W - 0.5, PROBE_GRID), np.linspace(-0.5, H - 0.5, PROBE_GRID))
@@ -217,7 +219,8 @@ def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     worst = 0.0
     for z in PROBE_DEPTHS_M:
         cam_a = rays * z
-        world = np.einsum("tji,tjp->tip", a.w2c[:, :3, :3], cam_a - a.w2c[:, :3, 3:])  # R^T (x - t)
+        world = np.linalg.solve(a.w2c[:, :3, :3], cam_a - a.w2c[:, :3, 3:])  # R^-1 (x - t), not R^T: a float32
+        # rotation is orthonormal only to ~1e-7, and R^T would move the points of a camera against itself
         cam_b = np.einsum("tij,tjp->tip", b.w2c[:, :3, :3], world) + b.w2c[:, :3, 3:]
         proj = np.einsum("tij,tjp->tip", b.K, cam_b)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -231,26 +234,36 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
     """The compact cameras payload of ``traj``.  ``mode`` "exact": float64 matrices (the trajectory reads
     back bit for bit); "compact": the first of float32 quaternion poses (only with ``quaternions``, which a
     compact container allows), float32 matrices and float64 matrices whose decoded trajectory is valid and
-    moves no probe point more than 0.01 px (:func:`reprojection_change`)."""
+    moves no probe point more than 0.01 px (:func:`reprojection_change`), and for which this same choice made
+    on the decoded trajectory gives the same payload again -- so loading a file and saving it again writes
+    the same bytes; float64 matrices when no float32 candidate qualifies."""
     if mode not in ("compact", "exact"):
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
-        candidates: list[np.ndarray | None] = [None]
-        if quaternions:
-            w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
-            q = canonical_float32_quaternions(w2c[:, :3, :3])
-            candidates = [q, None] if q is not None else [None]
-        for quat in candidates:
-            raw = _encode(traj, 4, quat)
-            try:
-                back = _decode(raw, traj.num_frames, traj.width, traj.height,
-                               0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
-                               quaternions=quat is not None)
-            except MalformedSectionError:
-                back = None  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
-            if back is not None and reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
+        for raw, back in _within_tolerance(traj, quaternions):
+            if next(_within_tolerance(back, quaternions), (None, None))[0] == raw:
                 return raw
     return _encode(traj, 8)
+
+
+def _within_tolerance(traj: Trajectory, quaternions: bool) -> Iterator[tuple[bytes, Trajectory]]:
+    """(payload, decoded trajectory) of each float32 candidate, in the writer's order (quaternion poses when
+    ``quaternions``, then matrices), whose decoded trajectory is valid and within the probe tolerance."""
+    candidates: list[np.ndarray | None] = [None]
+    if quaternions:
+        w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
+        q = canonical_float32_quaternions(w2c[:, :3, :3])
+        candidates = [q, None] if q is not None else [None]
+    for quat in candidates:
+        raw = _encode(traj, 4, quat)
+        try:
+            back = _decode(raw, traj.num_frames, traj.width, traj.height,
+                           0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
+                           quaternions=quat is not None)
+        except MalformedSectionError:
+            continue  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
+        if reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
+            yield raw, back
 
 
 def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: int, has_timestamps: bool, *,
