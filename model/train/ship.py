@@ -4,6 +4,9 @@
         --version 0.1.0 [--dest model/weights] [--notes docs/card_notes.md] [--decoder-from runs/aeD] \
         [--set spread_views=true]
 
+Without ``--autoencoder-run`` (a run warm-started from the shipped model, its autoencoder frozen) the
+card carries over the stage-1 record of the model it replaces, after checking the autoencoders are equal.
+
 Reads the stage-2 run's final model (``<run>/model``, written by ``train.tokenizer``), rounds its
 weights to float16 storage (half the file; loaded as float32), and writes
 ``<dest>/<id>/{config.json, model.safetensors, MODEL_CARD.md}``.  The card is generated from the runs'
@@ -59,14 +62,23 @@ def _pairs_text(args: dict) -> str:
             f"(reconstruction), else another camera {near}")
 
 
-def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint: dict, notes: str,
-               decoder_run: Path | None = None, shipped_set: dict | None = None) -> str:
+def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fingerprint: dict, notes: str,
+               decoder_run: Path | None = None, shipped_set: dict | None = None,
+               stage1_lines: list[str] | None = None) -> str:
+    """The card's text. ``ae_run`` None: the stage-1 lines are ``stage1_lines``, taken from the card of the
+    shipped predecessor whose autoencoder this model kept (:func:`inherited_stage1_lines`)."""
     state = json.loads((run / "checkpoint" / "state.json").read_text())
     args, cfg = state["args"], {**state["config"], **(shipped_set or {})}
     tok = _log_summary(run / "log.jsonl")
-    ae = _log_summary(ae_run / "log.jsonl")
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
-    ae_info = json.loads((ae_run / "autoencoder.json").read_text()) if (ae_run / "autoencoder.json").is_file() else {}
+    if ae_run is not None:
+        ae = _log_summary(ae_run / "log.jsonl")
+        ae_info = json.loads((ae_run / "autoencoder.json").read_text()) if (ae_run / "autoencoder.json").is_file() else {}
+        stage1 = [f"- stage 1 autoencoder: {ae['steps']} steps, batch 32 frames, {ae['wall_seconds'] / 60:.0f} min "
+                  f"wall; reconstruction PSNR {ae_info.get('sample_psnr_db', float('nan')):.2f} dB on 256 training "
+                  "frames"]
+    else:
+        stage1 = list(stage1_lines or [])
     params = ", ".join(f"{k}={v}" for k, v in sorted(cfg.items()))
     lines = [
         f"# {model_id} {version}",
@@ -82,8 +94,7 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
         f"- config: {params}",
         "",
         "## Training (reproduce with the commands in docs/training.md)",
-        f"- stage 1 autoencoder: {ae['steps']} steps, batch 32 frames, {ae['wall_seconds'] / 60:.0f} min wall; "
-        f"reconstruction PSNR {ae_info.get('sample_psnr_db', float('nan')):.2f} dB on 256 training frames",
+        *stage1,
         f"- stage 2 tokenizer + renderer: {tok['steps']} steps, batch {args['batch_size']}, lr {args['lr']} "
         f"(warm-up {args['warmup']}, cosine), bf16 autocast={args['bf16']}, {tok['wall_seconds'] / 60:.0f} min "
         f"wall on the 2-core CPU machine shared with other jobs; training loss "
@@ -116,6 +127,28 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path, fingerprint
                      f"{summary.get('mean_psnr_db', float('nan')):.2f} dB ({summary.get('render_steps')} Euler steps)")
     lines += ["", notes.strip(), ""] if notes.strip() else [""]
     return "\n".join(lines)
+
+
+def inherited_stage1_lines(model: VideoTok4D, predecessor: Path) -> list[str]:
+    """The stage-1 lines (autoencoder, decoder fine-tune) of the card of the shipped model in ``predecessor``,
+    for a model trained on from it whose frozen autoencoder is still exactly that model's (float16 storage),
+    so the card can say how the autoencoder was trained without its run directory. ModelError otherwise."""
+    card = predecessor / "MODEL_CARD.md"
+    try:
+        own = from_pretrained(predecessor).autoencoder.state_dict()
+        text = card.read_text()
+    except (OSError, ModelError) as exc:
+        raise ModelError(f"no --autoencoder-run and no shipped predecessor to take the stage-1 record from "
+                         f"({predecessor}: {exc})") from None
+    new = model.autoencoder.state_dict()
+    if set(own) != set(new) or any(not torch.equal(own[k].half().float(), new[k].half().float()) for k in own):
+        raise ModelError(f"the model's autoencoder is not the one shipped in {predecessor}: give --autoencoder-run")
+    lines = [line for line in text.splitlines()
+             if line.startswith(("- stage 1 autoencoder:", "- decoder fine-tuned alone"))]
+    if not lines:
+        raise ModelError(f"{card} has no stage-1 line: give --autoencoder-run")
+    version = json.loads((predecessor / "config.json").read_text()).get("model_version", "?")
+    return [f"{line} (kept from {predecessor.name} {version})" for line in lines]
 
 
 def swap_decoder(model: VideoTok4D, weights: Path) -> None:
@@ -156,7 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.ship", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", type=Path, required=True, help="stage-2 run directory (holds model/)")
-    parser.add_argument("--autoencoder-run", type=Path, required=True, help="stage-1 run directory")
+    parser.add_argument("--autoencoder-run", type=Path, default=None,
+                        help="stage-1 run directory; without it the model must keep the autoencoder of the model "
+                             "it replaces in --dest, whose card's stage-1 record is carried over")
     parser.add_argument("--id", required=True, help="model id, e.g. vt4d-tiny")
     parser.add_argument("--version", required=True)
     parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="directory of shipped models")
@@ -176,11 +211,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.decoder_from is not None:
         swap_decoder(model, args.decoder_from / AE_WEIGHTS)
     notes = args.notes.read_text() if args.notes else ""
+    stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
                           storage_dtype="float16", decode_steps=args.decode_steps)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
-                                                        args.decoder_from, overrides))
+                                                        args.decoder_from, overrides, stage1))
     size = (out / "model.safetensors").stat().st_size
     print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB)")
     return 0

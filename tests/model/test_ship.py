@@ -61,3 +61,24 @@ def test_set_at_ship_time_keeps_the_weights_refuses_fields_that_need_new_ones_an
                       shipped_set={"spread_views": True})
     assert "set at ship time, no weights added (trained without them): spread_views=True" in card
     assert "spread_views=True" in card.split("- config: ")[1].splitlines()[0]
+
+
+def test_without_an_autoencoder_run_the_card_carries_the_predecessors_stage_1_record(tmp_path):
+    from vt4dcodec.model.train.ship import inherited_stage1_lines
+    from vt4dcodec.model.weights_io import save_pretrained
+    torch.manual_seed(0)
+    model = VideoTok4D(get_config("tiny", **SMALL)).eval()
+    shipped = save_pretrained(model, tmp_path / "weights" / "vt4d-tiny", model_id="vt4d-tiny", model_version="1.2.3",
+                              storage_dtype="float16")
+    (shipped / "MODEL_CARD.md").write_text("# vt4d-tiny 1.2.3\n- stage 1 autoencoder: 3000 steps, 26 min wall\n"
+                                           "- decoder fine-tuned alone afterwards: 4000 steps\n- other\n")
+    lines = inherited_stage1_lines(model, shipped)
+    assert lines == ["- stage 1 autoencoder: 3000 steps, 26 min wall (kept from vt4d-tiny 1.2.3)",
+                     "- decoder fine-tuned alone afterwards: 4000 steps (kept from vt4d-tiny 1.2.3)"]
+    card = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok"), None, FINGERPRINT, "", stage1_lines=lines)
+    assert lines[0] in card and lines[1] in card
+    other = VideoTok4D(get_config("tiny", **SMALL)).eval()  # fresh random autoencoder: not the shipped one
+    with pytest.raises(ModelError, match="not the one shipped"):
+        inherited_stage1_lines(other, shipped)
+    with pytest.raises(ModelError, match="no --autoencoder-run"):
+        inherited_stage1_lines(model, tmp_path / "nowhere")
