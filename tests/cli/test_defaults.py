@@ -18,7 +18,7 @@ def _default(command: str, dest: str):
 
 
 def test_encode_and_generate_share_one_default_encoding():
-    assert GENERATED_ENCODING == codec.DEFAULT_ENCODING == "int4-rans"
+    assert GENERATED_ENCODING == codec.DEFAULT_ENCODING == "int4"
     assert _default("encode", "encoding") == _default("generate", "encoding") == codec.DEFAULT_ENCODING
     import inspect
 
