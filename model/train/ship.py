@@ -148,7 +148,8 @@ def inherited_stage1_lines(model: VideoTok4D, predecessor: Path) -> list[str]:
     if not lines:
         raise ModelError(f"{card} has no stage-1 line: give --autoencoder-run")
     version = json.loads((predecessor / "config.json").read_text()).get("model_version", "?")
-    return [f"{line} (kept from {predecessor.name} {version})" for line in lines]
+    # a record carried over before keeps naming the version whose run it came from
+    return [line if " (kept from " in line else f"{line} (kept from {predecessor.name} {version})" for line in lines]
 
 
 def swap_decoder(model: VideoTok4D, weights: Path) -> None:

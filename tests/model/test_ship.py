@@ -77,6 +77,8 @@ def test_without_an_autoencoder_run_the_card_carries_the_predecessors_stage_1_re
                      "- decoder fine-tuned alone afterwards: 4000 steps (kept from vt4d-tiny 1.2.3)"]
     card = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok"), None, FINGERPRINT, "", stage1_lines=lines)
     assert lines[0] in card and lines[1] in card
+    (shipped / "MODEL_CARD.md").write_text(card)  # shipped again from that card: the record names 1.2.3 once
+    assert inherited_stage1_lines(model, shipped) == lines
     other = VideoTok4D(get_config("tiny", **SMALL)).eval()  # fresh random autoencoder: not the shipped one
     with pytest.raises(ModelError, match="not the one shipped"):
         inherited_stage1_lines(other, shipped)
