@@ -28,24 +28,26 @@ import json
 import cv2
 import numpy as np
 
-from vt4dcodec.eval.baselines import INPAINT_RADIUS_PX, _splat_one
+from vt4dcodec.eval.baselines import INPAINT_RADIUS_PX, forward_warp
 from vt4dcodec.eval.metrics import video_metrics
 from vt4dcodec.eval.protocol import EvalSettings, axis_angles_deg, make_scene, set_sources, set_targets
 
 
 def composite_warp(sources: list[tuple[np.ndarray, np.ndarray, object]], target: object) -> np.ndarray:
-    """(T, H, W, 3) uint8: per frame, each source's splat fills the pixels the earlier ones left empty."""
-    T = target.num_frames
-    out = np.zeros((T, target.height, target.width, 3), np.uint8)
-    for t in range(T):
-        hole = np.ones((target.height, target.width), bool)
-        for frames, depth, traj in sources:
-            img, miss = _splat_one(frames[t], depth[t], traj.K[t], traj.w2c[t], target.K[t], target.w2c[t], False)
-            fill = hole & ~miss
-            out[t][fill] = img[fill]
-            hole &= miss
-        if hole.any() and not hole.all():
-            out[t] = cv2.inpaint(out[t], hole.astype(np.uint8), INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
+    """(T, H, W, 3) uint8: each source's z-buffered warp (:func:`forward_warp`, no inpainting) fills the
+    pixels the earlier ones left empty; what no source reaches is inpainted as the single-source baseline does."""
+    out, hole = None, None
+    for frames, depth, traj in sources:
+        warp = forward_warp(frames, depth, traj, target, inpaint=False)
+        if out is None:
+            out, hole = warp.frames.copy(), warp.holes.copy()
+            continue
+        fill = hole & ~warp.holes
+        out[fill] = warp.frames[fill]
+        hole &= warp.holes
+    for t in range(len(out)):
+        if hole[t].any() and not hole[t].all():
+            out[t] = cv2.inpaint(out[t], hole[t].astype(np.uint8), INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
     return out
 
 
@@ -64,15 +66,15 @@ def main() -> None:
         names = list(cap.camera_names)
         angles = axis_angles_deg(np.stack([cap.cameras[n].w2c[0] for n in names]))
         mean = np.mean([cap.frames[n].reshape(-1, 3).mean(0) for n in encoded], axis=0).round().astype(np.uint8)
+        still = {}  # each encoded camera as a picture that does not move: per-pixel time mean and median depth
+        for e in encoded:
+            T = cap.frames[e].shape[0]
+            colour = cap.frames[e].astype(np.float32).mean(0, keepdims=True).round().astype(np.uint8)
+            still[e] = (np.repeat(colour, T, 0), np.repeat(np.median(cap.depth[e], axis=0, keepdims=True), T, 0))
         for name in targets:
             order = sorted(encoded, key=lambda e: angles[names.index(name), names.index(e)])
             per_frame = [(cap.frames[e], cap.depth[e], cap.cameras[e]) for e in order]
-            static = []
-            for e in order:
-                T = cap.frames[e].shape[0]
-                colour = np.repeat(cap.frames[e].astype(np.float32).mean(0, keepdims=True).round().astype(np.uint8), T, 0)
-                depth = np.repeat(np.median(cap.depth[e], axis=0, keepdims=True), T, 0)
-                static.append((colour, depth, cap.cameras[e]))
+            static = [(*still[e], cap.cameras[e]) for e in order]
             truth, mask = cap.frames[name], sc.dynamic_mask[name]
             preds = {"warp_frames": composite_warp(per_frame, cap.cameras[name]),
                      "warp_time_mean": composite_warp(static, cap.cameras[name]),

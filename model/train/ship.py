@@ -30,7 +30,7 @@ from safetensors.torch import load_file
 from vt4dcodec.errors import ModelError
 
 from ..videotok4d import VideoTok4D
-from ..weights_io import SHIPPED_DIR, from_pretrained, save_pretrained
+from ..weights_io import SHIPPED_DIR, from_pretrained, read_model_meta, save_pretrained
 from .autoencoder import AE_WEIGHTS
 from .common import parse_overrides
 
@@ -73,7 +73,8 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
     if ae_run is not None:
         ae = _log_summary(ae_run / "log.jsonl")
-        ae_info = json.loads((ae_run / "autoencoder.json").read_text()) if (ae_run / "autoencoder.json").is_file() else {}
+        info_file = ae_run / "autoencoder.json"
+        ae_info = json.loads(info_file.read_text()) if info_file.is_file() else {}
         stage1 = [f"- stage 1 autoencoder: {ae['steps']} steps, batch 32 frames, {ae['wall_seconds'] / 60:.0f} min "
                   f"wall; reconstruction PSNR {ae_info.get('sample_psnr_db', float('nan')):.2f} dB on 256 training "
                   "frames"]
@@ -147,7 +148,7 @@ def inherited_stage1_lines(model: VideoTok4D, predecessor: Path) -> list[str]:
              if line.startswith(("- stage 1 autoencoder:", "- decoder fine-tuned alone"))]
     if not lines:
         raise ModelError(f"{card} has no stage-1 line: give --autoencoder-run")
-    version = json.loads((predecessor / "config.json").read_text()).get("model_version", "?")
+    version = read_model_meta(predecessor).get("model_version", "?")
     # a record carried over before keeps naming the version whose run it came from
     return [line if " (kept from " in line else f"{line} (kept from {predecessor.name} {version})" for line in lines]
 
