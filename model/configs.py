@@ -173,6 +173,12 @@ class ModelConfig(_Config):
         degrees: the splat has no depth order, so with several encoded cameras a token holding the far
         side of an object (seen from across the scene) lands on the near side's pixels; the gate lets the
         tokens seen from the target's direction win. Renderer only, no weights. 0 = off.
+        pixel_splat: with token_splat, each of a token's p x p latent pixels is placed on its own (the
+        sub-pixel's ray at the token's depth, projected into the target frame) with a Gaussian of
+        ``locality_sigma`` latent pixels, instead of the whole patch snapping to the render-patch grid:
+        a forward warp at latent-pixel precision. At the source camera it renders (nearly) as the patch
+        splat, so a warm start keeps its source view; elsewhere the patch splat is off by up to half a
+        cell (4 image pixels) and blends the tokens between two patches. Renderer only, no weights.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
         motion_isolation: False replaces the motion mask with ones.
@@ -214,6 +220,7 @@ class ModelConfig(_Config):
     frame_gate_deg: float = 0.0
     spread_views: bool = False
     view_gate_deg: float = 0.0
+    pixel_splat: bool = False
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -221,7 +228,7 @@ class ModelConfig(_Config):
                                                "anchor_views": False, "token_splat": False,
                                                "token_from_cell": False, "frame_copies": False,
                                                "frame_gate_deg": 0.0, "spread_views": False,
-                                               "view_gate_deg": 0.0}
+                                               "view_gate_deg": 0.0, "pixel_splat": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -287,6 +294,10 @@ class ModelConfig(_Config):
             raise ModelError(f"config view_gate_deg must be a number of degrees in [0, 180], got {self.view_gate_deg!r}")
         if self.view_gate_deg > 0 and not self.project_anchors:
             raise ModelError("config view_gate_deg needs project_anchors (it weighs the anchors by where they are seen from)")
+        if not isinstance(self.pixel_splat, bool):
+            raise ModelError(f"config pixel_splat must be true or false, got {self.pixel_splat!r}")
+        if self.pixel_splat and not self.token_splat:
+            raise ModelError("config pixel_splat needs token_splat (it places the splatted tokens' latent pixels)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -30,6 +30,12 @@ View gate (``config.view_gate_deg``): each anchored token's locality logit (atte
 loses (1 - cos a) / s^2, a the angle at the token between the rays from its encoded camera and from the
 target, relative to the best-aligned token of that target frame: with several encoded cameras, a token
 described from the other side of the scene yields to those seen from nearly the target's direction.
+
+Pixel splat (``config.pixel_splat``): the splat works on latent pixels instead of render patches. Each of a
+token's p x p latent pixels sits on its own ray of the encoded camera at the token's depth, is projected
+into the target frame, and spreads over the latent grid with a Gaussian of ``locality_sigma`` latent
+pixels (view gate and dropped tokens as above), normalised per latent pixel over all tokens' pixels plus
+the floor: a forward warp of the tokens' content at latent-pixel precision.
 """
 
 from __future__ import annotations
@@ -193,12 +199,15 @@ class Renderer(nn.Module):
         bias[:, :locality_heads(cfg.heads), :, :self.n_anchored] = logit.reshape(B, 1, T * P, self.n_anchored)
         return bias
 
-    def anchor_points(self, z_s: torch.Tensor, z_d: torch.Tensor, K_src: torch.Tensor,
-                      w2c_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def anchor_points(self, z_s: torch.Tensor, z_d: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
+                      offsets: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """World positions (B, N_anchored, 3) of the anchored tokens (each on its cell's ray of its encoded
         camera at :meth:`anchor_depths`) and the centres (B, N_anchored, 3) of those cameras, metres.
-        K_src, w2c_src as :meth:`projected_logit`."""
+        K_src, w2c_src as :meth:`projected_logit`. With ``offsets`` (q, 2) (u, v image pixels from the cell
+        centre) the positions are (B, N_anchored, q, 3): those pixels' rays at the token's depth."""
         cfg = self.cfg
+        if offsets is not None:
+            return self._offset_points(z_s, z_d, K_src, w2c_src, offsets)
         if K_src.ndim == 3:
             K_src, w2c_src = K_src[:, None], w2c_src[:, None]
         B = K_src.shape[0]
@@ -213,6 +222,92 @@ class Renderer(nn.Module):
         R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
         x_world = torch.einsum("bnji,bnj->bni", R, x_cam - t)  # R^T (x - t)
         return x_world, -torch.einsum("bnji,bnj->bni", R, t)
+
+    def _offset_points(self, z_s: torch.Tensor, z_d: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
+                       offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`anchor_points` with ``offsets``."""
+        cfg = self.cfg
+        if K_src.ndim == 3:
+            K_src, w2c_src = K_src[:, None], w2c_src[:, None]
+        cam = self.token_cameras(K_src.shape[1])
+        K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, Na, 3, 3), (B, Na, 4, 4)
+        cell_px = cfg.image_size / cfg.patches_per_side
+        uv = (self.anchor_cells.flip(-1) * cell_px - 0.5)[:, None] + offsets.to(K_tok)[None]  # (Na, q, 2)
+        pix = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)  # (Na, q, 3)
+        depth = self.anchor_depths(z_s, z_d, w2c_tok)  # (B, Na)
+        rays = torch.einsum("bnij,nqj->bnqi", torch.linalg.inv(K_tok), pix)  # z = 1
+        x_cam = rays * depth[..., None, None]
+        R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
+        x_world = torch.einsum("bnji,bnqj->bnqi", R, x_cam - t[:, :, None])  # R^T (x - t)
+        return x_world, -torch.einsum("bnji,bnj->bni", R, t)
+
+    def pixel_offsets(self) -> torch.Tensor:
+        """(p p, 2) (u, v) image-pixel offsets of a render patch's latent pixels from its centre, row-major
+        (the order of :func:`layers.patchify`)."""
+        p, f = self.cfg.renderer_patch, self.cfg.ae_downsample
+        step = (torch.arange(p, dtype=torch.float32, device=self.anchor_cells.device) - (p - 1) / 2) * f
+        rows, cols = torch.meshgrid(step, step, indexing="ij")
+        return torch.stack([cols, rows], dim=-1).reshape(-1, 2)
+
+    def pixel_placement(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
+                        K_src: torch.Tensor, w2c_src: torch.Tensor,
+                        view_term: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Where ``config.pixel_splat`` puts latent pixel q of anchored token n (:meth:`pixel_offsets`) in
+        target frame t, as the separable factors of its Gaussian weight over the h x w latent grid, sigma
+        ``locality_sigma`` latent pixels: (ey (B, T, Na, q, h), ex (B, T, Na, q, w), f (B, T, Na, q)),
+        weight(y, x) = f ey[y] ex[x]; f is 0 behind the camera and exp(-``view_term``) (B, T, Na), the view
+        gate's logit penalty, elsewhere. Cameras as :meth:`projected_logit`."""
+        cfg = self.cfg
+        x_world, _ = self.anchor_points(z_s, z_d, K_src, w2c_src, self.pixel_offsets())  # (B, Na, q, 3)
+        Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
+        x_tgt = torch.einsum("btij,bnqj->btnqi", Rt, x_world) + tt[:, :, None, None]  # (B, T, Na, q, 3)
+        proj = torch.einsum("btij,btnqj->btnqi", K_tgt.float(), x_tgt)
+        z = proj[..., 2]
+        at = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / cfg.ae_downsample  # latent px (x, y)
+        centres = torch.arange(cfg.latent_size, dtype=at.dtype, device=at.device) + 0.5
+        scale = 2.0 * cfg.locality_sigma ** 2
+        ex = torch.exp(-(centres - at[..., 0:1]) ** 2 / scale)
+        ey = torch.exp(-(centres - at[..., 1:2]) ** 2 / scale)
+        f = (z > 1e-3).to(ex.dtype)
+        if view_term is not None:
+            f = f * torch.exp(-view_term.float())[..., None]
+        return ey, ex, f
+
+    def splat_pixels(self, z_s: torch.Tensor, z_d: torch.Tensor,
+                     placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor], keep: torch.Tensor | None,
+                     views: int = 1, gate: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`splat_latent` at latent-pixel precision (placement from :meth:`pixel_placement`): each latent
+        pixel gets the weighted sum of the tokens' pixel contents, weights normalised over all tokens' pixels
+        plus SPLAT_FLOOR; returns (B, T, P, C p p) like :meth:`splat_latent`."""
+        assert self.splat is not None
+        cfg = self.cfg
+        ey, ex, f = placement
+        B, T, Na, q, h = ey.shape
+        p, C = cfg.renderer_patch, cfg.latent_channels
+        tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
+        if keep is not None:
+            f = f * keep[:, None, :self.n_anchored, None].to(f.dtype)
+        rows = (f[..., None] * ey).reshape(B, T, Na * q, h)
+        cols = ex.reshape(B, T, Na * q, -1)
+
+        def splat(linear: nn.Linear, x: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:  # (B, T, C, h, w)
+            content = linear(x).float().reshape(B, Na, C, q).transpose(2, 3).reshape(B, 1, Na * q, C)
+            weighted = (rows[..., None] * content[:, :, :, None]).reshape(B, T, Na * q, h * C)
+            return (weighted.transpose(2, 3) @ cols).reshape(B, T, h, C, -1).transpose(2, 3)
+
+        def total(rows: torch.Tensor) -> torch.Tensor:  # (B, T, 1, h, w): sum of weights + floor
+            return (rows.transpose(2, 3) @ cols)[:, :, None] + SPLAT_FLOOR
+
+        out = splat(self.splat, tokens, rows) / total(rows)
+        if self.splat_frames is not None:
+            covers = self.copy_frames(views)[:, :T].T.to(f.dtype)  # (T, Na)
+            rows = rows * covers.repeat_interleave(q, dim=1)[None, :, :, None]
+            norm = total(rows)
+            if gate is not None:
+                rows = rows * gate.to(rows.dtype).repeat_interleave(q, dim=2)[..., None]
+            change = self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype)
+            out = out + splat(self.splat_frames, change, rows) / norm
+        return patchify(out, p)
 
     def frame_gate(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                    K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
@@ -246,9 +341,14 @@ class Renderer(nn.Module):
         logit = self._logit_at(x_world, K_tgt, w2c_tgt)
         if self.cfg.view_gate_deg > 0:
             assert off_axis is not None
-            term = off_axis / math.radians(self.cfg.view_gate_deg) ** 2
-            logit = (logit - (term - term.amin(-1, keepdim=True))[:, :, None]).clamp_min(FAR_LOGIT)
+            logit = (logit - self._view_term(off_axis)[:, :, None]).clamp_min(FAR_LOGIT)
         return logit
+
+    def _view_term(self, off_axis: torch.Tensor) -> torch.Tensor:
+        """(B, T, N_anchored) logit penalty of ``config.view_gate_deg`` from :meth:`_off_axis`: (1 - cos a) / s^2
+        minus its lowest value in that target frame."""
+        term = off_axis / math.radians(self.cfg.view_gate_deg) ** 2
+        return term - term.amin(-1, keepdim=True)
 
     def projected_logit(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                         K_src: torch.Tensor, w2c_src: torch.Tensor) -> torch.Tensor:
@@ -328,7 +428,12 @@ class Renderer(nn.Module):
             if self.splat is not None:
                 views = 1 if K_src.ndim == 3 else K_src.shape[1]
                 gate = self._gate_from(off_axis) if off_axis is not None and self.cfg.frame_gate_deg > 0 else None
-                splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
+                if self.cfg.pixel_splat:
+                    view_term = self._view_term(off_axis) if self.cfg.view_gate_deg > 0 else None
+                    placement = self.pixel_placement(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src, view_term)
+                    splat = self.splat_pixels(z_s, z_d, placement, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
+                else:
+                    splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)
                 x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p
