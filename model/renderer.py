@@ -35,7 +35,9 @@ Pixel splat (``config.pixel_splat``): the splat works on latent pixels instead o
 token's p x p latent pixels sits on its own ray of the encoded camera at the token's depth, is projected
 into the target frame, and spreads over the latent grid with a Gaussian of ``locality_sigma`` latent
 pixels (view gate and dropped tokens as above), normalised per latent pixel over all tokens' pixels plus
-the floor: a forward warp of the tokens' content at latent-pixel precision.
+the floor: a forward warp of the tokens' content at latent-pixel precision. With ``config.patch_gate_deg`` a
+share exp(-a^2 / 2 s^2) of each token (a as for the view gate) goes through the patch splat instead: tokens
+seen from near their own camera's direction keep the patch splat's snapping to their cell.
 """
 
 from __future__ import annotations
@@ -275,10 +277,12 @@ class Renderer(nn.Module):
 
     def splat_pixels(self, z_s: torch.Tensor, z_d: torch.Tensor,
                      placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor], keep: torch.Tensor | None,
-                     views: int = 1, gate: torch.Tensor | None = None) -> torch.Tensor:
+                     views: int = 1, gate: torch.Tensor | None = None,
+                     share: torch.Tensor | None = None) -> torch.Tensor:
         """:meth:`splat_latent` at latent-pixel precision (placement from :meth:`pixel_placement`): each latent
         pixel gets the weighted sum of the tokens' pixel contents, weights normalised over all tokens' pixels
-        plus SPLAT_FLOOR; returns (B, T, P, C p p) like :meth:`splat_latent`."""
+        plus SPLAT_FLOOR, then scaled by ``share`` (B, T, N_anchored) if given; returns (B, T, P, C p p) like
+        :meth:`splat_latent`."""
         assert self.splat is not None
         cfg = self.cfg
         ey, ex, f = placement
@@ -298,7 +302,9 @@ class Renderer(nn.Module):
         def total(rows: torch.Tensor) -> torch.Tensor:  # (B, T, 1, h, w): sum of weights + floor
             return (rows.transpose(2, 3) @ cols)[:, :, None] + SPLAT_FLOOR
 
-        out = splat(self.splat, tokens, rows) / total(rows)
+        shared = (lambda r: r) if share is None else \
+            (lambda r: r * share.to(r.dtype).repeat_interleave(q, dim=2)[..., None])
+        out = splat(self.splat, tokens, shared(rows)) / total(rows)
         if self.splat_frames is not None:
             covers = self.copy_frames(views)[:, :T].T.to(f.dtype)  # (T, Na)
             rows = rows * covers.repeat_interleave(q, dim=1)[None, :, :, None]
@@ -306,7 +312,7 @@ class Renderer(nn.Module):
             if gate is not None:
                 rows = rows * gate.to(rows.dtype).repeat_interleave(q, dim=2)[..., None]
             change = self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype)
-            out = out + splat(self.splat_frames, change, rows) / norm
+            out = out + splat(self.splat_frames, change, shared(rows)) / norm
         return patchify(out, p)
 
     def frame_gate(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
@@ -379,18 +385,22 @@ class Renderer(nn.Module):
         return torch.where(in_front[:, :, None], logit, torch.full_like(logit, FAR_LOGIT))
 
     def splat_latent(self, z_s: torch.Tensor, z_d: torch.Tensor, logit: torch.Tensor,
-                     keep: torch.Tensor | None, views: int = 1, gate: torch.Tensor | None = None) -> torch.Tensor:
+                     keep: torch.Tensor | None, views: int = 1, gate: torch.Tensor | None = None,
+                     share: torch.Tensor | None = None) -> torch.Tensor:
         """The token splat (B, T, P, C p p): each render patch's weighted sum of its anchored tokens'
         linear patch content; weights exp(logit) / (sum over tokens + SPLAT_FLOOR), dropped tokens
         (``keep`` False) weigh nothing. With ``config.frame_copies`` plus, in target frame t, the frame
         copies covering t (:meth:`copy_frames` for ``views`` encoded cameras): the frame map of their
-        :meth:`frame_difference`, normalised alike over those copies."""
+        :meth:`frame_difference`, normalised alike over those copies. ``share`` (B, T, N_anchored) scales each
+        token's normalised weight (``config.patch_gate_deg``)."""
         assert self.splat is not None
         tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
         g = torch.exp(logit.float())  # (B, T, P, Na)
         if keep is not None:
             g = g * keep[:, None, None, :self.n_anchored].to(g.dtype)
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
+        if share is not None:
+            weights = weights * share[:, :, None].to(weights.dtype)
         splat = torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), self.splat(tokens))
         if self.splat_frames is None:
             return splat
@@ -399,6 +409,8 @@ class Renderer(nn.Module):
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
         if gate is not None:
             weights = weights * gate[:, :, None].to(weights.dtype)
+        if share is not None:
+            weights = weights * share[:, :, None].to(weights.dtype)
         change = self.splat_frames(self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype))
         return splat + torch.einsum("btpn,bnc->btpc", weights.to(tokens.dtype), change)
 
@@ -421,7 +433,7 @@ class Renderer(nn.Module):
                 raise RuntimeError("a renderer with projected anchors needs the target and source cameras")
             K_tgt, w2c_tgt, K_src, w2c_src = cameras
             x_world, centre = self.anchor_points(z_s, z_d, K_src, w2c_src)
-            gated = self.cfg.frame_gate_deg > 0 or self.cfg.view_gate_deg > 0
+            gated = self.cfg.frame_gate_deg > 0 or self.cfg.view_gate_deg > 0 or self.cfg.patch_gate_deg > 0
             off_axis = self._off_axis(x_world, centre, w2c_tgt) if gated else None  # once for both gates
             logit = self._placed_logit(x_world, off_axis, K_tgt, w2c_tgt)
             bias = self._bias_from_logit(logit).to(x.dtype)
@@ -431,7 +443,15 @@ class Renderer(nn.Module):
                 if self.cfg.pixel_splat:
                     view_term = self._view_term(off_axis) if self.cfg.view_gate_deg > 0 else None
                     placement = self.pixel_placement(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src, view_term)
-                    splat = self.splat_pixels(z_s, z_d, placement, keep, views, gate).to(x.dtype)  # (B, T, P, C p p)
+                    share = None
+                    if self.cfg.patch_gate_deg > 0:  # near its own camera's direction a token keeps the patch splat
+                        assert off_axis is not None
+                        share = torch.exp(-off_axis / math.radians(self.cfg.patch_gate_deg) ** 2)
+                    splat = self.splat_pixels(z_s, z_d, placement, keep, views, gate,
+                                              None if share is None else 1.0 - share)
+                    if share is not None:
+                        splat = splat + self.splat_latent(z_s, z_d, logit, keep, views, gate, share)
+                    splat = splat.to(x.dtype)  # (B, T, P, C p p)
                 else:
                     splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)
                 x = x + self.splat_in(splat)

@@ -150,3 +150,44 @@ def test_forward_and_gradients_are_finite_with_a_camera_behind_the_scene():
                                 K.expand(2, 3, 3), w2c.expand(2, 4, 4)))
     out.sum().backward()
     assert torch.isfinite(out).all() and torch.isfinite(z_s.grad).all()
+
+
+def test_patch_gate_config_is_checked():
+    base = get_config("tiny", **SMALL, pixel_splat=True)
+    assert get_config("tiny", **SMALL, pixel_splat=True, patch_gate_deg=0.0).sha256() == base.sha256()
+    for bad in (-1.0, 181.0, True, "5"):
+        with pytest.raises(ModelError, match="patch_gate_deg"):
+            get_config("tiny", **SMALL, pixel_splat=True, patch_gate_deg=bad)
+    with pytest.raises(ModelError, match="patch_gate_deg"):
+        get_config("tiny", **SMALL, patch_gate_deg=5.0)
+
+
+def test_patch_gate_keeps_the_patch_splat_at_the_source_camera_and_the_pixel_splat_far_from_it():
+    """The renderer's output with patch_gate_deg: at the encoded camera every token is seen along its own ray
+    (share 1), so the render equals the patch splat model's; seen from 60 degrees away (share ~e^-72) it
+    equals the pixel splat model's."""
+    torch.manual_seed(0)
+    nets = {}
+    for name, extra in (("patch", {}), ("pixel", {"pixel_splat": True}),
+                        ("gated", {"pixel_splat": True, "patch_gate_deg": 5.0})):
+        nets[name] = VideoTok4D(get_config("tiny", **SMALL, **extra)).eval()
+    nets["patch"].renderer.splat.weight.data.normal_()
+    for net in nets.values():
+        net.load_state_dict(nets["patch"].state_dict())  # no new weights
+    z_s, z_d = tokens()
+    K, w2c = camera()
+    turned = torch.eye(4)  # 60 degrees around the y axis through the origin, same distance
+    c, s = 0.5, 3 ** 0.5 / 2
+    turned[:3, :3] = torch.tensor([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    turned[2, 3] = DEPTH
+    y = torch.randn(2, 4, net.config.latent_channels, 8, 8)
+    rays = torch.zeros(2, 4, 6, 8, 8)
+
+    def render(name: str, w2c_tgt: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return nets[name].renderer(y, z_s, z_d, rays, torch.ones(2), cameras=(
+                K.expand(2, 4, 3, 3), w2c_tgt.expand(2, 4, 4, 4), K.expand(2, 3, 3), w2c.expand(2, 4, 4)))
+
+    assert torch.allclose(render("gated", w2c), render("patch", w2c), atol=1e-5)
+    assert torch.allclose(render("gated", turned), render("pixel", turned), atol=1e-5)
+    assert not torch.allclose(render("patch", turned), render("pixel", turned), atol=1e-3)
