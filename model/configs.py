@@ -43,6 +43,22 @@ def _require_positive_ints(config: Any, keys: Any, label: str) -> None:
             raise ModelError(f"{label} {key} must be a positive integer, got {value!r}")
 
 
+def _require_bools(config: Any, keys: Any) -> None:
+    """ModelError unless every model-config field in ``keys`` is true or false."""
+    for key in keys:
+        value = getattr(config, key)
+        if not isinstance(value, bool):
+            raise ModelError(f"config {key} must be true or false, got {value!r}")
+
+
+def _require_degrees(config: Any, keys: Any) -> None:
+    """ModelError unless every model-config field in ``keys`` is a number (not a bool) of degrees in [0, 180]."""
+    for key in keys:
+        value = getattr(config, key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 180.0:
+            raise ModelError(f"config {key} must be a number of degrees in [0, 180], got {value!r}")
+
+
 class _Config:
     """Serialization shared by the frozen config dataclasses below.
 
@@ -261,54 +277,32 @@ class ModelConfig(_Config):
         if isinstance(self.locality_sigma, bool) or not isinstance(self.locality_sigma, (int, float)) \
                 or not 0.0 <= self.locality_sigma < 1e6:
             raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
-        if not isinstance(self.query_from_grid, bool):
-            raise ModelError(f"config query_from_grid must be true or false, got {self.query_from_grid!r}")
+        _require_bools(self, ("query_from_grid", "project_anchors", "anchor_views", "token_splat", "token_from_cell",
+                              "frame_copies", "spread_views", "pixel_splat"))
+        _require_degrees(self, ("frame_gate_deg", "view_gate_deg", "patch_gate_deg"))
         if self.query_from_grid and not self.locality_sigma > 0:
             raise ModelError("config query_from_grid needs locality_sigma > 0 (it reads each query's anchor cell)")
-        if not isinstance(self.project_anchors, bool):
-            raise ModelError(f"config project_anchors must be true or false, got {self.project_anchors!r}")
         if self.project_anchors and not self.locality_sigma > 0:
             raise ModelError("config project_anchors needs locality_sigma > 0 (it moves the locality prior)")
-        if not isinstance(self.anchor_views, bool):
-            raise ModelError(f"config anchor_views must be true or false, got {self.anchor_views!r}")
         if self.anchor_views and not self.project_anchors:
             raise ModelError("config anchor_views needs project_anchors (it places tokens in their own camera)")
-        if not isinstance(self.token_splat, bool):
-            raise ModelError(f"config token_splat must be true or false, got {self.token_splat!r}")
         if self.token_splat and not (self.project_anchors and self.prediction == "x0"):
             raise ModelError("config token_splat needs project_anchors and prediction x0 (it adds the tokens "
                              "where they project to the renderer's clean-latent estimate)")
-        if not isinstance(self.token_from_cell, bool):
-            raise ModelError(f"config token_from_cell must be true or false, got {self.token_from_cell!r}")
         if self.token_from_cell and (not self.project_anchors or self.unified_tokens):
             raise ModelError("config token_from_cell needs project_anchors and separate static tokens (it reads "
                              "each anchored static token's own cell)")
-        if not isinstance(self.frame_copies, bool):
-            raise ModelError(f"config frame_copies must be true or false, got {self.frame_copies!r}")
         if self.frame_copies and not (self.token_from_cell and self.token_splat):
             raise ModelError("config frame_copies needs token_from_cell and token_splat (it feeds each copy its "
                              "frame group's cell and splats it in those frames)")
-        if isinstance(self.frame_gate_deg, bool) or not isinstance(self.frame_gate_deg, (int, float)) \
-                or not 0.0 <= self.frame_gate_deg <= 180.0:
-            raise ModelError(f"config frame_gate_deg must be a number of degrees in [0, 180], got {self.frame_gate_deg!r}")
         if self.frame_gate_deg > 0 and not self.frame_copies:
             raise ModelError("config frame_gate_deg needs frame_copies (it weighs the frame copies' splat)")
-        if not isinstance(self.spread_views, bool):
-            raise ModelError(f"config spread_views must be true or false, got {self.spread_views!r}")
         if self.spread_views and not self.anchor_views:
             raise ModelError("config spread_views needs anchor_views (it says which encoded camera holds each token)")
-        if isinstance(self.view_gate_deg, bool) or not isinstance(self.view_gate_deg, (int, float)) \
-                or not 0.0 <= self.view_gate_deg <= 180.0:
-            raise ModelError(f"config view_gate_deg must be a number of degrees in [0, 180], got {self.view_gate_deg!r}")
         if self.view_gate_deg > 0 and not self.project_anchors:
             raise ModelError("config view_gate_deg needs project_anchors (it weighs the anchors by where they are seen from)")
-        if not isinstance(self.pixel_splat, bool):
-            raise ModelError(f"config pixel_splat must be true or false, got {self.pixel_splat!r}")
         if self.pixel_splat and not self.token_splat:
             raise ModelError("config pixel_splat needs token_splat (it places the splatted tokens' latent pixels)")
-        if isinstance(self.patch_gate_deg, bool) or not isinstance(self.patch_gate_deg, (int, float)) \
-                or not 0.0 <= self.patch_gate_deg <= 180.0:
-            raise ModelError(f"config patch_gate_deg must be a number of degrees in [0, 180], got {self.patch_gate_deg!r}")
         if self.patch_gate_deg > 0 and not self.pixel_splat:
             raise ModelError("config patch_gate_deg needs pixel_splat (it shares each token between the two splats)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):

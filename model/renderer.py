@@ -208,40 +208,23 @@ class Renderer(nn.Module):
         K_src, w2c_src as :meth:`projected_logit`. With ``offsets`` (q, 2) (u, v image pixels from the cell
         centre) the positions are (B, N_anchored, q, 3): those pixels' rays at the token's depth."""
         cfg = self.cfg
-        if offsets is not None:
-            return self._offset_points(z_s, z_d, K_src, w2c_src, offsets)
         if K_src.ndim == 3:
             K_src, w2c_src = K_src[:, None], w2c_src[:, None]
         B = K_src.shape[0]
         cam = self.token_cameras(K_src.shape[1])
         K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, Na, 3, 3), (B, Na, 4, 4)
         cell_px = cfg.image_size / cfg.patches_per_side  # image pixels per encoder patch
-        # anchor centres in pixel coordinates (u = col, v = row; pixel centres at integers)
-        uv = self.anchor_cells.flip(-1) * cell_px - 0.5  # (Na, 2)
-        pix = torch.cat([uv, torch.ones_like(uv[:, :1])], dim=-1)  # (Na, 3)
-        depth = self.anchor_depths(z_s, z_d, w2c_tok)  # (B, Na)
-        x_cam = torch.linalg.solve(K_tok, pix.expand(B, -1, -1)[..., None])[..., 0] * depth[..., None]  # (B, Na, 3)
-        R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
-        x_world = torch.einsum("bnji,bnj->bni", R, x_cam - t)  # R^T (x - t)
-        return x_world, -torch.einsum("bnji,bnj->bni", R, t)
-
-    def _offset_points(self, z_s: torch.Tensor, z_d: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
-                       offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`anchor_points` with ``offsets``."""
-        cfg = self.cfg
-        if K_src.ndim == 3:
-            K_src, w2c_src = K_src[:, None], w2c_src[:, None]
-        cam = self.token_cameras(K_src.shape[1])
-        K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, Na, 3, 3), (B, Na, 4, 4)
-        cell_px = cfg.image_size / cfg.patches_per_side
-        uv = (self.anchor_cells.flip(-1) * cell_px - 0.5)[:, None] + offsets.to(K_tok)[None]  # (Na, q, 2)
+        # anchor centres in pixel coordinates (u = col, v = row; pixel centres at integers), q per token
+        uv = (self.anchor_cells.flip(-1) * cell_px - 0.5)[:, None]  # (Na, 1, 2)
+        if offsets is not None:
+            uv = uv + offsets.to(uv)[None]  # (Na, q, 2)
         pix = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)  # (Na, q, 3)
         depth = self.anchor_depths(z_s, z_d, w2c_tok)  # (B, Na)
-        rays = torch.einsum("bnij,nqj->bnqi", torch.linalg.inv(K_tok), pix)  # z = 1
-        x_cam = rays * depth[..., None, None]
+        rays = torch.linalg.solve(K_tok[:, :, None], pix.expand(B, -1, -1, -1)[..., None])[..., 0]  # z = 1
+        x_cam = rays * depth[..., None, None]  # (B, Na, q, 3)
         R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
         x_world = torch.einsum("bnji,bnqj->bnqi", R, x_cam - t[:, :, None])  # R^T (x - t)
-        return x_world, -torch.einsum("bnji,bnj->bni", R, t)
+        return x_world if offsets is not None else x_world[:, :, 0], -torch.einsum("bnji,bnj->bni", R, t)
 
     def pixel_offsets(self) -> torch.Tensor:
         """(p p, 2) (u, v) image-pixel offsets of a render patch's latent pixels from its centre, row-major
@@ -302,15 +285,18 @@ class Renderer(nn.Module):
         def total(rows: torch.Tensor) -> torch.Tensor:  # (B, T, 1, h, w): sum of weights + floor
             return (rows.transpose(2, 3) @ cols)[:, :, None] + SPLAT_FLOOR
 
-        shared = (lambda r: r) if share is None else \
-            (lambda r: r * share.to(r.dtype).repeat_interleave(q, dim=2)[..., None])
+        def per_pixel(x: torch.Tensor) -> torch.Tensor:  # (B | 1, T, Na) per token -> (B | 1, T, Na q, 1)
+            return x.to(rows.dtype).repeat_interleave(q, dim=2)[..., None]
+
+        def shared(r: torch.Tensor) -> torch.Tensor:
+            return r if share is None else r * per_pixel(share)
+
         out = splat(self.splat, tokens, shared(rows)) / total(rows)
         if self.splat_frames is not None:
-            covers = self.copy_frames(views)[:, :T].T.to(f.dtype)  # (T, Na)
-            rows = rows * covers.repeat_interleave(q, dim=1)[None, :, :, None]
+            rows = rows * per_pixel(self.copy_frames(views)[:, :T].T[None])  # the copies covering frame t
             norm = total(rows)
             if gate is not None:
-                rows = rows * gate.to(rows.dtype).repeat_interleave(q, dim=2)[..., None]
+                rows = rows * per_pixel(gate)
             change = self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype)
             out = out + splat(self.splat_frames, change, shared(rows)) / norm
         return patchify(out, p)
@@ -321,12 +307,14 @@ class Renderer(nn.Module):
         from its encoded camera and from target frame t's camera, s = ``config.frame_gate_deg``. A frame
         copy holds what its cell did as seen along the source trajectory; the gate keeps it where the
         target sees the token from (nearly) the same direction. Arguments as :meth:`projected_logit`."""
-        return self._gate_from(self._off_axis(*self.anchor_points(z_s, z_d, K_src, w2c_src), w2c_tgt))
+        off_axis = self._off_axis(*self.anchor_points(z_s, z_d, K_src, w2c_src), w2c_tgt)
+        return self._gate_from(off_axis, self.cfg.frame_gate_deg)
 
-    def _gate_from(self, off_axis: torch.Tensor) -> torch.Tensor:
-        """:meth:`frame_gate` from :meth:`_off_axis`."""
-        sigma = math.radians(self.cfg.frame_gate_deg)
-        return torch.exp(-off_axis / sigma ** 2)
+    @staticmethod
+    def _gate_from(off_axis: torch.Tensor, degrees: float) -> torch.Tensor:
+        """exp(-a^2 / 2 s^2) from :meth:`_off_axis` (1 - cos a = a^2 / 2), s ``degrees``: :meth:`frame_gate`
+        with ``config.frame_gate_deg``, the patch splat's share with ``config.patch_gate_deg``."""
+        return torch.exp(-off_axis / math.radians(degrees) ** 2)
 
     @staticmethod
     def _off_axis(x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
@@ -439,14 +427,15 @@ class Renderer(nn.Module):
             bias = self._bias_from_logit(logit).to(x.dtype)
             if self.splat is not None:
                 views = 1 if K_src.ndim == 3 else K_src.shape[1]
-                gate = self._gate_from(off_axis) if off_axis is not None and self.cfg.frame_gate_deg > 0 else None
+                gate = self._gate_from(off_axis, self.cfg.frame_gate_deg) \
+                    if off_axis is not None and self.cfg.frame_gate_deg > 0 else None
                 if self.cfg.pixel_splat:
                     view_term = self._view_term(off_axis) if self.cfg.view_gate_deg > 0 else None
                     placement = self.pixel_placement(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src, view_term)
                     share = None
                     if self.cfg.patch_gate_deg > 0:  # near its own camera's direction a token keeps the patch splat
                         assert off_axis is not None
-                        share = torch.exp(-off_axis / math.radians(self.cfg.patch_gate_deg) ** 2)
+                        share = self._gate_from(off_axis, self.cfg.patch_gate_deg)
                     splat = self.splat_pixels(z_s, z_d, placement, keep, views, gate,
                                               None if share is None else 1.0 - share)
                     if share is not None:

@@ -180,7 +180,7 @@ def test_patch_gate_keeps_the_patch_splat_at_the_source_camera_and_the_pixel_spl
     c, s = 0.5, 3 ** 0.5 / 2
     turned[:3, :3] = torch.tensor([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
     turned[2, 3] = DEPTH
-    y = torch.randn(2, 4, net.config.latent_channels, 8, 8)
+    y = torch.randn(2, 4, nets["patch"].config.latent_channels, 8, 8)
     rays = torch.zeros(2, 4, 6, 8, 8)
 
     def render(name: str, w2c_tgt: torch.Tensor) -> torch.Tensor:
