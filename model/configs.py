@@ -202,7 +202,11 @@ class ModelConfig(_Config):
         (trained on the pixel splat alone, vt4d-tiny's source view lost 0.6 dB while its held-out cameras
         gained 0.15). Renderer only, no weights. 0 = off.
     Ablations (same token budget):
-        unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch.
+        unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
+            token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
+            their frame copies and splats, as in the full model) and the last N_d are free Spatial Branch
+            queries in place of the Temporal Branch's Z_d (one bottleneck, one token type): the recipe of
+            the full model without disentanglement.
         motion_isolation: False replaces the motion mask with ones.
         track_attention: False attends along fixed grid positions instead of tracks.
     """
@@ -289,9 +293,9 @@ class ModelConfig(_Config):
         if self.token_splat and not (self.project_anchors and self.prediction == "x0"):
             raise ModelError("config token_splat needs project_anchors and prediction x0 (it adds the tokens "
                              "where they project to the renderer's clean-latent estimate)")
-        if self.token_from_cell and (not self.project_anchors or self.unified_tokens):
-            raise ModelError("config token_from_cell needs project_anchors and separate static tokens (it reads "
-                             "each anchored static token's own cell)")
+        if self.token_from_cell and not self.project_anchors:
+            raise ModelError("config token_from_cell needs project_anchors (it reads each anchored static token's "
+                             "own cell)")
         if self.frame_copies and not (self.token_from_cell and self.token_splat):
             raise ModelError("config frame_copies needs token_from_cell and token_splat (it feeds each copy its "
                              "frame group's cell and splats it in those frames)")
@@ -334,6 +338,14 @@ class ModelConfig(_Config):
     @property
     def dynamic_shape(self) -> tuple[int, int]:
         return (self.n_dynamic, self.token_dim)
+
+    @property
+    def n_anchored(self) -> int:
+        """Tokens anchored on the encoder grid when locality_sigma > 0: the N_s static tokens; with
+        unified_tokens all N_s + N_d, unless token_from_cell keeps the last N_d free."""
+        if self.unified_tokens and not self.token_from_cell:
+            return self.n_static + self.n_dynamic
+        return self.n_static
 
     @property
     def token_floats(self) -> int:

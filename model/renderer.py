@@ -82,7 +82,7 @@ class Renderer(nn.Module):
         self.n_anchored = 0
         if cfg.locality_sigma > 0:  # render patch j prefers the static tokens anchored near it (configs)
             cells = grid_positions(cfg.patches_per_side)  # encoder grid, in encoder patches
-            self.n_anchored = n_tokens if cfg.unified_tokens else cfg.n_static
+            self.n_anchored = cfg.n_anchored
             anchors = cells[torch.arange(self.n_anchored) % cells.shape[0]]
             patches = grid_positions(cfg.renderer_patches_per_side, cfg.renderer_patch / cfg.patch_size)
             if cfg.project_anchors:  # anchors (row, col) in encoder patches; patch centres likewise

@@ -51,9 +51,11 @@ class SpatialBranch(nn.Module):
         self.query_bias = None
         self.query_content: nn.Linear | None = None
         self.anchor_views, self.spread_views = cfg.anchor_views, cfg.spread_views
-        if cfg.locality_sigma > 0:  # static query i anchored at grid cell i mod P (configs.ModelConfig)
+        self.n_anchored = 0
+        if cfg.locality_sigma > 0:  # static query i < N_anchored anchored at grid cell i mod P (configs.ModelConfig)
+            self.n_anchored = min(cfg.n_anchored, n_queries)  # the rest (unified ablation's Z_d) read anywhere
             cells = grid_positions(cfg.patches_per_side)
-            self.register_buffer("anchor", torch.arange(n_queries) % cells.shape[0], persistent=False)
+            self.register_buffer("anchor", torch.arange(self.n_anchored) % cells.shape[0], persistent=False)
             self.query_bias = nn.Parameter(locality_prior(cells[self.anchor], cells, cfg.heads, cfg.locality_sigma))
             if cfg.query_from_grid:  # zero map: a model warm-started without it begins unchanged
                 self.query_content = nn.Linear(D, D)
@@ -76,20 +78,24 @@ class SpatialBranch(nn.Module):
         S = B // views
         grid = x.reshape(S, views * T * P, D)  # camera-aware feature grids of a scene's cameras (V T P)
         q = self.queries[None].expand(S, -1, -1)
+        na = self.n_anchored
         own = self.anchor_views and views > 1
         if own:
-            camera = token_cameras(q.shape[1], views, P, self.spread_views, x.device)  # each query's camera
+            camera = token_cameras(na, views, P, self.spread_views, x.device)  # each anchored query's camera
         if self.query_content is not None:  # + W * mean over frames of the anchor cell's feature
             cells = x.reshape(S, views, T, P, D).mean(2)  # (S, V, P, D)
             cell = cells[:, camera, self.anchor] if own else cells.mean(1)[:, self.anchor]
-            q = q + self.query_content(cell)
+            q = torch.cat([q[:, :na] + self.query_content(cell), q[:, na:]], dim=1)
         bias = None
-        if self.query_bias is not None:  # (heads, n_queries, P) -> (heads, n_queries, V T P)
+        if self.query_bias is not None:  # (heads, N_anchored, P) -> (heads, n_queries, V T P)
             per_camera = self.query_bias[:, :, None, None, :].expand(-1, -1, views, T, -1)
             if own:  # other cameras' cells: the bias of the query's farthest cell in its own camera
                 mine = (camera[:, None] == torch.arange(views, device=x.device)[None])[None, :, :, None, None]
                 per_camera = torch.where(mine, per_camera, self.query_bias.amin(-1)[:, :, None, None, None])
-            bias = per_camera.reshape(self.query_bias.shape[0], q.shape[1], views * T * P)
+            heads = self.query_bias.shape[0]
+            bias = per_camera.reshape(heads, na, views * T * P)
+            if na < q.shape[1]:  # free queries: no bias
+                bias = torch.cat([bias, bias.new_zeros(heads, q.shape[1] - na, views * T * P)], dim=1)
         for block in self.query_blocks:
             q = block(q, grid, bias=bias)
         return q

@@ -179,12 +179,14 @@ class VideoTok4D(ModelIdentity, nn.Module):
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
         rays = self.rays(batch.K, batch.w2c)
         static_states = self.spatial_branch(x, rays, views=V)
-        if self.temporal_branch is None:
+        if self.temporal_branch is None:  # unified ablation: Z_d is the Spatial Branch's last N_d queries
             a = self.static_bottleneck.preactivation(static_states)
-            return a[:, :cfg.n_static], a[:, cfg.n_static:]
-        dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid,
-                                              views=V)
-        a_s = self.static_bottleneck.preactivation(static_states)
+            a_s, a_d = a[:, :cfg.n_static], a[:, cfg.n_static:]
+        else:
+            dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid,
+                                                  views=V)
+            a_s = self.static_bottleneck.preactivation(static_states)
+            a_d = self.dynamic_bottleneck.preactivation(dynamic_states)
         if self.cell_direct is not None:
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
@@ -193,7 +195,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
             change = self.token_frame_cells(x, V)  # zero for the time-average copies
             a_s = a_s + self.cell_frames(change.to(self.cell_frames.weight.dtype)).float() \
                 * (covers.sum(1) > 0)[None, :, None]
-        return a_s, self.dynamic_bottleneck.preactivation(dynamic_states)
+        return a_s, a_d
 
     def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
         cfg = self.config

@@ -175,6 +175,21 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
     return model
 
 
+def fresh_on_saved_autoencoder(cfg: ModelConfig, name_or_path: str) -> VideoTok4D:
+    """Fresh tokenizer weights on the frozen stage-1 autoencoder of a saved model (shipped id or
+    directory): training a tokenizer from scratch without re-running stage 1."""
+    source = from_pretrained(name_or_path)
+    model = VideoTok4D(cfg)
+    state = source.autoencoder.state_dict()
+    expected = model.autoencoder.state_dict()
+    if set(state) != set(expected) or any(state[k].shape != expected[k].shape for k in state):
+        raise ModelError(f"--autoencoder-from {name_or_path}: its autoencoder does not fit this config "
+                         f"(latent_channels, ae_width, ae_downsample must match)")
+    model.autoencoder.load_state_dict({k: v.float() for k, v in state.items()})
+    model.freeze_autoencoder()
+    return model
+
+
 def build_model(cfg: ModelConfig, autoencoder: Path) -> VideoTok4D:
     model = VideoTok4D(cfg)
     load_autoencoder(model, autoencoder)
@@ -187,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     common_arguments(parser)
     parser.add_argument("--autoencoder", type=Path, default=None,
                         help="stage-1 autoencoder.safetensors (not needed with --init)")
+    parser.add_argument("--autoencoder-from", default=None, metavar="MODEL",
+                        help="train from scratch on the frozen autoencoder of a saved model (shipped id or "
+                             "model directory) instead of a stage-1 file")
     parser.add_argument("--model-id", default="vt4d-tiny")
     parser.add_argument("--model-version", default="0.1.0")
     parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end")
@@ -236,12 +254,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--cell-weight must be >= 0 and needs --set token_splat=true (it trains the splat's read)")
     args.out.mkdir(parents=True, exist_ok=True)
 
+    starts = [flag for flag, value in (("--init", args.init), ("--autoencoder", args.autoencoder),
+                                       ("--autoencoder-from", args.autoencoder_from)) if value is not None]
+    if len(starts) != 1:
+        parser.error("give one of --init (a saved model to continue), --autoencoder (a stage-1 output) or "
+                     f"--autoencoder-from (a saved model whose autoencoder a fresh tokenizer uses); got {starts or 'none'}")
     if args.init is not None:
         model = warm_start_model(cfg, args.init, partial=args.init_partial)  # a checkpoint in --out, if any, still wins (train_loop)
     elif args.autoencoder is not None:
         model = build_model(cfg, args.autoencoder)
     else:
-        parser.error("give --autoencoder (a stage-1 output) or --init (a saved model, autoencoder included)")
+        model = fresh_on_saved_autoencoder(cfg, args.autoencoder_from)
     optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
     pool, seeds = scene_pool_and_seeds(args, cfg, info)

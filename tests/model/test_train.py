@@ -203,6 +203,29 @@ def test_stage2_continues_a_saved_model_with_init(runs, tmp_path):
         stage2.main(["--out", str(tmp_path / "y"), "--steps", "1", "--cache", str(runs / "cache"), *COMMON])
 
 
+def test_stage2_from_scratch_on_a_saved_models_autoencoder(runs, tmp_path):
+    """--autoencoder-from: a fresh tokenizer on the frozen autoencoder of a saved model; one start flag only."""
+    first = tmp_path / "first"
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(first),
+                        "--steps", "1", "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"),
+                        *COMMON]) == 0
+    out = tmp_path / "scratch"
+    assert stage2.main(["--autoencoder-from", str(first / "model"), "--out", str(out), "--steps", "1",
+                        "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0",
+                        "--warmup", "1", "--seed", "7", *COMMON, "unified_tokens=true"]) == 0
+    saved, fresh = from_pretrained(first / "model"), from_pretrained(out / "model")
+    assert fresh.config.unified_tokens and not saved.config.unified_tokens
+    a, b = saved.state_dict(), fresh.state_dict()
+    assert all(torch.equal(a[k].float(), b[k].float()) for k in b if k.startswith("autoencoder."))
+    assert not torch.equal(a["spatial_branch.queries"][:4], b["spatial_branch.queries"][:4])  # fresh weights
+    with pytest.raises(ModelError, match="autoencoder does not fit"):
+        stage2.main(["--autoencoder-from", str(first / "model"), "--out", str(tmp_path / "x"), "--steps", "1",
+                     "--cache", str(runs / "cache"), *COMMON, "ae_width=4"])
+    with pytest.raises(SystemExit):  # two starts
+        stage2.main(["--init", str(first / "model"), "--autoencoder-from", str(first / "model"),
+                     "--out", str(tmp_path / "y"), "--steps", "1", "--cache", str(runs / "cache"), *COMMON])
+
+
 def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(runs, tmp_path):
     """--init-partial: a renderer with smaller patches starts from a saved model's other tensors; with
     --multi-share 1 every batch encodes several cameras, and --pixel-weight adds the decoded-pixel loss."""
