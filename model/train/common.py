@@ -156,14 +156,20 @@ def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
 
 def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None
                     ) -> dict[str, Any] | None:
-    """Restore a checkpoint written by :func:`save_checkpoint`; None when there is no complete one."""
+    """Restore a checkpoint written by :func:`save_checkpoint`; None when there is no complete one.
+
+    A checkpoint without ``optimizer.pt`` (the weights and state.json committed to carry a run to
+    another machine, ``checkpoints/README.md``) restores the weights and leaves ``optimizer`` fresh; the
+    returned state then says ``"fresh_optimizer": True`` and :func:`train_loop` re-warms the learning rate."""
     state_json = directory / "state.json"
     if not state_json.is_file():
         return None
     try:
         state = json.loads(state_json.read_text())
         module.load_state_dict(load_file(str(directory / "model.safetensors")), strict=True)
-        if optimizer is not None:
+        if optimizer is not None and not (directory / "optimizer.pt").exists():
+            state["fresh_optimizer"] = True
+        elif optimizer is not None:
             optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))
     except (OSError, ValueError, RuntimeError, KeyError) as exc:
         raise ModelError(f"cannot resume from {directory}: {exc}") from None
@@ -278,6 +284,9 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     ckpt = out / "checkpoint"
     state = load_checkpoint(ckpt, trained, optimizer)
     start = int(state["step"]) if state else 0
+    rewarm = bool(state and state.get("fresh_optimizer")) and start > 0
+    if rewarm and info.is_main:  # Adam's moments start over: ramp the schedule's rate up again
+        print(f"resuming at step {start} without optimizer state: learning rate re-warmed over {args.warmup} steps")
     log = JsonlLog(out / "log.jsonl", enabled=info.is_main)
     if info.is_main:  # drop records a crash left after the last checkpoint
         kept = [r for r in log.read() if r.get("step", -1) <= start]
@@ -288,8 +297,11 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     t0 = time.time()
     module.train()
     for step in bar:
+        lr = lr_at(step, args.lr, args.warmup, args.steps)
+        if rewarm:
+            lr *= min(1.0, (step - start + 1) / max(1, args.warmup))
         for group in optimizer.param_groups:
-            group["lr"] = lr_at(step, args.lr, args.warmup, args.steps)
+            group["lr"] = lr
         batch = next(batches)
         with autocast(args.bf16):
             loss, logs = step_fn(module, batch)

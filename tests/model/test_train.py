@@ -55,6 +55,21 @@ def test_stage1_writes_weights_log_plot_and_resumes(runs):
     assert len(stats["latent_std"]) == 4 and all(s > 0 for s in stats["latent_std"])
 
 
+def test_a_checkpoint_without_optimizer_state_resumes_with_a_rewarmed_rate(runs, tmp_path):
+    """The committed form of a run (weights + state.json, no optimizer.pt) resumes on another machine:
+    the weights are kept, Adam starts over and the learning rate ramps up again over --warmup steps."""
+    out = tmp_path / "ae"
+    args = ["--out", str(out), "--batch-size", "4", "--cache", str(runs / "cache"), "--lr", "1e-3", *COMMON]
+    assert stage1.main([*args, "--steps", "2"]) == 0
+    (out / "checkpoint" / "optimizer.pt").unlink()
+    assert stage1.main([*args, "--steps", "4"]) == 0
+    log = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4]
+    assert log[2]["lr"] == pytest.approx(lr_at(2, 1e-3, 2, 4) / 2)  # warm-up 2: half the rate at the first step
+    assert log[3]["lr"] == pytest.approx(lr_at(3, 1e-3, 2, 4))
+    assert (out / "checkpoint" / "optimizer.pt").is_file()  # the next checkpoint is complete again
+
+
 def test_stage2_trains_and_saves_a_loadable_model(runs):
     out = runs / "tok"
     assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out),
