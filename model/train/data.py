@@ -18,6 +18,8 @@ or, with ``captures``, from capture directories on disk (e.g. written by ``vt4d 
 from __future__ import annotations
 
 import functools
+import itertools
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -292,6 +294,35 @@ def axis_angles_deg(w2c: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(z @ z.T, -1.0, 1.0)))
 
 
+SPREAD_SEARCH_MAX = 20_000  # camera sets searched by spread_cameras before it falls back to greedy
+
+
+def spread_cameras(angles: np.ndarray, first: int, views: int) -> list[int]:
+    """``views`` cameras spread over a rig, ``first`` among them: of the sets holding ``first``, the one whose
+    closest two optical axes (``angles`` (C, C) degrees, :func:`axis_angles_deg`) are farthest apart, ties
+    to the larger sum of each camera's angle to its nearest other, then the first in index order. On a
+    ring of evenly spaced cameras with ``views`` dividing C this is every (C / views)-th camera. Returned
+    as ``first``, then the others in index order."""
+    others = [c for c in range(angles.shape[0]) if c != first]
+    if math.comb(len(others), views - 1) > SPREAD_SEARCH_MAX:  # large rigs: greedy farthest point
+        chosen = [first]
+        while len(chosen) < views:
+            nearest = angles[:, chosen].min(axis=1)
+            nearest[chosen] = -1.0
+            chosen.append(int(np.argmax(nearest)))
+        return [first, *sorted(chosen[1:])]
+    best, best_key = None, None
+    for rest in itertools.combinations(others, views - 1):
+        cams = [first, *rest]
+        sub = angles[np.ix_(cams, cams)] + np.diag(np.full(len(cams), np.inf))
+        nearest = sub.min(axis=1)
+        key = (round(float(nearest.min()), 6), round(float(nearest.sum()), 6))
+        if best_key is None or key > best_key:
+            best, best_key = cams, key
+    assert best is not None
+    return best
+
+
 class PairDataset(Dataset):
     """Stage 2: (source camera, target camera) pairs of one event of the pool's scenes.
 
@@ -302,17 +333,23 @@ class PairDataset(Dataset):
     overlap the source. Draws use torch's RNG (seeded per DataLoader worker).
 
     Multi-camera items: indexed with ``(index, V)`` (see :class:`ViewsBatchSampler`) an item encodes V
-    cameras of the event -- the index's camera first, then V - 1 others drawn at random -- and its
-    target is one of them with probability ``recon_share``, else a camera that was not encoded, drawn
-    with weight exp(-angle to the nearest encoded camera / ``neighbour_sigma_deg``).
+    cameras of the event -- the index's camera first, then V - 1 others drawn at random, or with
+    probability ``spread_share`` spread over the rig (:func:`spread_cameras`, what a user who encodes a
+    subset of a rig picks) -- and its target is one of them with probability ``recon_share``, else a
+    camera that was not encoded, drawn with weight exp(-angle to the nearest encoded camera /
+    ``neighbour_sigma_deg``).
     """
 
     def __init__(self, pool: ScenePool, seeds: list[int], *, recon_share: float = 0.0,
-                 neighbour_sigma_deg: float | None = None, latent_key: str | None = None) -> None:
+                 neighbour_sigma_deg: float | None = None, latent_key: str | None = None,
+                 spread_share: float = 0.0) -> None:
         if pool.cameras < 2:
             raise ValueError("stage 2 needs at least 2 cameras per scene")
         if not 0.0 <= recon_share <= 1.0 or (neighbour_sigma_deg is not None and not neighbour_sigma_deg > 0):
             raise ValueError("recon_share must be in [0, 1] and neighbour_sigma_deg > 0")
+        if not 0.0 <= spread_share <= 1.0:
+            raise ValueError("spread_share must be in [0, 1]")
+        self.spread_share = float(spread_share)
         self.pool, self.seeds = pool, list(seeds)
         self.recon_share, self.sigma = float(recon_share), neighbour_sigma_deg
         self.latent_key = latent_key
@@ -350,9 +387,12 @@ class PairDataset(Dataset):
         if views > 1:
             if not self.sampled:
                 raise ValueError("multi-camera items need a sampled dataset (recon_share or neighbour_sigma_deg)")
-            rest = [c for c in range(self.pool.cameras) if c != src]
-            pick = torch.randperm(len(rest))[:views - 1].tolist()
-            encoded += [rest[i] for i in pick]
+            if float(torch.rand(())) < self.spread_share:
+                encoded = spread_cameras(axis_angles_deg(scene["w2c"]), src, views)
+            else:
+                rest = [c for c in range(self.pool.cameras) if c != src]
+                pick = torch.randperm(len(rest))[:views - 1].tolist()
+                encoded += [rest[i] for i in pick]
         if self.sampled:
             tgt = self._draw_target(src, scene["w2c"], encoded)
         sources = self.pool.source_inputs(seed, encoded)

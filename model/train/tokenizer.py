@@ -236,6 +236,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="share of batches that encode several cameras of the event into one token set")
     recipe.add_argument("--multi-views", default="2,3,5", metavar="V,V,...",
                         help="numbers of encoded cameras a multi-camera batch draws from (default 2,3,5)")
+    recipe.add_argument("--multi-spread", type=float, default=0.0, metavar="P",
+                        help="share of multi-camera items whose cameras are spread over the rig (farthest "
+                             "optical axes) instead of drawn at random")
     recipe.add_argument("--ssim-weight", type=float, default=0.0,
                         help="weight of 1 - SSIM of the one-step estimate through the frozen decoder")
     recipe.add_argument("--cell-weight", type=float, default=0.0,
@@ -250,6 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = get_config(args.config, **parse_overrides(args.set))
     if args.ssim_weight < 0:
         parser.error("--ssim-weight must be >= 0")
+    if not 0.0 <= args.multi_spread <= 1.0:
+        parser.error("--multi-spread must be in [0, 1]")
     if args.cell_weight < 0 or (args.cell_weight > 0 and not cfg.token_splat):
         parser.error("--cell-weight must be >= 0 and needs --set token_splat=true (it trains the splat's read)")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -272,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cache_latents:
         latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
     dataset = PairDataset(pool, seeds, recon_share=args.recon_share, neighbour_sigma_deg=args.neighbour_sigma,
-                          latent_key=latent_key)
+                          spread_share=args.multi_spread, latent_key=latent_key)
     sampler = None
     if args.multi_share > 0:
         try:

@@ -10,7 +10,8 @@ import torch
 
 from vt4dcodec.errors import ModelError
 from vt4dcodec.model import VideoTok4D, get_config
-from vt4dcodec.model.train.data import PairDataset, ViewsBatchSampler, axis_angles_deg, collate_pairs
+from vt4dcodec.model.train.data import (PairDataset, ViewsBatchSampler, axis_angles_deg, collate_pairs,
+                                         spread_cameras)
 
 from network_fixtures import random_batch
 
@@ -118,6 +119,41 @@ def test_multi_camera_items_encode_distinct_cameras_and_target_held_out_ones(poo
     rest = [c for c in range(4) if c not in encoded]
     want = min(rest, key=lambda c: angles[encoded, c].min())
     assert np.array_equal(target, scene["frames"][want])
+
+
+def ring_angles(n: int) -> np.ndarray:
+    """Axis angles (degrees) of n cameras evenly spaced on a ring, all looking at its centre."""
+    step = 360.0 / n
+    diff = np.abs(np.arange(n)[:, None] - np.arange(n)[None]) * step
+    return np.minimum(diff, 360.0 - diff)
+
+
+def test_spread_cameras_picks_every_other_camera_of_a_ring():
+    assert spread_cameras(ring_angles(10), 0, 5) == [0, 2, 4, 6, 8]
+    assert spread_cameras(ring_angles(10), 3, 5) == [3, 1, 5, 7, 9]
+    assert spread_cameras(ring_angles(10), 2, 2) == [2, 7]  # the opposite camera
+    assert spread_cameras(ring_angles(8), 1, 4) == [1, 3, 5, 7]
+    assert spread_cameras(ring_angles(4), 0, 4) == [0, 1, 2, 3]  # all of them, each once
+    assert spread_cameras(ring_angles(10), 4, 1) == [4]
+
+
+def test_spread_cameras_on_a_large_rig_falls_back_to_farthest_point():
+    chosen = spread_cameras(ring_angles(40), 0, 8)  # C(39, 7) sets: too many to search
+    assert chosen[0] == 0 and len(set(chosen)) == 8 and 20 in chosen  # the opposite camera comes second
+    sub = ring_angles(40)[np.ix_(chosen, chosen)] + np.diag(np.full(8, np.inf))
+    assert sub.min() >= 36.0  # no two chosen cameras closer than 4 ring steps
+
+
+def test_spread_share_encodes_spread_cameras(pool):
+    spread = PairDataset(pool, [0], recon_share=0.0, neighbour_sigma_deg=30.0, spread_share=1.0)
+    scene = pool.scene(0)
+    for i in range(4):
+        sources, _, _, _ = spread[(i, 2)]
+        encoded = [int(np.flatnonzero([np.array_equal(s.frames, f) for f in scene["frames"]])[0]) for s in sources]
+        assert encoded == spread_cameras(axis_angles_deg(scene["w2c"]), i, 2)
+        assert encoded[1] == int(np.argmax(axis_angles_deg(scene["w2c"])[i]))  # the farthest camera
+    with pytest.raises(ValueError):
+        PairDataset(pool, [0], recon_share=0.5, spread_share=1.5)
 
 
 def test_views_batch_sampler_and_collate(pool):
