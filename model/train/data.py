@@ -387,7 +387,7 @@ class PairDataset(Dataset):
         if views > 1:
             if not self.sampled:
                 raise ValueError("multi-camera items need a sampled dataset (recon_share or neighbour_sigma_deg)")
-            if float(torch.rand(())) < self.spread_share:
+            if self.spread_share > 0 and float(torch.rand(())) < self.spread_share:  # no draw when off: same stream
                 encoded = spread_cameras(axis_angles_deg(scene["w2c"]), src, views)
             else:
                 rest = [c for c in range(self.pool.cameras) if c != src]

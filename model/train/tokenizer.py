@@ -201,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     common_arguments(parser)
     parser.add_argument("--autoencoder", type=Path, default=None,
-                        help="stage-1 autoencoder.safetensors (not needed with --init)")
+                        help="a fresh tokenizer on this stage-1 autoencoder.safetensors")
     parser.add_argument("--autoencoder-from", default=None, metavar="MODEL",
                         help="train from scratch on the frozen autoencoder of a saved model (shipped id or "
                              "model directory) instead of a stage-1 file")
