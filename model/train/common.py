@@ -167,10 +167,11 @@ def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     try:
         state = json.loads(state_json.read_text())
         module.load_state_dict(load_file(str(directory / "model.safetensors")), strict=True)
-        if optimizer is not None and not (directory / "optimizer.pt").exists():
-            state["fresh_optimizer"] = True
-        elif optimizer is not None:
-            optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))
+        if optimizer is not None:
+            if (directory / "optimizer.pt").exists():
+                optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))
+            else:
+                state["fresh_optimizer"] = True
     except (OSError, ValueError, RuntimeError, KeyError) as exc:
         raise ModelError(f"cannot resume from {directory}: {exc}") from None
     return state

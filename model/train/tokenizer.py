@@ -51,11 +51,17 @@ def load_autoencoder(model: VideoTok4D, path: Path) -> None:
         state = load_file(str(path))
     except (OSError, SafetensorError, ValueError) as exc:
         raise ModelError(f"cannot read autoencoder weights {path}: {exc}") from None
+    set_autoencoder(model, state, str(path))
+
+
+def set_autoencoder(model: VideoTok4D, state: dict[str, torch.Tensor], what: str) -> None:
+    """Copy autoencoder tensors ``state`` (from ``what``, for the error) into ``model`` as float32 and
+    freeze them."""
     expected = model.autoencoder.state_dict()
     if set(state) != set(expected) or any(state[k].shape != expected[k].shape for k in state):
-        raise ModelError(f"{path} does not fit the autoencoder of this config (ae_width, latent_channels, "
+        raise ModelError(f"{what}: its autoencoder does not fit this config (ae_width, latent_channels, "
                          f"ae_downsample must match stage 1)")
-    model.autoencoder.load_state_dict(state)
+    model.autoencoder.load_state_dict({k: v.float() for k, v in state.items()})
     model.freeze_autoencoder()
 
 
@@ -178,15 +184,8 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
 def fresh_on_saved_autoencoder(cfg: ModelConfig, name_or_path: str) -> VideoTok4D:
     """Fresh tokenizer weights on the frozen stage-1 autoencoder of a saved model (shipped id or
     directory): training a tokenizer from scratch without re-running stage 1."""
-    source = from_pretrained(name_or_path)
     model = VideoTok4D(cfg)
-    state = source.autoencoder.state_dict()
-    expected = model.autoencoder.state_dict()
-    if set(state) != set(expected) or any(state[k].shape != expected[k].shape for k in state):
-        raise ModelError(f"--autoencoder-from {name_or_path}: its autoencoder does not fit this config "
-                         f"(latent_channels, ae_width, ae_downsample must match)")
-    model.autoencoder.load_state_dict({k: v.float() for k, v in state.items()})
-    model.freeze_autoencoder()
+    set_autoencoder(model, from_pretrained(name_or_path).autoencoder.state_dict(), f"--autoencoder-from {name_or_path}")
     return model
 
 
