@@ -5,6 +5,7 @@ Tokens are ``tanh`` of a linear projection (the *pre-activation* ``a``), so ever
 uniform noise of that half-width (``cfg.token_noise``) is added, so the renderer learns to ignore
 exactly the error int8 introduces. :func:`saturation_penalty` keeps ``a`` out of tanh saturation,
 where tokens stop carrying gradient (vt4d-tiny 0.2.0 had 96 % of its Z_d values there).
+:func:`slot_diversity_penalty` keeps the slots of a token group from collapsing onto one vector.
 """
 
 from __future__ import annotations
@@ -12,9 +13,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-__all__ = ["TokenBottleneck", "saturation_penalty", "SATURATION_KNEE"]
+__all__ = ["TokenBottleneck", "saturation_penalty", "SATURATION_KNEE", "slot_diversity_penalty", "centred_slot_spread",
+           "DIVERSITY_TARGET"]
 
 SATURATION_KNEE = 2.0  # |a| beyond this (|tanh a| > 0.964) is penalised
+DIVERSITY_TARGET = 0.3  # centred slot spread below this is penalised (the health threshold is 0.2, uncentred)
 
 
 class TokenBottleneck(nn.Module):
@@ -43,3 +46,21 @@ class TokenBottleneck(nn.Module):
 def saturation_penalty(a: torch.Tensor, knee: float = SATURATION_KNEE) -> torch.Tensor:
     """mean(relu(|a| - knee)^2): zero while tokens stay in tanh's responsive range."""
     return torch.relu(a.abs() - knee).pow(2).mean()
+
+
+def centred_slot_spread(z: torch.Tensor) -> torch.Tensor:
+    """z: (S, N, d) tokens of S >= 2 scenes. The slot spread of :func:`model.diagnostics.slot_spread`
+    after removing each slot's mean over the scenes: only what differs across slots *and* depends on the
+    scene counts (a fixed per-slot offset carries nothing). A differentiable 0-d tensor; 0 when S < 2
+    or N < 2."""
+    if z.shape[0] < 2 or z.shape[1] < 2:
+        return z.new_zeros(())
+    centred = z - z.mean(dim=0, keepdim=True)
+    return centred.std(dim=1).mean() / z.std().clamp_min(1e-6)
+
+
+def slot_diversity_penalty(z: torch.Tensor, target: float = DIVERSITY_TARGET) -> torch.Tensor:
+    """relu(target - centred slot spread) of tokens z (S, N, d): zero while the slots of a scene carry
+    different scene-dependent content, growing as they collapse onto one vector (a VICReg-style
+    variance hinge, taken across slots instead of across samples)."""
+    return torch.relu(target - centred_slot_spread(z))

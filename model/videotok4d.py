@@ -25,7 +25,7 @@ from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
 from .autoencoder import LatentAutoencoder
-from .bottleneck import TokenBottleneck, saturation_penalty
+from .bottleneck import TokenBottleneck, centred_slot_spread, saturation_penalty, slot_diversity_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
 from .identity import ModelIdentity, fingerprint_fields
@@ -267,7 +267,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
-                            ssim_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+                            ssim_weight: float = 0.0, diversity_weight: float = 0.0
+                            ) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -290,6 +291,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         ssim_weight: weight of 1 - SSIM (kornia's, 11x11 Gaussian window, as the evaluation) of the one-step
         estimate decoded by the frozen autoencoder against ``target_frames``: the structure the latent
         MSE leaves blurred.
+        diversity_weight: weight of :func:`slot_diversity_penalty` on the noise-free dynamic tokens
+        tanh(a_d) of the batch's scenes: Z_d's slots must carry different scene-dependent content
+        (trained from scratch next to the anchored static tokens, they drift onto one vector).
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -325,6 +329,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
             x0_err = F.mse_loss(x0_hat, y0)
             flow = (((y_tau - x0_hat) / t.clamp_min(MIN_TAU) - (y1 - y0)) ** 2).mean().detach()
             loss = x0_err + saturation_weight * sat
+        if diversity_weight > 0:
+            loss = loss + diversity_weight * slot_diversity_penalty(torch.tanh(a_d))
         cell = torch.zeros(())
         if cell_weight > 0:
             cell = self.cell_loss(batch, z_s)
@@ -343,6 +349,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
                 "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
                 "ssim": float(ssim.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
+                "dynamic_centred_spread": float(centred_slot_spread(z_d.detach())),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}
         return loss, logs

@@ -74,13 +74,15 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
-              cell_weight: float = 0.0, ssim_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+              cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0
+              ) -> tuple[torch.Tensor, dict[str, float]]:
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
-                  pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight)
+                  pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
+                  diversity_weight=diversity_weight)
 
 
 @torch.no_grad()
@@ -245,11 +247,16 @@ def main(argv: list[str] | None = None) -> int:
                              "splat's linear map, must give its source cell's time-averaged latent")
     recipe.add_argument("--saturation-weight", type=float, default=0.0,
                         help="weight of the penalty on bottleneck pre-activations beyond |a| = 2")
+    recipe.add_argument("--dynamic-diversity", type=float, default=0.0, metavar="W",
+                        help="weight of the slot-diversity hinge on Z_d (centred slot spread below 0.3 is "
+                             "penalised): keeps the dynamic tokens of a scene from collapsing onto one vector")
     args = parser.parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
     cfg = get_config(args.config, **parse_overrides(args.set))
+    if args.dynamic_diversity < 0:
+        parser.error("--dynamic-diversity must be >= 0")
     if args.ssim_weight < 0:
         parser.error("--ssim-weight must be >= 0")
     if not 0.0 <= args.multi_spread <= 1.0:
@@ -293,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
-                             ssim_weight=args.ssim_weight)
+                             ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity)
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:
