@@ -234,4 +234,6 @@ def plucker_rays(K, w2c, height: int, width: int) -> torch.Tensor:
     d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
     o = c2w[..., None, None, :3, 3].expand_as(d)
     m = torch.linalg.cross(o, d, dim=-1)
-    return torch.cat([d, m], dim=-1).movedim(-1, -3)
+    rays = torch.cat([d, m], dim=-1)
+    n = rays.ndim  # movedim(-1, -3), spelled with non-negative axes (the ONNX exporter mis-writes negative ones)
+    return rays.permute(*range(n - 3), n - 1, n - 3, n - 2)

@@ -104,6 +104,11 @@ class TemporalBranch(nn.Module):
         x = self.embed(torch.cat([x_dyn, rays], dim=2).permute(0, 1, 3, 4, 2).reshape(B * T, h * w, C + 6))
         x = x + self.pos_space[None]
         inside = mask.reshape(B * T, h * w) > 0.5
+        if torch.onnx.is_in_onnx_export():  # the same attention on the whole grid, keys restricted to the mask:
+            for block in self.spatial:       # no data-dependent length (ONNX graphs have static shapes here)
+                x = block(x, key_valid=inside)
+            x = x * inside[..., None].to(x.dtype)
+            return x.view(B, T, h, w, -1).permute(0, 1, 4, 2, 3)
         # Eq. 5 on the masked pixels only: gather them (padded to the largest region of the batch),
         # attend among them, scatter back; everything outside the mask stays zero.
         count = inside.sum(dim=1)

@@ -1,7 +1,8 @@
 """Weights I/O and lookup of both models: the VideoTok4D tokenizer (``save_pretrained`` /
 ``from_pretrained``) and the Co4DGen prior (``save_prior`` / ``load_prior``).
 
-Lookup (:func:`model_directory`, the same for both): a directory holding the model's meta file; else a
+Lookup (:func:`model_directory`, the same for both; it and the meta readers live in the torch-free
+``directories`` and are re-exported here): a directory holding the model's meta file; else a
 shipped id (a directory of ``model/weights/``); else a directory of that name under one of the
 ``os.pathsep``-separated roots in ``$VT4D_MODEL_PATH`` (user models and priors, found by the id a scene
 or prior records); else ModelNotFoundError.
@@ -14,7 +15,9 @@ A tokenizer directory holds
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
-* optionally ``MODEL_CARD.md``.
+* optionally ``MODEL_CARD.md``;
+* optionally ``encoder.onnx``: the encoder exported for onnxruntime (``onnx_export``, written when a model
+  ships; ``onnx_encoder`` reads it and refuses one exported from other weights).
 
 The fingerprint a container stores is SHA-256 over the canonical config JSON (sorted keys, no
 whitespace) and SHA-256 over the weights in canonical order: for every tensor name in sorted order,
@@ -29,7 +32,6 @@ from its meta file.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -37,10 +39,13 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from vt4dcodec.errors import ModelError, ModelNotFoundError
+from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
-from .configs import ModelConfig, PriorConfig
+from .configs import PriorConfig
+from .directories import (CARD_FILE, CONFIG_FILE, MODEL_FORMAT, MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE,
+                          PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE, model_directory, read_model_meta,
+                          read_weights_meta, shipped_model_ids, shipped_prior_ids)
 from .identity import weights_sha256
 from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
@@ -51,12 +56,6 @@ __all__ = [
     "read_weights_meta", "storage_state", "widen_stored",
 ]
 
-MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
-SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
-MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model and prior directories
-CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
-PRIOR_META_FILE, PRIOR_WEIGHTS_FILE = "prior.json", "prior.safetensors"
-MAX_CONFIG_BYTES = 1 << 20
 STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
 
 
@@ -122,83 +121,6 @@ def write_weights_directory(out: Path, tensors: dict[str, torch.Tensor], meta: d
     if card is not None:
         (out / CARD_FILE).write_text(card, encoding="utf-8")
     return out
-
-
-# --- lookup ------------------------------------------------------------------------------------------
-def _shipped_ids(meta_file: str) -> list[str]:
-    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / meta_file).is_file())
-
-
-def shipped_model_ids() -> list[str]:
-    """Ids of the tokenizers shipped inside the package (directories of model/weights/ with config.json)."""
-    return _shipped_ids(CONFIG_FILE)
-
-
-def shipped_prior_ids() -> list[str]:
-    """Ids of the priors shipped inside the package (directories of model/weights/ with prior.json)."""
-    return _shipped_ids(PRIOR_META_FILE)
-
-
-def _user_directory(model_id: str, meta_file: str) -> Path | None:
-    """The first directory named ``model_id`` and holding ``meta_file`` under a root of $VT4D_MODEL_PATH."""
-    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
-        candidate = Path(root) / model_id
-        if (candidate / meta_file).is_file():
-            return candidate
-    return None
-
-
-def model_directory(name_or_path: str | os.PathLike[str], meta_file: str = CONFIG_FILE) -> Path:
-    """The directory of a tokenizer (``meta_file`` config.json) or a prior (prior.json): a directory
-    holding ``meta_file``; else a shipped id; else a directory of that name under $VT4D_MODEL_PATH; else
-    any other directory (its reader then says what it lacks).  ModelNotFoundError otherwise."""
-    path = Path(name_or_path)
-    if (path / meta_file).is_file():
-        return path
-    shipped = _shipped_ids(meta_file)
-    if isinstance(name_or_path, str) and name_or_path and "/" not in name_or_path and os.sep not in name_or_path:
-        if name_or_path in shipped:
-            return SHIPPED_DIR / name_or_path
-        user = _user_directory(name_or_path, meta_file)
-        if user is not None:
-            return user
-    if path.is_dir():
-        return path
-    what, hint = ("prior", "") if meta_file == PRIOR_META_FILE else ("model", "; pass model=<path to the model directory>")
-    raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory, not a shipped id (shipped: "
-                             f"{shipped or 'none'}) and not a directory under ${MODEL_PATH_ENV}{hint}")
-
-
-def read_weights_meta(directory: Path, *, meta_file: str, weights_file: str, fmt: str,
-                      config_type: Any) -> dict[str, Any]:
-    """Parse and validate a model directory's JSON meta (tokenizer ``config.json`` or prior ``prior.json``):
-    bounded size, format tag, string identity fields, and a config whose canonical hash matches.
-    ``meta["config"]`` is returned as a ``config_type`` instance."""
-    path = directory / meta_file
-    if not path.is_file() or not (directory / weights_file).is_file():
-        raise ModelNotFoundError(f"{directory} lacks {meta_file} or {weights_file}")
-    if path.stat().st_size > MAX_CONFIG_BYTES:
-        raise ModelError(f"{path} is larger than {MAX_CONFIG_BYTES} bytes")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{path} is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict) or meta.get("format") != fmt:
-        raise ModelError(f"{path}: format must be {fmt!r}")
-    for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
-        if not isinstance(meta.get(key), str):
-            raise ModelError(f"{path}: {key} must be a string")
-    config = config_type.from_dict(meta.get("config"))
-    if config.sha256() != meta["config_sha256"]:
-        raise ModelError(f"{path}: config_sha256 does not match the config")
-    meta["config"] = config
-    return meta
-
-
-def read_model_meta(directory: Path) -> dict[str, Any]:
-    """Parse and validate config.json of a model directory."""
-    return read_weights_meta(directory, meta_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=MODEL_FORMAT,
-                             config_type=ModelConfig)
 
 
 def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> VideoTok4D:

@@ -67,12 +67,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import torch
 
 from vt4dcodec.errors import Vt4dError
-from ..geometry import MIN_DEPTH, pixel_grid, relative_pose, unproject
-
 from .depth import estimate_depth
+
+MIN_DEPTH = 1e-6  # metres: points at or behind this z are not in front of the camera (model.geometry's)
 
 __all__ = [
     "MotionIsolation",
@@ -267,18 +266,27 @@ def _pair_geometry(
     the source frame again for every pair, ~4x slower for the 56 pairs of an 8-frame clip).
     """
     T, H, W = depth.shape
-    D = torch.from_numpy(depth)
-    known = D > 0
-    Kt, Pt = torch.from_numpy(K.astype(np.float32)), torch.from_numpy(w2c.astype(np.float32))
-    points = unproject(torch.where(known, D, torch.ones_like(D)), Kt).reshape(T, H * W, 3)
-    # K_dst @ [R | t] of T_{src->dst}: one matmul gives (z u, z v, z) per pixel (pinhole K, last row 0 0 1)
-    to_pixels = Kt[dst] @ relative_pose(Pt[src], Pt[dst])[:, :3, :]
-    uvz = (torch.bmm(points[src], to_pixels[:, :, :3].transpose(1, 2)) + to_pixels[:, None, :, 3]).reshape(-1, H, W, 3)
+    known = depth > 0
+    D = np.where(known, depth, np.float32(1.0)).astype(np.float32)
+    Kf, P = K.astype(np.float32), w2c.astype(np.float32)
+    v, u = np.meshgrid(np.arange(H, dtype=np.float32), np.arange(W, dtype=np.float32), indexing="ij")
+    fx, fy, skew = Kf[:, 0, 0, None, None], Kf[:, 1, 1, None, None], Kf[:, 0, 1, None, None]
+    y = (v[None] - Kf[:, 1, 2, None, None]) / fy  # unproject: normalised image coordinates times depth
+    x = (u[None] - Kf[:, 0, 2, None, None] - skew * y) / fx
+    points = np.stack([x * D, y * D, D], axis=-1).reshape(T, H * W, 3)
+    inverse = np.zeros_like(P)  # inv(w2c) of rigid poses: [R^T, -R^T t]
+    inverse[:, :3, :3] = P[:, :3, :3].transpose(0, 2, 1)
+    inverse[:, :3, 3:] = -inverse[:, :3, :3] @ P[:, :3, 3:]
+    inverse[:, 3, 3] = 1.0
+    # K_dst @ [R | t] of T_{src->dst} = w2c_dst inv(w2c_src): one matmul gives (z u, z v, z) per pixel
+    to_pixels = Kf[dst] @ (P[dst] @ inverse[src])[:, :3, :]
+    uvz = (points[src] @ to_pixels[:, :, :3].transpose(0, 2, 1) + to_pixels[:, None, :, 3]).reshape(-1, H, W, 3)
     z = uvz[..., 2]
     valid = known[src] & (z > MIN_DEPTH)
-    uv = uvz[..., :2] / torch.where(valid, z, torch.ones_like(z))[..., None]
-    fpose = torch.where(valid[..., None], uv - pixel_grid(H, W, dtype=uv.dtype), torch.zeros_like(uv))
-    return fpose.numpy().astype(np.float32), valid.numpy(), z.numpy()
+    uv = uvz[..., :2] / np.where(valid, z, np.float32(1.0))[..., None]
+    grid = np.stack([u, v], axis=-1)
+    fpose = np.where(valid[..., None], uv - grid, np.float32(0.0))
+    return fpose.astype(np.float32), valid, z.astype(np.float32)
 
 
 def _analyse_pairs(

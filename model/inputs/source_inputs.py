@@ -3,7 +3,8 @@
 The learned networks never call OpenCV: optical flow, motion isolation (paper Sec. 3.2) and track
 propagation are computed once per clip by ``model.inputs.motion`` / ``model.inputs.tracks`` and arrive here as arrays.
 One clip is a :class:`SourceInputs` (numpy); a training or inference batch is a :class:`SourceBatch`
-(torch), built by :meth:`SourceBatch.collate`. A scene may be encoded from several synchronized cameras
+(torch), built by :meth:`SourceBatch.collate` from :func:`stack_inputs`, the same arrays in numpy (what the
+ONNX encoder runs on; this module imports torch only when a batch is built). A scene may be encoded from several synchronized cameras
 at once: the batch then holds ``views`` clips per scene, scene-major, and the encoder fuses them into
 one token set per scene.
 """
@@ -11,11 +12,14 @@ one token set per scene.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-__all__ = ["SourceInputs", "SourceBatch"]
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["SourceInputs", "SourceBatch", "stack_inputs"]
 
 
 @dataclass
@@ -82,21 +86,14 @@ class SourceBatch:
         items are ``views`` synchronized cameras per scene, scene-major."""
         if views < 1 or len(items) % views:
             raise ValueError(f"{len(items)} clips do not split into scenes of {views} views")
-        def stack(name: str) -> np.ndarray:
-            return np.stack([getattr(it, name) for it in items])
+        import torch  # lazy: SourceInputs and stack_inputs serve the torch-free ONNX encoder too
 
-        frames = torch.from_numpy(stack("frames")).permute(0, 1, 4, 2, 3).float().div_(255.0)
-        return cls(
-            frames=frames,
-            K=torch.from_numpy(stack("K")).float(),
-            w2c=torch.from_numpy(stack("w2c")).float(),
-            motion_mask=torch.from_numpy(stack("motion_mask")).float(),
-            track_xy=torch.from_numpy(stack("track_xy")).float(),
-            track_valid=torch.from_numpy(stack("track_valid")).bool(),
-            views=views,
-        )
+        arrays = stack_inputs(items)
+        return cls(**{name: torch.from_numpy(value) for name, value in arrays.items()}, views=views)
 
-    def to(self, device: torch.device | str) -> "SourceBatch":
+    def to(self, device: "torch.device | str") -> "SourceBatch":
+        import torch
+
         def move(value: object) -> object:
             return value.to(device) if isinstance(value, torch.Tensor) else value
 
@@ -120,3 +117,19 @@ class SourceBatch:
             return self.K, self.w2c
         S, V = self.num_scenes, self.views
         return self.K.reshape(S, V, *self.K.shape[1:]), self.w2c.reshape(S, V, *self.w2c.shape[1:])
+
+
+def stack_inputs(items: list[SourceInputs]) -> dict[str, np.ndarray]:
+    """The encoder's input arrays of a batch of clips (the :class:`SourceBatch` fields, numpy): frames
+    (B, T, 3, H, W) float32 in [0, 1] (uint8 / 255), K (B, T, 3, 3), w2c (B, T, 4, 4), motion_mask
+    (B, T, h, w), track_xy (B, N, T, 2) float32, track_valid (B, N, T) bool. The clips must share T, H,
+    W, the latent size and N."""
+    def stack(name: str) -> np.ndarray:
+        return np.stack([getattr(it, name) for it in items])
+
+    return {
+        "frames": np.ascontiguousarray(stack("frames").transpose(0, 1, 4, 2, 3)).astype(np.float32) / np.float32(255.0),
+        "K": stack("K").astype(np.float32), "w2c": stack("w2c").astype(np.float32),
+        "motion_mask": stack("motion_mask").astype(np.float32), "track_xy": stack("track_xy").astype(np.float32),
+        "track_valid": stack("track_valid").astype(bool),
+    }

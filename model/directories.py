@@ -1,0 +1,107 @@
+"""Where models live and what their meta files say: the torch-free half of ``weights_io``.
+
+:func:`model_directory` finds a tokenizer or prior directory (a directory holding the meta file; else a
+shipped id, a directory of ``model/weights/``; else a directory of that name under one of the
+``os.pathsep``-separated roots in ``$VT4D_MODEL_PATH``); :func:`read_model_meta` parses and checks a
+tokenizer's ``config.json``. The layout of both directories is described in ``weights_io``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from vt4dcodec.errors import ModelError, ModelNotFoundError
+
+from .configs import ModelConfig
+
+__all__ = [
+    "model_directory", "read_model_meta", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
+    "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
+    "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES",
+]
+
+MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
+SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
+MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model and prior directories
+CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
+PRIOR_META_FILE, PRIOR_WEIGHTS_FILE = "prior.json", "prior.safetensors"
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def _shipped_ids(meta_file: str) -> list[str]:
+    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / meta_file).is_file())
+
+
+def shipped_model_ids() -> list[str]:
+    """Ids of the tokenizers shipped inside the package (directories of model/weights/ with config.json)."""
+    return _shipped_ids(CONFIG_FILE)
+
+
+def shipped_prior_ids() -> list[str]:
+    """Ids of the priors shipped inside the package (directories of model/weights/ with prior.json)."""
+    return _shipped_ids(PRIOR_META_FILE)
+
+
+def _user_directory(model_id: str, meta_file: str) -> Path | None:
+    """The first directory named ``model_id`` and holding ``meta_file`` under a root of $VT4D_MODEL_PATH."""
+    for root in filter(None, os.environ.get(MODEL_PATH_ENV, "").split(os.pathsep)):
+        candidate = Path(root) / model_id
+        if (candidate / meta_file).is_file():
+            return candidate
+    return None
+
+
+def model_directory(name_or_path: str | os.PathLike[str], meta_file: str = CONFIG_FILE) -> Path:
+    """The directory of a tokenizer (``meta_file`` config.json) or a prior (prior.json): a directory
+    holding ``meta_file``; else a shipped id; else a directory of that name under $VT4D_MODEL_PATH; else
+    any other directory (its reader then says what it lacks).  ModelNotFoundError otherwise."""
+    path = Path(name_or_path)
+    if (path / meta_file).is_file():
+        return path
+    shipped = _shipped_ids(meta_file)
+    if isinstance(name_or_path, str) and name_or_path and "/" not in name_or_path and os.sep not in name_or_path:
+        if name_or_path in shipped:
+            return SHIPPED_DIR / name_or_path
+        user = _user_directory(name_or_path, meta_file)
+        if user is not None:
+            return user
+    if path.is_dir():
+        return path
+    what, hint = ("prior", "") if meta_file == PRIOR_META_FILE else ("model", "; pass model=<path to the model directory>")
+    raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory, not a shipped id (shipped: "
+                             f"{shipped or 'none'}) and not a directory under ${MODEL_PATH_ENV}{hint}")
+
+
+def read_weights_meta(directory: Path, *, meta_file: str, weights_file: str, fmt: str,
+                      config_type: Any) -> dict[str, Any]:
+    """Parse and validate a model directory's JSON meta (tokenizer ``config.json`` or prior ``prior.json``):
+    bounded size, format tag, string identity fields, and a config whose canonical hash matches.
+    ``meta["config"]`` is returned as a ``config_type`` instance."""
+    path = directory / meta_file
+    if not path.is_file() or not (directory / weights_file).is_file():
+        raise ModelNotFoundError(f"{directory} lacks {meta_file} or {weights_file}")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ModelError(f"{path} is larger than {MAX_CONFIG_BYTES} bytes")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise ModelError(f"{path}: format must be {fmt!r}")
+    for key in ("model_id", "model_version", "weights_sha256", "config_sha256"):
+        if not isinstance(meta.get(key), str):
+            raise ModelError(f"{path}: {key} must be a string")
+    config = config_type.from_dict(meta.get("config"))
+    if config.sha256() != meta["config_sha256"]:
+        raise ModelError(f"{path}: config_sha256 does not match the config")
+    meta["config"] = config
+    return meta
+
+
+def read_model_meta(directory: Path) -> dict[str, Any]:
+    """Parse and validate config.json of a model directory."""
+    return read_weights_meta(directory, meta_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=MODEL_FORMAT,
+                             config_type=ModelConfig)
