@@ -17,6 +17,12 @@ clip is rejected with :class:`~vt4dcodec.errors.CaptureError`.
 Given a capture directory, encoding reads only the clip: the encoded cameras' frames ``[start,
 start + config.frames)`` (videos seeked, not decoded whole; :mod:`vt4dcodec.capture.io`), so time and
 memory follow the clip, not the capture, and ``encode_clips`` reads one clip at a time.
+
+Encoder runtimes (``runtime=``): ``"torch"`` runs the networks; ``"onnx"`` runs the model directory's
+exported encoder (``encoder.onnx``, ``vt4dcodec.model.onnx_encoder``) on onnxruntime, one camera per scene,
+without importing torch (~120 MB resident instead of ~530 MB for torch alone); ``"auto"`` (default) takes
+onnx for one camera when the model has an exported encoder and onnxruntime is installed, torch otherwise.
+Both give the same fingerprint and tokens equal to float rounding.
 """
 
 from __future__ import annotations
@@ -43,13 +49,16 @@ if TYPE_CHECKING:  # pragma: no cover
     import torch
 
     from .model import VideoTok4D
+    from .model.onnx_encoder import OnnxEncoder
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
-    "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit",
+    "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
+    "RUNTIMES",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
+RUNTIMES = ("auto", "torch", "onnx")  # encoder runtimes (module docstring)
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
 # for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.13.0: int4, worst view +0.089 dB,
@@ -80,7 +89,44 @@ def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "Vide
     return _load_model_cached(str(model_directory(model).resolve()))
 
 
-def model_fingerprint(model: "VideoTok4D") -> ModelFingerprint:
+@functools.lru_cache(maxsize=4)
+def _open_onnx_cached(directory: str) -> "OnnxEncoder":
+    from .model.onnx_encoder import OnnxEncoder
+
+    return OnnxEncoder.open(directory)
+
+
+def load_encoder(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL, runtime: str = "auto", *,
+                 cameras: int = 1) -> "VideoTok4D | OnnxEncoder":
+    """The encoder of ``model`` for scenes of ``cameras`` source cameras on ``runtime`` (one of
+    :data:`RUNTIMES`; module docstring).  A loaded model or encoder is returned as is (``runtime="onnx"``
+    then needs an :class:`OnnxEncoder`).  ModelError for an unknown runtime, for ``"onnx"`` with several
+    cameras, without onnxruntime or without an exported encoder."""
+    from .errors import ModelError
+
+    if runtime not in RUNTIMES:
+        raise ModelError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
+    if not isinstance(model, (str, os.PathLike)):  # a loaded VideoTok4D or OnnxEncoder
+        if runtime == "onnx" and type(model).__name__ != "OnnxEncoder":
+            raise ModelError("runtime='onnx' takes a model id or directory (or an OnnxEncoder), not a loaded torch model")
+        return model
+    if runtime == "torch":
+        return load_model(model)
+    from .model.directories import model_directory  # torch-free, as the ONNX encoder
+    from .model.onnx_encoder import has_onnx_encoder, onnx_available
+
+    if runtime == "onnx":
+        if cameras != 1:
+            raise ModelError(f"runtime='onnx' encodes one camera per scene, not {cameras}; use runtime='torch' "
+                             "(or 'auto') to encode several cameras")
+        return _open_onnx_cached(str(model_directory(model).resolve()))
+    directory = model_directory(model)
+    if cameras == 1 and onnx_available() and has_onnx_encoder(directory):
+        return _open_onnx_cached(str(directory.resolve()))
+    return load_model(model)
+
+
+def model_fingerprint(model: "VideoTok4D | OnnxEncoder") -> ModelFingerprint:
     """The fingerprint a container stores for ``model`` (``VideoTok4D.stored_fingerprint``)."""
     return model.stored_fingerprint()
 
@@ -157,7 +203,7 @@ def read_clip(capture: "Capture | CaptureManifest | str | os.PathLike", names: S
 
 def encode(
     capture: "Capture | CaptureManifest | str | os.PathLike",
-    model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
+    model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL,
     encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
@@ -166,6 +212,7 @@ def encode(
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
     fit: str = "crop",
+    runtime: str = "auto",
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -178,7 +225,7 @@ def encode(
     Args:
         capture: a :class:`Capture`, or a capture directory (or its manifest): then only the clip's
             frames of the encoded cameras are read.
-        model: shipped model id, model directory, or a loaded model.
+        model: shipped model id, model directory, or a loaded model (or :class:`OnnxEncoder`).
         encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``;
             default :data:`DEFAULT_ENCODING`).
         camera: the source camera (default: the capture's first camera).
@@ -194,21 +241,22 @@ def encode(
             shorter side, centre-crop: a portrait 9:16 frame loses 44 % of its pixels) or ``"pad"``
             (resize the longer side, letterbox on black bars: the whole picture is kept, at fewer
             pixels; recorded as ``metadata["vt4d"]["fit"]``).
+        runtime: ``"auto"``, ``"torch"`` or ``"onnx"``: which runtime runs the encoder (module docstring).
     Returns:
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
     """
     source = _open_source(capture)
     check_fit(fit)
-    net = load_model(model)
     names = _pick_cameras(source, camera, cameras)
+    net = load_encoder(model, runtime, cameras=len(names))
     clip = read_clip(source, names, start, net.config.frames)
     return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit)
 
 
 def encode_clips(
     capture: "Capture | CaptureManifest | str | os.PathLike",
-    model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL,
+    model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL,
     encoding: str = DEFAULT_ENCODING,
     *,
     camera: str | None = None,
@@ -216,6 +264,7 @@ def encode_clips(
     seed: int = 0,
     metadata: dict[str, Any] | None = None,
     fit: str = "crop",
+    runtime: str = "auto",
 ) -> list[Scene]:
     """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
     (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
@@ -224,22 +273,20 @@ def encode_clips(
     """
     source = _open_source(capture)
     check_fit(fit)
-    net = load_model(model)
+    names = _pick_cameras(source, camera, cameras)
+    net = load_encoder(model, runtime, cameras=len(names))
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")
-    names = _pick_cameras(source, camera, cameras)
     return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit)
             for s in range(0, source.num_frames - T + 1, T)]
 
 
-def _encode_clip(clip: Capture, net: "VideoTok4D", encoding: str, names: list[str], start: int, seed: int,
-                 metadata: dict[str, Any] | None, fit: str = "crop") -> Scene:
+def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
+                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop") -> Scene:
     """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
-    import torch  # lazy (and the inputs below): `import vt4dcodec` / `vt4d` load neither torch nor OpenCV
-
-    from .model.inputs.preprocess import prepare_source
-    from .model.inputs.source_inputs import SourceBatch
+    from .model.inputs.preprocess import prepare_source  # lazy: `import vt4dcodec` / `vt4d` load no OpenCV
+    from .model.onnx_encoder import OnnxEncoder  # torch-free
 
     cfg = net.config
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
@@ -250,8 +297,16 @@ def _encode_clip(clip: Capture, net: "VideoTok4D", encoding: str, names: list[st
                                     latent_hw=(cfg.latent_size, cfg.latent_size), num_tracks=cfg.n_tracks,
                                     seed=seed, motion_isolation=cfg.motion_isolation))
         depth_sources.append("capture" if depth is not None else "estimated")
-    with torch.no_grad():
-        z_s, z_d = net.encode(SourceBatch.collate(clips, views=len(clips)))
+    if isinstance(net, OnnxEncoder):
+        z_s, z_d = net.encode(clips)
+    else:
+        import torch  # lazy: only the torch runtime loads it
+
+        from .model.inputs.source_inputs import SourceBatch
+
+        with torch.no_grad():
+            t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)))
+        z_s, z_d = t_s.numpy(), t_d.numpy()
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
     if len(names) > 1:
@@ -262,8 +317,8 @@ def _encode_clip(clip: Capture, net: "VideoTok4D", encoding: str, names: list[st
     # frame times): a model with config.anchor_views places its tokens in them, and the file says what was seen
     extra = tuple(dataclasses.replace(fitted.cameras[n], distortion=None, timestamps=None) for n in names[1:])
     return Scene(
-        static_tokens=z_s[0].numpy().astype(np.float32),
-        dynamic_tokens=z_d[0].numpy().astype(np.float32),
+        static_tokens=z_s[0].astype(np.float32),
+        dynamic_tokens=z_d[0].astype(np.float32),
         cameras=fitted.cameras[names[0]],
         extra_cameras=extra,
         fingerprint=model_fingerprint(net),

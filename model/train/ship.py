@@ -30,6 +30,8 @@ from safetensors.torch import load_file
 from vt4dcodec.errors import ModelError
 
 from ..videotok4d import VideoTok4D
+from ..onnx_encoder import ONNX_FILE
+from ..onnx_export import export_encoder
 from ..weights_io import SHIPPED_DIR, from_pretrained, read_model_meta, save_pretrained
 from .autoencoder import AE_WEIGHTS
 from .common import parse_overrides
@@ -214,13 +216,15 @@ def main(argv: list[str] | None = None) -> int:
         swap_decoder(model, args.decoder_from / AE_WEIGHTS)
     notes = args.notes.read_text() if args.notes else ""
     stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
+    (args.dest / args.id / ONNX_FILE).unlink(missing_ok=True)  # an encoder of the old weights never stays
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
                           storage_dtype="float16", decode_steps=args.decode_steps)
+    export_encoder(from_pretrained(out), out)  # encoder.onnx: encoding one camera without torch
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
                                                         args.decoder_from, overrides, stage1))
-    size = (out / "model.safetensors").stat().st_size
-    print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB)")
+    size, onnx_size = (out / "model.safetensors").stat().st_size, (out / ONNX_FILE).stat().st_size
+    print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB; {ONNX_FILE} {onnx_size / 1e6:.1f} MB)")
     return 0
 
 

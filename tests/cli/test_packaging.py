@@ -16,7 +16,8 @@ import tomllib
 from cli_helpers import ROOT, vt4d
 
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
-CODEC_ONLY = ("torch", "kornia", "cv2", "av", "safetensors", "skimage", "matplotlib", "tqdm", "fsspec", "aiohttp")
+CODEC_ONLY = ("torch", "kornia", "cv2", "av", "safetensors", "skimage", "matplotlib", "tqdm", "fsspec", "aiohttp",
+              "onnxruntime", "onnx")
 # a meta-path finder that makes the codec's packages unimportable, as on a core install
 BLOCK_CODEC = f"""
 import sys

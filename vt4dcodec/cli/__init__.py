@@ -219,6 +219,8 @@ KEYWORD_FLAGS: dict[str, str] = {
     "model=<path to the model directory>": "--model PATH",
     "on_uncommitted='recover'": "--recover",
     "on_uncommitted='discard'": "--discard-uncommitted",
+    "runtime='torch'": "--runtime torch",
+    "runtime='onnx'": "--runtime onnx",
 }
 _HINT = re.compile("|".join(re.escape(k) for k in sorted(KEYWORD_FLAGS, key=len, reverse=True)))
 _ALREADY = re.compile(r" \((?:CLI: )?--[a-z][a-z-]*\)")  # "force=True (--force)": the flag is named already

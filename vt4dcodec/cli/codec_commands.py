@@ -16,7 +16,7 @@ from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
                      parse_camera_list)
 from ..demo import run_demo
-from ..errors import CaptureError
+from ..errors import CaptureError, ModelError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import VIDEO_FORMATS, write_frames
 from . import (add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int, positive_int,
@@ -99,19 +99,23 @@ def _captures(inputs: list[str]) -> list[Path]:
     return found
 
 
-def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None = None) -> None:
-    """--camera / --cameras name cameras of every capture (read from the manifests: cheap)."""
+def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None = None) -> int:
+    """--camera / --cameras name cameras of every capture (read from the manifests: cheap). Returns the most
+    cameras one scene encodes."""
     if camera is not None and cameras is not None:
         raise CaptureError("give --camera (one camera) or --cameras (several), not both")
     if camera is None and cameras is None:
-        return
+        return 1
     flag = "--camera" if camera is not None else "--cameras"
+    most = 1
     for cap_dir in captures:
         names = [e.name for e in read_manifest(cap_dir).cameras]
         wanted = [camera] if camera is not None else parse_camera_list(cameras, names, label="--cameras")
         missing = [c for c in wanted if c not in names]
         if missing:
             raise CaptureError(f"{cap_dir} has no camera {missing[0]!r} ({flag}); it has {names}")
+        most = max(most, len(wanted))
+    return most
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
@@ -124,14 +128,17 @@ def cmd_encode(args: argparse.Namespace) -> int:
     captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
-    _check_cameras(captures, args.camera, args.cameras)  # before the model loads
+    views = _check_cameras(captures, args.camera, args.cameras)  # before the model loads
+    if args.runtime == "onnx" and views > 1:
+        raise ModelError(f"--runtime onnx encodes one camera per scene; --cameras gives {views}: use --runtime "
+                         "torch (or auto)")
     rank, world = _dist_rank()
     mine = captures[rank::world]
     if args.output is not None:
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # like --archive: the folder is made
     loading = time.perf_counter()
     with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
-        model = codec.load_model(args.model or codec.DEFAULT_MODEL)
+        model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, args.runtime, cameras=views)
     started = time.perf_counter()
     results: list[dict[str, Any]] = []
     writer = None
@@ -264,6 +271,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
                    help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
                         "tokens on held-out views, see docs/BENCHMARKS.md)")
+    p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
+                   help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
+                        "(one camera per scene, ~4x less memory), 'torch' the networks; 'auto' (default) takes "
+                        "onnx where the model has an exported encoder and one camera is encoded")
     p.set_defaults(func=cmd_encode)
 
     p = add_command(
