@@ -6,19 +6,21 @@ them), then runs each case in a fresh Python process and records its wall time a
 
   * ``api_clip``: ``codec.encode(CAPTURE_DIR, camera="cam00", start=S)``, which reads only that camera's
     frames S..S+7 (seek to the keyframe before S, decode forward).  Once at the first clip (S = 0) and
-    once at the last one (S = frames - 8, the most frames decoded before the window).
+    once at the last one (S = frames - 8, the most frames decoded before the window).  The default
+    runtime ("auto"): the model's exported encoder on onnxruntime, torch never imported.
   * ``cli_clip``: ``vt4d encode CAPTURE_DIR --camera cam00 --start S -o scene.vt4d``, whole command.
+  * ``api_clip_torch``: ``api_clip`` with ``runtime="torch"`` (the networks in torch, one thread).
   * ``api_whole``: the path before clip reading: ``read_capture(CAPTURE_DIR)`` (every frame of every
     camera) and then the same encode.  ``--skip-whole`` leaves it out (it needs ~2.5 GB).
   * ``import_torch``: a process that only imports torch and loads the model: the floor under every
-    encode's memory (the CUDA build of torch maps ~0.5 GB of shared libraries at import).
+    torch encode's memory (the CUDA build of torch maps ~0.5 GB of shared libraries at import).
 
 Per case: ``wall_s`` (the whole process, interpreter start to exit), ``encode_s`` (the encode call,
 or the command's own time), ``cpu_s`` (process user + system CPU), ``peak_rss_mb`` (``ru_maxrss``:
 every resident page, the shared libraries too), ``peak_private_mb`` (the largest ``RssAnon`` sampled
 every 2 ms: the process's own memory, i.e. decoded frames, arrays, tensors) and ``rss_before_mb``
 (resident before the encode, after imports and model loading).  The tokens of the clip read and the
-whole read are compared (they must be equal).
+whole read are compared (they must be equal), and so are those of the two runtimes (float rounding).
 
 Run: python bench/bench_clip_reading.py [--skip-whole]   (writes bench/results/clip_reading.json)
 """
@@ -135,18 +137,20 @@ class _PeakPrivate:
 
 def child(case: str, capture: str, start: int, model: str, out: str) -> None:
     sampler = _PeakPrivate()
-    import torch
-
     from vt4dcodec import codec
     from vt4dcodec.capture import read_capture
 
-    torch.set_num_threads(1)
-    net = codec.load_model(model)
+    runtime = "torch" if case in ("api_clip_torch", "import_torch") else "auto"
+    if runtime == "torch":
+        import torch
+
+        torch.set_num_threads(1)
+    net = codec.load_encoder(model, runtime)
     with open("/proc/self/status") as fh:
         rss_before = next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
     t0 = time.perf_counter()
     result: dict = {}
-    if case == "api_clip":
+    if case in ("api_clip", "api_clip_torch"):
         scene = codec.encode(capture, net, camera="cam00", start=start)
     elif case == "api_whole":
         scene = codec.encode(read_capture(capture), net, camera="cam00", start=start)
@@ -164,7 +168,8 @@ def child(case: str, capture: str, start: int, model: str, out: str) -> None:
     if scene is not None:
         np.savez(out + ".npz", static=scene.static_tokens, dynamic=scene.dynamic_tokens)
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    result.update({"encode_s": round(encode_s, 3), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+    result.update({"runtime": type(net).__name__, "torch_imported": "torch" in sys.modules,
+                   "encode_s": round(encode_s, 3), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
                    "peak_rss_mb": round(usage.ru_maxrss / 1024, 1), "peak_private_mb": round(sampler.stop() / 1024, 1),
                    "rss_before_mb": round(rss_before / 1024, 1)})
     print("RESULT " + json.dumps(result))
@@ -215,17 +220,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"made {args.cameras} x {args.frames} frames of {args.width}x{args.height} H.264 "
               f"({results['capture']['bytes'] / 1e6:.1f} MB) in {results['capture']['seconds_to_make']} s")
         last = args.frames - clip
-        cases = [("import_torch", 0)] + [(c, s) for _ in range(args.repeats) for c in ("api_clip", "cli_clip")
-                                        for s in (0, last)]
+        cases = [("import_torch", 0)] + [(c, s) for _ in range(args.repeats)
+                                        for c in ("api_clip", "cli_clip", "api_clip_torch") for s in (0, last)]
         if not args.skip_whole:
             cases.append(("api_whole", last))
         for case, start in cases:
             r = run_case(case, capture, start, args.model, work)
             results["runs"].append(r)
-            print(f"{case:12s} start {start:3d}: wall {r['wall_s']:6.2f} s, encode {r['encode_s']:6.2f} s, "
+            print(f"{case:14s} start {start:3d}: wall {r['wall_s']:6.2f} s, encode {r['encode_s']:6.2f} s, "
                   f"CPU {r['cpu_s']:6.2f} s, peak RSS {r['peak_rss_mb']:7.1f} MB, private {r['peak_private_mb']:7.1f} MB"
                   f" (RSS before encoding {r['rss_before_mb']:.0f} MB)")
         clip_tokens = np.load(work / f"api_clip_{last}.npz")
+        torch_tokens = np.load(work / f"api_clip_torch_{last}.npz")
+        results["onnx_vs_torch_max_token_difference"] = float(max(
+            np.abs(clip_tokens[k] - torch_tokens[k]).max() for k in ("static", "dynamic")))
+        print(f"largest token difference, onnx runtime vs torch: {results['onnx_vs_torch_max_token_difference']:.2e}")
         if not args.skip_whole:
             whole = np.load(work / f"api_whole_{last}.npz")
             results["tokens_equal_to_whole_read"] = bool(
@@ -234,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"tokens from the clip read equal those from the whole read: {results['tokens_equal_to_whole_read']}")
     results["load_average_after"] = list(os.getloadavg())
     summary = {}
-    for case in ("api_clip", "cli_clip", "api_whole", "import_torch"):
+    for case in ("api_clip", "cli_clip", "api_clip_torch", "api_whole", "import_torch"):
         for start in sorted({r["start"] for r in results["runs"] if r["case"] == case}):
             rs = [r for r in results["runs"] if r["case"] == case and r["start"] == start]
             summary[f"{case}@{start}"] = {k: (min(r[k] for r in rs), max(r[k] for r in rs))

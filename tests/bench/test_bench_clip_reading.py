@@ -22,5 +22,10 @@ def test_small_capture_and_one_clip_case(bench, tmp_path):
     r = bench.run_case("api_clip", tmp_path / "cap", 4, "vt4d-tiny", tmp_path)
     assert r["case"] == "api_clip" and r["start"] == 4
     assert 0 < r["encode_s"] < r["wall_s"] and r["peak_rss_mb"] >= r["peak_private_mb"] > 0
+    assert r["runtime"] == "OnnxEncoder" and not r["torch_imported"]  # the default runtime needs no torch
     tokens = np.load(tmp_path / "api_clip_4.npz")
     assert tokens["static"].ndim == 2 and np.isfinite(tokens["static"]).all()
+    t = bench.run_case("api_clip_torch", tmp_path / "cap", 4, "vt4d-tiny", tmp_path)
+    assert t["runtime"] == "VideoTok4D" and t["torch_imported"]
+    torch_tokens = np.load(tmp_path / "api_clip_torch_4.npz")
+    assert np.abs(torch_tokens["static"] - tokens["static"]).max() < 1e-5
