@@ -84,6 +84,13 @@ class OnnxEncoder:
         if not path.is_file():
             raise ModelNotFoundError(f"{directory} has no {ONNX_FILE} (export it with `python -m "
                                      f"vt4dcodec.model.onnx_export {directory}`, or encode with runtime='torch')")
+        return cls.from_file(path, meta, threads=threads)
+
+    @classmethod
+    def from_file(cls, path: Path, meta: dict[str, Any], *, threads: int | None = None) -> "OnnxEncoder":
+        """Open the graph at ``path`` for the model whose parsed ``config.json`` is ``meta``
+        (``directories.read_model_meta``); the checks of :meth:`open`."""
+        directory = path.parent
         if path.stat().st_size > MAX_ONNX_BYTES:
             raise ModelError(f"{path} is larger than {MAX_ONNX_BYTES} bytes")
         if not onnx_available():

@@ -129,10 +129,7 @@ def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str]) -> Path:
     with tempfile.TemporaryDirectory(dir=directory) as tmp:  # check the file before it replaces any old one
         candidate = Path(tmp) / ONNX_FILE
         onnx.save(model, str(candidate))
-        staged = Path(tmp) / "config.json"
-        staged.write_bytes((directory / "config.json").read_bytes())
-        (Path(tmp) / "model.safetensors").symlink_to((directory / "model.safetensors").resolve())
-        encoder = OnnxEncoder.open(tmp)
+        encoder = OnnxEncoder.from_file(candidate, meta)
         feed = {name: t.numpy() for name, t in zip(INPUT_NAMES, inputs)}
         got = encoder.session.run(list(OUTPUT_NAMES), feed)
         error = max(float(np.abs(a - b).max()) for a, b in zip(got, reference))
