@@ -14,11 +14,12 @@ from pathlib import Path
 from typing import Any
 
 from vt4dcodec.errors import ModelError, ModelNotFoundError
+from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
 
 __all__ = [
-    "model_directory", "read_model_meta", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
+    "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES",
 ]
@@ -105,3 +106,13 @@ def read_model_meta(directory: Path) -> dict[str, Any]:
     """Parse and validate config.json of a model directory."""
     return read_weights_meta(directory, meta_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=MODEL_FORMAT,
                              config_type=ModelConfig)
+
+
+def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:
+    """The fingerprint a container stores for the tokenizer whose parsed ``config.json`` is ``meta`` (as
+    :func:`read_model_meta` returns it): the same as the loaded model's ``stored_fingerprint()``."""
+    config = meta["config"]
+    return ModelFingerprint(model_id=meta["model_id"], model_version=meta["model_version"],
+                            config_sha256=meta["config_sha256"], weights_sha256=meta["weights_sha256"],
+                            static_shape=tuple(config.static_shape), dynamic_shape=tuple(config.dynamic_shape),
+                            token_dtype="float32")

@@ -30,7 +30,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import CONFIG_FILE, model_directory, read_model_meta
+from .directories import CONFIG_FILE, meta_fingerprint, model_directory, read_model_meta
 from .inputs.source_inputs import SourceInputs, stack_inputs
 
 __all__ = ["OnnxEncoder", "ONNX_FILE", "ONNX_FORMAT", "INPUT_NAMES", "OUTPUT_NAMES", "onnx_available",
@@ -67,10 +67,7 @@ class OnnxEncoder:
         self.config: ModelConfig = meta["config"]
         self.model_id: str = meta["model_id"]
         self.model_version: str = meta["model_version"]
-        self._fingerprint = ModelFingerprint(
-            model_id=self.model_id, model_version=self.model_version, config_sha256=meta["config_sha256"],
-            weights_sha256=meta["weights_sha256"], static_shape=tuple(self.config.static_shape),
-            dynamic_shape=tuple(self.config.dynamic_shape), token_dtype="float32")
+        self._fingerprint = meta_fingerprint(meta)
 
     @classmethod
     def open(cls, model: str | os.PathLike[str], *, threads: int | None = None) -> "OnnxEncoder":

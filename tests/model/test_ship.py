@@ -84,3 +84,24 @@ def test_without_an_autoencoder_run_the_card_carries_the_predecessors_stage_1_re
         inherited_stage1_lines(other, shipped)
     with pytest.raises(ModelError, match="no --autoencoder-run"):
         inherited_stage1_lines(model, tmp_path / "nowhere")
+
+
+def test_ship_writes_float16_weights_and_a_matching_encoder_onnx_replacing_a_stale_one(tmp_path):
+    from test_unified_recipe import RECIPE
+
+    from vt4dcodec.model import save_pretrained
+    from vt4dcodec.model.onnx_encoder import ONNX_FILE, OnnxEncoder
+    from vt4dcodec.model.train.ship import main
+
+    run = _run(tmp_path, "run")
+    torch.manual_seed(0)
+    net = VideoTok4D(get_config("tiny", **RECIPE))
+    save_pretrained(net, run / "model", model_id="t", model_version="0")
+    dest = tmp_path / "weights"  # a predecessor on the same frozen autoencoder, with an encoder of its weights
+    save_pretrained(net, dest / "t", model_id="t", model_version="1.0.0", storage_dtype="float16")
+    (dest / "t" / "MODEL_CARD.md").write_text("- stage 1 autoencoder: runs/ae (test)\n")
+    (dest / "t" / ONNX_FILE).write_bytes(b"an encoder of older weights")
+    assert main(["--run", str(run), "--id", "t", "--version", "2.0.0", "--dest", str(dest), "--decode-steps", "1"]) == 0
+    encoder = OnnxEncoder.open(dest / "t")
+    assert encoder.model_version == "2.0.0" and encoder.stored_fingerprint().model_id == "t"
+    assert "2.0.0" in (dest / "t" / "MODEL_CARD.md").read_text()

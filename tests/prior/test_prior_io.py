@@ -93,3 +93,41 @@ def test_float16_storage_round_trips_the_same_prior(tmp_path):
     cond = random_condition()
     a, b = prior.sample(cond, steps=2, seed=1), loaded.sample(cond, steps=2, seed=1)
     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+
+
+def test_ship_prior_stores_float16_beside_its_tokenizer_and_refuses_another_tokenizer(tmp_path):
+    from co4dgen_helpers import SMALL_TOKENIZER
+
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+    from vt4dcodec.model.train.ship_prior import main, ship_prior
+
+    torch.manual_seed(0)
+    dest = tmp_path / "weights"
+    save_pretrained(VideoTok4D(get_config("tiny", **SMALL_TOKENIZER)), dest / "tok", model_id="tok", model_version="3")
+    tokenizer = codec_fingerprint(dest / "tok")
+    prior = small_prior(scramble=True)
+    run = save_prior(prior, tmp_path / "run" / "prior", model_id="p-ship", model_version="3", tokenizer=tokenizer,
+                     card="# trained\n", extra={"steps": 5})
+    out = ship_prior(run, dest)
+    assert out == dest / "p-ship" and (out / "MODEL_CARD.md").read_text() == "# trained\n"
+    shipped = load_prior(out)
+    assert shipped.tokenizer_fingerprint == tokenizer
+    assert json.loads((out / "prior.json").read_text())["extra"] == {"steps": 5}
+    assert (out / "prior.safetensors").stat().st_size < 0.6 * (run / "prior.safetensors").stat().st_size
+    for name, value in shipped.state_dict().items():  # the float16-rounded prior, nothing else changed
+        assert torch.equal(value, prior.state_dict()[name].half().float()), name
+    absent = ModelFingerprint.from_dict({**FP.to_dict(), "model_id": "absent"})
+    other = save_prior(prior, tmp_path / "other", model_id="p-ship", model_version="3", tokenizer=absent)
+    with pytest.raises(ModelError, match="not shipped"):
+        ship_prior(other, dest)
+    stale = save_prior(prior, tmp_path / "stale", model_id="p-ship", model_version="3",
+                       tokenizer=ModelFingerprint.from_dict({**tokenizer.to_dict(), "weights_sha256": "c" * 64}))
+    with pytest.raises(ModelError, match="train the prior on the shipped tokenizer"):
+        ship_prior(stale, dest)
+    assert main([str(stale), "--dest", str(dest)]) == 2
+
+
+def codec_fingerprint(directory):
+    from vt4dcodec.model.directories import meta_fingerprint, read_model_meta
+
+    return meta_fingerprint(read_model_meta(directory))

@@ -1,0 +1,67 @@
+"""Ship a trained Co4DGen prior: a training run's prior directory -> ``model/weights/<id>/`` in float16.
+
+    python -m vt4dcodec.model.train.ship_prior runs/co4dgen/prior [--dest model/weights]
+
+The prior's id and version, the fingerprint of the tokenizer it was trained on, its extra records and its
+model card are kept; its weights are rounded to float16 (half the file; what is saved, loaded and hashed is
+the same prior) and the destination directory is replaced. The tokenizer it names must be shipped in
+``--dest`` with that very fingerprint: a prior trained on another tokenizer's tokens is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+from vt4dcodec.errors import ModelError
+
+from ..directories import CARD_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, read_model_meta
+from ..weights_io import load_prior, save_prior
+
+__all__ = ["ship_prior"]
+
+
+def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR) -> Path:
+    """Store the prior directory ``source`` as ``dest/<its model_id>`` (float16); returns that directory.
+    ModelError when the tokenizer it was trained on is not shipped in ``dest`` with the same fingerprint."""
+    source, dest = Path(source), Path(dest)
+    prior = load_prior(source)
+    meta = json.loads((source / PRIOR_META_FILE).read_text(encoding="utf-8"))
+    tokenizer = prior.tokenizer_fingerprint
+    tokenizer_dir = dest / tokenizer.model_id
+    if not (tokenizer_dir / "config.json").is_file():
+        raise ModelError(f"the prior was trained on {tokenizer.short()}, which is not shipped in {dest}")
+    shipped = meta_fingerprint(read_model_meta(tokenizer_dir))
+    if not shipped.matches(tokenizer):
+        raise ModelError(f"the prior was trained on {tokenizer.short()}; {dest} ships {shipped.short()}: "
+                         f"train the prior on the shipped tokenizer's tokens")
+    card_path = source / CARD_FILE
+    card = card_path.read_text(encoding="utf-8") if card_path.is_file() else None
+    out = dest / prior.model_id
+    if out.exists():
+        shutil.rmtree(out)
+    return save_prior(prior, out, model_id=prior.model_id, model_version=prior.model_version, tokenizer=tokenizer,
+                      card=card, extra=meta.get("extra"), storage_dtype="float16")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.ship_prior",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("prior", type=Path, help="the prior directory a training run wrote (<out>/prior)")
+    parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="directory of shipped models")
+    args = parser.parse_args(argv)
+    try:
+        out = ship_prior(args.prior, args.dest)
+    except ModelError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    size = sum(p.stat().st_size for p in out.iterdir())
+    print(f"shipped prior -> {out} ({size / 1e6:.1f} MB: {', '.join(sorted(p.name for p in out.iterdir()))})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
