@@ -95,6 +95,8 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
         f"- tokens: Z_s {fingerprint['static_shape'][0]}x{fingerprint['static_shape'][1]}, "
         f"Z_d {fingerprint['dynamic_shape'][0]}x{fingerprint['dynamic_shape'][1]}, bounded in (-1, 1)",
         f"- config: {params}",
+        "- `encoder.onnx`: the encoder for one camera per scene, exported for onnxruntime from these weights "
+        "(`vt4d encode` runs it without torch; same fingerprint, tokens equal to float rounding)",
         "",
         "## Training (reproduce with the commands in docs/training.md)",
         *stage1,
