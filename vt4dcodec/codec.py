@@ -103,27 +103,24 @@ def load_encoder(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT
     then needs an :class:`OnnxEncoder`).  ModelError for an unknown runtime, for ``"onnx"`` with several
     cameras, without onnxruntime or without an exported encoder."""
     from .errors import ModelError
+    from .model.directories import model_directory  # torch-free, as the ONNX encoder
+    from .model.onnx_encoder import OnnxEncoder, has_onnx_encoder, onnx_available
 
     if runtime not in RUNTIMES:
         raise ModelError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
     if not isinstance(model, (str, os.PathLike)):  # a loaded VideoTok4D or OnnxEncoder
-        if runtime == "onnx" and type(model).__name__ != "OnnxEncoder":
+        if runtime == "onnx" and not isinstance(model, OnnxEncoder):
             raise ModelError("runtime='onnx' takes a model id or directory (or an OnnxEncoder), not a loaded torch model")
         return model
     if runtime == "torch":
         return load_model(model)
-    from .model.directories import model_directory  # torch-free, as the ONNX encoder
-    from .model.onnx_encoder import has_onnx_encoder, onnx_available
-
-    if runtime == "onnx":
-        if cameras != 1:
-            raise ModelError(f"runtime='onnx' encodes one camera per scene, not {cameras}; use runtime='torch' "
-                             "(or 'auto') to encode several cameras")
-        return _open_onnx_cached(str(model_directory(model).resolve()))
     directory = model_directory(model)
-    if cameras == 1 and onnx_available() and has_onnx_encoder(directory):
+    if runtime == "onnx" and cameras != 1:
+        raise ModelError(f"runtime='onnx' encodes one camera per scene, not {cameras}; use runtime='torch' "
+                         "(or 'auto') to encode several cameras")
+    if runtime == "onnx" or (cameras == 1 and onnx_available() and has_onnx_encoder(directory)):
         return _open_onnx_cached(str(directory.resolve()))
-    return load_model(model)
+    return load_model(directory)
 
 
 def model_fingerprint(model: "VideoTok4D | OnnxEncoder") -> ModelFingerprint:

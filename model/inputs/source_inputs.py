@@ -128,7 +128,7 @@ def stack_inputs(items: list[SourceInputs]) -> dict[str, np.ndarray]:
         return np.stack([getattr(it, name) for it in items])
 
     return {
-        "frames": np.ascontiguousarray(stack("frames").transpose(0, 1, 4, 2, 3)).astype(np.float32) / np.float32(255.0),
+        "frames": stack("frames").transpose(0, 1, 4, 2, 3).astype(np.float32, order="C") / np.float32(255.0),
         "K": stack("K").astype(np.float32), "w2c": stack("w2c").astype(np.float32),
         "motion_mask": stack("motion_mask").astype(np.float32), "track_xy": stack("track_xy").astype(np.float32),
         "track_valid": stack("track_valid").astype(bool),

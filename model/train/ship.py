@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.dest / args.id / ONNX_FILE).unlink(missing_ok=True)  # an encoder of the old weights never stays
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
                           storage_dtype="float16", decode_steps=args.decode_steps)
-    export_encoder(from_pretrained(out), out)  # encoder.onnx: encoding one camera without torch
+    export_encoder(model, out)  # encoder.onnx (save_pretrained rounded model to the stored float16 values)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
                                                         args.decoder_from, overrides, stage1))

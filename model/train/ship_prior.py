@@ -18,7 +18,7 @@ from pathlib import Path
 
 from vt4dcodec.errors import ModelError
 
-from ..directories import CARD_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, read_model_meta
+from ..directories import CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, read_model_meta
 from ..weights_io import load_prior, save_prior
 
 __all__ = ["ship_prior"]
@@ -32,7 +32,7 @@ def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR) -> Path:
     meta = json.loads((source / PRIOR_META_FILE).read_text(encoding="utf-8"))
     tokenizer = prior.tokenizer_fingerprint
     tokenizer_dir = dest / tokenizer.model_id
-    if not (tokenizer_dir / "config.json").is_file():
+    if not (tokenizer_dir / CONFIG_FILE).is_file():
         raise ModelError(f"the prior was trained on {tokenizer.short()}, which is not shipped in {dest}")
     shipped = meta_fingerprint(read_model_meta(tokenizer_dir))
     if not shipped.matches(tokenizer):

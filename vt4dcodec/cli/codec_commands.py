@@ -16,7 +16,7 @@ from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
                      parse_camera_list)
 from ..demo import run_demo
-from ..errors import CaptureError, ModelError
+from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import VIDEO_FORMATS, write_frames
 from . import (add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int, positive_int,
@@ -129,9 +129,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
     views = _check_cameras(captures, args.camera, args.cameras)  # before the model loads
-    if args.runtime == "onnx" and views > 1:
-        raise ModelError(f"--runtime onnx encodes one camera per scene; --cameras gives {views}: use --runtime "
-                         "torch (or auto)")
     rank, world = _dist_rank()
     mine = captures[rank::world]
     if args.output is not None:
