@@ -37,7 +37,7 @@ from .data import ScenePool, rank_seeds
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
-    "parse_overrides", "lr_at", "train_loop", "make_loader", "scene_pool_and_seeds",
+    "parse_overrides", "lr_at", "train_loop", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
 ]
 
 
@@ -137,6 +137,16 @@ def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
 
 
+def trained_decode_steps(train_args: dict[str, Any]) -> int:
+    """The sampler steps a tokenizer run's renderer was trained for, from the run's arguments: one when
+    every sample was trained at tau = 1 (``--tau-one 1``: the renderer never saw another flow time, so a
+    second Euler step asks it about inputs it was not trained on), else the codec's general default."""
+    from ..videotok4d import DEFAULT_DECODE_STEPS
+
+    tau_one = train_args.get("tau_one", 0.0)
+    return 1 if isinstance(tau_one, (int, float)) and tau_one >= 1.0 else DEFAULT_DECODE_STEPS
+
+
 def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
     """The tokenizer of a training run's latest checkpoint (``run/checkpoint``), in eval mode, with the
     checkpoint's state (step, arguments, config): what the probes under bench/ read."""
@@ -151,6 +161,7 @@ def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
     model = VideoTok4D(ModelConfig.from_dict(config))
     state = load_checkpoint(directory, model, None)
     assert state is not None  # state.json was read above
+    model.decode_steps = trained_decode_steps(state.get("args", {}))
     return model.eval(), state
 
 

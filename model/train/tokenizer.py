@@ -39,7 +39,7 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     scene_pool_and_seeds, seed_everything, setup_distributed, train_loop)
+                     scene_pool_and_seeds, seed_everything, setup_distributed, train_loop, trained_decode_steps)
 from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents
 
 __all__ = ["main", "load_autoencoder", "draw_tau", "flow_step"]
@@ -304,6 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:
+        model.decode_steps = trained_decode_steps(vars(args))
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
                                     model_version=args.model_version)
         summary = {"config": cfg.to_dict(), "steps": args.steps,

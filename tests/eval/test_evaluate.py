@@ -140,6 +140,22 @@ def test_a_training_run_directory_evaluates_its_latest_checkpoint(tmp_path):
         assert torch.equal(a, b), k
 
 
+@pytest.mark.parametrize("args, steps", [({"tau_one": 1.0}, 1), ({"tau_one": 0.5}, 8), ({}, 8)])
+def test_a_run_checkpoint_decodes_with_the_steps_its_renderer_was_trained_for(tmp_path, args, steps):
+    """Regression: a checkpoint records no decode_steps, so evaluations of the from-scratch runs (trained at
+    tau = 1 only, --tau-one 1) rendered with 8 Euler steps, asking the renderer about flow times it never
+    saw, while the shipped model decodes in one; their curve mixed the two."""
+    from vt4dcodec.eval.command import resolve_model
+    from vt4dcodec.model.train.common import model_from_run, save_checkpoint
+
+    cfg = get_config("tiny", patch_size=4)
+    net = VideoTok4D(cfg)
+    save_checkpoint(tmp_path / "checkpoint", net, torch.optim.SGD(net.parameters(), lr=0.1), 5,
+                    {"config": cfg.to_dict(), "args": {"model_id": "m", "model_version": "1", **args}})
+    assert resolve_model(str(tmp_path)).decode_steps == steps
+    assert model_from_run(tmp_path)[0].decode_steps == steps
+
+
 _json_scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=False) | st.text(max_size=8)
 
 

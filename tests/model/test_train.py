@@ -227,9 +227,11 @@ def test_stage2_from_scratch_on_a_saved_models_autoencoder(runs, tmp_path):
     out = tmp_path / "scratch"
     assert stage2.main(["--autoencoder-from", str(first / "model"), "--out", str(out), "--steps", "1",
                         "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), "--lr", "0",
-                        "--warmup", "1", "--seed", "7", *COMMON, "unified_tokens=true"]) == 0
+                        "--warmup", "1", "--seed", "7", "--tau-one", "1", *COMMON, "unified_tokens=true"]) == 0
     saved, fresh = from_pretrained(first / "model"), from_pretrained(out / "model")
     assert fresh.config.unified_tokens and not saved.config.unified_tokens
+    # a renderer trained at tau = 1 only is saved to decode in one step; one trained at all flow times keeps 8
+    assert (fresh.decode_steps, saved.decode_steps) == (1, 8)
     a, b = saved.state_dict(), fresh.state_dict()
     assert all(torch.equal(a[k].float(), b[k].float()) for k in b if k.startswith("autoencoder."))
     assert not torch.equal(a["spatial_branch.queries"][:4], b["spatial_branch.queries"][:4])  # fresh weights

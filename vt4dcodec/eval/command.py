@@ -8,7 +8,8 @@ training run directories (their latest checkpoint).  ``--sets`` chooses the targ
 three); the results file holds their rows (field ``"set"``), ``summary_by_set`` (set -> method ->
 summary), ``summary`` (the far set's, as before sets existed) and ``token_health``.  ``--steps``
 forces the sampler steps; by default each model renders with its recorded ``decode_steps`` (recorded
-per model under ``models.<key>.steps``).  ``--merge`` adds or replaces some methods (in the sets
+per model under ``models.<key>.steps``; a training checkpoint records none and decodes in one step when
+its run trained the renderer at tau = 1 only, else in 8).  ``--merge`` adds or replaces some methods (in the sets
 evaluated) in an existing results file (same protocol; rows of files without sets are far rows), so a
 model that finishes training later is added without rerunning the rest; ``--tables FILE`` prints the
 Markdown tables of a results file (what docs/RESULTS.md shows).  The figure of the far set is written
@@ -32,7 +33,7 @@ import torch
 from vt4dcodec import codec
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.model import ModelConfig, VideoTok4D
-from vt4dcodec.model.train.common import load_checkpoint
+from vt4dcodec.model.train.common import load_checkpoint, trained_decode_steps
 
 from . import baselines
 from .protocol import (ENCODING, METHODS, TOKEN_METHODS, VIEW_SETS, EvalSettings, EvaluationError, describe_model,
@@ -73,7 +74,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
     """The model of a training run's latest checkpoint (``<run>/checkpoint/``, written by the training
-    commands), for evaluating a run in progress.  Its fingerprint version is ``<version>+step<N>``."""
+    commands), for evaluating a run in progress.  Its fingerprint version is ``<version>+step<N>``; its
+    ``decode_steps`` follow the run's flow times (one step for a run trained at tau = 1 only)."""
     ckpt = Path(run_dir) / "checkpoint"
     try:
         state = json.loads((ckpt / "state.json").read_text())
@@ -85,6 +87,7 @@ def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
     net.set_identity(str(train_args.get("model_id", "unnamed")),
                      f"{train_args.get('model_version', '0')}+step{int(state['step'])}",
                      training_step=int(state["step"]))
+    net.decode_steps = trained_decode_steps(train_args)  # a checkpoint records none: what its renderer was trained for
     return net.eval()
 
 
