@@ -101,7 +101,8 @@ def build(evals: list[Path], reference: Path | None, logs: list[Path]) -> dict[s
                               "thresholds_50_scenes": THRESHOLDS}
     if reference is not None:
         ref = _read(reference)
-        if protocol(ref)["sets"] != first["sets"] or any(protocol(ref)[k] != first[k] for k in PROTOCOL):
+        ref_protocol = protocol(ref)  # its own decode steps are allowed: it is recorded with it
+        if any(ref_protocol[k] != first[k] for k in (*PROTOCOL, "sets")):
             raise CurveError(f"--reference {reference} was evaluated on other scenes or sets than the curve")
         result["reference"] = {"fingerprint": ref["models"]["main"].get("fingerprint"),
                                "decode_steps": ref["models"]["main"].get("steps"), **point(ref)}

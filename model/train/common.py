@@ -156,9 +156,9 @@ def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
     directory = Path(run) / "checkpoint"
     try:
         config = json.loads((directory / "state.json").read_text())["config"]
-    except (OSError, ValueError, KeyError) as exc:
-        raise ModelError(f"{run} holds no complete training checkpoint: {exc}") from None
-    model = VideoTok4D(ModelConfig.from_dict(config))
+        model = VideoTok4D(ModelConfig.from_dict(config))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ModelError(f"{directory} holds no complete training checkpoint: {exc}") from None
     state = load_checkpoint(directory, model, None)
     assert state is not None  # state.json was read above
     model.decode_steps = trained_decode_steps(state.get("args", {}))

@@ -31,9 +31,9 @@ from typing import Callable, Sequence
 import torch
 
 from vt4dcodec import codec
-from vt4dcodec.errors import Vt4dError
-from vt4dcodec.model import ModelConfig, VideoTok4D
-from vt4dcodec.model.train.common import load_checkpoint, trained_decode_steps
+from vt4dcodec.errors import ModelError, Vt4dError
+from vt4dcodec.model import VideoTok4D
+from vt4dcodec.model.train.common import model_from_run
 
 from . import baselines
 from .protocol import (ENCODING, METHODS, TOKEN_METHODS, VIEW_SETS, EvalSettings, EvaluationError, describe_model,
@@ -76,19 +76,15 @@ def load_run_checkpoint(run_dir: str | Path) -> VideoTok4D:
     """The model of a training run's latest checkpoint (``<run>/checkpoint/``, written by the training
     commands), for evaluating a run in progress.  Its fingerprint version is ``<version>+step<N>``; its
     ``decode_steps`` follow the run's flow times (one step for a run trained at tau = 1 only)."""
-    ckpt = Path(run_dir) / "checkpoint"
     try:
-        state = json.loads((ckpt / "state.json").read_text())
-        net = VideoTok4D(ModelConfig.from_dict(state["config"]))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise EvaluationError(f"{ckpt} holds no complete training checkpoint: {exc}") from None
-    load_checkpoint(ckpt, net, None)
+        net, state = model_from_run(Path(run_dir))  # decode_steps: what the run's renderer was trained for
+    except ModelError as exc:
+        raise EvaluationError(str(exc)) from None
     train_args = state.get("args", {})
     net.set_identity(str(train_args.get("model_id", "unnamed")),
                      f"{train_args.get('model_version', '0')}+step{int(state['step'])}",
                      training_step=int(state["step"]))
-    net.decode_steps = trained_decode_steps(train_args)  # a checkpoint records none: what its renderer was trained for
-    return net.eval()
+    return net
 
 
 def resolve_model(spec: str) -> VideoTok4D:
