@@ -11,6 +11,13 @@ views, sets and decode steps, or the script refuses (a curve over different scen
 line. ``--log`` adds the runs' training logs (mean x0 error over 250 steps). Writes the points (PSNR with
 its standard error, the paired difference ours - ablation, token health) to ``--out`` and the figure to
 ``--figure``.
+
+A long run is evaluated across sessions whose evaluation files do not travel: ``--extend CURVE.json``
+starts from the points (and reference) of a curve this script wrote before, on the same protocol, and adds
+the ``--eval`` points to it (an evaluation at a step the curve already has replaces that point).
+
+    python bench/plot_training_pair.py --extend docs/results/training_pair.json --eval E4000.json \
+        --log RUN/log.jsonl --log RUN2/log.jsonl --out docs/results/training_pair.json --figure CURVE.png
 """
 
 from __future__ import annotations
@@ -87,18 +94,35 @@ def training_curve(log: Path, window: int = WINDOW) -> list[tuple[int, float]]:
     return curve
 
 
-def build(evals: list[Path], reference: Path | None, logs: list[Path]) -> dict[str, Any]:
-    if not evals:
+def _read_curve(path: Path) -> dict[str, Any]:
+    """A curve JSON this script wrote (for ``--extend``)."""
+    try:
+        curve = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise CurveError(f"--extend {path}: not a curve JSON of this script ({exc})") from None
+    if not isinstance(curve, dict) or not all(k in curve for k in ("protocol", "points", "evaluations")):
+        raise CurveError(f"--extend {path}: not a curve JSON of this script (no protocol, points, evaluations)")
+    return curve
+
+
+def build(evals: list[Path], reference: Path | None, logs: list[Path], extend: Path | None = None) -> dict[str, Any]:
+    earlier = _read_curve(extend) if extend is not None else None
+    if not evals and earlier is None:
         raise CurveError("give at least one --eval")
     data = [_read(p) for p in evals]
-    first = protocol(data[0])
-    for path, d in zip(evals[1:], data[1:]):
+    first, against = (earlier["protocol"], f"the curve {extend}") if earlier else (protocol(data[0]), str(evals[0]))
+    for path, d in zip(evals, data):
         if protocol(d) != first:
-            raise CurveError(f"{path} was evaluated with another protocol than {evals[0]}: "
+            raise CurveError(f"{path} was evaluated with another protocol than {against}: "
                              f"{protocol(d)} != {first}")
-    points = sorted((point(d) for d in data), key=lambda p: (p["step"] is None, p["step"] or 0))
-    result: dict[str, Any] = {"protocol": first, "evaluations": [str(p) for p in evals], "points": points,
+    by_step = {p["step"]: p for p in (earlier["points"] if earlier else [])}
+    by_step.update((p["step"], p) for p in map(point, data))  # a new evaluation of a step replaces the old
+    points = sorted(by_step.values(), key=lambda p: (p["step"] is None, p["step"] or 0))
+    sources = [*(earlier["evaluations"] if earlier else []), *map(str, evals)]
+    result: dict[str, Any] = {"protocol": first, "evaluations": list(dict.fromkeys(sources)), "points": points,
                               "thresholds_50_scenes": THRESHOLDS}
+    if reference is None and earlier is not None and "reference" in earlier:
+        result["reference"] = earlier["reference"]
     if reference is not None:
         ref = _read(reference)
         ref_protocol = protocol(ref)  # its own decode steps are allowed: it is recorded with it
@@ -157,11 +181,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval", type=Path, action="append", default=[], help="an evaluation JSON (repeat)")
     parser.add_argument("--reference", type=Path, help="an evaluation JSON of another model, same protocol")
     parser.add_argument("--log", type=Path, action="append", default=[], help="a run's log.jsonl (repeat)")
+    parser.add_argument("--extend", type=Path, metavar="CURVE_JSON",
+                        help="start from the points and reference of a curve this script wrote (same protocol)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--figure", type=Path)
     args = parser.parse_args(argv)
     try:
-        result = build(args.eval, args.reference, args.log)
+        result = build(args.eval, args.reference, args.log, args.extend)
     except CurveError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

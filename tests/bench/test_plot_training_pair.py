@@ -103,3 +103,35 @@ def test_main_writes_the_curve_and_the_figure(bench, tmp_path):
     assert len(result["training_x0"][str(log)]) == 8  # 2,000 steps in windows of 250
     assert result["command"].startswith("python bench/plot_training_pair.py --eval")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_extend_adds_points_to_an_earlier_curve_and_keeps_its_reference(bench, tmp_path):
+    """Evaluation files of earlier sessions do not travel: the curve they made is the input."""
+    early = [_write(tmp_path, f"e{s}.json", _eval(s, 20 + s / 500, 19 + s / 1000)) for s in (500, 2000)]
+    ref = _write(tmp_path, "ref.json", _eval(None, 28.2, 22.96))
+    curve = tmp_path / "curve.json"
+    assert bench.main([*("--eval", str(early[0]), "--eval", str(early[1])), "--reference", str(ref),
+                       "--out", str(curve)]) == 0
+    again = _write(tmp_path, "e2000b.json", _eval(2000, 25.5, 21.5))  # a re-evaluation of step 2,000
+    later = _write(tmp_path, "e4000.json", _eval(4000, 26.2, 22.5, unified_step=4000))
+    result = bench.build([later, again], None, [], extend=curve)
+    assert [p["step"] for p in result["points"]] == [500, 2000, 4000]
+    assert result["points"][1]["sets"]["source"]["ours"]["psnr"]["mean"] == 25.5
+    assert result["points"][0]["sets"]["source"]["ours"]["psnr"]["mean"] == 21.0
+    assert result["reference"]["sets"]["source"]["ours"]["psnr"]["mean"] == 28.2
+    assert result["evaluations"] == [str(early[0]), str(early[1]), str(later), str(again)]
+    assert bench.build([], None, [], extend=curve)["points"] == json.loads(curve.read_text())["points"]
+
+
+def test_extend_refuses_another_protocol_and_files_that_are_no_curve(bench, tmp_path):
+    curve = tmp_path / "curve.json"
+    assert bench.main(["--eval", str(_write(tmp_path, "a.json", _eval(500, 22.0, 20.0))), "--out", str(curve)]) == 0
+    other = _write(tmp_path, "b.json", _eval(1000, 23.0, 21.0, scenes=50))
+    with pytest.raises(bench.CurveError, match="another protocol than the curve"):
+        bench.build([other], None, [], extend=curve)
+    evaluation = _write(tmp_path, "c.json", _eval(1000, 23.0, 21.0))  # an evaluation, not a curve
+    with pytest.raises(bench.CurveError, match="not a curve JSON"):
+        bench.build([], None, [], extend=evaluation)
+    out = tmp_path / "d.json"
+    assert bench.main(["--extend", str(tmp_path / "missing.json"), "--out", str(out)]) == 2
+    assert not out.exists()
