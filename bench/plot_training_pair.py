@@ -39,15 +39,20 @@ class CurveError(ValueError):
     """The evaluations given cannot form one curve."""
 
 
-def _read(path: Path) -> dict[str, Any]:
+def _load(path: Path, keys: tuple[str, ...], what: str) -> dict[str, Any]:
+    """The JSON object at ``path`` holding ``keys``; ``what`` names the file for the error."""
     try:
         data = json.loads(Path(path).read_text())
     except (OSError, ValueError) as exc:
-        raise CurveError(f"{path}: not an evaluation JSON of python -m vt4dcodec.eval ({exc})") from None
-    missing = [k for k in ("settings", "summary_by_set", "models") if not isinstance(data, dict) or k not in data]
+        raise CurveError(f"{path}: not {what} ({exc})") from None
+    missing = [k for k in keys if not isinstance(data, dict) or k not in data]
     if missing:
-        raise CurveError(f"{path}: not an evaluation JSON of python -m vt4dcodec.eval (no {', '.join(missing)})")
+        raise CurveError(f"{path}: not {what} (no {', '.join(missing)})")
     return data
+
+
+def _read(path: Path) -> dict[str, Any]:
+    return _load(path, ("settings", "summary_by_set", "models"), "an evaluation JSON of python -m vt4dcodec.eval")
 
 
 def _set_rank(name: str) -> tuple[int, str]:
@@ -96,13 +101,7 @@ def training_curve(log: Path, window: int = WINDOW) -> list[tuple[int, float]]:
 
 def _read_curve(path: Path) -> dict[str, Any]:
     """A curve JSON this script wrote (for ``--extend``)."""
-    try:
-        curve = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise CurveError(f"--extend {path}: not a curve JSON of this script ({exc})") from None
-    if not isinstance(curve, dict) or not all(k in curve for k in ("protocol", "points", "evaluations")):
-        raise CurveError(f"--extend {path}: not a curve JSON of this script (no protocol, points, evaluations)")
-    return curve
+    return _load(path, ("protocol", "points", "evaluations"), "a curve JSON of this script (--extend)")
 
 
 def build(evals: list[Path], reference: Path | None, logs: list[Path], extend: Path | None = None) -> dict[str, Any]:
@@ -123,7 +122,7 @@ def build(evals: list[Path], reference: Path | None, logs: list[Path], extend: P
                               "thresholds_50_scenes": THRESHOLDS}
     if reference is None and earlier is not None and "reference" in earlier:
         result["reference"] = earlier["reference"]
-    if reference is not None:
+    elif reference is not None:
         ref = _read(reference)
         ref_protocol = protocol(ref)  # its own decode steps are allowed: it is recorded with it
         if any(ref_protocol[k] != first[k] for k in (*PROTOCOL, "sets")):
