@@ -201,6 +201,16 @@ class ModelConfig(_Config):
         direction a token keeps the patch splat, which snaps small errors of its depth to its own cell
         (trained on the pixel splat alone, vt4d-tiny's source view lost 0.6 dB while its held-out cameras
         gained 0.15). Renderer only, no weights. 0 = off.
+        dynamic_splat: with pixel_splat, > 0 gives every dynamic token (Z_d, or the unified ablation's last
+        N_d tokens) a place in the scene that moves: dynamic token k belongs to encoded camera k mod V and
+        to that camera's (k // V)-th most moving track (:func:`temporal_branch.select_tracks`, which the
+        Temporal Branch's query k also reads); the renderer decodes from the token the track's per-frame
+        position in its camera at the middle frame (u, v latent pixels and depth, supervised in training by
+        the track and the source depth: ``VideoTok4D.track_loss``) and a ``dynamic_splat`` x
+        ``dynamic_splat`` patch of latent content with an opacity per latent pixel, forward-warped into each
+        target frame like the pixel splat and composited over the static splat (premultiplied, normalised
+        per latent pixel). The opacity is scaled by a learned gate that starts at 0, so a warm start
+        renders as before. 0 = off.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -248,6 +258,7 @@ class ModelConfig(_Config):
     view_gate_deg: float = 0.0
     pixel_splat: bool = False
     patch_gate_deg: float = 0.0
+    dynamic_splat: int = 0
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -256,7 +267,7 @@ class ModelConfig(_Config):
                                                "token_from_cell": False, "frame_copies": False,
                                                "frame_gate_deg": 0.0, "spread_views": False,
                                                "view_gate_deg": 0.0, "pixel_splat": False,
-                                               "patch_gate_deg": 0.0}
+                                               "patch_gate_deg": 0.0, "dynamic_splat": 0}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -309,6 +320,11 @@ class ModelConfig(_Config):
             raise ModelError("config pixel_splat needs token_splat (it places the splatted tokens' latent pixels)")
         if self.patch_gate_deg > 0 and not self.pixel_splat:
             raise ModelError("config patch_gate_deg needs pixel_splat (it shares each token between the two splats)")
+        if isinstance(self.dynamic_splat, bool) or not isinstance(self.dynamic_splat, int) \
+                or not 0 <= self.dynamic_splat <= self.image_size // self.ae_downsample:
+            raise ModelError(f"config dynamic_splat must be an integer from 0 to the latent size, got {self.dynamic_splat!r}")
+        if self.dynamic_splat > 0 and not self.pixel_splat:
+            raise ModelError("config dynamic_splat needs pixel_splat (it warps the dynamic tokens' patches alike)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

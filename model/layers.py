@@ -16,7 +16,7 @@ from torch import nn
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
     "timestep_embedding", "patchify", "unpatchify", "locality_prior", "locality_heads", "grid_positions",
-    "token_cameras",
+    "token_cameras", "dynamic_token_cameras",
 ]
 
 
@@ -207,6 +207,11 @@ def timestep_embedding(tau: torch.Tensor, dim: int, max_period: float = 10_000.0
     args = 1000.0 * tau.float()[:, None] * freqs[None]
     emb = torch.cat([torch.cos(args), torch.sin(args)], dim=-1)
     return F.pad(emb, (0, dim - emb.shape[-1]))
+
+
+def dynamic_token_cameras(n_dynamic: int, views: int, device: torch.device | None = None) -> torch.Tensor:
+    """(N_d,) long: the encoded camera of dynamic token k, k mod V (``config.dynamic_splat``)."""
+    return torch.arange(n_dynamic, device=device) % views
 
 
 def patchify(x: torch.Tensor, p: int) -> torch.Tensor:

@@ -38,6 +38,15 @@ pixels (view gate and dropped tokens as above), normalised per latent pixel over
 the floor: a forward warp of the tokens' content at latent-pixel precision. With ``config.patch_gate_deg`` a
 share exp(-a^2 / 2 s^2) of each token (a as for the view gate) goes through the patch splat instead: tokens
 seen from near their own camera's direction keep the patch splat's snapping to their cell.
+
+Dynamic splat (``config.dynamic_splat`` = s): each dynamic token k (encoded camera k mod V) decodes its
+track's position in every frame (:meth:`Renderer.dynamic_track`: latent pixel (u, v) in its camera at the
+middle frame and a depth) and an s x s patch of latent content with an opacity per latent pixel
+(:meth:`Renderer.composite_dynamic`). The patch's latent pixels are unprojected at that depth and
+forward-warped into target frame t with the pixel splat's Gaussian (view gate as above, relative among
+the dynamic tokens), then composited over the static splat: out = S (1 - A) + sum w alpha c / (sum w +
+SPLAT_FLOOR), A = sum w alpha / (sum w + SPLAT_FLOOR). Opacities are scaled by a learned gate that starts
+at 0, so a warm start renders as before.
 """
 
 from __future__ import annotations
@@ -49,14 +58,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import (AdaLNBlock, grid_positions, locality_heads, locality_prior, patchify, timestep_embedding,
-                     token_cameras, unpatchify)
+from .layers import (AdaLNBlock, dynamic_token_cameras, grid_positions, locality_heads, locality_prior, patchify,
+                     timestep_embedding, token_cameras, unpatchify)
 
-__all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR"]
+__all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR", "DYNAMIC_GATE_SCALE"]
 
 MAX_DEPTH_LOG_FACTOR = 2.0  # a token's depth is d_ref * exp(f), f in (-2, 2): 0.14x .. 7.4x the reference
 MIN_ANCHOR_DEPTH = 0.1  # metres; the reference depth (of the world origin) is clamped to at least this
 FAR_LOGIT = -1.0e4  # bias of an anchor behind the target camera, and the floor of every Gaussian logit
+DYNAMIC_GATE_SCALE = 10.0  # dynamic splat: opacity gate = this x a parameter starting at 0 (Adam moves it ~lr a step)
 SPLAT_FLOOR = 0.1  # token splat: weight of "nothing" in each patch's normalisation (a lone token on its cell: 0.91)
 
 
@@ -106,9 +116,102 @@ class Renderer(nn.Module):
         if cfg.frame_copies:  # a frame copy's difference from its time-average copy -> its frame group's change
             self.splat_frames = nn.Linear(cfg.token_dim, C * p * p)  # random weight: equal copies add nothing,
             nn.init.zeros_(self.splat_frames.bias)  # and the encoder's zero map still gets a gradient
+        self.dynamic_path: nn.Sequential | None = None
+        if cfg.dynamic_splat:  # dynamic token -> per frame (u, v, log depth factor); -> patch content + opacity
+            self.dynamic_path = nn.Sequential(nn.Linear(cfg.token_dim, D), nn.SiLU(), nn.Linear(D, cfg.frames * 3))
+            self.dynamic_content = nn.Linear(cfg.token_dim, (C + 1) * cfg.dynamic_splat ** 2)
+            nn.init.zeros_(self.dynamic_content.weight)
+            nn.init.zeros_(self.dynamic_content.bias)
+            self.dynamic_gate = nn.Parameter(torch.zeros(()))
         for layer in (self.final_mod, self.out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
+
+    def dynamic_track(self, z_d: torch.Tensor, w2c_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Where each dynamic token's track is (``config.dynamic_splat``): (uv (B, N_d, frames, 2) latent pixels
+        (u, v, centres at integers) in the token's encoded camera (k mod V) at the middle frame, depth (B, N_d,
+        frames) metres along its z axis: the depth of the world origin there (at least MIN_ANCHOR_DEPTH) times
+        exp(f), f in (-MAX_DEPTH_LOG_FACTOR, MAX_DEPTH_LOG_FACTOR)). w2c_src: (B, 4, 4) or (B, V, 4, 4)."""
+        if self.dynamic_path is None:
+            raise RuntimeError("dynamic_track needs config.dynamic_splat")
+        cfg = self.cfg
+        if w2c_src.ndim == 3:
+            w2c_src = w2c_src[:, None]
+        B, n_d = z_d.shape[:2]
+        out = self.dynamic_path(z_d.to(self.dynamic_content.weight.dtype)).float().view(B, n_d, cfg.frames, 3)
+        h = cfg.latent_size
+        uv = (h - 1) / 2 + (h / 2) * out[..., :2]
+        cam = dynamic_token_cameras(n_d, w2c_src.shape[1], z_d.device)
+        reference = w2c_src[:, cam, 2, 3].float().clamp_min(MIN_ANCHOR_DEPTH)  # (B, N_d)
+        return uv, reference[..., None] * torch.exp(MAX_DEPTH_LOG_FACTOR * torch.tanh(out[..., 2]))
+
+    def dynamic_placement(self, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor, K_src: torch.Tensor,
+                          w2c_src: torch.Tensor, keep: torch.Tensor | None
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Where the dynamic splat puts latent pixel q of dynamic token k in target frame t, as
+        :meth:`pixel_placement` does for the anchored tokens: (ey (B, T, N_d, q, h), ex (B, T, N_d, q, w),
+        f (B, T, N_d, q)), q = dynamic_splat^2 row-major; f is 0 behind the camera or for a dropped token
+        (``keep`` (B, N_s + N_d)), else exp(-view term) relative among the dynamic tokens of that frame
+        (``config.view_gate_deg``). Cameras as :meth:`projected_logit`."""
+        cfg = self.cfg
+        if K_src.ndim == 3:
+            K_src, w2c_src = K_src[:, None], w2c_src[:, None]
+        n_d, T, ds = z_d.shape[1], K_tgt.shape[1], cfg.ae_downsample
+        uv, depth = self.dynamic_track(z_d, w2c_src)
+        uv, depth = uv[:, :, :T], depth[:, :, :T]
+        side = torch.arange(cfg.dynamic_splat, dtype=uv.dtype, device=uv.device) - (cfg.dynamic_splat - 1) / 2
+        dv, du = torch.meshgrid(side, side, indexing="ij")
+        offsets = torch.stack([du, dv], dim=-1).reshape(-1, 2)  # (q, 2) latent px, row-major
+        pix = (uv[:, :, :, None] + offsets + 0.5) * ds - 0.5  # (B, N_d, T, q, 2) image px
+        pix = torch.cat([pix, torch.ones_like(pix[..., :1])], dim=-1)
+        cam = dynamic_token_cameras(n_d, K_src.shape[1], z_d.device)
+        K_tok, w2c_tok = K_src[:, cam].float(), w2c_src[:, cam].float()  # (B, N_d, 3, 3), (B, N_d, 4, 4)
+        rays = torch.einsum("bnij,bntqj->bntqi", torch.linalg.inv(K_tok), pix)  # z = 1
+        R, t = w2c_tok[..., :3, :3], w2c_tok[..., :3, 3]
+        x_world = torch.einsum("bnji,bntqj->bntqi", R, rays * depth[..., None, None] - t[:, :, None, None])
+        Rt, tt = w2c_tgt[..., :3, :3].float(), w2c_tgt[..., :3, 3].float()
+        x_tgt = torch.einsum("btij,bntqj->btnqi", Rt, x_world) + tt[:, :, None, None]  # (B, T, N_d, q, 3)
+        proj = torch.einsum("btij,btnqj->btnqi", K_tgt.float(), x_tgt)
+        z = proj[..., 2]
+        at = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / ds
+        centres = torch.arange(cfg.latent_size, dtype=at.dtype, device=at.device) + 0.5
+        scale = 2.0 * cfg.locality_sigma ** 2
+        ex = torch.exp(-(centres - at[..., 0:1]) ** 2 / scale)
+        ey = torch.exp(-(centres - at[..., 1:2]) ** 2 / scale)
+        f = (z > 1e-3).to(ex.dtype)
+        if cfg.view_gate_deg > 0:
+            point = x_world.mean(3)  # (B, N_d, T, 3) the patch centre
+            origin = -torch.einsum("bnji,bnj->bni", R, t)  # (B, N_d, 3) encoded camera centres
+            target = -torch.einsum("btji,btj->bti", Rt, tt)  # (B, T, 3)
+            from_source = F.normalize(point - origin[:, :, None], dim=-1).transpose(1, 2)  # (B, T, N_d, 3)
+            from_target = F.normalize(point.transpose(1, 2) - target[:, :, None], dim=-1)
+            term = (1.0 - (from_source * from_target).sum(-1)) / math.radians(cfg.view_gate_deg) ** 2
+            f = f * torch.exp(-(term - term.amin(-1, keepdim=True)))[..., None]
+        if keep is not None:
+            f = f * keep[:, None, keep.shape[1] - n_d:, None].to(f.dtype)
+        return ey, ex, f
+
+    def composite_dynamic(self, splat: torch.Tensor, z_d: torch.Tensor,
+                          placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+        """The static splat (B, T, P, C p p) with the dynamic tokens' patches composited over it
+        (placement from :meth:`dynamic_placement`): S (1 - A) + sum w alpha c / (sum w + SPLAT_FLOOR) per latent
+        pixel, A = sum w alpha / (sum w + SPLAT_FLOOR), alpha = gate sigmoid(o) per patch pixel. Same shape."""
+        cfg = self.cfg
+        ey, ex, f = placement
+        B, T, n_d, q, h = ey.shape
+        w, C, p = ex.shape[-1], cfg.latent_channels, cfg.renderer_patch
+        content = self.dynamic_content(z_d.to(self.dynamic_content.weight.dtype)).float().view(B, n_d, C + 1, q)
+        alpha = DYNAMIC_GATE_SCALE * self.dynamic_gate.float() * torch.sigmoid(content[:, :, C])  # (B, N_d, q)
+        values = torch.cat([(content[:, :, :C] * alpha[:, :, None]).transpose(2, 3), alpha[..., None],
+                            torch.ones_like(alpha[..., None])], dim=-1).reshape(B, 1, n_d * q, 1, C + 2)
+        rows = (f[..., None] * ey).reshape(B, T, n_d * q, h, 1)
+        cols = ex.reshape(B, T, n_d * q, w)
+        acc = ((rows * values).reshape(B, T, n_d * q, h * (C + 2)).transpose(2, 3) @ cols)  # (B, T, h (C+2), w)
+        acc = acc.view(B, T, h, C + 2, w).transpose(2, 3)  # (B, T, C + 2, h, w)
+        norm = acc[:, :, C + 1:] + SPLAT_FLOOR
+        static = unpatchify(splat.float(), p, C, h, w)
+        out = static * (1.0 - acc[:, :, C:C + 1] / norm) + acc[:, :, :C] / norm
+        return patchify(out, p).to(splat.dtype)
 
     def embed_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor, drop_static: bool | torch.Tensor,
                      drop_dynamic: bool | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -443,6 +546,9 @@ class Renderer(nn.Module):
                     splat = splat.to(x.dtype)  # (B, T, P, C p p)
                 else:
                     splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)
+                if self.dynamic_path is not None:
+                    placement = self.dynamic_placement(z_d, K_tgt, w2c_tgt, K_src, w2c_src, keep)
+                    splat = self.composite_dynamic(splat, z_d, placement)
                 x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p

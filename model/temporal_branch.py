@@ -12,6 +12,11 @@ The non-learned inputs (motion mask M_t, Eq. 3-4; tracks p_i^t with validity, Eq
    sequences with a key-padding mask from validity, so tracks never mix), then the N_d dynamic
    queries do self-attention, cross-attention to all valid track features, and an MLP.
 
+With ``config.dynamic_splat`` dynamic query k is tied to one track (:func:`select_tracks`: encoded camera
+k mod V, its (k // V)-th most moving track): after each track layer it adds a linear map (zero at
+initialisation) of that track's features averaged over its valid frames, so token k can say where its
+track goes (the renderer splats it there).
+
 Ablations: ``motion_isolation=False`` uses a mask of ones; ``track_attention=False`` replaces the
 tracks by fixed grid positions (p_i^t = p_i^1, valid everywhere): fixed-grid temporal attention.
 """
@@ -25,9 +30,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock
+from .layers import QUERY_INIT_STD, QueryBlock, SelfAttentionBlock, dynamic_token_cameras
 
-__all__ = ["TemporalBranch", "TrackAttention", "sample_at_tracks", "fixed_grid_tracks"]
+__all__ = ["TemporalBranch", "TrackAttention", "sample_at_tracks", "fixed_grid_tracks", "select_tracks"]
 
 
 def sample_at_tracks(features: torch.Tensor, track_xy: torch.Tensor) -> torch.Tensor:
@@ -59,6 +64,25 @@ def fixed_grid_tracks(batch: int, n_tracks: int, frames: int, latent_size: int,
     xy = torch.stack([uu, vv], dim=-1).reshape(-1, 2)[:n_tracks]
     track_xy = xy[None, :, None, :].expand(batch, -1, frames, -1).contiguous()
     return track_xy, torch.ones(batch, n_tracks, frames, dtype=torch.bool, device=device)
+
+
+def select_tracks(motion_mask: torch.Tensor, track_xy: torch.Tensor, track_valid: torch.Tensor, n_dynamic: int,
+                  views: int) -> torch.Tensor:
+    """The track each dynamic token is tied to (``config.dynamic_splat``): (S, N_d) long indices into a
+    scene's V N tracks (camera-major: index c N + i is track i of encoded camera c).
+
+    Token k takes encoded camera c = k mod V and that camera's (k // V mod N)-th track by motion score,
+    the mean of the motion mask M_t (B, T, h, w) at the track's position over its valid frames (ties keep
+    the track order). track_xy (B, N, T, 2), track_valid (B, N, T); B = S V clips, scene-major."""
+    B, N, T = track_valid.shape
+    S = B // views
+    mask = sample_at_tracks(motion_mask[:, :T, None].float(), track_xy.float())[..., 0]  # (B, N, T)
+    valid = track_valid.float()
+    score = (mask * valid).sum(-1) / valid.sum(-1).clamp_min(1.0)  # (B, N)
+    order = torch.sort(-score, dim=1, stable=True).indices.view(S, views, N)  # best first per camera
+    camera = dynamic_token_cameras(n_dynamic, views, score.device)
+    rank = (torch.arange(n_dynamic, device=score.device) // views) % N
+    return order[:, camera, rank] + camera[None] * N
 
 
 class TrackAttention(nn.Module):
@@ -96,6 +120,12 @@ class TemporalBranch(nn.Module):
         self.track_layers = nn.ModuleList(TrackAttention(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.track_layers))
         self.queries = nn.Parameter(torch.randn(cfg.n_dynamic, D) * QUERY_INIT_STD)
         self.query_layers = nn.ModuleList(QueryBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.track_layers))
+        self.track_query: nn.ModuleList | None = None
+        if cfg.dynamic_splat:  # query k + W_l (its own track's mean feature); zero: a warm start encodes as before
+            self.track_query = nn.ModuleList(nn.Linear(D, D) for _ in range(cfg.track_layers))
+            for layer in self.track_query:
+                nn.init.zeros_(layer.weight)
+                nn.init.zeros_(layer.bias)
 
     def masked_features(self, latents: torch.Tensor, rays: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Eq. 4-5: Xbar^dyn. latents (B,T,C,h,w), rays (B,T,6,h,w), mask (B,T,h,w) -> (B,T,D,h,w)."""
@@ -126,12 +156,17 @@ class TemporalBranch(nn.Module):
                 track_xy: torch.Tensor, track_valid: torch.Tensor, views: int = 1) -> torch.Tensor:
         """latents X: (B,T,C,h,w); rays: (B,T,6,h,w); motion_mask: (B,T,h,w) in [0,1];
         track_xy: (B,N,T,2) latent pixels; track_valid: (B,N,T) bool. Returns (B / views, N_d, D).
+        With ``config.dynamic_splat`` query k reads its :func:`select_tracks` track (chosen on the given
+        tracks, before the fixed-grid ablation replaces them).
 
         With ``views`` > 1 (cameras per scene, scene-major) every camera's tracks are attended along
         on their own (Eq. 7) and the dynamic queries of a scene read the tracks of all its cameras."""
         B, T, _, h, w = latents.shape
         if not self.cfg.motion_isolation:
             motion_mask = torch.ones_like(motion_mask)
+        chosen = None
+        if self.track_query is not None:
+            chosen = select_tracks(motion_mask, track_xy, track_valid, self.cfg.n_dynamic, views)  # (S, N_d)
         if not self.cfg.track_attention:
             track_xy, track_valid = fixed_grid_tracks(B, self.cfg.n_tracks, T, h, latents.device)
         features = self.masked_features(latents, rays, motion_mask.to(latents.dtype))
@@ -143,7 +178,13 @@ class TemporalBranch(nn.Module):
         scenes = B // views
         q = self.queries[None].expand(scenes, -1, -1)
         flat_valid = valid.reshape(scenes, -1)  # (B/V, V N T)
-        for track_layer, query_layer in zip(self.track_layers, self.query_layers):
+        for layer, (track_layer, query_layer) in enumerate(zip(self.track_layers, self.query_layers)):
             g = track_layer(g, valid)  # Eq. 7 (pre-norm residual block)
+            if chosen is not None:
+                assert self.track_query is not None
+                mean = g.sum(2) / valid.sum(2, keepdim=True).clamp_min(1).to(g.dtype)  # (B, N, D) over valid frames
+                mine = torch.gather(mean.reshape(scenes, -1, g.shape[-1]), 1,
+                                    chosen[..., None].expand(-1, -1, g.shape[-1]))
+                q = q + self.track_query[layer](mine)
             q = query_layer(q, g.reshape(scenes, -1, g.shape[-1]), flat_valid)
         return q

@@ -34,7 +34,7 @@ from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
-from .temporal_branch import TemporalBranch
+from .temporal_branch import TemporalBranch, select_tracks
 
 __all__ = ["VideoTok4D", "MIN_TAU", "DEFAULT_DECODE_STEPS", "MAX_DECODE_STEPS"]
 
@@ -267,7 +267,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
-                            ssim_weight: float = 0.0, diversity_weight: float = 0.0
+                            ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0
                             ) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
@@ -294,6 +294,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         diversity_weight: weight of :func:`slot_diversity_penalty` on the noise-free dynamic tokens
         tanh(a_d) of the batch's scenes: Z_d's slots must carry different scene-dependent content
         (trained from scratch next to the anchored static tokens, they drift onto one vector).
+        track_weight: weight of :meth:`track_loss` (``config.dynamic_splat``; needs ``batch.track_depth``):
+        each dynamic token must say where its track goes.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -331,6 +333,10 @@ class VideoTok4D(ModelIdentity, nn.Module):
             loss = x0_err + saturation_weight * sat
         if diversity_weight > 0:
             loss = loss + diversity_weight * slot_diversity_penalty(torch.tanh(a_d))
+        track, track_px = torch.zeros(()), torch.zeros(())
+        if track_weight > 0:
+            track, track_px = self.track_loss(batch, z_d)
+            loss = loss + track_weight * track
         cell = torch.zeros(())
         if cell_weight > 0:
             cell = self.cell_loss(batch, z_s)
@@ -347,12 +353,62 @@ class VideoTok4D(ModelIdentity, nn.Module):
                 loss = loss + ssim_weight * (1.0 - ssim)
         logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
                 "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
+                "track_loss": float(track.detach()), "track_px": float(track_px.detach()),
                 "ssim": float(ssim.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "dynamic_centred_spread": float(centred_slot_spread(z_d.detach())),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}
         return loss, logs
+
+    def track_targets(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What :meth:`Renderer.dynamic_track` should say for ``batch``'s tokens: each dynamic token's track
+        (:func:`select_tracks`) unprojected at ``batch.track_depth`` with its camera at each frame and seen
+        from that camera at the middle frame: (uv (S, N_d, T, 2) latent pixels, depth (S, N_d, T) metres,
+        valid (S, N_d, T) bool: the track valid there, its depth known and in front of the camera)."""
+        cfg = self.config
+        if batch.track_depth is None:
+            raise ModelError("the track loss needs the source tracks' depth (SourceBatch.track_depth)")
+        B, N, T = batch.track_valid.shape
+        V, S, ds = batch.views, batch.num_scenes, cfg.ae_downsample
+        chosen = select_tracks(batch.motion_mask, batch.track_xy, batch.track_valid, cfg.n_dynamic, V)  # (S, N_d)
+        clip = (torch.arange(S, device=chosen.device)[:, None] * V + chosen // N).flatten()  # (S N_d,)
+        track = (chosen % N).flatten()
+        xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2)
+        depth = batch.track_depth[clip, track].float()
+        valid = batch.track_valid[clip, track].bool() & (depth > 0)
+        K, w2c = batch.K[clip, :T].float(), batch.w2c[clip, :T].float()  # (S N_d, T, ...)
+        pix = torch.cat([(xy + 0.5) * ds - 0.5, torch.ones_like(xy[..., :1])], dim=-1)
+        x_cam = torch.einsum("ntij,ntj->nti", torch.linalg.inv(K), pix) * depth[..., None]
+        R, t = w2c[..., :3, :3], w2c[..., :3, 3]
+        x_world = torch.einsum("ntji,ntj->nti", R, x_cam - t)
+        mid = T // 2
+        x_mid = torch.einsum("nij,ntj->nti", R[:, mid], x_world) + t[:, mid, None]
+        proj = torch.einsum("nij,ntj->nti", K[:, mid], x_mid)
+        z = proj[..., 2]
+        uv = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / ds - 0.5
+        valid = valid & (z > 1e-3)
+        n_d = cfg.n_dynamic
+        return uv.view(S, n_d, T, 2), z.view(S, n_d, T), valid.view(S, n_d, T)
+
+    def track_loss(self, batch: SourceBatch, z_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(loss, mean latent-pixel error) of :meth:`Renderer.dynamic_track` against :meth:`track_targets`:
+        smooth-L1 of the (u, v) error in latent pixels plus smooth-L1 of 8 ln(depth ratio) (a 12 % depth
+        error weighs as one latent pixel), averaged over the valid track frames. z_d (S, N_d, d)."""
+        uv_t, depth_t, valid = self.track_targets(batch)
+        T = uv_t.shape[2]
+        K, w2c = batch.source
+        w2c_mid = (w2c[:, None] if w2c.ndim == 4 else w2c)[:, :, T // 2]
+        uv, depth = self.renderer.dynamic_track(z_d, w2c_mid)
+        uv, depth = uv[:, :, :T], depth[:, :, :T]
+        weight = valid.float()
+        count = weight.sum().clamp_min(1.0)
+        uv_err = F.smooth_l1_loss(uv, uv_t, reduction="none", beta=1.0).sum(-1)
+        depth_err = F.smooth_l1_loss(8.0 * torch.log(depth / depth_t.clamp_min(1e-3)), torch.zeros_like(depth),
+                                     reduction="none", beta=1.0)
+        loss = ((uv_err + depth_err) * weight).sum() / count
+        px = ((uv - uv_t).norm(dim=-1) * weight).sum().detach() / count
+        return loss, px
 
     def cell_loss(self, batch: SourceBatch, z_s: torch.Tensor) -> torch.Tensor:
         """|| splat(z_i) - cell content ||^2 over the anchored static tokens: token i's cell is encoder cell

@@ -34,6 +34,9 @@ class SourceInputs:
         track_xy: (N, T, 2) float32 track positions p_i^t in latent pixel coordinates (u, v), pixel
             centres at integers.
         track_valid: (N, T) bool, True where track i is valid at frame t.
+        track_depth: optional (N, T) float32 depth in metres of track i's point at frame t along the
+            camera's z axis, 0 where unknown: training supervision only (the synthetic generator's depth);
+            the encoder never reads it.
     """
 
     frames: np.ndarray
@@ -42,6 +45,7 @@ class SourceInputs:
     motion_mask: np.ndarray
     track_xy: np.ndarray
     track_valid: np.ndarray
+    track_depth: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         T = self.frames.shape[0]
@@ -54,6 +58,8 @@ class SourceInputs:
         N = self.track_xy.shape[0]
         if self.track_xy.shape != (N, T, 2) or self.track_valid.shape != (N, T):
             raise ValueError("track_xy must be (N, T, 2) and track_valid (N, T)")
+        if self.track_depth is not None and self.track_depth.shape != (N, T):
+            raise ValueError("track_depth must be (N, T)")
 
 
 @dataclass
@@ -67,6 +73,7 @@ class SourceBatch:
         track_xy: (B, N, T, 2) float32 (latent pixels).   track_valid: (B, N, T) bool.
         latents: optional (B, T, C, h, w) float32, the frozen autoencoder's latents of ``frames``
             when a caller already has them (training reads them from a cache); None = computed.
+        track_depth: optional (B, N, T) float32 metres, 0 = unknown (:class:`SourceInputs`); training only.
         views: clips per scene (V >= 1). The B items are scene-major: scene b's cameras are items
             b V .. b V + V - 1, so the batch encodes B / V scenes.
     """
@@ -78,6 +85,7 @@ class SourceBatch:
     track_xy: torch.Tensor
     track_valid: torch.Tensor
     latents: torch.Tensor | None = None
+    track_depth: torch.Tensor | None = None
     views: int = 1
 
     @classmethod
@@ -123,13 +131,16 @@ def stack_inputs(items: list[SourceInputs]) -> dict[str, np.ndarray]:
     """The encoder's input arrays of a batch of clips (the :class:`SourceBatch` fields, numpy): frames
     (B, T, 3, H, W) float32 in [0, 1] (uint8 / 255), K (B, T, 3, 3), w2c (B, T, 4, 4), motion_mask
     (B, T, h, w), track_xy (B, N, T, 2) float32, track_valid (B, N, T) bool. The clips must share T, H,
-    W, the latent size and N."""
+    W, the latent size and N; with every clip's ``track_depth`` also track_depth (B, N, T) float32."""
     def stack(name: str) -> np.ndarray:
         return np.stack([getattr(it, name) for it in items])
 
+    extra = {}
+    if items and all(it.track_depth is not None for it in items):
+        extra["track_depth"] = stack("track_depth").astype(np.float32)
     return {
         "frames": stack("frames").transpose(0, 1, 4, 2, 3).astype(np.float32, order="C") / np.float32(255.0),
         "K": stack("K").astype(np.float32), "w2c": stack("w2c").astype(np.float32),
         "motion_mask": stack("motion_mask").astype(np.float32), "track_xy": stack("track_xy").astype(np.float32),
-        "track_valid": stack("track_valid").astype(bool),
+        "track_valid": stack("track_valid").astype(bool), **extra,
     }

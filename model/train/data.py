@@ -44,7 +44,7 @@ from ..inputs.preprocess import prepare_source
 from ..inputs.source_inputs import SourceBatch, SourceInputs
 
 __all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "ViewsBatchSampler",
-           "axis_angles_deg",
+           "axis_angles_deg", "track_depths",
            "autoencoder_key", "precompute_latents", "collate_pairs", "PairBatch", "rank_seeds"]
 
 
@@ -102,7 +102,9 @@ class ScenePool:
         scene, prep = self.scene(seed), self.prepared(seed)
         return [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
                              w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
-                             track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c]) for c in cameras]
+                             track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c],
+                             track_depth=track_depths(scene["depth"][c], prep["track_xy"][c], prep["track_valid"][c],
+                                                      self.latent_size)) for c in cameras]
 
     def build_scene(self, seed: int) -> dict[str, np.ndarray]:
         path = self.cache / f"scene-{self._stem(seed)}.npz"
@@ -177,6 +179,19 @@ class ScenePool:
         arrays = {"motion_mask": np.stack(masks), "track_xy": np.stack(xys), "track_valid": np.stack(valids)}
         _save_npz(path, arrays)
         return arrays
+
+
+def track_depths(depth: np.ndarray, track_xy: np.ndarray, track_valid: np.ndarray, latent_size: int) -> np.ndarray:
+    """(N, T) float32: the depth map (T, H, W, metres, 0 = unknown) at each track's position (N, T, 2, latent
+    pixels (u, v), centres at integers), nearest image pixel; 0 where the track is invalid or leaves the image."""
+    T, H, W = depth.shape
+    scale = W / latent_size
+    x = np.rint((track_xy[..., 0] + 0.5) * scale - 0.5).astype(np.int64)
+    y = np.rint((track_xy[..., 1] + 0.5) * scale - 0.5).astype(np.int64)
+    inside = track_valid & (x >= 0) & (x < W) & (y >= 0) & (y < H)
+    t = np.broadcast_to(np.arange(T)[None], x.shape)
+    out = depth[t, y.clip(0, H - 1), x.clip(0, W - 1)]
+    return np.where(inside, out, 0.0).astype(np.float32)
 
 
 def autoencoder_key(autoencoder: torch.nn.Module) -> str:

@@ -39,7 +39,8 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     scene_pool_and_seeds, seed_everything, setup_distributed, train_loop, trained_decode_steps)
+                     model_from_run, scene_pool_and_seeds, seed_everything, setup_distributed, train_loop,
+                     trained_decode_steps)
 from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents
 
 __all__ = ["main", "load_autoencoder", "draw_tau", "flow_step"]
@@ -74,7 +75,8 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
-              cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0
+              cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
+              track_weight: float = 0.0
               ) -> tuple[torch.Tensor, dict[str, float]]:
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
@@ -82,7 +84,7 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
                   pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
-                  diversity_weight=diversity_weight)
+                  diversity_weight=diversity_weight, track_weight=track_weight)
 
 
 @torch.no_grad()
@@ -153,13 +155,17 @@ def frame_copy_maps(state: dict[str, torch.Tensor], old: ModelConfig, new: Model
 
 
 def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False) -> VideoTok4D:
-    """A saved model (shipped id or directory) to continue training: its weights, autoencoder included
+    """A saved model (shipped id, model directory or training run directory) to continue training: its weights, autoencoder included
     (frozen), as float32. Its config must equal this run's; with ``partial`` it may differ in sizes
     outside the autoencoder (e.g. ``render_patch_size``): every tensor whose name and shape match is
     copied, the others keep their fresh initialisation and are listed on stdout; a static token set grown
     by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`), and
     ``frame_copies`` switched on starts from the saved cell and splat maps (:func:`frame_copy_maps`)."""
-    source = from_pretrained(name_or_path)
+    run = Path(name_or_path)
+    if (run / "checkpoint" / "state.json").is_file():  # a training run's latest checkpoint (e.g. under checkpoints/)
+        source = model_from_run(run)[0]
+    else:
+        source = from_pretrained(name_or_path)
     if source.config == cfg:
         model = source
     elif not partial:
@@ -250,6 +256,9 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--dynamic-diversity", type=float, default=0.0, metavar="W",
                         help="weight of the slot-diversity hinge on Z_d (centred slot spread below 0.3 is "
                              "penalised): keeps the dynamic tokens of a scene from collapsing onto one vector")
+    recipe.add_argument("--track-weight", type=float, default=0.0, metavar="W",
+                        help="weight of the track loss (config dynamic_splat): each dynamic token must decode where "
+                             "its track goes, supervised by the synthetic scenes' depth")
     args = parser.parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)
@@ -259,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--dynamic-diversity must be >= 0")
     if args.ssim_weight < 0:
         parser.error("--ssim-weight must be >= 0")
+    if args.track_weight < 0 or (args.track_weight > 0 and not cfg.dynamic_splat):
+        parser.error("--track-weight must be >= 0 and needs --set dynamic_splat=N (it trains the dynamic tokens' track)")
     if not 0.0 <= args.multi_spread <= 1.0:
         parser.error("--multi-spread must be in [0, 1]")
     if args.cell_weight < 0 or (args.cell_weight > 0 and not cfg.token_splat):
@@ -300,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     step = functools.partial(flow_step, tau_one=args.tau_one, x0_weight=args.x0_weight,
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
-                             ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity)
+                             ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
+                             track_weight=args.track_weight)
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:
