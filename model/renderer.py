@@ -66,7 +66,7 @@ __all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR"
 MAX_DEPTH_LOG_FACTOR = 2.0  # a token's depth is d_ref * exp(f), f in (-2, 2): 0.14x .. 7.4x the reference
 MIN_ANCHOR_DEPTH = 0.1  # metres; the reference depth (of the world origin) is clamped to at least this
 FAR_LOGIT = -1.0e4  # bias of an anchor behind the target camera, and the floor of every Gaussian logit
-DYNAMIC_GATE_SCALE = 10.0  # dynamic splat: opacity gate = this x a parameter starting at 0 (Adam moves it ~lr a step)
+DYNAMIC_GATE_SCALE = 100.0  # dynamic splat: opacity gate = this x a parameter starting at 0 (Adam moves it ~lr a step)
 SPLAT_FLOOR = 0.1  # token splat: weight of "nothing" in each patch's normalisation (a lone token on its cell: 0.91)
 
 
