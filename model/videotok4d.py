@@ -77,6 +77,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.cell_frames = nn.Linear(cfg.latent_channels * cfg.patch_size ** 2, cfg.token_dim)
             nn.init.zeros_(self.cell_frames.weight)
             nn.init.zeros_(self.cell_frames.bias)
+        self.track_direct: nn.Linear | None = None
+        if cfg.dynamic_splat and not cfg.unified_tokens:  # Z_d pre-activation + W * its track's (u, v, valid) per frame
+            self.track_direct = nn.Linear(3 * cfg.frames, cfg.token_dim)
+            nn.init.zeros_(self.track_direct.weight)
+            nn.init.zeros_(self.track_direct.bias)
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -187,6 +192,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                                                   views=V)
             a_s = self.static_bottleneck.preactivation(static_states)
             a_d = self.dynamic_bottleneck.preactivation(dynamic_states)
+            if self.track_direct is not None:
+                a_d = a_d + self.track_direct(self.track_descriptors(batch).to(self.track_direct.weight.dtype)).float()
         if self.cell_direct is not None:
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
@@ -361,6 +368,29 @@ class VideoTok4D(ModelIdentity, nn.Module):
                 **token_health(z_s, z_d)}
         return loss, logs
 
+    def chosen_tracks(self, batch: SourceBatch) -> torch.Tensor:
+        """(S, N_d) the track of each dynamic token (:func:`select_tracks`; a mask of ones without
+        ``config.motion_isolation``, as the Temporal Branch)."""
+        mask = batch.motion_mask if self.config.motion_isolation else torch.ones_like(batch.motion_mask)
+        return select_tracks(mask, batch.track_xy, batch.track_valid, self.config.n_dynamic, batch.views)
+
+    def track_descriptors(self, batch: SourceBatch) -> torch.Tensor:
+        """(S, N_d, 3 frames): each dynamic token's track (:meth:`chosen_tracks`) as (u, v) scaled to [-1, 1]
+        and its validity per frame, zero at invalid frames and beyond the clip's T frames: the input of the
+        direct map ``track_direct`` (zero at initialisation) into Z_d's pre-activation, so a token can hold
+        where its track is without the attention having to find it."""
+        cfg = self.config
+        B, N, T = batch.track_valid.shape
+        S, h = batch.num_scenes, cfg.latent_size
+        chosen = self.chosen_tracks(batch)
+        clip = (torch.arange(S, device=chosen.device)[:, None] * batch.views + chosen // N).flatten()
+        track = (chosen % N).flatten()
+        valid = batch.track_valid[clip, track].float()[..., None]  # (S N_d, T, 1)
+        uv = (batch.track_xy[clip, track].float() * (2.0 / max(h - 1, 1)) - 1.0) * valid
+        desc = torch.cat([uv, valid], dim=-1)  # (S N_d, T, 3)
+        desc = F.pad(desc, (0, 0, 0, cfg.frames - T))
+        return desc.reshape(S, cfg.n_dynamic, 3 * cfg.frames)
+
     def track_targets(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """What :meth:`Renderer.dynamic_track` should say for ``batch``'s tokens: each dynamic token's track
         (:func:`select_tracks`) unprojected at ``batch.track_depth`` with its camera at each frame and seen
@@ -371,7 +401,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
             raise ModelError("the track loss needs the source tracks' depth (SourceBatch.track_depth)")
         B, N, T = batch.track_valid.shape
         V, S, ds = batch.views, batch.num_scenes, cfg.ae_downsample
-        chosen = select_tracks(batch.motion_mask, batch.track_xy, batch.track_valid, cfg.n_dynamic, V)  # (S, N_d)
+        chosen = self.chosen_tracks(batch)  # (S, N_d)
         clip = (torch.arange(S, device=chosen.device)[:, None] * V + chosen // N).flatten()  # (S N_d,)
         track = (chosen % N).flatten()
         xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2)

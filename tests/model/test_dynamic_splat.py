@@ -52,7 +52,7 @@ def test_a_warm_start_encodes_and_renders_exactly_as_before(unified: bool):
     old = VideoTok4D(cfg).eval()
     new = VideoTok4D(cfg.replace(dynamic_splat=3)).eval()
     missing = new.load_state_dict(old.state_dict(), strict=False).missing_keys
-    assert missing and all(k.startswith(("renderer.dynamic_", "temporal_branch.track_query")) for k in missing)
+    assert missing and all(k.startswith(("renderer.dynamic_", "temporal_branch.track_query", "track_direct")) for k in missing)
     with torch.no_grad():  # content in the old splat maps, so the composite has something to cover
         for layer in (old.renderer.splat, new.renderer.splat):
             torch.manual_seed(3)
@@ -201,3 +201,25 @@ def test_source_inputs_carry_an_optional_track_depth_into_the_batch():
     batch = SourceBatch.collate([deep, deep])
     assert batch.track_depth is not None and batch.track_depth.shape == (2, N, T)
     assert SourceBatch.collate([plain]).track_depth is None
+
+
+def test_the_track_descriptor_gives_each_dynamic_token_its_own_tracks_positions():
+    cfg = get_config("tiny", **SMALL, dynamic_splat=2)
+    net = VideoTok4D(cfg).eval()
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    desc = net.track_descriptors(batch).view(2, 4, 4, 3)
+    chosen = net.chosen_tracks(batch)
+    h = cfg.latent_size
+    for s in range(2):
+        for k in range(4):
+            i = int(chosen[s, k])
+            valid = batch.track_valid[s, i]
+            assert torch.equal(desc[s, k, :, 2], valid.float())
+            want = (batch.track_xy[s, i] * 2 / (h - 1) - 1) * valid[:, None]
+            assert torch.allclose(desc[s, k, :, :2], want)
+    with torch.no_grad():  # the direct map reaches Z_d once it is non-zero, and only Z_d
+        z_s0, z_d0 = net.encode(batch)
+        net.track_direct.weight.normal_()
+        z_s1, z_d1 = net.encode(batch)
+    assert torch.equal(z_s0, z_s1) and not torch.allclose(z_d0, z_d1)
+    assert VideoTok4D(cfg.replace(unified_tokens=True)).track_direct is None  # the ablation has no tracks
