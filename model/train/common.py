@@ -313,7 +313,7 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
         if rewarm:
             lr *= min(1.0, (step - start + 1) / max(1, args.warmup))
         for group in optimizer.param_groups:
-            group["lr"] = lr
+            group["lr"] = lr * group.get("lr_scale", 1.0)
         batch = next(batches)
         with autocast(args.bf16):
             loss, logs = step_fn(module, batch)

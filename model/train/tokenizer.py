@@ -189,6 +189,36 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
     return model
 
 
+def parameter_groups(model: VideoTok4D, spec: str) -> list[dict]:
+    """The optimizer's parameter groups for ``--lr-scale PREFIX=F,...``: each parameter of
+    ``model.tokenizer_parameters()`` whose name starts with a PREFIX (the first that matches) gets
+    ``lr_scale`` F (train_loop multiplies the scheduled rate by it), the rest 1. ModelError for a bad spec or a
+    prefix that names no trained parameter."""
+    scales: list[tuple[str, float]] = []
+    for item in filter(None, (part.strip() for part in spec.split(","))):
+        prefix, _, value = item.partition("=")
+        try:
+            scale = float(value)
+        except ValueError:
+            scale = -1.0
+        if not prefix or not scale > 0:
+            raise ModelError(f"--lr-scale {item!r}: give PREFIX=F with F > 0")
+        scales.append((prefix, scale))
+    trained = {id(p) for p in model.tokenizer_parameters()}
+    groups: dict[float, list] = {}
+    used: set[str] = set()
+    for name, param in model.named_parameters():
+        if id(param) not in trained:
+            continue
+        scale = next((s for prefix, s in scales if name.startswith(prefix)), 1.0)
+        used.update(prefix for prefix, s in scales if name.startswith(prefix))
+        groups.setdefault(scale, []).append(param)
+    unused = [prefix for prefix, _ in scales if prefix not in used]
+    if unused:
+        raise ModelError(f"--lr-scale: no trained parameter starts with {', '.join(unused)}")
+    return [{"params": params, "lr_scale": scale} for scale, params in sorted(groups.items())]
+
+
 def fresh_on_saved_autoencoder(cfg: ModelConfig, name_or_path: str) -> VideoTok4D:
     """Fresh tokenizer weights on the frozen stage-1 autoencoder of a saved model (shipped id or
     directory): training a tokenizer from scratch without re-running stage 1."""
@@ -256,6 +286,9 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--dynamic-diversity", type=float, default=0.0, metavar="W",
                         help="weight of the slot-diversity hinge on Z_d (centred slot spread below 0.3 is "
                              "penalised): keeps the dynamic tokens of a scene from collapsing onto one vector")
+    parser.add_argument("--lr-scale", default="", metavar="PREFIX=F,...",
+                        help="learning rate x F for the trained parameters whose names start with PREFIX (e.g. new "
+                             "zero-initialised maps in a warm start, which Adam grows by about lr a step)")
     recipe.add_argument("--track-weight", type=float, default=0.0, metavar="W",
                         help="weight of the track loss (config dynamic_splat): each dynamic token must decode where "
                              "its track goes, supervised by the synthetic scenes' depth")
@@ -287,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         model = build_model(cfg, args.autoencoder)
     else:
         model = fresh_on_saved_autoencoder(cfg, args.autoencoder_from)
-    optimizer = torch.optim.AdamW(model.tokenizer_parameters(), lr=args.lr, weight_decay=0.01)
+    optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
     pool, seeds = scene_pool_and_seeds(args, cfg, info)
     latent_key = None

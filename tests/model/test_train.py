@@ -297,3 +297,20 @@ def test_stage2_trains_the_dynamic_splat_from_a_run_directory_with_the_track_los
     assert logs[-1]["track_loss"] > 0 and logs[-1]["track_px"] > 0
     model = from_pretrained(out / "model")
     assert model.config.dynamic_splat == 2 and float(model.renderer.dynamic_gate.detach()) != 0.0  # the gate trained
+
+
+def test_lr_scale_puts_the_named_parameters_in_their_own_group_and_the_loop_scales_their_rate():
+    from vt4dcodec.model import VideoTok4D, get_config
+    from vt4dcodec.model.train.tokenizer import parameter_groups
+
+    net = VideoTok4D(get_config("tiny", frames=4, image_size=32, width=32, heads=2, ae_width=8, n_static=8,
+                                n_dynamic=4, token_dim=8, n_tracks=8))
+    net.freeze_autoencoder()
+    groups = parameter_groups(net, "renderer.out=10, temporal_branch.queries=2")
+    assert [g["lr_scale"] for g in groups] == [1.0, 2.0, 10.0]
+    assert groups[2]["params"] == [net.renderer.out.weight, net.renderer.out.bias]
+    assert sum(len(g["params"]) for g in groups) == len(net.tokenizer_parameters())
+    assert len(parameter_groups(net, "")) == 1
+    for bad in ("renderer.out", "renderer.out=0", "=3", "renderer.out=x", "autoencoder.=2"):
+        with pytest.raises(ModelError, match="--lr-scale"):
+            parameter_groups(net, bad)
