@@ -374,17 +374,22 @@ class VideoTok4D(ModelIdentity, nn.Module):
         mask = batch.motion_mask if self.config.motion_isolation else torch.ones_like(batch.motion_mask)
         return select_tracks(mask, batch.track_xy, batch.track_valid, self.config.n_dynamic, batch.views)
 
+    def _chosen_clip_track(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """(clip, track), each (S N_d,) long: the batch item and track index of every dynamic token's track
+        (:meth:`chosen_tracks`), scene-major then token order."""
+        N = batch.track_valid.shape[1]
+        chosen = self.chosen_tracks(batch)  # (S, N_d) into each scene's V N tracks
+        scenes = torch.arange(chosen.shape[0], device=chosen.device)[:, None]
+        return (scenes * batch.views + chosen // N).flatten(), (chosen % N).flatten()
+
     def track_descriptors(self, batch: SourceBatch) -> torch.Tensor:
         """(S, N_d, 3 frames): each dynamic token's track (:meth:`chosen_tracks`) as (u, v) scaled to [-1, 1]
         and its validity per frame, zero at invalid frames and beyond the clip's T frames: the input of the
         direct map ``track_direct`` (zero at initialisation) into Z_d's pre-activation, so a token can hold
         where its track is without the attention having to find it."""
         cfg = self.config
-        B, N, T = batch.track_valid.shape
-        S, h = batch.num_scenes, cfg.latent_size
-        chosen = self.chosen_tracks(batch)
-        clip = (torch.arange(S, device=chosen.device)[:, None] * batch.views + chosen // N).flatten()
-        track = (chosen % N).flatten()
+        T, S, h = batch.track_valid.shape[2], batch.num_scenes, cfg.latent_size
+        clip, track = self._chosen_clip_track(batch)
         valid = batch.track_valid[clip, track].float()[..., None]  # (S N_d, T, 1)
         uv = (batch.track_xy[clip, track].float() * (2.0 / max(h - 1, 1)) - 1.0) * valid
         desc = torch.cat([uv, valid], dim=-1)  # (S N_d, T, 3)
@@ -399,11 +404,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         cfg = self.config
         if batch.track_depth is None:
             raise ModelError("the track loss needs the source tracks' depth (SourceBatch.track_depth)")
-        B, N, T = batch.track_valid.shape
-        V, S, ds = batch.views, batch.num_scenes, cfg.ae_downsample
-        chosen = self.chosen_tracks(batch)  # (S, N_d)
-        clip = (torch.arange(S, device=chosen.device)[:, None] * V + chosen // N).flatten()  # (S N_d,)
-        track = (chosen % N).flatten()
+        T, S, ds = batch.track_valid.shape[2], batch.num_scenes, cfg.ae_downsample
+        clip, track = self._chosen_clip_track(batch)
         xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2)
         depth = batch.track_depth[clip, track].float()
         valid = batch.track_valid[clip, track].bool() & (depth > 0)
@@ -427,7 +429,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         error weighs as one latent pixel), averaged over the valid track frames. z_d (S, N_d, d)."""
         uv_t, depth_t, valid = self.track_targets(batch)
         T = uv_t.shape[2]
-        K, w2c = batch.source
+        w2c = batch.source[1]
         w2c_mid = (w2c[:, None] if w2c.ndim == 4 else w2c)[:, :, T // 2]
         uv, depth = self.renderer.dynamic_track(z_d, w2c_mid)
         uv, depth = uv[:, :, :T], depth[:, :, :T]
