@@ -153,19 +153,22 @@ class TemporalBranch(nn.Module):
         return out.view(B, T, h, w, -1).permute(0, 1, 4, 2, 3)
 
     def forward(self, latents: torch.Tensor, rays: torch.Tensor, motion_mask: torch.Tensor,
-                track_xy: torch.Tensor, track_valid: torch.Tensor, views: int = 1) -> torch.Tensor:
+                track_xy: torch.Tensor, track_valid: torch.Tensor, views: int = 1,
+                chosen: torch.Tensor | None = None) -> torch.Tensor:
         """latents X: (B,T,C,h,w); rays: (B,T,6,h,w); motion_mask: (B,T,h,w) in [0,1];
         track_xy: (B,N,T,2) latent pixels; track_valid: (B,N,T) bool. Returns (B / views, N_d, D).
         With ``config.dynamic_splat`` query k reads its :func:`select_tracks` track (chosen on the given
-        tracks, before the fixed-grid ablation replaces them).
+        tracks, before the fixed-grid ablation replaces them); ``chosen`` (S, N_d) passes that selection in
+        when the caller already made it.
 
         With ``views`` > 1 (cameras per scene, scene-major) every camera's tracks are attended along
         on their own (Eq. 7) and the dynamic queries of a scene read the tracks of all its cameras."""
         B, T, _, h, w = latents.shape
         if not self.cfg.motion_isolation:
             motion_mask = torch.ones_like(motion_mask)
-        chosen = None
-        if self.track_query is not None:
+        if self.track_query is None:
+            chosen = None
+        elif chosen is None:
             chosen = select_tracks(motion_mask, track_xy, track_valid, self.cfg.n_dynamic, views)  # (S, N_d)
         if not self.cfg.track_attention:
             track_xy, track_valid = fixed_grid_tracks(B, self.cfg.n_tracks, T, h, latents.device)

@@ -188,12 +188,14 @@ class VideoTok4D(ModelIdentity, nn.Module):
             a = self.static_bottleneck.preactivation(static_states)
             a_s, a_d = a[:, :cfg.n_static], a[:, cfg.n_static:]
         else:
+            chosen = self.chosen_tracks(batch) if self.track_direct is not None else None  # dynamic_splat: once
             dynamic_states = self.temporal_branch(x, rays, batch.motion_mask, batch.track_xy, batch.track_valid,
-                                                  views=V)
+                                                  views=V, chosen=chosen)
             a_s = self.static_bottleneck.preactivation(static_states)
             a_d = self.dynamic_bottleneck.preactivation(dynamic_states)
             if self.track_direct is not None:
-                a_d = a_d + self.track_direct(self.track_descriptors(batch).to(self.track_direct.weight.dtype)).float()
+                descriptors = self.track_descriptors(batch, chosen)
+                a_d = a_d + self.track_direct(descriptors.to(self.track_direct.weight.dtype)).float()
         if self.cell_direct is not None:
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
@@ -374,22 +376,24 @@ class VideoTok4D(ModelIdentity, nn.Module):
         mask = batch.motion_mask if self.config.motion_isolation else torch.ones_like(batch.motion_mask)
         return select_tracks(mask, batch.track_xy, batch.track_valid, self.config.n_dynamic, batch.views)
 
-    def _chosen_clip_track(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
+    def _chosen_clip_track(self, batch: SourceBatch, chosen: torch.Tensor | None = None
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
         """(clip, track), each (S N_d,) long: the batch item and track index of every dynamic token's track
-        (:meth:`chosen_tracks`), scene-major then token order."""
+        (``chosen`` (S, N_d), default :meth:`chosen_tracks`), scene-major then token order."""
         N = batch.track_valid.shape[1]
-        chosen = self.chosen_tracks(batch)  # (S, N_d) into each scene's V N tracks
+        if chosen is None:
+            chosen = self.chosen_tracks(batch)  # (S, N_d) into each scene's V N tracks
         scenes = torch.arange(chosen.shape[0], device=chosen.device)[:, None]
         return (scenes * batch.views + chosen // N).flatten(), (chosen % N).flatten()
 
-    def track_descriptors(self, batch: SourceBatch) -> torch.Tensor:
+    def track_descriptors(self, batch: SourceBatch, chosen: torch.Tensor | None = None) -> torch.Tensor:
         """(S, N_d, 3 frames): each dynamic token's track (:meth:`chosen_tracks`) as (u, v) scaled to [-1, 1]
         and its validity per frame, zero at invalid frames and beyond the clip's T frames: the input of the
         direct map ``track_direct`` (zero at initialisation) into Z_d's pre-activation, so a token can hold
-        where its track is without the attention having to find it."""
+        where its track is without the attention having to find it. ``chosen``: that selection, if made."""
         cfg = self.config
         T, S, h = batch.track_valid.shape[2], batch.num_scenes, cfg.latent_size
-        clip, track = self._chosen_clip_track(batch)
+        clip, track = self._chosen_clip_track(batch, chosen)
         valid = batch.track_valid[clip, track].float()[..., None]  # (S N_d, T, 1)
         uv = (batch.track_xy[clip, track].float() * (2.0 / max(h - 1, 1)) - 1.0) * valid
         desc = torch.cat([uv, valid], dim=-1)  # (S N_d, T, 3)
