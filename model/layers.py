@@ -214,6 +214,14 @@ def dynamic_token_cameras(n_dynamic: int, views: int, device: torch.device | Non
     return torch.arange(n_dynamic, device=device) % views
 
 
+def dynamic_patch_offsets(size: int, like: torch.Tensor) -> torch.Tensor:
+    """(size^2, 2) (du, dv) latent-pixel offsets of a dynamic token's size x size patch from its track
+    point, row-major, centred (``config.dynamic_splat``); dtype and device of ``like``."""
+    side = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
+    dv, du = torch.meshgrid(side, side, indexing="ij")
+    return torch.stack([du, dv], dim=-1).reshape(-1, 2)
+
+
 def patchify(x: torch.Tensor, p: int) -> torch.Tensor:
     """(B, T, C, h, w) -> (B, T, (h/p)(w/p), C p p), patches in row-major order."""
     B, T, C, h, w = x.shape

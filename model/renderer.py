@@ -58,8 +58,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import (AdaLNBlock, dynamic_token_cameras, grid_positions, locality_heads, locality_prior, patchify,
-                     timestep_embedding, token_cameras, unpatchify)
+from .layers import (AdaLNBlock, dynamic_patch_offsets, dynamic_token_cameras, grid_positions, locality_heads,
+                     locality_prior, patchify, timestep_embedding, token_cameras, unpatchify)
 
 __all__ = ["Renderer", "MAX_DEPTH_LOG_FACTOR", "MIN_ANCHOR_DEPTH", "SPLAT_FLOOR", "DYNAMIC_GATE_SCALE"]
 
@@ -159,9 +159,7 @@ class Renderer(nn.Module):
         n_d, T, ds = z_d.shape[1], K_tgt.shape[1], cfg.ae_downsample
         uv, depth = self.dynamic_track(z_d, w2c_src)
         uv, depth = uv[:, :, :T], depth[:, :, :T]
-        side = torch.arange(cfg.dynamic_splat, dtype=uv.dtype, device=uv.device) - (cfg.dynamic_splat - 1) / 2
-        dv, du = torch.meshgrid(side, side, indexing="ij")
-        offsets = torch.stack([du, dv], dim=-1).reshape(-1, 2)  # (q, 2) latent px, row-major
+        offsets = dynamic_patch_offsets(cfg.dynamic_splat, uv)  # (q, 2) latent px, row-major
         pix = (uv[:, :, :, None] + offsets + 0.5) * ds - 0.5  # (B, N_d, T, q, 2) image px
         pix = torch.cat([pix, torch.ones_like(pix[..., :1])], dim=-1)
         cam = dynamic_token_cameras(n_d, K_src.shape[1], z_d.device)

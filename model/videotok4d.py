@@ -29,7 +29,7 @@ from .bottleneck import TokenBottleneck, centred_slot_spread, saturation_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
 from .identity import ModelIdentity, fingerprint_fields
-from .layers import patchify
+from .layers import dynamic_patch_offsets, patchify
 from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
@@ -276,8 +276,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             target_latents: torch.Tensor | None = None, tau: torch.Tensor | None = None,
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
-                            ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0
-                            ) -> tuple[torch.Tensor, dict[str, float]]:
+                            ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0,
+                            patch_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -305,6 +305,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         (trained from scratch next to the anchored static tokens, they drift onto one vector).
         track_weight: weight of :meth:`track_loss` (``config.dynamic_splat``; needs ``batch.track_depth``):
         each dynamic token must say where its track goes.
+        patch_weight: weight of :meth:`patch_loss` (``config.dynamic_splat``): each dynamic token's patch
+        content must be the source latent around its track.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -313,7 +315,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if batch.batch_size != B * batch.views:
             raise ModelError(f"{B} targets need {B} source scenes; the batch holds {batch.batch_size} clips "
                              f"of {batch.views} view(s) each")
-        if cell_weight > 0 and batch.latents is None:  # the encoder and the cell loss read the same latents
+        if (cell_weight > 0 or patch_weight > 0) and batch.latents is None:  # encoder and losses: same latents
             batch = dataclasses.replace(batch, latents=self.latents(batch.frames))
         a_s, a_d = self.encode_preactivations(batch)
         z_s, z_d = self._bound(a_s, a_d)
@@ -346,6 +348,10 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if track_weight > 0:
             track, track_px = self.track_loss(batch, z_d)
             loss = loss + track_weight * track
+        patch = torch.zeros(())
+        if patch_weight > 0:
+            patch = self.patch_loss(batch, z_d)
+            loss = loss + patch_weight * patch
         cell = torch.zeros(())
         if cell_weight > 0:
             cell = self.cell_loss(batch, z_s)
@@ -363,6 +369,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         logs = {"loss": float(loss.detach()), "flow": float(flow.detach()), "x0": float(x0_err.detach()),
                 "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
                 "track_loss": float(track.detach()), "track_px": float(track_px.detach()),
+                "patch_mse": float(patch.detach()),
                 "ssim": float(ssim.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "dynamic_centred_spread": float(centred_slot_spread(z_d.detach())),
@@ -445,6 +452,48 @@ class VideoTok4D(ModelIdentity, nn.Module):
         loss = ((uv_err + depth_err) * weight).sum() / count
         px = ((uv - uv_t).norm(dim=-1) * weight).sum().detach() / count
         return loss, px
+
+    def patch_targets(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """What each dynamic token's splat patch should hold (``config.dynamic_splat``): its encoded camera's
+        source latent sampled bilinearly at the token's track (:meth:`chosen_tracks`) plus the patch offsets
+        (row-major, as :meth:`Renderer.dynamic_placement`), averaged over the track's valid frames:
+        (target (S, N_d, q, C), valid (S, N_d) bool: the track is valid at some frame), q = dynamic_splat^2."""
+        cfg = self.config
+        B, T = batch.frames.shape[:2]
+        x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
+        h, S, n_d = cfg.latent_size, batch.num_scenes, cfg.n_dynamic
+        clip, track = self._chosen_clip_track(batch)
+        xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2) latent px, centres at integers
+        weight = batch.track_valid[clip, track].float()  # (S N_d, T)
+        at = (xy[:, :, None] + dynamic_patch_offsets(cfg.dynamic_splat, xy)).clamp(0.0, h - 1)  # (S N_d, T, q, 2)
+        low = at.floor().clamp(max=h - 2).long()
+        frac = at - low
+        pixels = x.float().permute(0, 1, 3, 4, 2)  # (B, T, h, w, C)
+        n, t = clip[:, None, None], torch.arange(T, device=xy.device)[None, :, None]
+        sample = torch.zeros(*at.shape[:3], pixels.shape[-1], device=xy.device)
+        for dy in (0, 1):
+            for dx in (0, 1):
+                wy = frac[..., 1] if dy else 1.0 - frac[..., 1]
+                wx = frac[..., 0] if dx else 1.0 - frac[..., 0]
+                sample = sample + (wy * wx)[..., None] * pixels[n, t, low[..., 1] + dy, low[..., 0] + dx]
+        count = weight.sum(1)
+        target = (sample * weight[..., None, None]).sum(1) / count.clamp_min(1.0)[:, None, None]
+        return target.view(S, n_d, -1, pixels.shape[-1]), (count > 0).view(S, n_d)
+
+    def patch_loss(self, batch: SourceBatch, z_d: torch.Tensor) -> torch.Tensor:
+        """|| patch content - :meth:`patch_targets` ||^2 over the dynamic tokens with a valid track: the
+        renderer's linear content map (``dynamic_content``, its colour channels, not the opacity) must give
+        the moving thing its track follows, so a patch placed on the track renders it and opening the
+        opacity pays from the start. z_d: (S, N_d, d) of ``batch``."""
+        r = self.renderer
+        if r.dynamic_path is None:
+            raise ModelError("the patch loss needs config.dynamic_splat")
+        target, valid = self.patch_targets(batch)
+        S, n_d, q, C = target.shape
+        content = r.dynamic_content(z_d.to(r.dynamic_content.weight.dtype)).float().view(S, n_d, C + 1, q)
+        err = ((content[:, :, :C].transpose(2, 3) - target) ** 2).mean((2, 3))
+        weight = valid.float()
+        return (err * weight).sum() / weight.sum().clamp_min(1.0)
 
     def cell_loss(self, batch: SourceBatch, z_s: torch.Tensor) -> torch.Tensor:
         """|| splat(z_i) - cell content ||^2 over the anchored static tokens: token i's cell is encoder cell

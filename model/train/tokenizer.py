@@ -76,7 +76,7 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
               cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
-              track_weight: float = 0.0
+              track_weight: float = 0.0, patch_weight: float = 0.0
               ) -> tuple[torch.Tensor, dict[str, float]]:
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
@@ -84,7 +84,8 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
                   pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
-                  diversity_weight=diversity_weight, track_weight=track_weight)
+                  diversity_weight=diversity_weight, track_weight=track_weight,
+                  patch_weight=patch_weight)
 
 
 @torch.no_grad()
@@ -292,6 +293,9 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--track-weight", type=float, default=0.0, metavar="W",
                         help="weight of the track loss (config dynamic_splat): each dynamic token must decode where "
                              "its track goes, supervised by the synthetic scenes' depth")
+    recipe.add_argument("--patch-weight", type=float, default=0.0, metavar="W",
+                        help="weight of the patch loss (config dynamic_splat): each dynamic token's splat patch must "
+                             "hold the source latent around its track")
     args = parser.parse_args(argv)
     info = setup_distributed()
     torch.set_num_threads(args.threads)
@@ -303,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--ssim-weight must be >= 0")
     if args.track_weight < 0 or (args.track_weight > 0 and not cfg.dynamic_splat):
         parser.error("--track-weight must be >= 0 and needs --set dynamic_splat=N (it trains the dynamic tokens' track)")
+    if args.patch_weight < 0 or (args.patch_weight > 0 and not cfg.dynamic_splat):
+        parser.error("--patch-weight must be >= 0 and needs --set dynamic_splat=N (it trains the dynamic patches)")
     if not 0.0 <= args.multi_spread <= 1.0:
         parser.error("--multi-spread must be in [0, 1]")
     if args.cell_weight < 0 or (args.cell_weight > 0 and not cfg.token_splat):
@@ -345,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
-                             track_weight=args.track_weight)
+                             track_weight=args.track_weight, patch_weight=args.patch_weight)
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
     if info.is_main:

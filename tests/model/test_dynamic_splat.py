@@ -223,3 +223,60 @@ def test_the_track_descriptor_gives_each_dynamic_token_its_own_tracks_positions(
         z_s1, z_d1 = net.encode(batch)
     assert torch.equal(z_s0, z_s1) and not torch.allclose(z_d0, z_d1)
     assert VideoTok4D(cfg.replace(unified_tokens=True)).track_direct is None  # the ablation has no tracks
+
+
+def test_the_patch_target_is_the_source_latent_around_the_track_averaged_over_its_valid_frames():
+    torch.manual_seed(0)
+    cfg = get_config("tiny", **SMALL, dynamic_splat=2)
+    net = VideoTok4D(cfg)
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    h, T = cfg.latent_size, batch.frames.shape[1]
+    latents = torch.randn(2, T, cfg.latent_channels, h, h)
+    xy = torch.randint(1, h - 2, batch.track_xy.shape).float()  # on latent pixel centres: no interpolation
+    valid = batch.track_valid.clone()
+    valid[:, :, 0] = False
+    batch = SourceBatch(**{**batch.__dict__, "latents": latents, "track_xy": xy, "track_valid": valid})
+    target, ok = net.patch_targets(batch)
+    assert target.shape == (batch.num_scenes, 4, 4, cfg.latent_channels)
+    clip, track = net._chosen_clip_track(batch)
+    side = torch.tensor([-0.5, 0.5])
+    dv, du = torch.meshgrid(side, side, indexing="ij")
+    offsets = torch.stack([du, dv], -1).reshape(-1, 2)  # row-major (q, 2), as the renderer places the patch
+    for k in range(4):
+        n, i = int(clip[k]), int(track[k])
+        frames = [t for t in range(T) if valid[n, i, t]]
+        assert bool(ok[0, k]) == bool(frames)
+        if not frames:
+            continue
+        points = xy[n, i, frames][:, None] + offsets  # (F, q, 2) latent px
+        sampled = torch.nn.functional.grid_sample(latents[n, frames], (points * 2.0 / (h - 1) - 1.0)[:, :, None],
+                                                  align_corners=True)  # (F, C, q, 1)
+        torch.testing.assert_close(target[0, k], sampled[..., 0].mean(0).T, atol=1e-5, rtol=1e-5)
+
+
+def test_the_patch_loss_trains_the_content_map_and_the_training_loss_adds_it():
+    torch.manual_seed(0)
+    cfg = get_config("tiny", **SMALL, dynamic_splat=2)
+    net = VideoTok4D(cfg)
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    with torch.no_grad():
+        z_d = net.encode(batch)[1]
+    opt = torch.optim.Adam(net.renderer.dynamic_content.parameters(), lr=3e-2)
+    first = float(net.patch_loss(batch, z_d))
+    assert first > 0
+    for _ in range(500):
+        opt.zero_grad()
+        loss = net.patch_loss(batch, z_d)
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.3 * first
+    K, w2c = orbit_cameras(2, 4, 32, seed=1)
+    frames = torch.rand(2, 4, 3, 32, 32)
+    kwargs = dict(tau=torch.ones(2))
+    plain, _ = net.rectified_flow_loss(batch, frames, K, w2c, generator=torch.Generator().manual_seed(0), **kwargs)
+    weighted, logs = net.rectified_flow_loss(batch, frames, K, w2c, generator=torch.Generator().manual_seed(0),
+                                             patch_weight=2.0, **kwargs)
+    assert logs["patch_mse"] > 0
+    assert abs(float(weighted - plain) - 2.0 * logs["patch_mse"]) < 1e-4
+    with pytest.raises(ModelError, match="dynamic_splat"):
+        VideoTok4D(get_config("tiny", **SMALL)).patch_loss(batch, z_d)

@@ -278,23 +278,25 @@ def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(ru
     assert log[-1]["cell_mse"] > 0 and from_pretrained(splat / "model").config.token_splat
 
 
-def test_stage2_trains_the_dynamic_splat_from_a_run_directory_with_the_track_loss(runs, tmp_path):
+def test_stage2_trains_the_dynamic_splat_from_a_run_directory_with_the_track_and_patch_losses(runs, tmp_path):
     """--init RUN (a training run's checkpoint directory, as under checkpoints/) with --init-partial grows
-    the dynamic splat; --track-weight trains it from the synthetic depth and is refused without it."""
+    the dynamic splat; --track-weight trains it from the synthetic depth, --patch-weight its content, and
+    both are refused without it."""
     splat = ["prediction=x0", "locality_sigma=0.35", "project_anchors=true", "token_splat=true", "pixel_splat=true"]
     first = tmp_path / "first"
     assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(first),
                         "--steps", "1", "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"),
                         *COMMON, *splat]) == 0
-    with pytest.raises(SystemExit):
-        stage2.main(["--init", str(first), "--out", str(tmp_path / "x"), "--steps", "1", "--track-weight", "0.1",
-                     "--cache", str(runs / "cache"), *COMMON, *splat])
+    for flag in ("--track-weight", "--patch-weight"):
+        with pytest.raises(SystemExit):
+            stage2.main(["--init", str(first), "--out", str(tmp_path / "x"), "--steps", "1", flag, "0.1",
+                         "--cache", str(runs / "cache"), *COMMON, *splat])
     out = tmp_path / "dyn"
     assert stage2.main(["--init", str(first), "--init-partial", "--out", str(out), "--steps", "2", "--batch-size", "2",
                         "--samples", "1", "--cache", str(runs / "cache"), "--track-weight", "0.1",
-                        *COMMON, *splat, "dynamic_splat=2"]) == 0
+                        "--patch-weight", "0.2", *COMMON, *splat, "dynamic_splat=2"]) == 0
     logs = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
-    assert logs[-1]["track_loss"] > 0 and logs[-1]["track_px"] > 0
+    assert logs[-1]["track_loss"] > 0 and logs[-1]["track_px"] > 0 and logs[-1]["patch_mse"] > 0
     model = from_pretrained(out / "model")
     assert model.config.dynamic_splat == 2 and float(model.renderer.dynamic_gate.detach()) != 0.0  # the gate trained
 
