@@ -10,8 +10,10 @@ mean latent-pixel error of the track positions the renderer decodes from the tok
 token noise) (``Renderer.dynamic_track``) against the targets of the track loss
 (``VideoTok4D.track_targets``), next to the error of each slot's mean target over the batch (a token that
 says nothing about its own track), how far the tracks move from their middle-frame position, the mean
-|ln depth ratio|, and the opacity gate (DYNAMIC_GATE_SCALE x its parameter). Prints one JSON line per run
-and writes the list to ``--out``.
+|ln depth ratio|, the opacity gate (DYNAMIC_GATE_SCALE x its parameter), the patches' opacity (mean, and
+the share of patch pixels at least half opaque), and the patch content's mean squared error against the
+patch loss's targets (``VideoTok4D.patch_targets``: the source latent around the track) next to that of
+each slot's mean target. Prints one JSON line per run and writes the list to ``--out``.
 """
 
 from __future__ import annotations
@@ -52,12 +54,28 @@ def probe(run: Path, cache: Path, seeds: list[int], items: int) -> dict:
             def mean(x: torch.Tensor) -> float:
                 return float((x * w).sum() / w.sum().clamp_min(1.0))
 
+            r = model.renderer
+            target, has = model.patch_targets(batch.source)  # (S, N_d, q, C), (S, N_d)
+            S, n_d, q, C = target.shape
+            content = r.dynamic_content(z_d).view(S, n_d, C + 1, q)
+            alpha = (DYNAMIC_GATE_SCALE * r.dynamic_gate * torch.sigmoid(content[:, :, C])).clamp(max=1.0)
+            colour = content[:, :, :C].transpose(2, 3)
+            hw = has.float()[..., None, None]
+            slot_target = (target * hw).sum(0, keepdim=True) / hw.sum(0, keepdim=True).clamp_min(1.0)
+
+            def patch_mse(pred: torch.Tensor) -> float:
+                return float((((pred - target) ** 2) * hw).sum() / (hw.sum() * q * C).clamp_min(1.0))
+
             slot_mean = (uv_t * w[..., None]).sum((0, 2), keepdim=True) / w.sum((0, 2), keepdim=True).clamp_min(1)[..., None]
             out[f"views{views}"] = {
                 "head_px": mean((uv - uv_t).norm(dim=-1)),
                 "slot_mean_px": mean((slot_mean - uv_t).norm(dim=-1)),
                 "track_motion_px": mean((uv_t - uv_t[:, :, T // 2:T // 2 + 1]).norm(dim=-1)),
                 "depth_abs_log_ratio": mean(torch.log(depth / depth_t.clamp_min(1e-3)).abs()),
+                "opacity_mean": float(alpha.mean()),
+                "opaque_share": float((alpha >= 0.5).float().mean()),
+                "patch_mse": patch_mse(colour),
+                "patch_slot_mean_mse": patch_mse(slot_target.expand_as(target)),
             }
     return out
 
