@@ -13,7 +13,7 @@ says nothing about its own track), how far the tracks move from their middle-fra
 |ln depth ratio|, the opacity gate (DYNAMIC_GATE_SCALE x its parameter), the patches' opacity (mean, and
 the share of patch pixels at least half opaque), and the patch content's mean squared error against the
 patch loss's targets (``VideoTok4D.patch_targets``: the source latent around the track) next to that of
-each slot's mean target. Prints one JSON line per run and writes the list to ``--out``.
+each slot's mean target and of the mean target of all (what the content map's bias alone can give). Prints one JSON line per run and writes the list to ``--out``.
 """
 
 from __future__ import annotations
@@ -76,6 +76,8 @@ def probe(run: Path, cache: Path, seeds: list[int], items: int) -> dict:
                 "opaque_share": float((alpha >= 0.5).float().mean()),
                 "patch_mse": patch_mse(colour),
                 "patch_slot_mean_mse": patch_mse(slot_target.expand_as(target)),
+                "patch_mean_mse": patch_mse((target * hw).sum((0, 1), keepdim=True).div(hw.sum().clamp_min(1.0))
+                                            .expand_as(target)),
             }
     return out
 
