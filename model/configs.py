@@ -211,6 +211,11 @@ class ModelConfig(_Config):
         target frame like the pixel splat and composited over the static splat (premultiplied, normalised
         per latent pixel). The opacity is scaled by a learned gate that starts at 0, so a warm start
         renders as before. 0 = off.
+        dynamic_from_patch: with dynamic_splat (full model only), each dynamic token's bottleneck
+        pre-activation also gets a zero-initialised linear map of the source latent around its track
+        (its camera's latent at the track plus the patch offsets, averaged over the track's valid frames:
+        ``VideoTok4D.patch_targets``), as token_from_cell gives each static token its cell: what the
+        token's patch should show reaches it without the attention having to find it.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -259,6 +264,7 @@ class ModelConfig(_Config):
     pixel_splat: bool = False
     patch_gate_deg: float = 0.0
     dynamic_splat: int = 0
+    dynamic_from_patch: bool = False
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -267,7 +273,8 @@ class ModelConfig(_Config):
                                                "token_from_cell": False, "frame_copies": False,
                                                "frame_gate_deg": 0.0, "spread_views": False,
                                                "view_gate_deg": 0.0, "pixel_splat": False,
-                                               "patch_gate_deg": 0.0, "dynamic_splat": 0}
+                                               "patch_gate_deg": 0.0, "dynamic_splat": 0,
+                                               "dynamic_from_patch": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -293,7 +300,7 @@ class ModelConfig(_Config):
                 or not 0.0 <= self.locality_sigma < 1e6:
             raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
         _require_bools(self, ("query_from_grid", "project_anchors", "anchor_views", "token_splat", "token_from_cell",
-                              "frame_copies", "spread_views", "pixel_splat"))
+                              "frame_copies", "spread_views", "pixel_splat", "dynamic_from_patch"))
         _require_degrees(self, ("frame_gate_deg", "view_gate_deg", "patch_gate_deg"))
         if self.query_from_grid and not self.locality_sigma > 0:
             raise ModelError("config query_from_grid needs locality_sigma > 0 (it reads each query's anchor cell)")
@@ -325,6 +332,9 @@ class ModelConfig(_Config):
             raise ModelError(f"config dynamic_splat must be an integer from 0 to the latent size, got {self.dynamic_splat!r}")
         if self.dynamic_splat > 0 and not self.pixel_splat:
             raise ModelError("config dynamic_splat needs pixel_splat (it warps the dynamic tokens' patches alike)")
+        if self.dynamic_from_patch and not (self.dynamic_splat > 0 and not self.unified_tokens):
+            raise ModelError("config dynamic_from_patch needs dynamic_splat > 0 and the full model (it reads each "
+                             "dynamic token's track, which unified_tokens has not)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -82,6 +82,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.track_direct = nn.Linear(3 * cfg.frames, cfg.token_dim)
             nn.init.zeros_(self.track_direct.weight)
             nn.init.zeros_(self.track_direct.bias)
+        self.patch_direct: nn.Linear | None = None
+        if cfg.dynamic_from_patch:  # Z_d pre-activation + W * the source latent around its track (zero at init)
+            self.patch_direct = nn.Linear(cfg.latent_channels * cfg.dynamic_splat ** 2, cfg.token_dim)
+            nn.init.zeros_(self.patch_direct.weight)
+            nn.init.zeros_(self.patch_direct.bias)
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -196,6 +201,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
             if self.track_direct is not None:
                 descriptors = self.track_descriptors(batch, chosen)
                 a_d = a_d + self.track_direct(descriptors.to(self.track_direct.weight.dtype)).float()
+            if self.patch_direct is not None:
+                patches = self._track_patches(batch, x, chosen)[0].flatten(2)  # (S, N_d, q C)
+                a_d = a_d + self.patch_direct(patches.to(self.patch_direct.weight.dtype)).float()
         if self.cell_direct is not None:
             cells = self.token_cells(x, V)  # (S, N_s, C p p)
             a_s = a_s + self.cell_direct(cells.to(self.cell_direct.weight.dtype)).float()
@@ -458,11 +466,17 @@ class VideoTok4D(ModelIdentity, nn.Module):
         source latent sampled bilinearly at the token's track (:meth:`chosen_tracks`) plus the patch offsets
         (row-major, as :meth:`Renderer.dynamic_placement`), averaged over the track's valid frames:
         (target (S, N_d, q, C), valid (S, N_d) bool: the track is valid at some frame), q = dynamic_splat^2."""
-        cfg = self.config
         B, T = batch.frames.shape[:2]
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
+        return self._track_patches(batch, x)
+
+    def _track_patches(self, batch: SourceBatch, x: torch.Tensor, chosen: torch.Tensor | None = None
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`patch_targets` from the source latents x (B, T, C, h, w) and the tracks ``chosen``."""
+        cfg = self.config
+        T = x.shape[1]
         h, S, n_d = cfg.latent_size, batch.num_scenes, cfg.n_dynamic
-        clip, track = self._chosen_clip_track(batch)
+        clip, track = self._chosen_clip_track(batch, chosen)
         xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2) latent px, centres at integers
         weight = batch.track_valid[clip, track].float()  # (S N_d, T)
         at = (xy[:, :, None] + dynamic_patch_offsets(cfg.dynamic_splat, xy)).clamp(0.0, h - 1)  # (S N_d, T, q, 2)

@@ -280,3 +280,26 @@ def test_the_patch_loss_trains_the_content_map_and_the_training_loss_adds_it():
     assert abs(float(weighted - plain) - 2.0 * logs["patch_mse"]) < 1e-4
     with pytest.raises(ModelError, match="dynamic_splat"):
         VideoTok4D(get_config("tiny", **SMALL)).patch_loss(batch, z_d)
+
+
+def test_dynamic_from_patch_is_checked_starts_at_zero_and_hands_each_token_the_latent_around_its_track():
+    base = get_config("tiny", **SMALL, dynamic_splat=2)
+    assert get_config("tiny", **SMALL, dynamic_splat=2, dynamic_from_patch=False).sha256() == base.sha256()
+    for bad in (dict(dynamic_from_patch=True), dict(dynamic_splat=2, unified_tokens=True, dynamic_from_patch=True),
+                dict(dynamic_splat=2, dynamic_from_patch=1)):
+        with pytest.raises(ModelError, match="dynamic_from_patch"):
+            get_config("tiny", **SMALL, **bad)
+    torch.manual_seed(0)
+    old = VideoTok4D(base).eval()
+    new = VideoTok4D(base.replace(dynamic_from_patch=True)).eval()
+    assert new.load_state_dict(old.state_dict(), strict=False).missing_keys == ["patch_direct.weight",
+                                                                               "patch_direct.bias"]
+    batch = random_batch(base, B=2, n_tracks=8)
+    with torch.no_grad():
+        a_old, a_new = old.encode_preactivations(batch), new.encode_preactivations(batch)
+        assert torch.equal(a_old[0], a_new[0]) and torch.equal(a_old[1], a_new[1])  # warm start: unchanged
+        new.patch_direct.weight.normal_()
+        patches, _ = new.patch_targets(batch)
+        a_s, a_d = new.encode_preactivations(batch)
+    assert torch.equal(a_s, a_old[0])
+    torch.testing.assert_close(a_d - a_old[1], patches.flatten(2) @ new.patch_direct.weight.T, atol=1e-5, rtol=1e-5)
