@@ -34,7 +34,7 @@ from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
 from .spatial_branch import SpatialBranch
-from .temporal_branch import TemporalBranch, select_tracks
+from .temporal_branch import TemporalBranch, sample_at_tracks, select_tracks
 
 __all__ = ["VideoTok4D", "MIN_TAU", "DEFAULT_DECODE_STEPS", "MAX_DECODE_STEPS"]
 
@@ -474,25 +474,15 @@ class VideoTok4D(ModelIdentity, nn.Module):
                        ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`patch_targets` from the source latents x (B, T, C, h, w) and the tracks ``chosen``."""
         cfg = self.config
-        T = x.shape[1]
         h, S, n_d = cfg.latent_size, batch.num_scenes, cfg.n_dynamic
         clip, track = self._chosen_clip_track(batch, chosen)
         xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2) latent px, centres at integers
         weight = batch.track_valid[clip, track].float()  # (S N_d, T)
         at = (xy[:, :, None] + dynamic_patch_offsets(cfg.dynamic_splat, xy)).clamp(0.0, h - 1)  # (S N_d, T, q, 2)
-        low = at.floor().clamp(max=h - 2).long()
-        frac = at - low
-        pixels = x.float().permute(0, 1, 3, 4, 2)  # (B, T, h, w, C)
-        n, t = clip[:, None, None], torch.arange(T, device=xy.device)[None, :, None]
-        sample = torch.zeros(*at.shape[:3], pixels.shape[-1], device=xy.device)
-        for dy in (0, 1):
-            for dx in (0, 1):
-                wy = frac[..., 1] if dy else 1.0 - frac[..., 1]
-                wx = frac[..., 0] if dx else 1.0 - frac[..., 0]
-                sample = sample + (wy * wx)[..., None] * pixels[n, t, low[..., 1] + dy, low[..., 0] + dx]
+        sample = sample_at_tracks(x[clip].float(), at.transpose(1, 2)).transpose(1, 2)  # (S N_d, T, q, C)
         count = weight.sum(1)
         target = (sample * weight[..., None, None]).sum(1) / count.clamp_min(1.0)[:, None, None]
-        return target.view(S, n_d, -1, pixels.shape[-1]), (count > 0).view(S, n_d)
+        return target.view(S, n_d, -1, x.shape[2]), (count > 0).view(S, n_d)
 
     def patch_loss(self, batch: SourceBatch, z_d: torch.Tensor) -> torch.Tensor:
         """|| patch content - :meth:`patch_targets` ||^2 over the dynamic tokens with a valid track: the
