@@ -37,7 +37,8 @@ def probe(run: Path, cache: Path, seeds: list[int], items: int) -> dict:
     pool = ScenePool.for_config(model.config, cache, 10)
     data = PairDataset(pool, seeds, recon_share=0.3, neighbour_sigma_deg=45)
     out: dict = {"run": str(run), "step": state.get("step"),
-                 "gate": float(model.renderer.dynamic_gate.detach()) * DYNAMIC_GATE_SCALE}
+                 "gate": float(model.renderer.dynamic_gate.detach()) * DYNAMIC_GATE_SCALE,
+                 "gate_used": float(model.renderer.dynamic_opacity_scale().detach())}
     for views in (1, 5):
         stride = max(1, len(data) // items)
         batch = collate_pairs([data[(i * stride, views)] if views > 1 else data[i * stride] for i in range(items)])
@@ -58,7 +59,7 @@ def probe(run: Path, cache: Path, seeds: list[int], items: int) -> dict:
             target, has = model.patch_targets(batch.source)  # (S, N_d, q, C), (S, N_d)
             S, n_d, q, C = target.shape
             content = r.dynamic_content(z_d).view(S, n_d, C + 1, q)
-            alpha = (DYNAMIC_GATE_SCALE * r.dynamic_gate * torch.sigmoid(content[:, :, C])).clamp(max=1.0)
+            alpha = r.dynamic_opacity_scale() * torch.sigmoid(content[:, :, C])
             colour = content[:, :, :C].transpose(2, 3)
             hw = has.float()[..., None, None]
             slot_target = (target * hw).sum(0, keepdim=True) / hw.sum(0, keepdim=True).clamp_min(1.0)

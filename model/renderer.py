@@ -189,17 +189,26 @@ class Renderer(nn.Module):
             f = f * keep[:, None, keep.shape[1] - n_d:, None].to(f.dtype)
         return ey, ex, f
 
+    def dynamic_opacity_scale(self) -> torch.Tensor:
+        """The dynamic splat's opacity gate, () float: ``DYNAMIC_GATE_SCALE`` x the parameter, clamped to
+        [0, 1] so every alpha is a convex blend weight. The clamp is straight-through: its gradient is the
+        unclamped one, so a gate that a step pushed past a bound can come back (a plain clamp would freeze
+        it there), and values inside [0, 1] are unchanged (warm starts keep their renders)."""
+        raw = DYNAMIC_GATE_SCALE * self.dynamic_gate.float()
+        return raw + (raw.clamp(0.0, 1.0) - raw).detach()
+
     def composite_dynamic(self, splat: torch.Tensor, z_d: torch.Tensor,
                           placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
         """The static splat (B, T, P, C p p) with the dynamic tokens' patches composited over it
         (placement from :meth:`dynamic_placement`): S (1 - A) + sum w alpha c / (sum w + SPLAT_FLOOR) per latent
-        pixel, A = sum w alpha / (sum w + SPLAT_FLOOR), alpha = gate sigmoid(o) per patch pixel. Same shape."""
+        pixel, A = sum w alpha / (sum w + SPLAT_FLOOR), alpha = gate sigmoid(o) per patch pixel (gate from
+        :meth:`dynamic_opacity_scale`). Same shape."""
         cfg = self.cfg
         ey, ex, f = placement
         B, T, n_d, q, h = ey.shape
         w, C, p = ex.shape[-1], cfg.latent_channels, cfg.renderer_patch
         content = self.dynamic_content(z_d.to(self.dynamic_content.weight.dtype)).float().view(B, n_d, C + 1, q)
-        alpha = DYNAMIC_GATE_SCALE * self.dynamic_gate.float() * torch.sigmoid(content[:, :, C])  # (B, N_d, q)
+        alpha = self.dynamic_opacity_scale() * torch.sigmoid(content[:, :, C])  # (B, N_d, q), in [0, 1]
         values = torch.cat([(content[:, :, :C] * alpha[:, :, None]).transpose(2, 3), alpha[..., None],
                             torch.ones_like(alpha[..., None])], dim=-1).reshape(B, 1, n_d * q, 1, C + 2)
         rows = (f[..., None] * ey).reshape(B, T, n_d * q, h, 1)

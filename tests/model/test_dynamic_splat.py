@@ -303,3 +303,17 @@ def test_dynamic_from_patch_is_checked_starts_at_zero_and_hands_each_token_the_l
         a_s, a_d = new.encode_preactivations(batch)
     assert torch.equal(a_s, a_old[0])
     torch.testing.assert_close(a_d - a_old[1], patches.flatten(2) @ new.patch_direct.weight.T, atol=1e-5, rtol=1e-5)
+
+
+def test_dynamic_opacity_gate_is_clamped_to_0_1_with_a_straight_through_gradient():
+    # Regression: the gate was unbounded, so a trained run (the unified ablation) reached -0.09 and
+    # composited negative opacities; alpha could also exceed 1.
+    r = VideoTok4D(get_config("tiny", **SMALL, dynamic_splat=1)).renderer
+    for raw, used in ((-0.09, 0.0), (0.63, 0.63), (1.7, 1.0)):
+        with torch.no_grad():
+            r.dynamic_gate.fill_(raw / DYNAMIC_GATE_SCALE)
+        r.dynamic_gate.grad = None
+        scale = r.dynamic_opacity_scale()
+        assert abs(float(scale) - used) < 1e-6
+        scale.backward()
+        assert abs(float(r.dynamic_gate.grad) - DYNAMIC_GATE_SCALE) < 1e-3  # a bound does not freeze it
