@@ -1,5 +1,6 @@
 """Shared training machinery: distributed setup (torchrun, gloo), resumable checkpoints without
-pickle, a JSONL log, the loss-curve PNG, bf16 autocast on CPU and the progress bar.
+pickle, a JSONL log, the loss-curve PNG, bf16 autocast, the device batches go to, a wall-clock budget
+and the progress bar.
 
 Checkpoint layout (``<out>/checkpoint/``): ``model.safetensors`` (the module's state dict),
 ``optimizer.pt`` (``torch.save`` of the optimizer state dict; read back with
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import random
@@ -37,7 +39,7 @@ from .data import ScenePool, rank_seeds
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
-    "parse_overrides", "lr_at", "train_loop", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
+    "parse_overrides", "lr_at", "train_loop", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
 ]
 
 
@@ -77,9 +79,37 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def autocast(bf16: bool) -> contextlib.AbstractContextManager:
-    """bf16 autocast on CPU when asked (matmuls and attention in bf16, losses kept in float32)."""
-    return torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+def autocast(bf16: bool, device_type: str = "cpu") -> contextlib.AbstractContextManager:
+    """bf16 autocast on ``device_type`` ("cpu" or "cuda") when asked (matmuls and attention in bf16,
+    losses kept in float32)."""
+    return torch.autocast(device_type, dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+
+
+def resolve_device(name: str) -> torch.device:
+    """``--device``: "cpu", "cuda" (ModelError where torch sees no CUDA device) or "auto" (CUDA when
+    available, else CPU)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ModelError("--device cuda: torch sees no CUDA device here (use --device cpu or auto)")
+    if name not in ("cpu", "cuda"):
+        raise ModelError(f"--device must be cpu, cuda or auto, got {name!r}")
+    return torch.device(name)
+
+
+def to_device(value: Any, device: torch.device) -> Any:
+    """``value`` with every tensor in it moved to ``device``: tensors, dataclasses (a new instance, the
+    input unchanged), lists, tuples and dicts, recursively; anything else as is."""
+    if isinstance(value, torch.Tensor):
+        return value.to(device, non_blocking=True)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.replace(value, **{f.name: to_device(getattr(value, f.name), device)
+                                             for f in dataclasses.fields(value) if f.init})
+    if isinstance(value, (list, tuple)):
+        return type(value)(to_device(v, device) for v in value)
+    if isinstance(value, dict):
+        return {k: to_device(v, device) for k, v in value.items()}
+    return value
 
 
 def cycle(loader: Any) -> Iterator[Any]:
@@ -253,7 +283,10 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene cache directory (default <out>/../scene_cache); shared across runs")
     parser.add_argument("--workers", type=int, default=1, help="DataLoader workers per process")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads per process")
-    parser.add_argument("--bf16", action="store_true", help="bf16 autocast on CPU")
+    parser.add_argument("--bf16", action="store_true", help="bf16 autocast (on the training device)")
+    parser.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                        help="stop after this much wall-clock training time (checkpointed and finished as at "
+                             "--steps; re-running the command continues to --steps): for a lent accelerator")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--log-every", type=int, default=10)
     parser.add_argument("--ckpt-every", type=int, default=200)
@@ -284,8 +317,12 @@ def lr_at(step: int, base: float, warmup: int, total: int) -> float:
 
 def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trained: nn.Module,
                optimizer: torch.optim.Optimizer, batches: Iterator[Any], step_fn, *, title: str,
-               extra_state: dict[str, Any]) -> list[dict[str, Any]]:
+               extra_state: dict[str, Any], device: torch.device | None = None) -> list[dict[str, Any]]:
     """Run optimizer steps up to ``args.steps``, resuming from ``<out>/checkpoint``.
+
+    ``device``: where the batches go (the modules must already be there); default CPU. With
+    ``args.time_budget`` (seconds, optional) the loop stops at the first step that ends past it, and
+    checkpoints and logs that step as if it were the last.
 
     ``trained`` is the bare module whose state is checkpointed (``module`` may be its DDP wrapper,
     which ``step_fn(module, batch) -> (loss, logs)`` calls). Rank 0 logs every ``log_every`` steps to
@@ -307,6 +344,8 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
                disable=args.no_progress or not info.is_main, dynamic_ncols=True)
     window: list[float] = []
     t0 = time.time()
+    device = torch.device("cpu") if device is None else device
+    budget = getattr(args, "time_budget", None)
     module.train()
     for step in bar:
         lr = lr_at(step, args.lr, args.warmup, args.steps)
@@ -315,14 +354,21 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
         for group in optimizer.param_groups:
             group["lr"] = lr * group.get("lr_scale", 1.0)
         batch = next(batches)
-        with autocast(args.bf16):
+        if device.type != "cpu":
+            batch = to_device(batch, device)
+        with autocast(args.bf16, device.type):
             loss, logs = step_fn(module, batch)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_([p for p in trained.parameters() if p.requires_grad], 1.0)
         optimizer.step()
         window.append(float(loss.detach()))
-        last = step + 1 == args.steps
+        out_of_time = budget is not None and time.time() - t0 >= budget
+        if budget is not None and info.distributed:  # every rank takes part, and stops at the same step
+            flag = torch.tensor([float(out_of_time)])
+            dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+            out_of_time = bool(flag.item())
+        last = step + 1 == args.steps or out_of_time
         if (step + 1) % args.log_every == 0 or last:
             mean = torch.tensor([sum(window) / len(window)], dtype=torch.float64)
             if info.distributed:
@@ -339,6 +385,10 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
                 save_checkpoint(ckpt, trained, optimizer, step + 1, {"args": _jsonable(vars(args)), **extra_state})
             if info.distributed:
                 dist.barrier()
+        if out_of_time:
+            if info.is_main:
+                print(f"--time-budget {budget:g} s reached at step {step + 1} of {args.steps}: checkpointed")
+            break
     bar.close()
     records = log.read() if info.is_main else []
     if info.is_main:

@@ -45,7 +45,7 @@ from ..inputs.source_inputs import SourceBatch, SourceInputs
 
 __all__ = ["ScenePool", "FrameDataset", "PhotoCrops", "MixedFrames", "PairDataset", "ViewsBatchSampler",
            "axis_angles_deg", "track_depths",
-           "autoencoder_key", "precompute_latents", "collate_pairs", "PairBatch", "rank_seeds"]
+           "autoencoder_key", "precompute_latents", "prefill_scenes", "collate_pairs", "PairBatch", "rank_seeds"]
 
 
 def rank_seeds(first: int, count: int, rank: int, world_size: int) -> list[int]:
@@ -206,13 +206,42 @@ def precompute_latents(pool: "ScenePool", seeds: list[int], autoencoder: torch.n
     the latents (stage 2 then skips the encoder pass, about 40 % of a step). Returns the cache key."""
     key = autoencoder_key(autoencoder)
     autoencoder.eval()
+    device = next(autoencoder.parameters()).device  # encoded where the autoencoder lives (CPU or accelerator)
     for seed in tqdm(seeds, desc="latents", disable=not progress):
         path = pool.latents_path(seed, key)
         if path.is_file():
             continue
         frames = torch.from_numpy(pool.scene(seed)["frames"]).permute(0, 1, 4, 2, 3).float().div_(255.0)
-        _save_npz(path, {"latents": autoencoder.encode(frames).float().numpy()})  # (C, T, c, h, w), normalised
+        latents = autoencoder.encode(frames.to(device)).float().cpu().numpy()  # (C, T, c, h, w), normalised
+        _save_npz(path, {"latents": latents})
     return key
+
+
+def _prefill_one(pool: "ScenePool", seed: int) -> int:
+    pool.build_scene(seed)
+    pool.build_prepared(seed)
+    return seed
+
+
+def prefill_scenes(pool: "ScenePool", seeds: list[int], workers: int, progress: bool = False) -> None:
+    """Generate and preprocess every scene of ``seeds`` into the cache with ``workers`` processes (each
+    scene is one task; cached ones are read back, not rebuilt). Training would fill the cache lazily in
+    its one DataLoader worker; on a many-core machine (an accelerator's host) this fills it first, in
+    parallel. Files are written atomically, so runs sharing a cache may prefill at the same time."""
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if workers == 1:
+        for seed in tqdm(seeds, desc="scenes", disable=not progress):
+            _prefill_one(pool, seed)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    context = multiprocessing.get_context("spawn")  # no forked torch/OpenCV thread state in the workers
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as executor:
+        done = executor.map(functools.partial(_prefill_one, pool), seeds, chunksize=1)
+        for _ in tqdm(done, total=len(seeds), desc="scenes", disable=not progress):
+            pass
 
 
 @functools.lru_cache(maxsize=8)

@@ -6,6 +6,7 @@ autoencoder: the rectified-flow loss L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z
         --out runs/tok --steps 3000 [recipe flags]
     python -m vt4dcodec.model.train.tokenizer --init vt4d-tiny --out runs/tok2 --steps 20000 [same --set]
     torchrun --nproc_per_node=2 -m vt4dcodec.model.train.tokenizer --autoencoder ... --out ... --steps ...
+    python -m vt4dcodec.model.train.tokenizer --device cuda --prefill-workers 16 --time-budget 480 ...
 
 Each sample: one scene, a source camera c (its clip, cameras, motion mask and tracks from
 ``model.inputs.preprocess``) and a target camera a (its video is Y^0, its trajectory P_tgt): every ordered
@@ -39,9 +40,9 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     model_from_run, scene_pool_and_seeds, seed_everything, setup_distributed, train_loop,
-                     trained_decode_steps)
-from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents
+                     model_from_run, resolve_device, scene_pool_and_seeds, seed_everything, setup_distributed,
+                     train_loop, trained_decode_steps)
+from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents, prefill_scenes
 
 __all__ = ["main", "load_autoencoder", "draw_tau", "flow_step"]
 
@@ -255,6 +256,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --init: the saved model's config may differ outside the autoencoder (e.g. "
                              "render_patch_size); copy the tensors whose shapes fit, start the rest fresh; "
                              "n_static = k x the saved one repeats each static token's query k times")
+    parser.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"),
+                        help="where the model trains (auto: CUDA when torch sees it); the data stays on the CPU")
+    parser.add_argument("--prefill-workers", type=int, default=0, metavar="N",
+                        help="generate and preprocess every training scene into --cache with N processes before "
+                             "training (default: lazily, in the DataLoader worker)")
     parser.add_argument("--cache-latents", action="store_true",
                         help="encode every training frame once with the frozen autoencoder and read the latents "
                              "from the scene cache (saves the encoder pass of every step)")
@@ -297,6 +303,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="weight of the patch loss (config dynamic_splat): each dynamic token's splat patch must "
                              "hold the source latent around its track")
     args = parser.parse_args(argv)
+    if args.prefill_workers < 0:
+        parser.error("--prefill-workers must be >= 0")
+    try:
+        device = resolve_device(args.device)
+    except ModelError as exc:
+        parser.error(str(exc))
     info = setup_distributed()
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
@@ -326,9 +338,12 @@ def main(argv: list[str] | None = None) -> int:
         model = build_model(cfg, args.autoencoder)
     else:
         model = fresh_on_saved_autoencoder(cfg, args.autoencoder_from)
+    model.to(device)
     optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
     pool, seeds = scene_pool_and_seeds(args, cfg, info)
+    if args.prefill_workers:
+        prefill_scenes(pool, seeds, args.prefill_workers, progress=not args.no_progress)
     latent_key = None
     if args.cache_latents:
         latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
@@ -353,12 +368,14 @@ def main(argv: list[str] | None = None) -> int:
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
                              track_weight=args.track_weight, patch_weight=args.patch_weight)
     records = train_loop(args, info, module, model, optimizer, batches, step,
-                         title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()})
+                         title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()},
+                         device=device)
+    model.cpu()  # saved and sampled on the CPU, wherever it trained
     if info.is_main:
         model.decode_steps = trained_decode_steps(vars(args))
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
                                     model_version=args.model_version)
-        summary = {"config": cfg.to_dict(), "steps": args.steps,
+        summary = {"config": cfg.to_dict(), "steps": records[-1]["step"] if records else args.steps,
                    "final_loss": records[-1]["loss"] if records else None,
                    "first_loss": records[0]["loss"] if records else None,
                    **render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png",

@@ -316,3 +316,57 @@ def test_lr_scale_puts_the_named_parameters_in_their_own_group_and_the_loop_scal
     for bad in ("renderer.out", "renderer.out=0", "=3", "renderer.out=x", "autoencoder.=2"):
         with pytest.raises(ModelError, match="--lr-scale"):
             parameter_groups(net, bad)
+
+
+def test_time_budget_stops_checkpoints_and_a_rerun_continues_to_steps(runs, tmp_path):
+    """``--time-budget`` (a lent accelerator's fixed wall clock): the loop stops at the first step past
+    the budget with a complete checkpoint and a saved model, and the same command without it resumes."""
+    out = tmp_path / "tok"
+    args = ["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out), "--steps", "4",
+            "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), *COMMON]
+    assert stage2.main([*args, "--time-budget", "0", "--device", "auto"]) == 0
+    assert json.loads((out / "checkpoint/state.json").read_text())["step"] == 1
+    assert json.loads((out / "summary.json").read_text())["steps"] == 1
+    assert from_pretrained(out / "model").config.n_static == 8
+    assert stage2.main(args) == 0
+    assert [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()] == [1, 2, 3, 4]
+
+
+def test_device_flag_refuses_cuda_where_there_is_none_and_names_the_flag(runs, tmp_path, capsys):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(SystemExit):
+        stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "x"),
+                     "--steps", "1", "--device", "cuda", *COMMON])
+    assert "--device cuda" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(tmp_path / "y"),
+                     "--steps", "1", "--prefill-workers", "-1", *COMMON])
+
+
+def test_to_device_moves_every_tensor_of_a_pair_batch_and_leaves_the_input_alone(runs):
+    from vt4dcodec.model.train.common import to_device
+    from vt4dcodec.model.train.data import PairDataset, ScenePool, collate_pairs
+
+    pool = ScenePool(runs / "cache", cameras=2, frames=4, image_size=32, latent_size=8, n_tracks=8)
+    batch = collate_pairs([PairDataset(pool, [0])[i] for i in range(2)])
+    moved = to_device(batch, torch.device("meta"))
+    tensors = [moved.target_frames, moved.K_tgt, moved.w2c_tgt, moved.source.frames, moved.source.K,
+               moved.source.track_xy, moved.source.track_valid]
+    assert all(t.device.type == "meta" for t in tensors)
+    assert moved.source.views == batch.source.views and moved.target_frames.shape == batch.target_frames.shape
+    assert batch.target_frames.device.type == "cpu" and batch.source.frames.device.type == "cpu"
+
+
+def test_prefill_scenes_builds_the_cache_in_worker_processes_once(tmp_path):
+    from vt4dcodec.model.train.data import ScenePool, prefill_scenes
+
+    pool = ScenePool(tmp_path, cameras=2, frames=4, image_size=32, latent_size=8, n_tracks=8)
+    prefill_scenes(pool, [0, 1], workers=2)
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert len([f for f in files if f.startswith("scene-")]) == 2 and len([f for f in files if f.startswith("prep")]) == 2
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    prefill_scenes(pool, [0, 1], workers=1)  # cached: read back, not rebuilt
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.iterdir()} == stamps
+    with pytest.raises(ValueError):
+        prefill_scenes(pool, [0], workers=0)
