@@ -46,7 +46,9 @@ middle frame and a depth) and an s x s patch of latent content with an opacity p
 forward-warped into target frame t with the pixel splat's Gaussian (view gate as above, relative among
 the dynamic tokens), then composited over the static splat: out = S (1 - A) + sum w alpha c / (sum w +
 SPLAT_FLOOR), A = sum w alpha / (sum w + SPLAT_FLOOR). Opacities are scaled by a learned gate that starts
-at 0, so a warm start renders as before.
+at 0, so a warm start renders as before, and with ``config.dynamic_gate_deg`` s by 1 - exp(-a^2 / 2 s^2) in
+each target frame (a the angle at the patch centre between its encoded camera's ray and the target's): along
+its own camera's direction a token leaves the moving object to the frame copies.
 """
 
 from __future__ import annotations
@@ -147,12 +149,14 @@ class Renderer(nn.Module):
 
     def dynamic_placement(self, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor, K_src: torch.Tensor,
                           w2c_src: torch.Tensor, keep: torch.Tensor | None
-                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Where the dynamic splat puts latent pixel q of dynamic token k in target frame t, as
         :meth:`pixel_placement` does for the anchored tokens: (ey (B, T, N_d, q, h), ex (B, T, N_d, q, w),
-        f (B, T, N_d, q)), q = dynamic_splat^2 row-major; f is 0 behind the camera or for a dropped token
-        (``keep`` (B, N_s + N_d)), else exp(-view term) relative among the dynamic tokens of that frame
-        (``config.view_gate_deg``). Cameras as :meth:`projected_logit`."""
+        f (B, T, N_d, q), off_axis (B, T, N_d)), q = dynamic_splat^2 row-major; f is 0 behind the camera or for
+        a dropped token (``keep`` (B, N_s + N_d)), else exp(-view term) relative among the dynamic tokens of
+        that frame (``config.view_gate_deg``); off_axis is 1 - cos a, a the angle at the patch centre between
+        the rays from the token's encoded camera and from target frame t's camera (``config.view_gate_deg``,
+        ``config.dynamic_gate_deg``). Cameras as :meth:`projected_logit`."""
         cfg = self.cfg
         if K_src.ndim == 3:
             K_src, w2c_src = K_src[:, None], w2c_src[:, None]
@@ -177,17 +181,18 @@ class Renderer(nn.Module):
         ex = torch.exp(-(centres - at[..., 0:1]) ** 2 / scale)
         ey = torch.exp(-(centres - at[..., 1:2]) ** 2 / scale)
         f = (z > 1e-3).to(ex.dtype)
+        point = x_world.mean(3)  # (B, N_d, T, 3) the patch centre
+        origin = -torch.einsum("bnji,bnj->bni", R, t)  # (B, N_d, 3) encoded camera centres
+        target = -torch.einsum("btji,btj->bti", Rt, tt)  # (B, T, 3)
+        from_source = F.normalize(point - origin[:, :, None], dim=-1).transpose(1, 2)  # (B, T, N_d, 3)
+        from_target = F.normalize(point.transpose(1, 2) - target[:, :, None], dim=-1)
+        off_axis = 1.0 - (from_source * from_target).sum(-1)  # (B, T, N_d)
         if cfg.view_gate_deg > 0:
-            point = x_world.mean(3)  # (B, N_d, T, 3) the patch centre
-            origin = -torch.einsum("bnji,bnj->bni", R, t)  # (B, N_d, 3) encoded camera centres
-            target = -torch.einsum("btji,btj->bti", Rt, tt)  # (B, T, 3)
-            from_source = F.normalize(point - origin[:, :, None], dim=-1).transpose(1, 2)  # (B, T, N_d, 3)
-            from_target = F.normalize(point.transpose(1, 2) - target[:, :, None], dim=-1)
-            term = (1.0 - (from_source * from_target).sum(-1)) / math.radians(cfg.view_gate_deg) ** 2
+            term = off_axis / math.radians(cfg.view_gate_deg) ** 2
             f = f * torch.exp(-(term - term.amin(-1, keepdim=True)))[..., None]
         if keep is not None:
             f = f * keep[:, None, keep.shape[1] - n_d:, None].to(f.dtype)
-        return ey, ex, f
+        return ey, ex, f, off_axis
 
     def dynamic_opacity_scale(self) -> torch.Tensor:
         """The dynamic splat's opacity gate, () float: ``DYNAMIC_GATE_SCALE`` x the parameter, clamped to
@@ -198,19 +203,25 @@ class Renderer(nn.Module):
         return raw + (raw.clamp(0.0, 1.0) - raw).detach()
 
     def composite_dynamic(self, splat: torch.Tensor, z_d: torch.Tensor,
-                          placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+                          placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
         """The static splat (B, T, P, C p p) with the dynamic tokens' patches composited over it
         (placement from :meth:`dynamic_placement`): S (1 - A) + sum w alpha c / (sum w + SPLAT_FLOOR) per latent
         pixel, A = sum w alpha / (sum w + SPLAT_FLOOR), alpha = gate sigmoid(o) per patch pixel (gate from
-        :meth:`dynamic_opacity_scale`). Same shape."""
+        :meth:`dynamic_opacity_scale`), times 1 - exp(-a^2 / 2 s^2) per target frame with
+        ``config.dynamic_gate_deg`` s (a from the placement's off_axis). Same shape."""
         cfg = self.cfg
-        ey, ex, f = placement
+        ey, ex, f, off_axis = placement
         B, T, n_d, q, h = ey.shape
         w, C, p = ex.shape[-1], cfg.latent_channels, cfg.renderer_patch
         content = self.dynamic_content(z_d.to(self.dynamic_content.weight.dtype)).float().view(B, n_d, C + 1, q)
         alpha = self.dynamic_opacity_scale() * torch.sigmoid(content[:, :, C])  # (B, N_d, q), in [0, 1]
-        values = torch.cat([(content[:, :, :C] * alpha[:, :, None]).transpose(2, 3), alpha[..., None],
-                            torch.ones_like(alpha[..., None])], dim=-1).reshape(B, 1, n_d * q, 1, C + 2)
+        colour = content[:, :, :C].transpose(2, 3)[:, None]  # (B, 1, N_d, q, C)
+        alpha = alpha[:, None]  # (B, 1, N_d, q): the same in every target frame
+        if cfg.dynamic_gate_deg > 0:  # (B, T, N_d, q): along its own camera's ray the frame copies take over
+            alpha = alpha * (1.0 - self._gate_from(off_axis, cfg.dynamic_gate_deg))[..., None]
+        frames = alpha.shape[1]
+        values = torch.cat([colour * alpha[..., None], alpha[..., None], torch.ones_like(alpha[..., None])],
+                           dim=-1).reshape(B, frames, n_d * q, 1, C + 2)
         rows = (f[..., None] * ey).reshape(B, T, n_d * q, h, 1)
         cols = ex.reshape(B, T, n_d * q, w)
         acc = ((rows * values).reshape(B, T, n_d * q, h * (C + 2)).transpose(2, 3) @ cols)  # (B, T, h (C+2), w)

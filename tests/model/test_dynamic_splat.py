@@ -82,7 +82,7 @@ def test_the_track_head_places_the_patch_at_its_track_and_moves_it_with_the_targ
     K, w2c = camera()
     for tx, shift in ((0.0, 0.0), (0.5, FOCAL * 0.5 / DEPTH / 4)):  # latent px = image px / 4
         Kt, w2ct = camera(tx)
-        ey, ex, f = r.dynamic_placement(z_d, Kt.expand(1, 4, 3, 3), w2ct.expand(1, 4, 4, 4), K[None], w2c[None], None)
+        ey, ex, f, _ = r.dynamic_placement(z_d, Kt.expand(1, 4, 3, 3), w2ct.expand(1, 4, 4, 4), K[None], w2c[None], None)
         assert int(ex[0, 0, 0, 0].argmax()) == round(u + shift) and int(ey[0, 0, 0, 0].argmax()) == round(v)
         assert torch.allclose(f, torch.ones_like(f))
     keep = torch.ones(1, 36, dtype=torch.bool)
@@ -104,13 +104,52 @@ def test_the_composite_keeps_the_static_splat_until_the_gate_opens_and_then_cove
         r.dynamic_content.bias.copy_(torch.cat([torch.full((C,), 2.0), torch.tensor([20.0])]))  # opaque, value 2
         r.dynamic_gate.fill_(1.0 / DYNAMIC_GATE_SCALE)
         out = r.composite_dynamic(static, z_d, placement)
-    ey, ex, f = placement
+    ey, ex, f, _ = placement
     weight = torch.einsum("btnqh,btnqw->bthw", ey, ex)  # every token's patch lands on the same pixel here
     A = (weight / (weight + SPLAT_FLOOR))[:, :, None]
     grid = lambda x: x.reshape(1, 4, 4, 4, C, 2, 2).permute(0, 1, 4, 2, 5, 3, 6).reshape(1, 4, C, 8, 8)  # noqa: E731
     want = grid(static) * (1 - A) + 2.0 * A
     assert torch.allclose(out, patchify(want, 2), atol=1e-5)
     assert float(A.max()) > 0.9 and float(A.min()) < 1e-3  # covered at the track, untouched elsewhere
+
+
+def test_the_dynamic_gate_leaves_the_encoded_camera_to_the_frame_copies_and_covers_from_elsewhere():
+    """dynamic_gate_deg: opacity x (1 - exp(-a^2 / 2 s^2)): zero along the encoded camera's own rays (the
+    source view keeps the static splat's frame copies), nearly the ungated opacity 14 degrees away."""
+    torch.manual_seed(0)
+    plain = VideoTok4D(get_config("tiny", **SMALL, dynamic_splat=1)).eval()
+    gated = VideoTok4D(get_config("tiny", **SMALL, dynamic_splat=1, dynamic_gate_deg=8.0)).eval()
+    gated.load_state_dict(plain.state_dict())
+    C = plain.config.latent_channels
+    K, w2c = camera()
+    z_d = torch.zeros(1, 4, 8)
+    static = torch.randn(1, 4, 16, C * 4)
+    with torch.no_grad():
+        for net in (plain, gated):
+            net.renderer.dynamic_content.bias.copy_(torch.cat([torch.full((C,), 2.0), torch.tensor([20.0])]))
+            net.renderer.dynamic_gate.fill_(1.0 / DYNAMIC_GATE_SCALE)
+        changes = {}
+        for tx in (0.0, 0.75):  # 0.75 m at 3 m: 14 degrees at the origin, gate 1 - exp(-1.5) = 0.78
+            Kt, w2ct = camera(tx)
+            for name, net in (("plain", plain), ("gated", gated)):
+                r = net.renderer
+                placement = r.dynamic_placement(z_d, Kt.expand(1, 4, 3, 3), w2ct.expand(1, 4, 4, 4), K[None],
+                                                w2c[None], None)
+                changes[name, tx] = float((r.composite_dynamic(static, z_d, placement) - static).abs().max())
+    assert changes["plain", 0.0] > 1.0 and changes["plain", 0.75] > 1.0  # the opaque patch covers ungated
+    assert changes["gated", 0.0] < 1e-3
+    assert changes["gated", 0.75] > 0.5 * changes["plain", 0.75]
+
+
+def test_dynamic_gate_keeps_the_hash_while_off_and_needs_the_dynamic_splat():
+    base = get_config("tiny", **SMALL, dynamic_splat=2)
+    assert base.replace(dynamic_gate_deg=0.0).sha256() == base.sha256()
+    assert base.replace(dynamic_gate_deg=8.0).sha256() != base.sha256()
+    for bad in (-1.0, 181.0, True, "8"):
+        with pytest.raises(ModelError, match="dynamic_gate_deg"):
+            base.replace(dynamic_gate_deg=bad)
+    with pytest.raises(ModelError, match="dynamic_gate_deg needs dynamic_splat"):
+        get_config("tiny", **SMALL, dynamic_gate_deg=8.0)
 
 
 def test_select_tracks_ties_token_k_to_camera_k_mod_v_and_its_most_moving_tracks():
