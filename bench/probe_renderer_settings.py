@@ -5,7 +5,7 @@
         [--first-seed 0] [--sets source,near,far,multi-enc,multi-held] [--threads 1] [--out FILE.json]
 
 For each value of the field given by ``--set`` (``view_gate_deg``, ``frame_gate_deg``, ``spread_views``,
-``pixel_splat``, ``patch_gate_deg``, ``dynamic_gate_deg``: config fields that change how the renderer places
+``pixel_splat``, ``patch_gate_deg``, ``dynamic_gate_deg``, ``dynamic_gate_copies``: config fields that change how the renderer places
 or weighs the tokens, not its weights) and for the model as it is, the model is re-configured with the same
 weights (``model.train.ship.reconfigure``), saved to a temporary directory and evaluated by ``python -m
 vt4dcodec.eval`` (held-out 10-camera scenes, int8 tokens, the model's decode steps, ``--methods ours``). Mean

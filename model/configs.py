@@ -218,6 +218,13 @@ class ModelConfig(_Config):
         one patch carried along the track for the whole clip (vt4d-tiny-1.1-dyn's source view: 26.87 dB
         with its dynamic patches, 27.04 without Z_d); seen from elsewhere the patch is what moves the
         object. Renderer only, no weights. 0 = off.
+        dynamic_gate_copies: with dynamic_gate_deg, the gate of a dynamic token's encoded camera is scaled by
+        the share of that camera's cells whose frame copies split the clip (3 or more copies: a time
+        average and at least two frame groups; :meth:`Renderer.copy_resolution`), so it leaves the
+        camera's own view only to frame copies that show the motion. With one encoded camera (5 copies a
+        cell) it is the plain gate; with 5 of 10 cameras encoded (320 tokens: one copy a cell, no frame
+        copies) the gate is off and the camera's own dynamic patches draw its moving objects. Renderer
+        only, no weights. False = the plain gate for every camera.
         dynamic_from_patch: with dynamic_splat (full model only), each dynamic token's bottleneck
         pre-activation also gets a zero-initialised linear map of the source latent around its track
         (its camera's latent at the track plus the patch offsets, averaged over the track's valid frames:
@@ -272,6 +279,7 @@ class ModelConfig(_Config):
     patch_gate_deg: float = 0.0
     dynamic_splat: int = 0
     dynamic_gate_deg: float = 0.0
+    dynamic_gate_copies: bool = False
     dynamic_from_patch: bool = False
 
     _KIND: ClassVar[str] = "model"
@@ -282,7 +290,8 @@ class ModelConfig(_Config):
                                                "frame_gate_deg": 0.0, "spread_views": False,
                                                "view_gate_deg": 0.0, "pixel_splat": False,
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
-                                               "dynamic_gate_deg": 0.0, "dynamic_from_patch": False}
+                                               "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
+                                               "dynamic_from_patch": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -308,7 +317,8 @@ class ModelConfig(_Config):
                 or not 0.0 <= self.locality_sigma < 1e6:
             raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
         _require_bools(self, ("query_from_grid", "project_anchors", "anchor_views", "token_splat", "token_from_cell",
-                              "frame_copies", "spread_views", "pixel_splat", "dynamic_from_patch"))
+                              "frame_copies", "spread_views", "pixel_splat", "dynamic_gate_copies",
+                              "dynamic_from_patch"))
         _require_degrees(self, ("frame_gate_deg", "view_gate_deg", "patch_gate_deg", "dynamic_gate_deg"))
         if self.query_from_grid and not self.locality_sigma > 0:
             raise ModelError("config query_from_grid needs locality_sigma > 0 (it reads each query's anchor cell)")
@@ -340,6 +350,8 @@ class ModelConfig(_Config):
             raise ModelError(f"config dynamic_splat must be an integer from 0 to the latent size, got {self.dynamic_splat!r}")
         if self.dynamic_splat > 0 and not self.pixel_splat:
             raise ModelError("config dynamic_splat needs pixel_splat (it warps the dynamic tokens' patches alike)")
+        if self.dynamic_gate_copies and not self.dynamic_gate_deg > 0:
+            raise ModelError("config dynamic_gate_copies needs dynamic_gate_deg > 0 (it scales that gate per camera)")
         if self.dynamic_gate_deg > 0 and not self.dynamic_splat:
             raise ModelError("config dynamic_gate_deg needs dynamic_splat > 0 (it scales the dynamic patches' opacity)")
         if self.dynamic_from_patch and not (self.dynamic_splat > 0 and not self.unified_tokens):

@@ -48,7 +48,8 @@ the dynamic tokens), then composited over the static splat: out = S (1 - A) + su
 SPLAT_FLOOR), A = sum w alpha / (sum w + SPLAT_FLOOR). Opacities are scaled by a learned gate that starts
 at 0, so a warm start renders as before, and with ``config.dynamic_gate_deg`` s by 1 - exp(-a^2 / 2 s^2) in
 each target frame (a the angle at the patch centre between its encoded camera's ray and the target's): along
-its own camera's direction a token leaves the moving object to the frame copies.
+its own camera's direction a token leaves the moving object to the frame copies (with
+``config.dynamic_gate_copies`` only as far as that camera's frame copies resolve time).
 """
 
 from __future__ import annotations
@@ -203,12 +204,14 @@ class Renderer(nn.Module):
         return raw + (raw.clamp(0.0, 1.0) - raw).detach()
 
     def composite_dynamic(self, splat: torch.Tensor, z_d: torch.Tensor,
-                          placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+                          placement: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+                          views: int = 1) -> torch.Tensor:
         """The static splat (B, T, P, C p p) with the dynamic tokens' patches composited over it
         (placement from :meth:`dynamic_placement`): S (1 - A) + sum w alpha c / (sum w + SPLAT_FLOOR) per latent
         pixel, A = sum w alpha / (sum w + SPLAT_FLOOR), alpha = gate sigmoid(o) per patch pixel (gate from
         :meth:`dynamic_opacity_scale`), times 1 - exp(-a^2 / 2 s^2) per target frame with
-        ``config.dynamic_gate_deg`` s (a from the placement's off_axis). Same shape."""
+        ``config.dynamic_gate_deg`` s (a from the placement's off_axis), that gate scaled per encoded camera
+        (of ``views``) by :meth:`copy_resolution` with ``config.dynamic_gate_copies``. Same shape."""
         cfg = self.cfg
         ey, ex, f, off_axis = placement
         B, T, n_d, q, h = ey.shape
@@ -218,7 +221,10 @@ class Renderer(nn.Module):
         colour = content[:, :, :C].transpose(2, 3)[:, None]  # (B, 1, N_d, q, C)
         alpha = alpha[:, None]  # (B, 1, N_d, q): the same in every target frame
         if cfg.dynamic_gate_deg > 0:  # (B, T, N_d, q): along its own camera's ray the frame copies take over
-            alpha = alpha * (1.0 - self._gate_from(off_axis, cfg.dynamic_gate_deg))[..., None]
+            gate = self._gate_from(off_axis, cfg.dynamic_gate_deg)
+            if cfg.dynamic_gate_copies:  # ... where they resolve time
+                gate = gate * self.copy_resolution(views)[dynamic_token_cameras(n_d, views, gate.device)]
+            alpha = alpha * (1.0 - gate)[..., None]
         frames = alpha.shape[1]
         values = torch.cat([colour * alpha[..., None], alpha[..., None], torch.ones_like(alpha[..., None])],
                            dim=-1).reshape(B, frames, n_d * q, 1, C + 2)
@@ -275,6 +281,20 @@ class Renderer(nn.Module):
         t = torch.arange(frames, device=index.device)
         group_of_frame = t[None, :] * groups[:, None] // frames  # (Na, frames)
         return ((rank[:, None] >= 1) & (group_of_frame == rank[:, None] - 1)).float()
+
+    def copy_resolution(self, views: int) -> torch.Tensor:
+        """(views,) float in [0, 1]: per encoded camera, the share of its anchored cells whose frame copies
+        (:meth:`copy_frames`) split the clip into two or more frame groups (3 or more tokens on the anchor),
+        i.e. show what the cell did over time; 0 for a camera without anchored tokens."""
+        cams = self.token_cameras(views)
+        if not self.cfg.frame_copies:
+            return torch.zeros(views, device=cams.device)
+        index, same = self._same_anchor(views)
+        first = self.copy_origin(views) == index  # one token per anchor
+        resolved = (same.sum(1) >= 3) & first
+        cells = torch.zeros(views, device=cams.device).index_add_(0, cams, first.float())
+        hits = torch.zeros(views, device=cams.device).index_add_(0, cams, resolved.float())
+        return hits / cells.clamp_min(1.0)
 
     def copy_origin(self, views: int) -> torch.Tensor:
         """(N_anchored,) index of the time-average copy (the first token) of each anchored token's anchor
@@ -566,7 +586,7 @@ class Renderer(nn.Module):
                     splat = self.splat_latent(z_s, z_d, logit, keep, views, gate).to(x.dtype)
                 if self.dynamic_path is not None:
                     placement = self.dynamic_placement(z_d, K_tgt, w2c_tgt, K_src, w2c_src, keep)
-                    splat = self.composite_dynamic(splat, z_d, placement)
+                    splat = self.composite_dynamic(splat, z_d, placement, views)
                 x = x + self.splat_in(splat)
         else:
             bias = None if self.token_bias is None else self.token_bias.repeat(1, T, 1)  # rows t P + p

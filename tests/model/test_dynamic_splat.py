@@ -152,6 +152,47 @@ def test_dynamic_gate_keeps_the_hash_while_off_and_needs_the_dynamic_splat():
         get_config("tiny", **SMALL, dynamic_gate_deg=8.0)
 
 
+def test_copy_resolution_is_the_share_of_a_cameras_cells_whose_frame_copies_split_the_clip():
+    r = VideoTok4D(get_config("tiny", **{**SMALL, "n_static": 48}, dynamic_splat=1)).renderer  # 16 cells
+    assert r.copy_resolution(1).tolist() == [1.0]  # 3 tokens a cell: a time average and 2 frame groups
+    assert r.copy_resolution(3).tolist() == [0.0, 0.0, 0.0]  # 48 = 3 x 16: one token a (camera, cell)
+    assert r.copy_resolution(5).tolist() == [0.0] * 5
+    assert VideoTok4D(get_config("tiny", **SMALL, dynamic_splat=1)).renderer.copy_resolution(1).tolist() == [0.0]
+
+
+def test_dynamic_gate_copies_lifts_the_gate_for_cameras_without_frame_copies():
+    """With 3 encoded cameras and one token a (camera, cell) nothing else shows the motion at a camera's own
+    view, so its dynamic patches draw there; with one camera (3 copies a cell) the plain gate holds."""
+    torch.manual_seed(0)
+    extra = {**SMALL, "n_static": 48}
+    plain = VideoTok4D(get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_deg=8.0)).eval()
+    lifted = VideoTok4D(get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_deg=8.0,
+                                   dynamic_gate_copies=True)).eval()
+    lifted.load_state_dict(plain.state_dict())
+    C = plain.config.latent_channels
+    K, w2c = camera()
+    z_d = torch.zeros(1, 4, 8)
+    static = torch.randn(1, 4, 16, C * 4)
+    changes = {}
+    with torch.no_grad():
+        for name, net in (("plain", plain), ("lifted", lifted)):
+            r = net.renderer
+            r.dynamic_content.bias.copy_(torch.cat([torch.full((C,), 2.0), torch.tensor([20.0])]))
+            r.dynamic_gate.fill_(1.0 / DYNAMIC_GATE_SCALE)
+            for views in (1, 3):
+                placement = r.dynamic_placement(z_d, K.expand(1, 4, 3, 3), w2c.expand(1, 4, 4, 4),
+                                                K.expand(1, views, 3, 3), w2c.expand(1, views, 4, 4), None)
+                out = r.composite_dynamic(static, z_d, placement, views)
+                changes[name, views] = float((out - static).abs().max())
+    assert changes["plain", 1] < 1e-3 and changes["plain", 3] < 1e-3  # the plain gate: every camera's own view
+    assert changes["lifted", 1] < 1e-3  # frame copies resolve time: gated
+    assert changes["lifted", 3] > 1.0  # none: the opaque patch covers
+    with pytest.raises(ModelError, match="dynamic_gate_copies needs dynamic_gate_deg"):
+        get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_copies=True)
+    base = get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_deg=8.0)
+    assert base.replace(dynamic_gate_copies=False).sha256() == base.sha256()
+
+
 def test_select_tracks_ties_token_k_to_camera_k_mod_v_and_its_most_moving_tracks():
     B, N, T, h = 4, 3, 2, 8  # 2 scenes of 2 cameras
     xy = torch.zeros(B, N, T, 2)
