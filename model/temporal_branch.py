@@ -66,6 +66,18 @@ def fixed_grid_tracks(batch: int, n_tracks: int, frames: int, latent_size: int,
     return track_xy, torch.ones(batch, n_tracks, frames, dtype=torch.bool, device=device)
 
 
+def _stable_descending_order(score: torch.Tensor) -> torch.Tensor:
+    """(B, N) long: the indices of score (B, N) from highest to lowest, ties in index order, the same as
+    ``torch.sort(-score, dim=1, stable=True).indices``; written with comparisons and a scatter because
+    ONNX export has no stable sort (the encoder graph of ``onnx_export``)."""
+    N = score.shape[1]
+    index = torch.arange(N, device=score.device)
+    higher = score[:, None, :] > score[:, :, None]  # [b, i, j]: track j scores above track i
+    tie_before = (score[:, None, :] == score[:, :, None]) & (index[None, :] < index[:, None])[None]
+    rank = (higher | tie_before).sum(-1)  # (B, N) a permutation of 0..N-1 in every row
+    return torch.zeros_like(rank).scatter(1, rank, index[None].expand_as(rank).contiguous())
+
+
 def select_tracks(motion_mask: torch.Tensor, track_xy: torch.Tensor, track_valid: torch.Tensor, n_dynamic: int,
                   views: int) -> torch.Tensor:
     """The track each dynamic token is tied to (``config.dynamic_splat``): (S, N_d) long indices into a
@@ -79,7 +91,7 @@ def select_tracks(motion_mask: torch.Tensor, track_xy: torch.Tensor, track_valid
     mask = sample_at_tracks(motion_mask[:, :T, None].float(), track_xy.float())[..., 0]  # (B, N, T)
     valid = track_valid.float()
     score = (mask * valid).sum(-1) / valid.sum(-1).clamp_min(1.0)  # (B, N)
-    order = torch.sort(-score, dim=1, stable=True).indices.view(S, views, N)  # best first per camera
+    order = _stable_descending_order(score).view(S, views, N)  # best first per camera
     camera = dynamic_token_cameras(n_dynamic, views, score.device)
     rank = (torch.arange(n_dynamic, device=score.device) // views) % N
     return order[:, camera, rank] + camera[None] * N

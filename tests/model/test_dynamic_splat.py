@@ -6,13 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vt4dcodec.errors import ModelError
 from vt4dcodec.model import SourceBatch, VideoTok4D, get_config
 from vt4dcodec.model.inputs.source_inputs import SourceInputs, stack_inputs
 from vt4dcodec.model.layers import patchify
 from vt4dcodec.model.renderer import DYNAMIC_GATE_SCALE, SPLAT_FLOOR
-from vt4dcodec.model.temporal_branch import select_tracks
+from vt4dcodec.model.temporal_branch import _stable_descending_order, select_tracks
 from vt4dcodec.model.train.data import track_depths
 
 from network_fixtures import orbit_cameras, random_batch
@@ -191,6 +193,15 @@ def test_dynamic_gate_copies_lifts_the_gate_for_cameras_without_frame_copies():
         get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_copies=True)
     base = get_config("tiny", **extra, dynamic_splat=1, dynamic_gate_deg=8.0)
     assert base.replace(dynamic_gate_copies=False).sha256() == base.sha256()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 3), st.integers(1, 70), st.integers(0, 2 ** 31 - 1), st.booleans())
+def test_the_stable_order_is_a_stable_descending_sort(B: int, N: int, seed: int, ties: bool):
+    """select_tracks' order (written without a sort, which ONNX export lacks) equals torch's stable sort."""
+    g = torch.Generator().manual_seed(seed)
+    score = torch.randint(0, 4, (B, N), generator=g).float() / 3 if ties else torch.rand(B, N, generator=g)
+    assert torch.equal(_stable_descending_order(score), torch.sort(-score, dim=1, stable=True).indices)
 
 
 def test_select_tracks_ties_token_k_to_camera_k_mod_v_and_its_most_moving_tracks():

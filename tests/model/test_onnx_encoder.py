@@ -61,6 +61,26 @@ def test_exported_small_model_gives_the_torch_tokens(small):
         assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
+def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
+    """vt4d-tiny 1.0.0's recipe: dynamic tokens tied to their most moving tracks (a stable sort, which ONNX
+    has not: regression for the export error 'Sort, Out parameter is not supported') and read from them."""
+    torch.manual_seed(0)
+    net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True,
+                                dynamic_gate_deg=8.0, dynamic_gate_copies=True)).eval()
+    directory = save_pretrained(net, tmp_path / "dyn", model_id="dyn", model_version="0", storage_dtype="float16")
+    net = codec.load_model(directory)
+    export_encoder(net, directory)
+    encoder = OnnxEncoder.open(directory)
+    for seed in (3, 4):
+        inputs = example_inputs(net, seed=seed)
+        with torch.no_grad():
+            want = [t.numpy() for t in net.encode(SourceBatch(*inputs))]
+        got = encoder.session.run(None, {n: t.numpy() for n, t in zip(
+            ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)})
+        for a, b in zip(got, want):
+            assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
+
+
 def test_masks_of_any_size_trace_to_the_same_graph(small):
     """The Temporal Branch gathers masked pixels in torch; the graph attends over the grid with keys
     restricted to the mask. Empty and full masks must agree too (a traced length would not)."""
