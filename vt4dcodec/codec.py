@@ -61,9 +61,9 @@ DEFAULT_MODEL = "vt4d-tiny"
 RUNTIMES = ("auto", "torch", "onnx")  # encoder runtimes (module docstring)
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
-# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 0.13.0: int4, worst view +0.089 dB,
-# file 6,442 B (int4-rans +0.154 dB at 5,155 B and int5-rans +0.103 dB at 6,608 B fail).
-# (0.12.0: int4, +0.078 dB, 6,426 B; 0.11.0: int4-rans, +0.061 dB, 5,229 B; 0.10.0: int4, +0.099 dB, 6,410 B; 0.9.0: int4, +0.086 dB; 0.8.0:
+# for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 1.0.0: int4, worst view +0.074 dB,
+# file 6,678 B (int4-rans +0.106 dB at 5,686 B fails; int5-rans passes at +0.057 dB but is larger, 7,187 B).
+# (0.13.0: int4, +0.089 dB, 6,442 B; 0.12.0: int4, +0.078 dB, 6,426 B; 0.11.0: int4-rans, +0.061 dB, 5,229 B; 0.10.0: int4, +0.099 dB, 6,410 B; 0.9.0: int4, +0.086 dB; 0.8.0:
 # int5-rans, +0.079 dB; 0.7.0: int4-rans, +0.091 dB; 0.6.0: int5-rans; 0.2.0-0.5.0: int4-rans.) Re-measure
 # with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4"
