@@ -38,8 +38,8 @@ def test_encode_save_load_decode_with_shipped_weights(tmp_path, scene):
     path = tmp_path / "scene.vt4d"
     nbytes = vt4dcodec.save(encoded, path)
     assert vt4dcodec.load(path).encoding == codec.DEFAULT_ENCODING
-    # tokens (int4: 11,264 four-bit values, zstd) + cameras + fingerprint: 6.7 KB for vt4d-tiny 1.0.0 (0.13.0: 5.6-6.7 KB)
-    # and 0.12.0 (0.11.0 int4-rans 5.1-5.7 KB; 0.9.0's repeated copies: about 2.8 KB); float16 would be 22 KB
+    # tokens (int4: 11,264 four-bit values, zstd) + cameras + fingerprint: 6.7 KB for vt4d-tiny 1.0.0, 5.6-6.7 KB
+    # for 0.13.0 and 0.12.0 (0.11.0 int4-rans 5.1-5.7 KB; 0.9.0's repeated copies: about 2.8 KB); float16 would be 22 KB
     assert nbytes < 8192
     frames = vt4dcodec.decode(path, "source", steps=4, seed=0)
     assert frames.shape == cap.frames[cap.camera_names[0]].shape
