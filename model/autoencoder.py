@@ -14,7 +14,7 @@ import math
 import torch
 from torch import nn
 
-from .configs import ModelConfig
+from .configs import DenseConfig, ModelConfig
 
 __all__ = ["LatentAutoencoder"]
 
@@ -38,7 +38,7 @@ class ResBlock(nn.Module):
 class LatentAutoencoder(nn.Module):
     """Per-frame conv autoencoder with downsampling factor ``cfg.ae_downsample``."""
 
-    def __init__(self, cfg: ModelConfig) -> None:
+    def __init__(self, cfg: ModelConfig | DenseConfig) -> None:
         super().__init__()
         n_down = int(math.log2(cfg.ae_downsample))
         widths = [cfg.ae_width * min(2 ** i, 4) for i in range(n_down + 1)]

@@ -27,7 +27,7 @@ from vt4dcodec.errors import ModelError
 
 __all__ = [
     "ModelConfig", "get_config", "CONFIG_NAMES", "PREDICTIONS", "PriorConfig", "get_prior_config",
-    "PRIOR_CONFIG_NAMES",
+    "PRIOR_CONFIG_NAMES", "DenseConfig", "get_dense_config", "DENSE_CONFIG_NAMES",
 ]
 
 PREDICTIONS = ("velocity", "x0")
@@ -480,3 +480,71 @@ def get_prior_config(name: str, /, **overrides: Any) -> PriorConfig:
     if name not in _PRIOR_CONFIGS:
         raise ModelError(f"unknown prior config {name!r}; choose one of {list(PRIOR_CONFIG_NAMES)}")
     return PriorConfig.from_dict({**PriorConfig().to_dict(), **_PRIOR_CONFIGS[name], **overrides})
+
+
+@dataclass(frozen=True)
+class DenseConfig(_Config):
+    """Sizes of the dense per-view baseline (:class:`~.dense_baseline.DenseViewDiffusion`).
+
+    Clip and latent space (must equal the tokenizer's whose frozen autoencoder it shares): frames (T),
+    image_size (H = W pixels), latent_channels (C), ae_downsample (H / h), ae_width.
+    Conditioning (the same encoder as Co4DGen's E_cond): cond_patch (pixels per video-token side),
+    anchor_grid (target-ray tokens per frame side), cond_layers.
+    Denoiser: patch_size (latent pixels per generated token side), width (D), heads, mlp_ratio, layers
+    (factorised space-time DiT blocks).
+    """
+
+    name: str = "dense-tiny"
+    frames: int = 8
+    image_size: int = 64
+    latent_channels: int = 8
+    ae_downsample: int = 4
+    ae_width: int = 16
+    cond_patch: int = 16
+    anchor_grid: int = 4
+    cond_layers: int = 2
+    patch_size: int = 2
+    width: int = 164
+    heads: int = 4
+    mlp_ratio: float = 2.0
+    layers: int = 6
+
+    _KIND: ClassVar[str] = "dense"
+
+    def __post_init__(self) -> None:
+        _require_positive_ints(self, [f.name for f in dataclasses.fields(self) if f.name not in ("name", "mlp_ratio")],
+                               "dense config")
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError("dense config name must be a non-empty string")
+        if self.width % self.heads or self.image_size % self.cond_patch:
+            raise ModelError("dense width must divide by heads and image_size by cond_patch")
+        if self.image_size % self.ae_downsample or self.latent_size % self.patch_size:
+            raise ModelError("dense image_size must divide by ae_downsample and the latent size by patch_size")
+        if not (isinstance(self.mlp_ratio, (int, float)) and self.mlp_ratio > 0):
+            raise ModelError("dense mlp_ratio must be > 0")
+
+    @property
+    def latent_size(self) -> int:
+        """h = w of the latent map."""
+        return self.image_size // self.ae_downsample
+
+    @classmethod
+    def for_tokenizer(cls, tokenizer: ModelConfig, name: str = "dense-tiny", **overrides: Any) -> "DenseConfig":
+        """The named dense config with the clip and latent sizes of ``tokenizer``."""
+        base = get_dense_config(name).to_dict()
+        base.update(frames=tokenizer.frames, image_size=tokenizer.image_size, latent_channels=tokenizer.latent_channels,
+                    ae_downsample=tokenizer.ae_downsample, ae_width=tokenizer.ae_width, **overrides)
+        return cls.from_dict(base)
+
+
+_DENSE_CONFIGS: dict[str, dict[str, Any]] = {
+    "dense-tiny": {},
+}
+DENSE_CONFIG_NAMES = tuple(_DENSE_CONFIGS)
+
+
+def get_dense_config(name: str, /, **overrides: Any) -> DenseConfig:
+    """"dense-tiny": the dense per-view baseline matched in size to co4dgen-tiny + vt4d-tiny's renderer."""
+    if name not in _DENSE_CONFIGS:
+        raise ModelError(f"unknown dense config {name!r}; choose one of {list(DENSE_CONFIG_NAMES)}")
+    return DenseConfig.from_dict({**DenseConfig().to_dict(), **_DENSE_CONFIGS[name], **overrides})

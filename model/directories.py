@@ -21,7 +21,8 @@ from .configs import ModelConfig
 __all__ = [
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
-    "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES",
+    "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
+    "DENSE_WEIGHTS_FILE",
 ]
 
 MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
@@ -29,6 +30,7 @@ SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model and prior directories
 CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
 PRIOR_META_FILE, PRIOR_WEIGHTS_FILE = "prior.json", "prior.safetensors"
+DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE = "dense-baseline/1", "dense.json", "dense.safetensors"
 MAX_CONFIG_BYTES = 1 << 20
 
 
@@ -71,7 +73,8 @@ def model_directory(name_or_path: str | os.PathLike[str], meta_file: str = CONFI
             return user
     if path.is_dir():
         return path
-    what, hint = ("prior", "") if meta_file == PRIOR_META_FILE else ("model", "; pass model=<path to the model directory>")
+    what, hint = {PRIOR_META_FILE: ("prior", ""), DENSE_META_FILE: ("dense baseline", "")}.get(
+        meta_file, ("model", "; pass model=<path to the model directory>"))
     raise ModelNotFoundError(f"no {what} {str(name_or_path)!r}: not a directory, not a shipped id (shipped: "
                              f"{shipped or 'none'}) and not a directory under ${MODEL_PATH_ENV}{hint}")
 

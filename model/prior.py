@@ -64,6 +64,22 @@ class PriorCondition:
     def to(self, device: torch.device | str) -> "PriorCondition":
         return PriorCondition(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
 
+    def validate(self, frames: range, image_size: int) -> None:
+        """ModelError unless frames is (B, T, 3, image_size, image_size) with T in ``frames`` and every
+        camera tensor is (B, T, 3, 3) / (B, T, 4, 4) and finite."""
+        f = self.frames
+        if f.ndim != 5 or f.shape[1] not in frames or f.shape[2:] != (3, image_size, image_size):
+            raise ModelError(f"conditioning frames must be (B, {frames.start}..{frames.stop - 1}, 3, {image_size}, "
+                             f"{image_size}), got {tuple(f.shape)}")
+        B, T = f.shape[:2]
+        for name, shape in (("K_c", (B, T, 3, 3)), ("w2c_c", (B, T, 4, 4)), ("K_a", (B, T, 3, 3)),
+                            ("w2c_a", (B, T, 4, 4))):
+            value = getattr(self, name)
+            if tuple(value.shape) != shape:
+                raise ModelError(f"condition {name} must be {shape}, got {tuple(value.shape)}")
+            if not torch.isfinite(value).all():
+                raise ModelError(f"condition {name} holds non-finite values")
+
     def repeat(self, n: int) -> "PriorCondition":
         """Each item repeated ``n`` times along the batch (for n independent samples)."""
         return PriorCondition(*(getattr(self, f.name).repeat_interleave(n, 0) for f in dataclasses.fields(self)))
@@ -130,21 +146,9 @@ class Co4DGen(ModelIdentity, nn.Module):
                              f"{cfg.token_dim}), got {tuple(z_s.shape)} and {tuple(z_d.shape)}")
 
     def _check_condition(self, cond: PriorCondition) -> None:
-        cfg = self.config
         if not isinstance(cond, PriorCondition):
             raise ModelError("the condition must be a PriorCondition")
-        f = cond.frames
-        if f.ndim != 5 or f.shape[2:] != (3, cfg.image_size, cfg.image_size) or not 1 <= f.shape[1] <= cfg.frames:
-            raise ModelError(f"conditioning frames must be (B, 1..{cfg.frames}, 3, {cfg.image_size}, "
-                             f"{cfg.image_size}), got {tuple(f.shape)}")
-        B, T = f.shape[:2]
-        for name, shape in (("K_c", (B, T, 3, 3)), ("w2c_c", (B, T, 4, 4)), ("K_a", (B, T, 3, 3)),
-                            ("w2c_a", (B, T, 4, 4))):
-            value = getattr(cond, name)
-            if tuple(value.shape) != shape:
-                raise ModelError(f"condition {name} must be {shape}, got {tuple(value.shape)}")
-            if not torch.isfinite(value).all():
-                raise ModelError(f"condition {name} holds non-finite values")
+        cond.validate(range(1, self.config.frames + 1), self.config.image_size)
 
     # ---------------------------------------------------------------------------------------------
     def encode_condition(self, cond: PriorCondition) -> torch.Tensor:

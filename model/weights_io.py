@@ -25,7 +25,9 @@ the UTF-8 name, its dtype and shape, then its little-endian bytes, taken from th
 state (independent of the storage dtype; ``identity.weights_sha256``). Loading recomputes the weights
 hash and refuses files whose hash disagrees with config.json.  A prior directory holds ``prior.json``
 (the same keys, format "co4dgen-prior/1", plus the fingerprint of its tokenizer), ``prior.safetensors``
-and optionally ``MODEL_CARD.md``.  Loading sets each model's identity (``model_id``, ``model_version``)
+and optionally ``MODEL_CARD.md``; a dense-baseline directory (Table 2's per-view video-diffusion model)
+holds ``dense.json`` (format "dense-baseline/1", the same keys and the fingerprint of the tokenizer whose
+autoencoder it shares) and ``dense.safetensors``.  Loading sets each model's identity (``model_id``, ``model_version``)
 from its meta file.
 """
 
@@ -42,10 +44,11 @@ from safetensors.torch import load_file, save_file
 from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
-from .configs import PriorConfig
-from .directories import (CARD_FILE, CONFIG_FILE, MODEL_FORMAT, MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE,
-                          PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE, model_directory, read_model_meta,
-                          read_weights_meta, shipped_model_ids, shipped_prior_ids)
+from .configs import DenseConfig, PriorConfig
+from .dense_baseline import DenseViewDiffusion
+from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE, MODEL_FORMAT,
+                          MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
+                          model_directory, read_model_meta, read_weights_meta, shipped_model_ids, shipped_prior_ids)
 from .identity import weights_sha256
 from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
@@ -53,7 +56,7 @@ from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 __all__ = [
     "save_pretrained", "from_pretrained", "save_prior", "load_prior", "shipped_model_ids", "shipped_prior_ids",
     "model_directory", "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "write_weights_directory",
-    "read_weights_meta", "storage_state", "widen_stored",
+    "read_weights_meta", "storage_state", "widen_stored", "save_dense", "load_dense",
 ]
 
 STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
@@ -154,32 +157,68 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
 
 
 # --- the Co4DGen prior -------------------------------------------------------------------------------------
+def _save_bound(module: torch.nn.Module, directory: str | Path, *, fmt: str, meta_file: str, weights_file: str,
+                model_id: str, model_version: str, tokenizer: Any, card: str | None, extra: dict[str, Any] | None,
+                storage_dtype: str) -> Path:
+    """A model bound to one tokenizer (the prior, the dense baseline): meta JSON + safetensors (+ card)."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    state, stored = storage_state(module, storage_dtype)
+    digest = weights_sha256(state)
+    meta = {"format": fmt, "model_id": str(model_id), "model_version": str(model_version),
+            "config": module.config.to_dict(), "config_sha256": module.config.sha256(), "weights_sha256": digest,
+            "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
+    return write_weights_directory(out, stored, meta, weights_file=weights_file, meta_file=meta_file, card=card)
+
+
 def save_prior(prior: Co4DGen, directory: str | Path, *, model_id: str, model_version: str,
                tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None,
                storage_dtype: str = "float32") -> Path:
     """Write prior.json + prior.safetensors (+ MODEL_CARD.md); ``tokenizer`` is the
     :class:`~vt4dcodec.format.ModelFingerprint` of the tokenizer whose tokens the prior models.
     ``storage_dtype="float16"`` halves the file (see :func:`storage_state`)."""
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    state, stored = storage_state(prior, storage_dtype)
-    digest = weights_sha256(state)
-    meta = {"format": PRIOR_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
-            "config": prior.config.to_dict(), "config_sha256": prior.config.sha256(), "weights_sha256": digest,
-            "tokenizer": tokenizer.to_dict(), **({"extra": extra} if extra else {})}
-    return write_weights_directory(out, stored, meta, weights_file=PRIOR_WEIGHTS_FILE, meta_file=PRIOR_META_FILE,
-                                   card=card)
+    return _save_bound(prior, directory, fmt=PRIOR_FORMAT, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
+                       model_id=model_id, model_version=model_version, tokenizer=tokenizer, card=card, extra=extra,
+                       storage_dtype=storage_dtype)
 
 
-def _read_prior_meta(directory: Path) -> dict[str, Any]:
-    path = directory / PRIOR_META_FILE
-    meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE,
-                             fmt=PRIOR_FORMAT, config_type=PriorConfig)
+def save_dense(dense: DenseViewDiffusion, directory: str | Path, *, model_id: str, model_version: str,
+               tokenizer: Any, card: str | None = None, extra: dict[str, Any] | None = None,
+               storage_dtype: str = "float32") -> Path:
+    """Write dense.json + dense.safetensors (+ MODEL_CARD.md) of the dense per-view baseline; ``tokenizer``
+    is the fingerprint of the tokenizer whose frozen autoencoder (the latent space) it holds."""
+    return _save_bound(dense, directory, fmt=DENSE_FORMAT, meta_file=DENSE_META_FILE, weights_file=DENSE_WEIGHTS_FILE,
+                       model_id=model_id, model_version=model_version, tokenizer=tokenizer, card=card, extra=extra,
+                       storage_dtype=storage_dtype)
+
+
+def _load_bound(name_or_path: str | Path, cls: Any, *, fmt: str, meta_file: str, weights_file: str,
+                config_type: Any, device: str | torch.device) -> Any:
+    directory = model_directory(name_or_path, meta_file)
+    path = directory / meta_file
+    meta = read_weights_meta(directory, meta_file=meta_file, weights_file=weights_file, fmt=fmt,
+                             config_type=config_type)
     try:
-        meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
+        tokenizer = ModelFingerprint.from_dict(meta.get("tokenizer"))
     except ValueError as exc:
         raise ModelError(f"{path}: bad tokenizer fingerprint: {exc}") from None
-    return meta
+    try:
+        state = load_file(str(directory / weights_file), device="cpu")
+    except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
+        raise ModelError(f"{directory / weights_file} is not a valid safetensors file: {exc}") from None
+    module = cls(meta["config"])
+    expected = module.state_dict()
+    state = widen_stored(state, expected)
+    if weights_sha256(state) != meta["weights_sha256"]:
+        raise ModelError(f"{directory / weights_file}: weights do not match weights_sha256")
+    if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
+                                          for k in state):
+        raise ModelError(f"{directory}: weights do not fit the {config_type._KIND} config")
+    module.load_state_dict(state, strict=True)
+    module.set_identity(meta["model_id"], meta["model_version"])
+    module.tokenizer_fingerprint = tokenizer
+    module.requires_grad_(False)
+    return module.to(device).eval()
 
 
 def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
@@ -187,22 +226,15 @@ def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") 
 
     Its ``model_id``, ``model_version`` and ``tokenizer_fingerprint`` are those recorded in prior.json.
     """
-    directory = model_directory(name_or_path, PRIOR_META_FILE)
-    meta = _read_prior_meta(directory)
-    try:
-        state = load_file(str(directory / PRIOR_WEIGHTS_FILE), device="cpu")
-    except (SafetensorError, ValueError, RuntimeError, OSError) as exc:
-        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE} is not a valid safetensors file: {exc}") from None
-    prior = Co4DGen(meta["config"])
-    expected = prior.state_dict()
-    state = widen_stored(state, expected)
-    if weights_sha256(state) != meta["weights_sha256"]:
-        raise ModelError(f"{directory / PRIOR_WEIGHTS_FILE}: weights do not match weights_sha256")
-    if set(state) != set(expected) or any(state[k].shape != expected[k].shape or state[k].dtype != expected[k].dtype
-                                          for k in state):
-        raise ModelError(f"{directory}: weights do not fit the prior config")
-    prior.load_state_dict(state, strict=True)
-    prior.set_identity(meta["model_id"], meta["model_version"])
-    prior.tokenizer_fingerprint = meta["tokenizer"]
-    prior.requires_grad_(False)
-    return prior.to(device).eval()
+    prior: Co4DGen = _load_bound(name_or_path, Co4DGen, fmt=PRIOR_FORMAT, meta_file=PRIOR_META_FILE,
+                                 weights_file=PRIOR_WEIGHTS_FILE, config_type=PriorConfig, device=device)
+    return prior
+
+
+def load_dense(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> DenseViewDiffusion:
+    """A dense-baseline directory (dense.json), verified, frozen, in eval mode; ``tokenizer_fingerprint`` is
+    the tokenizer whose autoencoder it holds."""
+    dense: DenseViewDiffusion = _load_bound(name_or_path, DenseViewDiffusion, fmt=DENSE_FORMAT,
+                                            meta_file=DENSE_META_FILE, weights_file=DENSE_WEIGHTS_FILE,
+                                            config_type=DenseConfig, device=device)
+    return dense
