@@ -8,7 +8,7 @@
 # Trains checkpoints/vt4d-tiny-1.0-NAME for at most BUDGET_S seconds of wall time, then stops with a
 # checkpoint (commit its model.safetensors, state.json and log.jsonl; the same command resumes anywhere).
 # As the vt4d-tiny 1.0 pair was run (docs/training.md, "After 0.13.0"): steps 0-600 without the Z_d diversity
-# hinge, stopped at the step-600 checkpoint and resumed with --dynamic-diversity 1.0, to step 6,000.
+# hinge, stopped at the step-600 checkpoint (--stop-at 600) and resumed with --dynamic-diversity 1.0, to step 6,000.
 # Run two ablations side by side on two cores (one thread each); PREFILL_WORKERS > 0 fills the scene cache
 # first (a fresh machine: ~15 min with 2).
 set -uo pipefail
@@ -32,12 +32,7 @@ step() { "$PYTHON" -c "import json; print(json.load(open('$OUT/checkpoint/state.
 left() { echo $(( DEADLINE - $(date +%s) )); }
 if [ "$(step)" -lt 600 ]; then
   EXTRA=(); [ "$PREFILL" -gt 0 ] && EXTRA=(--prefill-workers "$PREFILL")
-  "${CMD[@]}" "${EXTRA[@]}" --time-budget "$(left)" & PID=$!
-  while kill -0 "$PID" 2>/dev/null; do  # stop at the step-600 checkpoint (state.json is written last)
-    if [ "$(step)" -ge 600 ]; then kill "$PID"; break; fi
-    sleep 3
-  done
-  wait "$PID" 2>/dev/null
+  "${CMD[@]}" "${EXTRA[@]}" --stop-at 600 --time-budget "$(left)"
 fi
 echo "$(date) $NAME at step $(step)"
 if [ "$(step)" -ge 600 ] && [ "$(left)" -gt 120 ]; then

@@ -287,6 +287,9 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                         help="stop after this much wall-clock training time (checkpointed and finished as at "
                              "--steps; re-running the command continues to --steps): for a lent accelerator")
+    parser.add_argument("--stop-at", type=int, default=None, metavar="STEP",
+                        help="stop at this step (checkpointed and finished as at --steps, on the schedule of "
+                             "--steps): to change a flag mid-run, stop here and re-run the command with it")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--log-every", type=int, default=10)
     parser.add_argument("--ckpt-every", type=int, default=200)
@@ -322,7 +325,9 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
 
     ``device``: where the batches go (the modules must already be there); default CPU. With
     ``args.time_budget`` (seconds, optional) the loop stops at the first step that ends past it, and
-    checkpoints and logs that step as if it were the last.
+    checkpoints and logs that step as if it were the last; with ``args.stop_at`` (a step, optional) it
+    stops there the same way (the learning-rate schedule stays that of ``args.steps``, so a run resumed
+    past it continues as if it had never stopped).
 
     ``trained`` is the bare module whose state is checkpointed (``module`` may be its DDP wrapper,
     which ``step_fn(module, batch) -> (loss, logs)`` calls). Rank 0 logs every ``log_every`` steps to
@@ -346,8 +351,13 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     t0 = time.time()
     device = torch.device("cpu") if device is None else device
     budget = getattr(args, "time_budget", None)
+    stop_at = getattr(args, "stop_at", None)
+    if stop_at is not None and (isinstance(stop_at, bool) or not isinstance(stop_at, int) or stop_at < 1):
+        raise ModelError(f"--stop-at must be a positive step number, got {stop_at!r}")
     module.train()
     for step in bar:
+        if stop_at is not None and step >= stop_at:
+            break
         lr = lr_at(step, args.lr, args.warmup, args.steps)
         if rewarm:
             lr *= min(1.0, (step - start + 1) / max(1, args.warmup))
@@ -368,7 +378,8 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
             flag = torch.tensor([float(out_of_time)])
             dist.all_reduce(flag, op=dist.ReduceOp.MAX)
             out_of_time = bool(flag.item())
-        last = step + 1 == args.steps or out_of_time
+        stop_here = stop_at is not None and step + 1 == stop_at
+        last = step + 1 == args.steps or out_of_time or stop_here
         if (step + 1) % args.log_every == 0 or last:
             mean = torch.tensor([sum(window) / len(window)], dtype=torch.float64)
             if info.distributed:
@@ -385,9 +396,10 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
                 save_checkpoint(ckpt, trained, optimizer, step + 1, {"args": _jsonable(vars(args)), **extra_state})
             if info.distributed:
                 dist.barrier()
-        if out_of_time:
+        if out_of_time or stop_here:
             if info.is_main:
-                print(f"--time-budget {budget:g} s reached at step {step + 1} of {args.steps}: checkpointed")
+                reason = f"--time-budget {budget:g} s reached" if out_of_time else "--stop-at"
+                print(f"{reason} at step {step + 1} of {args.steps}: checkpointed")
             break
     bar.close()
     records = log.read() if info.is_main else []

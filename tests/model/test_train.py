@@ -332,6 +332,29 @@ def test_time_budget_stops_checkpoints_and_a_rerun_continues_to_steps(runs, tmp_
     assert [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()] == [1, 2, 3, 4]
 
 
+def test_stop_at_checkpoints_that_step_and_a_rerun_continues_on_the_same_schedule(runs, tmp_path):
+    """``--stop-at STEP`` (to switch a flag mid-run, as the Table 5 ablations do at step 600): the loop stops
+    after that step with a complete checkpoint and model, the learning rate follows --steps' schedule, and
+    the command without it (or with a step already passed) resumes to --steps."""
+    out = tmp_path / "tok"
+    args = ["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out), "--steps", "4",
+            "--batch-size", "2", "--samples", "1", "--cache", str(runs / "cache"), *COMMON]
+    assert stage2.main([*args, "--stop-at", "2"]) == 0
+    assert json.loads((out / "checkpoint/state.json").read_text())["step"] == 2
+    assert from_pretrained(out / "model").config.n_static == 8
+    assert stage2.main([*args, "--stop-at", "2"]) == 0  # already there: nothing more is trained
+    assert json.loads((out / "checkpoint/state.json").read_text())["step"] == 2
+    assert stage2.main(args) == 0
+    records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [1, 2, 3, 4]
+    reference = tmp_path / "ref"
+    assert stage2.main([a if a != str(out) else str(reference) for a in args]) == 0
+    expected = [json.loads(line)["lr"] for line in (reference / "log.jsonl").read_text().splitlines()]
+    assert [r["lr"] for r in records] == pytest.approx(expected)
+    with pytest.raises(ModelError, match="--stop-at"):
+        stage2.main([*args, "--stop-at", "0"])
+
+
 def test_device_flag_refuses_cuda_where_there_is_none_and_names_the_flag(runs, tmp_path, capsys):
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
