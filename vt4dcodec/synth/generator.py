@@ -14,12 +14,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..capture import Capture
-from .assets import SynthError, texture_bank, check_split
+from ..cameras import Trajectory
+from .assets import SynthError, check_split, texture_bank, texture_names
 from .motion import MOTION_KINDS, sample_motion
 from .render import FIRST_OBJECT_SURFACE, SHAPES, SceneLayout, SceneObject, render_layout
 from .rig import sample_rig
 
-__all__ = ["SynthConfig", "SynthScene", "generate_scene", "scene_id"]
+__all__ = ["SynthConfig", "SynthScene", "SceneSetup", "generate_scene", "scene_setup", "scene_id"]
 
 MAX_SCENE_PIXELS = 64 * 2**20   # cameras x frames x height x width
 MAX_CAMERAS = 256
@@ -147,20 +148,48 @@ def _sample_layout(rng: np.random.Generator, config: SynthConfig, num_textures: 
     )
 
 
-def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = SynthConfig()) -> SynthScene:
-    """Generate scene ``seed`` of ``split`` ("train" or "test"); the same arguments give the same scene."""
+@dataclass(frozen=True)
+class SceneSetup:
+    """Everything a scene is rendered from: its frame times, cameras and layout (objects and their motion).
+
+    Attributes:
+        times: (T,) float64 seconds of the frames.
+        cameras: name -> :class:`Trajectory` (K, w2c per frame; OpenCV convention, world-to-camera).
+        layout: the room, the light and the rigid objects with their :class:`~.motion.MotionLaw`;
+            object k (0-based) has id k + 1 in :attr:`SynthScene.object_ids`.
+    """
+
+    times: np.ndarray
+    cameras: dict[str, Trajectory]
+    layout: SceneLayout
+
+
+def _check_request(seed: int, split: str, config: SynthConfig) -> None:
     check_split(split)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SynthError(f"seed must be a non-negative integer, got {seed!r}")
     if config.num_cameras * config.num_frames * config.height * config.width > MAX_SCENE_PIXELS:
         raise SynthError("SynthConfig asks for more than 64 Mpixel per scene; use fewer/smaller views")
-    bank = texture_bank(split)
+
+
+def scene_setup(seed: int, *, split: str = "train", config: SynthConfig = SynthConfig()) -> SceneSetup:
+    """The cameras and layout of scene ``seed`` of ``split``, exactly those :func:`generate_scene` renders,
+    without rendering (milliseconds): the ground truth of any point's motion (see :mod:`.tracks`)."""
+    _check_request(seed, split, config)
     rng = _rng(int(seed), split, config)
     times = np.arange(config.num_frames) / float(config.fps)
     cameras = sample_rig(rng, num_cameras=config.num_cameras, times=times, width=config.width,
                          height=config.height, camera_motion=config.camera_motion)
     farthest = max(float(np.abs(c.centers[:, :2]).max()) for c in cameras.values())
-    layout = _sample_layout(rng, config, len(bank.names), farthest + 1.0)
+    layout = _sample_layout(rng, config, len(texture_names(split)), farthest + 1.0)
+    return SceneSetup(times=times, cameras=cameras, layout=layout)
+
+
+def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = SynthConfig()) -> SynthScene:
+    """Generate scene ``seed`` of ``split`` ("train" or "test"); the same arguments give the same scene."""
+    setup = scene_setup(seed, split=split, config=config)
+    bank = texture_bank(split)
+    times, cameras, layout = setup.times, setup.cameras, setup.layout
     views = render_layout(layout, cameras, times, bank)
     moving = np.array([False] + [o.motion.moves for o in layout.objects])
     frames, depth, flow, valid, masks, ids = {}, {}, {}, {}, {}, {}
