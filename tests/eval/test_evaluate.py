@@ -73,6 +73,35 @@ def test_merge_replaces_only_the_given_methods(evaluated, models, tmp_path):
     assert "| Unified tokens (ablation) |" in format_tables(merged)
 
 
+def test_table5_ablations_merge_into_a_results_file_paired_with_ours(evaluated, models, tmp_path, capsys):
+    """--no-motion-isolation / --fixed-grid add Table 5's ablations to an existing evaluation (same scenes,
+    paired with ours per view), and a model that is not that ablation is refused naming the flag."""
+    from conftest import _random_model
+
+    results, _ = evaluated
+    path = tmp_path / "eval.json"
+    path.write_text(json.dumps(results))
+    no_motion = _random_model(tmp_path / "nomotion", 2, motion_isolation=False)
+    fixed = _random_model(tmp_path / "fixed", 3, track_attention=False)
+    common = ["--model", models[0], "--scenes", "2", "--views", "2", "--steps", "2", "--out", str(path), "--merge",
+              "--no-progress", "--sets", "far"]
+    assert main([*common, "--no-motion-isolation", no_motion, "--fixed-grid", fixed,
+                 "--methods", "no_motion_isolation,fixed_grid"]) == 0
+    merged = json.loads(path.read_text())
+    far = merged["summary_by_set"]["far"]
+    for method in ("no_motion_isolation", "fixed_grid"):
+        assert far[method]["views"] == far["ours"]["views"] == 4
+        assert far[method]["ours_minus_this_psnr"]["n"] == 4
+        assert far[method]["floats"] == far["ours"]["floats"]
+    assert far["ours"] == results["summary_by_set"]["far"]["ours"]
+    tables = format_tables(merged)
+    assert "| w/o motion isolation (ablation) |" in tables and "| Fixed-grid temporal attention (ablation) |" in tables
+    capsys.readouterr()
+    assert main([*common, "--fixed-grid", no_motion, "--methods", "fixed_grid"]) == 1
+    assert "--fixed-grid" in capsys.readouterr().err
+    assert json.loads(path.read_text()) == merged
+
+
 def test_video_metrics_of_identical_and_masked_videos():
     rng = np.random.default_rng(0)
     video = rng.integers(0, 256, (2, 16, 16, 3), dtype=np.uint8)

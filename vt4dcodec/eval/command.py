@@ -3,6 +3,9 @@
     python -m vt4dcodec.eval --model vt4d-tiny [--unified runs/tok_unified/model] [--sets far,near,source] \
         --scenes 50 --views 3 --out docs/results/eval.json --figure docs/figures/eval_scenes.png
 
+Table 5's other ablations come in the same way (``--no-motion-isolation RUN``, ``--fixed-grid RUN``; each
+model's config must be that ablation), usually added later to the same file with ``--merge --methods``.
+
 The protocol is :mod:`vt4dcodec.eval.protocol`'s; models are given as shipped ids, model directories or
 training run directories (their latest checkpoint).  ``--sets`` chooses the target sets (default all
 three); the results file holds their rows (field ``"set"``), ``summary_by_set`` (set -> method ->
@@ -36,7 +39,7 @@ from vt4dcodec.model import VideoTok4D
 from vt4dcodec.model.train.common import model_from_run
 
 from . import baselines
-from .protocol import (ENCODING, METHODS, TOKEN_METHODS, VIEW_SETS, EvalSettings, EvaluationError, describe_model,
+from .protocol import (ABLATIONS, ENCODING, METHODS, TOKEN_METHODS, VIEW_SETS, EvalSettings, EvaluationError, describe_model,
                        parse_sets, representation_floats, run_evaluation)
 
 from .report import format_tables, row_set, save_figure, summarize_sets, write_json
@@ -50,6 +53,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default="vt4d-tiny", help="main model: shipped id, model directory, or a training "
                    "run directory (its latest checkpoint)")
     p.add_argument("--unified", default=None, help="unified-token ablation: model or training run directory")
+    p.add_argument("--no-motion-isolation", default=None, metavar="MODEL",
+                   help="Table 5's w/o-motion-isolation ablation: model or training run directory")
+    p.add_argument("--fixed-grid", default=None, metavar="MODEL",
+                   help="Table 5's fixed-grid temporal-attention ablation: model or training run directory")
     p.add_argument("--scenes", type=int, default=50)
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--views", type=int, default=3, help="target cameras per scene (cameras 1..views)")
@@ -97,10 +104,13 @@ def resolve_model(spec: str) -> VideoTok4D:
 
 def _load_models(args: argparse.Namespace) -> dict[str, VideoTok4D]:
     models = {"main": resolve_model(args.model)}
-    if args.unified:
-        models["unified"] = resolve_model(args.unified)
-        if not models["unified"].config.unified_tokens:
-            raise EvaluationError(f"{args.unified} is not a unified-token model (config unified_tokens is false)")
+    for key, (field, value, flag) in ABLATIONS.items():
+        spec = getattr(args, flag.removeprefix("--").replace("-", "_"))
+        if spec:
+            models[key] = resolve_model(spec)
+            if getattr(models[key].config, field) != value:
+                raise EvaluationError(f"{flag} {spec}: not that ablation (config {field} is "
+                                      f"{str(getattr(models[key].config, field)).lower()})")
     for net in models.values():
         net.eval()
     return models

@@ -77,7 +77,7 @@ __all__ = [
     "EvalSettings", "EvaluationError", "METHODS", "TOKEN_METHODS", "VIEW_SETS", "RIG_CAMERAS", "HEALTH_THRESHOLDS",
     "make_scene", "predict_scene", "score_scene", "representation_floats", "run_evaluation", "describe_model",
     "axis_angles_deg", "nearest_cameras", "set_targets", "set_sources", "parse_sets", "token_health_report",
-    "MULTI_SETS", "MULTI_ENCODED",
+    "MULTI_SETS", "MULTI_ENCODED", "ABLATIONS",
 ]
 
 # method -> (label, (model key, drop_static, drop_dynamic)) for token methods
@@ -86,6 +86,14 @@ TOKEN_METHODS: dict[str, tuple[str, tuple[str, bool, bool]]] = {
     "ours_no_static": ("VideoTok4D w/o Z_s", ("main", True, False)),
     "ours_no_dynamic": ("VideoTok4D w/o Z_d", ("main", False, True)),
     "unified": ("Unified tokens (ablation)", ("unified", False, False)),
+    "no_motion_isolation": ("w/o motion isolation (ablation)", ("no_motion", False, False)),
+    "fixed_grid": ("Fixed-grid temporal attention (ablation)", ("fixed_grid", False, False)),
+}
+# Table 5's ablations: model key -> (config field, the value that makes the ablation, command-line flag)
+ABLATIONS: dict[str, tuple[str, bool, str]] = {
+    "unified": ("unified_tokens", True, "--unified"),
+    "no_motion": ("motion_isolation", False, "--no-motion-isolation"),
+    "fixed_grid": ("track_attention", False, "--fixed-grid"),
 }
 BASELINE_METHODS = {"nearest_frame": "Nearest source frame (view-bound)", "depth_warp": "Depth forward-warp (RGB-D)",
                     "mean_colour": "Flat source mean colour (reference)"}
@@ -315,8 +323,9 @@ def _check_models(models: dict[str, VideoTok4D], settings: EvalSettings) -> None
         if (cfg.frames, cfg.image_size) != (settings.frames, settings.image_size):
             raise EvaluationError(f"model {key!r} encodes {cfg.frames} frames of {cfg.image_size}px; the evaluation "
                                   f"uses {settings.frames} frames of {settings.image_size}px")
-    if "main" in models and "unified" in models and models["main"].config.token_floats != models["unified"].config.token_floats:
-        raise EvaluationError("the unified ablation must have the same token budget as the main model")
+    for key, (_, _, flag) in ABLATIONS.items():
+        if "main" in models and key in models and models["main"].config.token_floats != models[key].config.token_floats:
+            raise EvaluationError(f"the {flag} ablation must have the same token budget as the main model")
 
 
 def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dict[str, Any]:
@@ -334,7 +343,9 @@ def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dic
 
 
 # --- token health -----------------------------------------------------------------------------------
-MODEL_METHOD = {"main": "ours", "unified": "unified"}  # the plain render of each token model
+# the plain render of each token model
+MODEL_METHOD = {"main": "ours", **{key: m for m, (_, (key, ds, dd)) in TOKEN_METHODS.items()
+                                   if key != "main" and not (ds or dd)}}
 
 
 def _unit_video(video: np.ndarray) -> torch.Tensor:

@@ -166,7 +166,7 @@ def _set_tables(s: dict[str, Any], view_set: str) -> str:
         se = f" ± {p['se']:.2f}" if p.get("se") is not None else ""
         return f"{p['mean']:+.2f}{se} ({100 * p['ours_wins']:.0f}%)"
 
-    for m in ("ours", "unified", "nearest_frame", "depth_warp", "mean_colour"):
+    for m in ("ours", "unified", "no_motion_isolation", "fixed_grid", "nearest_frame", "depth_warp", "mean_colour"):
         if view_set == "source" and m in SKIPPED_ON_SOURCE:
             lines.append(f"| {METHODS[m]} | skipped: the target is the source camera (trivially exact) |"
                          + " |" * 7)
@@ -208,7 +208,7 @@ def _set_tables(s: dict[str, Any], view_set: str) -> str:
     return out + "\n"
 
 
-HEALTH_LABELS = {"main": "ours", "unified": "unified"}
+HEALTH_LABELS = {"main": "ours", "unified": "unified", "no_motion": "w/o motion isolation", "fixed_grid": "fixed grid"}
 
 
 def format_health(health: dict[str, Any]) -> str:
