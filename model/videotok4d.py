@@ -228,7 +228,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                        drop_dynamic: bool = False,
                        source: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0, in ``steps`` steps
-        (None: ``self.decode_steps``, the model's recorded best-fidelity setting).
+        (None: ``self.decode_steps``, the model's recorded best-fidelity setting).  Every item of the batch
+        starts from the same noise (``seed``), so an item's render does not depend on its batch.
 
         K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4); source: the source trajectory
         (:meth:`render_cameras`; needed when ``needs_source``). Returns Y^0 (B, T, C, h, w).
@@ -246,7 +247,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         device = z_s.device
         generator = torch.Generator(device="cpu").manual_seed(int(seed))
         h = cfg.latent_size
-        y = torch.randn((B, T, cfg.latent_channels, h, h), generator=generator).to(device)
+        # every item starts from the same seeded noise: a view renders the same alone or in a batch
+        y = torch.randn((1, T, cfg.latent_channels, h, h), generator=generator).expand(B, -1, -1, -1, -1)
+        y = y.contiguous().to(device)
         K_tgt, w2c_tgt = K_tgt.to(device), w2c_tgt.to(device)
         rays = self.rays(K_tgt, w2c_tgt)
         cameras = self.render_cameras(K_tgt, w2c_tgt, source)

@@ -67,6 +67,7 @@ DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fideli
 # int5-rans, +0.079 dB; 0.7.0: int4-rans, +0.091 dB; 0.6.0: int5-rans; 0.2.0-0.5.0: int4-rans.) Re-measure
 # with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4"
+RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
 # --- models -----------------------------------------------------------------------------------------
@@ -456,18 +457,27 @@ class SceneDecoder:
 
         z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
         z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
-        def camera_tensors(traj: Trajectory) -> tuple["torch.Tensor", "torch.Tensor"]:
-            return torch.from_numpy(traj.K.astype(np.float32))[None], torch.from_numpy(traj.w2c.astype(np.float32))[None]
-
         source = self.source_cameras() if self.model.needs_source else None
-        out = []
-        for spec in trajectories:
-            K, w2c = camera_tensors(self.trajectory(spec, capture=capture))
-            frames = self.model.render(z_s, z_d, K, w2c, steps=steps, seed=seed, drop_static=drop_static,
-                                       drop_dynamic=drop_dynamic, source=source)
-            video = (frames[0].permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
-            out.append(video)
-        return out
+        resolved = [self.trajectory(spec, capture=capture) for spec in trajectories]
+        out: list[np.ndarray | None] = [None] * len(resolved)
+        # views of one frame count are rendered together, RENDER_BATCH at a time (the renderer gives each
+        # item the same seeded noise, so a view is the same as rendered alone)
+        by_length: dict[int, list[int]] = {}
+        for i, traj in enumerate(resolved):
+            by_length.setdefault(traj.num_frames, []).append(i)
+        for indices in by_length.values():
+            for start in range(0, len(indices), RENDER_BATCH):
+                chunk = indices[start:start + RENDER_BATCH]
+                n = len(chunk)
+                K = torch.from_numpy(np.stack([resolved[i].K for i in chunk]).astype(np.float32))
+                w2c = torch.from_numpy(np.stack([resolved[i].w2c for i in chunk]).astype(np.float32))
+                src = None if source is None else tuple(t.expand(n, *t.shape[1:]) for t in source)
+                frames = self.model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=steps,
+                                           seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic, source=src)
+                videos = (frames.permute(0, 1, 3, 4, 2).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+                for i, video in zip(chunk, videos):
+                    out[i] = video
+        return [v for v in out if v is not None]
 
 
 def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Trajectory | str | os.PathLike" = "source",
