@@ -11,7 +11,8 @@ import torch
 from vt4dcodec.errors import Vt4dError
 from vt4dcodec.eval.protocol import EvaluationError
 from vt4dcodec.eval.track_probe import (DECODERS, KIND_DYNAMIC, KIND_PAD, KIND_STATIC, ProbeSettings, TrackData,
-                                        TrackProbe, evaluate, format_table, main, orderings, predict,
+                                        TrackProbe, evaluate, format_orderings, format_table, main,
+                                        orderings, predict,
                                         sample_queries, save_figure, still_prediction, summarize, train_probe)
 
 T, S = 4, 16
@@ -95,6 +96,10 @@ def test_summary_orderings_table_and_figure(tmp_path):
     checks = orderings(summary)
     assert checks["Z_s better on static tracks"]["holds"] and not checks["Z_d better on dynamic tracks"]["holds"]
     assert checks["both best on mixed tracks"]["holds"]
+    # a constant offset on the static set: zero spread over scenes, no standard error, no call either way
+    assert checks["Z_s better on static tracks"]["verdict"] == "tie (within noise)"
+    assert checks["both best on mixed tracks"]["verdict"] == "holds"
+    assert "sign against the paper" in format_orderings(checks)
     results = {"summary": summary, "decoders": list(DECODERS), "orderings": checks,
                "settings": {"model": "fake", "test_scenes": 3}}
     table = format_table(results)
@@ -135,7 +140,9 @@ def test_command_end_to_end(tmp_path, capsys):
     assert (tmp_path / "t3.png").stat().st_size > 1000
     printed = capsys.readouterr().out
     assert "| track set" in printed and "Z_s better on static tracks" in printed
-    assert main(["--table", str(out)]) == 0 and "| static" in capsys.readouterr().out
+    assert main(["--table", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| static" in printed and "both best on mixed tracks" in printed
     # the cached tokens are reused: a second run reads them back (same numbers, no tokenizer pass needed)
     assert main(args) == 0
     assert json.loads(out.read_text())["summary"] == results["summary"]

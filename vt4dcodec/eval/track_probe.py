@@ -58,7 +58,8 @@ from .metrics import mean_se, round_metric
 from .protocol import EvaluationError
 
 __all__ = ["DECODERS", "TRACK_SETS", "ProbeSettings", "TrackData", "TrackProbe", "build_records", "load_data",
-           "train_probe", "predict", "evaluate", "summarize", "format_table", "save_figure", "run", "main"]
+           "train_probe", "predict", "evaluate", "summarize", "orderings", "format_table", "format_orderings",
+           "save_figure", "run", "main"]
 
 DECODERS = ("static", "dynamic", "both", "none")     # which token streams a decoder reads
 DECODER_LABELS = {"static": "Z_s", "dynamic": "Z_d", "both": "Z_s + Z_d", "none": "no tokens", "still": "no motion"}
@@ -500,24 +501,46 @@ def summarize(ev: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+SIGNIFICANT_Z = 2.0   # |mean / s.e.| of a paired difference at or above which an ordering is called
+
+
+def _verdict(mean: float, se: float | None, expected_negative: bool) -> tuple[bool, str, float | None]:
+    """(sign as the paper says, verdict, z): "holds" / "reversed" at |z| >= 2, else "tie (within noise)"."""
+    z = None if not se else mean / se
+    right = mean < 0 if expected_negative else mean > 0
+    if z is None or abs(z) < SIGNIFICANT_Z:
+        return right, "tie (within noise)", z
+    return right, "holds" if right else "reversed", z
+
+
 def orderings(summary: dict[str, Any]) -> dict[str, Any]:
-    """The paper's three claims, each with the paired difference it rests on (negative = first is better)."""
-    checks = {"Z_s better on static tracks": ("static", "Z_s - Z_d", "<"),
-              "Z_d better on dynamic tracks": ("dynamic", "Z_s - Z_d", ">")}
+    """The paper's three claims, each with the paired difference it rests on (per scene; negative = the
+    first decoder is better), whether its sign is the paper's, and a verdict at |mean / s.e.| >= 2."""
+    checks = {"Z_s better on static tracks": ("static", "Z_s - Z_d", True),
+              "Z_d better on dynamic tracks": ("dynamic", "Z_s - Z_d", False)}
     out: dict[str, Any] = {}
-    for name, (s, key, sign) in checks.items():
+
+    def entry(s: str, label: str, d: dict[str, Any], expected_negative: bool) -> dict[str, Any]:
+        right, verdict, z = _verdict(d["mean"], d["se"], expected_negative)
+        return {"holds": bool(right), "verdict": verdict, "set": s, "difference": label, "mean": d["mean"],
+                "se": d["se"], "z": None if z is None else round_metric(z, 2)}
+
+    for name, (s, key, negative) in checks.items():
         d = summary[s]["paired"].get(key)
         if d and d["mean"] is not None:
-            holds = d["mean"] < 0 if sign == "<" else d["mean"] > 0
-            out[name] = {"holds": bool(holds), "set": s, "difference": key, "mean": d["mean"], "se": d["se"],
-                         "z": None if not d["se"] else round_metric(d["mean"] / d["se"], 2)}
+            out[name] = entry(s, key, d, negative)
     for s in TRACK_SETS:
         d = summary[s]["paired"].get("both - best single")
         if d and d["mean"] is not None:
-            out[f"both best on {s} tracks"] = {
-                "holds": bool(d["mean"] < 0), "set": s, "difference": f"both - {summary[s]['best_single']}",
-                "mean": d["mean"], "se": d["se"], "z": None if not d["se"] else round_metric(d["mean"] / d["se"], 2)}
+            out[f"both best on {s} tracks"] = entry(s, f"both - {summary[s]['best_single']}", d, True)
     return out
+
+
+def format_orderings(checks: dict[str, Any]) -> str:
+    """One line per ordering of :func:`orderings`."""
+    return "".join(f"{name}: {o['verdict']}, sign {'as' if o['holds'] else 'against'} the paper ({o['difference']} = "
+                   f"{o['mean']:+.3f} ± {o['se'] if o['se'] is not None else float('nan'):.3f} px on {o['set']} "
+                   f"tracks)\n" for name, o in checks.items())
 
 
 def _fmt(e: dict[str, Any] | None, nd: int = 2, signed: bool = False) -> str:
@@ -714,7 +737,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.table is not None:
-            print(format_table(json.loads(args.table.read_text())), end="")
+            results = json.loads(args.table.read_text())
+            print(format_table(results) + "\n" + format_orderings(orderings(results["summary"])), end="")
             return 0
         if args.threads < 1:
             raise EvaluationError("--threads must be >= 1")
@@ -734,10 +758,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json(args.out, out.results)
     if args.figure is not None:
         save_figure(args.figure, out.results, out.test, out.predictions)
-    print(format_table(out.results), end="")
-    for name, o in out.results["orderings"].items():
-        print(f"{name}: {'holds' if o['holds'] else 'does not hold'} ({o['difference']} = {o['mean']:+.3f} ± "
-              f"{o['se'] if o['se'] is not None else float('nan'):.3f} px on {o['set']} tracks)")
+    print(format_table(out.results) + "\n" + format_orderings(out.results["orderings"]), end="")
     print(f"wrote {args.out}" + (f" and {args.figure}" if args.figure else "")
           + f" in {out.results['timing_s']['total']:.0f} s")
     return 0
