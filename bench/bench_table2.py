@@ -2,15 +2,16 @@
 per-view baseline (one latent video-diffusion run per view), quality and wall time for 9 views, in one run.
 
     python bench/bench_table2.py --shards data/co4dgen-1.0.0-test --dense checkpoints/dense-tiny/dense \
-        --prior co4dgen-tiny --events 16 --dense-steps 4,8,16,32 --threads 1 \
+        --prior co4dgen-tiny --events 16 --prior-steps 16,4,1 --dense-steps 1,2,4,8,16,32 --threads 1 \
         --results docs/results/table2.json --figure docs/figures/table2.png
 
 Held-out (split="test") events from ``model.train.tokenize_scenes`` shards: conditioning camera c = 0, the
 9 target views are the event's other cameras 1..9, whose ground truth the clip sidecars hold.
 
-* **co4dgen**: the prior samples Z^a ~ p(. | V_c, P_c, P_a) once (anchor a = 1, ``--prior-steps`` Heun
-  steps, seed 0); the tokenizer's renderer draws all 9 cameras from that one state in one batched call
-  (``--render-steps``, the tokenizer's recorded decode steps by default).
+* **co4dgen@P**: the prior samples Z^a ~ p(. | V_c, P_c, P_a) once (anchor a = 1, P Heun steps, seed 0;
+  the first of ``--prior-steps`` is the headline setting, 16 as ``vt4d generate``); the tokenizer's
+  renderer draws all 9 cameras from that one state in one batched call (``--render-steps``, the
+  tokenizer's recorded decode steps by default).
 * **dense@S**: the dense baseline generates each target camera's latent video from (V_c, P_c, P_k) with
   S Euler steps (seed 0), decoded by the same frozen autoencoder; 9 sampling runs.  Batched (the 9 runs
   as one batch) and sequential (one run after another) are both timed.
@@ -19,7 +20,8 @@ Held-out (split="test") events from ``model.train.tokenize_scenes`` shards: cond
 
 Quality: PSNR / SSIM (kornia, 11x11) of each generated video against its camera's ground truth; per
 event the mean over the 9 cameras; mean +- standard error over events, and the paired per-event
-difference co4dgen - dense@S with its standard error.  Timing (first ``--timing-events`` events, best
+difference headline - dense@S with its standard error.  ``equal_quality`` names, per metric, the fastest
+dense setting whose mean is at least the headline's, and the headline's speed-up over it.  Timing (first ``--timing-events`` events, best
 of ``--repeats``, wall and process CPU, one thread): each method end to end for 9 views (condition
 encoding, sampling, rendering/decoding to pixels).  Sequence lengths per run come from the configs.
 """
@@ -152,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cond-camera", type=int, default=0)
     parser.add_argument("--anchor-camera", type=int, default=1)
     parser.add_argument("--views", type=int, default=9, help="target cameras per event (the first after cond)")
-    parser.add_argument("--prior-steps", type=int, default=16)
+    parser.add_argument("--prior-steps", default="16,4,1", help="comma-separated Heun step counts; the first is "
+                        "the headline setting")
     parser.add_argument("--render-steps", type=int, default=None, help="default: the tokenizer's decode steps")
     parser.add_argument("--dense-steps", default="4,8,16,32", help="comma-separated Euler step counts")
     parser.add_argument("--timing-events", type=int, default=2)
@@ -177,10 +180,12 @@ def main(argv: list[str] | None = None) -> int:
                          f"not of {fp.short()}: both must decode through the same latent space")
     render_steps = args.render_steps or tokenizer.decode_steps
     dense_steps = [int(s) for s in args.dense_steps.split(",") if s]
+    prior_steps = [int(s) for s in args.prior_steps.split(",") if s]
+    headline = f"co4dgen@{prior_steps[0]}"
     events = dict(list(load_events(args.shards).items())[: args.events])
     if not events:
         raise SystemExit(f"no events in {args.shards}")
-    methods = ["co4dgen", *(f"dense@{s}" for s in dense_steps), "encoded_anchor"]
+    methods = [*(f"co4dgen@{p}" for p in prior_steps), *(f"dense@{s}" for s in dense_steps), "encoded_anchor"]
     per_event: dict[str, dict[str, list[float]]] = {m: {"psnr": [], "ssim": []} for m in methods}
     example: dict[str, Any] = {}
     t0 = time.perf_counter()
@@ -188,9 +193,9 @@ def main(argv: list[str] | None = None) -> int:
         if cams[args.cond_camera]["fingerprint"] != fp.to_dict():
             raise SystemExit(f"{event} was tokenized by another tokenizer than {fp.short()}")
         targets = [k for k in sorted(cams) if k != args.cond_camera][: args.views]
-        videos = {"co4dgen": co4dgen_views(tokenizer, prior, cams, args.cond_camera, args.anchor_camera, targets,
-                                           args.prior_steps, render_steps),
-                  "encoded_anchor": render_state(tokenizer, cams[args.anchor_camera]["z_s"],
+        videos = {f"co4dgen@{p}": co4dgen_views(tokenizer, prior, cams, args.cond_camera, args.anchor_camera,
+                                                targets, p, render_steps) for p in prior_steps}
+        videos |= {"encoded_anchor": render_state(tokenizer, cams[args.anchor_camera]["z_s"],
                                                  cams[args.anchor_camera]["z_d"], cams, args.anchor_camera, targets,
                                                  render_steps)}
         for s in dense_steps:
@@ -206,17 +211,17 @@ def main(argv: list[str] | None = None) -> int:
     quality_s = time.perf_counter() - t0
 
     summary = {m: {"psnr_db": mean_se(v["psnr"]), "ssim": mean_se(v["ssim"])} for m, v in per_event.items()}
-    paired = {f"co4dgen - dense@{s}": {
-        "psnr_db": mean_se(list(np.subtract(per_event["co4dgen"]["psnr"], per_event[f"dense@{s}"]["psnr"]))),
-        "ssim": mean_se(list(np.subtract(per_event["co4dgen"]["ssim"], per_event[f"dense@{s}"]["ssim"])))}
+    paired = {f"{headline} - dense@{s}": {
+        "psnr_db": mean_se(list(np.subtract(per_event[headline]["psnr"], per_event[f"dense@{s}"]["psnr"]))),
+        "ssim": mean_se(list(np.subtract(per_event[headline]["ssim"], per_event[f"dense@{s}"]["ssim"])))}
         for s in dense_steps}
 
     timing: dict[str, Any] = {}
     for event, cams in list(events.items())[: args.timing_events]:
         targets = [k for k in sorted(cams) if k != args.cond_camera][: args.views]
-        row: dict[str, Any] = {"co4dgen": timed(lambda: co4dgen_views(
-            tokenizer, prior, cams, args.cond_camera, args.anchor_camera, targets, args.prior_steps, render_steps),
-            args.repeats)}
+        row: dict[str, Any] = {f"co4dgen@{p}": timed(lambda: co4dgen_views(
+            tokenizer, prior, cams, args.cond_camera, args.anchor_camera, targets, p, render_steps), args.repeats)
+            for p in prior_steps}
         for s in dense_steps:
             row[f"dense@{s} batched"] = timed(lambda: dense_views(dense, cams, args.cond_camera, targets, s), args.repeats)
             row[f"dense@{s} sequential"] = timed(
@@ -224,8 +229,14 @@ def main(argv: list[str] | None = None) -> int:
         timing[event] = row
     mean_time = {name: {k: round(float(np.mean([timing[e][name][k] for e in timing])), 3)
                         for k in ("wall_s", "cpu_s")} for name in next(iter(timing.values()))}
-    speedup = {name: {k: round(v[k] / mean_time["co4dgen"][k], 2) for k in ("wall_s", "cpu_s")}
-               for name, v in mean_time.items() if name != "co4dgen"}
+    speedup = {name: {k: round(v[k] / mean_time[headline][k], 2) for k in ("wall_s", "cpu_s")}
+               for name, v in mean_time.items() if name != headline}
+    equal_quality: dict[str, Any] = {}
+    for metric in ("psnr_db", "ssim"):
+        matching = [s for s in dense_steps if summary[f"dense@{s}"][metric]["mean"] >= summary[headline][metric]["mean"]]
+        fastest = min(matching, key=lambda s: mean_time[f"dense@{s} batched"]["wall_s"]) if matching else None
+        equal_quality[metric] = {"dense": None if fastest is None else f"dense@{fastest}",
+                                 "speedup_wall": None if fastest is None else speedup[f"dense@{fastest} batched"]["wall_s"]}
 
     tcfg, pcfg, dcfg = tokenizer.config, prior.config, dense.config
     render_patch = getattr(tcfg, "renderer_patch", tcfg.patch_size)
@@ -233,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     cond_tokens = pcfg.frames * ((pcfg.image_size // pcfg.cond_patch) ** 2 + pcfg.anchor_grid ** 2)
     table = {
         "co4dgen": {"sequence_per_run": pcfg.n_static + pcfg.n_dynamic, "context_tokens": cond_tokens,
-                    "prior_runs": 1, "prior_steps": args.prior_steps, "prior_sampler": "heun",
+                    "prior_runs": 1, "prior_steps": prior_steps, "prior_sampler": "heun",
                     "render_runs": 1, "render_batch": args.views, "render_steps": render_steps,
                     "render_sequence_per_view": tcfg.frames * (latent // render_patch) ** 2,
                     "trainable_parameters": sum(p.numel() for p in prior.parameters())
@@ -250,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
                   "config": dense.config.to_dict()},
         "events": list(events), "cond_camera": args.cond_camera, "anchor_camera": args.anchor_camera,
         "views": len(example["targets"]), "threads": args.threads, "quality_seconds": round(quality_s, 1),
-        "table": table, "quality": summary, "paired": paired, "timing_mean": mean_time, "speedup": speedup,
+        "headline": headline, "table": table, "quality": summary, "paired": paired, "equal_quality": equal_quality, "timing_mean": mean_time, "speedup": speedup,
         "timing_per_event": timing, "per_event": per_event,
     }
     args.results.parent.mkdir(parents=True, exist_ok=True)
@@ -262,7 +273,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{m:16s} PSNR {q['psnr_db']['mean']:.2f} +- {q['psnr_db']['se']:.2f} dB  SSIM {q['ssim']['mean']:.3f}"
               + (f"  9 views {t['wall_s']:.2f} s wall" if t else ""))
     for name, v in speedup.items():
-        print(f"co4dgen is {v['wall_s']:.2f}x faster than {name} (wall; CPU {v['cpu_s']:.2f}x)")
+        print(f"{headline} is {v['wall_s']:.2f}x faster than {name} (wall; CPU {v['cpu_s']:.2f}x)")
+    for metric, v in equal_quality.items():
+        print(f"equal {metric}: fastest dense setting at least as good: {v['dense']} -> {headline} {v['speedup_wall']}x")
     for name, v in paired.items():
         print(f"{name}: {v['psnr_db']['mean']:+.2f} +- {v['psnr_db']['se']:.2f} dB")
     print(f"results -> {args.results}, figure -> {args.figure}")

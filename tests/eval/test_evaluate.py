@@ -76,7 +76,7 @@ def test_merge_replaces_only_the_given_methods(evaluated, models, tmp_path):
 def test_table5_ablations_merge_into_a_results_file_paired_with_ours(evaluated, models, tmp_path, capsys):
     """--no-motion-isolation / --fixed-grid add Table 5's ablations to an existing evaluation (same scenes,
     paired with ours per view), and a model that is not that ablation is refused naming the flag."""
-    from conftest import _random_model
+    from eval_models import random_model as _random_model
 
     results, _ = evaluated
     path = tmp_path / "eval.json"

@@ -176,13 +176,18 @@ def test_bench_table2_reports_both_methods_paired_and_timed(shards, trained_prio
     spec.loader.exec_module(bench)
     results, figure = tmp_path / "t2.json", tmp_path / "t2.png"
     assert bench.main(["--shards", str(shards), "--prior", str(trained_prior / "prior"), "--dense", str(trained_dense),
-                       "--events", "2", "--prior-steps", "1", "--render-steps", "1", "--dense-steps", "1,2",
+                       "--events", "2", "--prior-steps", "1,2", "--render-steps", "1", "--dense-steps", "1,2",
                        "--timing-events", "1", "--repeats", "1", "--results", str(results),
                        "--figure", str(figure)]) == 0
     out = json.loads(results.read_text())
-    assert set(out["quality"]) == {"co4dgen", "dense@1", "dense@2", "encoded_anchor"}
-    assert out["quality"]["co4dgen"]["psnr_db"]["n"] == 2 and out["views"] == 2  # the fixture's 3 cameras: 2 besides the conditioning one
-    assert set(out["paired"]) == {"co4dgen - dense@1", "co4dgen - dense@2"}
-    assert set(out["speedup"]) == {"dense@1 batched", "dense@1 sequential", "dense@2 batched", "dense@2 sequential"}
+    assert set(out["quality"]) == {"co4dgen@1", "co4dgen@2", "dense@1", "dense@2", "encoded_anchor"}
+    assert out["headline"] == "co4dgen@1" and out["quality"]["co4dgen@1"]["psnr_db"]["n"] == 2 and out["views"] == 2  # the fixture's 3 cameras: 2 besides the conditioning one
+    assert set(out["paired"]) == {"co4dgen@1 - dense@1", "co4dgen@1 - dense@2"}
+    assert set(out["speedup"]) == {"co4dgen@2", "dense@1 batched", "dense@1 sequential", "dense@2 batched",
+                                   "dense@2 sequential"}
+    for metric in ("psnr_db", "ssim"):  # the fastest dense setting at least as good, if any, and the ratio to it
+        match = out["equal_quality"][metric]
+        better = [s for s in (1, 2) if out["quality"][f"dense@{s}"][metric]["mean"] >= out["quality"]["co4dgen@1"][metric]["mean"]]
+        assert (match["dense"] is None) == (not better)
     assert all(v["wall_s"] > 0 for v in out["speedup"].values())
     assert out["table"]["dense"]["sequence_per_run"] == 4 * 16 and figure.stat().st_size > 1000
