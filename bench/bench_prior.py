@@ -50,8 +50,13 @@ def quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return 10.0 * float(np.log10(1.0 / mse)), ssim
 
 
+def videos(frames: torch.Tensor) -> list[np.ndarray]:
+    """(B, T, 3, H, W) in [0, 1] -> B uint8 videos (T, H, W, 3)."""
+    return list((frames.permute(0, 1, 3, 4, 2).numpy() * 255.0).round().clip(0, 255).astype(np.uint8))
+
+
 def _to_video(frames: torch.Tensor) -> np.ndarray:
-    return (frames[0].permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+    return videos(frames)[0]
 
 
 def _tensor(a: np.ndarray) -> torch.Tensor:
@@ -71,6 +76,32 @@ def condition(clip_c: dict[str, np.ndarray], K_a: np.ndarray, w2c_a: np.ndarray)
     frames = torch.from_numpy(clip_c["frames"]).permute(0, 3, 1, 2).float().div(255.0)[None]
     return PriorCondition(frames=frames, K_c=_tensor(clip_c["K"]), w2c_c=_tensor(clip_c["w2c"]), K_a=_tensor(K_a),
                           w2c_a=_tensor(w2c_a))
+
+
+def load_models(prior_spec: str, tokenizer_spec: str | None) -> tuple[Any, Any, Any]:
+    """(prior, tokenizer, tokenizer fingerprint): the tokenizer defaults to the prior's, and a tokenizer
+    other than the one the prior was trained on is refused."""
+    from vt4dcodec.codec import load_model, model_fingerprint
+    from vt4dcodec.generate import load_prior_model
+    from vt4dcodec.model.prior import check_tokenizer
+
+    prior = load_prior_model(prior_spec)
+    tokenizer = load_model(tokenizer_spec or prior.tokenizer_fingerprint.model_id)
+    fp = model_fingerprint(tokenizer)
+    check_tokenizer(prior, fp)
+    return prior, tokenizer, fp
+
+
+def held_out_events(shards: str, count: int, cond_camera: int, fp: Any) -> dict[str, dict[int, dict[str, Any]]]:
+    """The first ``count`` events of ``shards`` (:func:`load_events`); SystemExit when there are none or one
+    was tokenized by another tokenizer than ``fp``."""
+    events = dict(list(load_events(shards).items())[:count])
+    if not events:
+        raise SystemExit(f"no events in {shards}")
+    for event, cams in events.items():
+        if cams[cond_camera]["fingerprint"] != fp.to_dict():
+            raise SystemExit(f"{event} was tokenized by another tokenizer than {fp.short()}")
+    return events
 
 
 def load_events(shards: str) -> dict[str, dict[int, dict[str, Any]]]:
@@ -222,18 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "co4dgen.png")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    from vt4dcodec.codec import load_model, model_fingerprint
-    from vt4dcodec.generate import load_prior_model
-    from vt4dcodec.model.prior import check_tokenizer
-
-    prior = load_prior_model(args.prior)
-    tokenizer = load_model(args.tokenizer or prior.tokenizer_fingerprint.model_id)
-    fp = model_fingerprint(tokenizer)
-    check_tokenizer(prior, fp)
-    events = dict(list(load_events(args.shards).items())[: args.events])
-    for event, cams in events.items():
-        if cams[args.cond_camera]["fingerprint"] != fp.to_dict():
-            raise SystemExit(f"{event} was tokenized by another tokenizer than {fp.short()}")
+    prior, tokenizer, fp = load_models(args.prior, args.tokenizer)
+    events = held_out_events(args.shards, args.events, args.cond_camera, fp)
     t0 = time.perf_counter()
     quality_result, figure_rows = evaluate(tokenizer, prior, events, args.cond_camera, args.anchor_camera,
                                            args.prior_steps, args.render_steps, args.seed)

@@ -41,17 +41,11 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_prior import load_events, quality  # noqa: E402
+from bench_prior import held_out_events, load_models, quality, videos as _videos  # noqa: E402
 
 
 def _tensor(a: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
-
-
-def _videos(frames: torch.Tensor) -> list[np.ndarray]:
-    """(B, T, 3, H, W) in [0, 1] -> B uint8 videos (T, H, W, 3)."""
-    x = (frames.permute(0, 1, 3, 4, 2).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
-    return list(x)
 
 
 def conditions(cams: dict[int, dict[str, Any]], cond_cam: int, targets: list[int]) -> Any:
@@ -165,15 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "table2.png")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    from vt4dcodec.codec import load_model, model_fingerprint
-    from vt4dcodec.generate import load_prior_model
-    from vt4dcodec.model.prior import check_tokenizer
     from vt4dcodec.model.weights_io import load_dense
 
-    prior = load_prior_model(args.prior)
-    tokenizer = load_model(args.tokenizer or prior.tokenizer_fingerprint.model_id)
-    fp = model_fingerprint(tokenizer)
-    check_tokenizer(prior, fp)
+    prior, tokenizer, fp = load_models(args.prior, args.tokenizer)
     dense = load_dense(args.dense)
     if dense.tokenizer_fingerprint.weights_sha256 != fp.weights_sha256:
         raise SystemExit(f"the dense baseline holds the autoencoder of {dense.tokenizer_fingerprint.short()}, "
@@ -182,16 +170,12 @@ def main(argv: list[str] | None = None) -> int:
     dense_steps = [int(s) for s in args.dense_steps.split(",") if s]
     prior_steps = [int(s) for s in args.prior_steps.split(",") if s]
     headline = f"co4dgen@{prior_steps[0]}"
-    events = dict(list(load_events(args.shards).items())[: args.events])
-    if not events:
-        raise SystemExit(f"no events in {args.shards}")
+    events = held_out_events(args.shards, args.events, args.cond_camera, fp)
     methods = [*(f"co4dgen@{p}" for p in prior_steps), *(f"dense@{s}" for s in dense_steps), "encoded_anchor"]
     per_event: dict[str, dict[str, list[float]]] = {m: {"psnr": [], "ssim": []} for m in methods}
     example: dict[str, Any] = {}
     t0 = time.perf_counter()
     for e, (event, cams) in enumerate(events.items()):
-        if cams[args.cond_camera]["fingerprint"] != fp.to_dict():
-            raise SystemExit(f"{event} was tokenized by another tokenizer than {fp.short()}")
         targets = [k for k in sorted(cams) if k != args.cond_camera][: args.views]
         videos = {f"co4dgen@{p}": co4dgen_views(tokenizer, prior, cams, args.cond_camera, args.anchor_camera,
                                                 targets, p, render_steps) for p in prior_steps}

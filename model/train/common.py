@@ -38,7 +38,7 @@ from .data import ScenePool, rank_seeds
 
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
-    "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "cycle",
+    "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "shard_model_arguments", "cycle",
     "parse_overrides", "lr_at", "train_loop", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
 ]
 
@@ -294,6 +294,31 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-every", type=int, default=10)
     parser.add_argument("--ckpt-every", type=int, default=200)
     parser.add_argument("--no-progress", action="store_true", help="hide the tqdm bar")
+
+
+def shard_model_arguments(parser: argparse.ArgumentParser, *, what: str, config: str, model_id: str,
+                          model_version: str, ckpt_every: int) -> None:
+    """Flags of the models trained on token shards (the Co4DGen prior, the dense baseline): ``what`` names
+    the saved model directory and its config in the help texts."""
+    parser.add_argument("--shards", required=True, help="token shard directory, glob or file (.vt4da) with clips")
+    parser.add_argument("--out", type=Path, required=True, help=f"run directory (checkpoint, log, PNG, {what})")
+    parser.add_argument("--config", default=config, help=f"{what} config name")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help=f"{what} config overrides")
+    parser.add_argument("--steps", type=int, required=True, help="total optimizer steps (resume continues to it)")
+    parser.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                        help="stop after this much wall-clock training time (checkpointed; re-running continues)")
+    parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--lr", type=float, default=4e-4)
+    parser.add_argument("--warmup", type=int, default=100)
+    parser.add_argument("--workers", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--bf16", action="store_true")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--log-every", type=int, default=20)
+    parser.add_argument("--ckpt-every", type=int, default=ckpt_every)
+    parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--model-id", default=model_id)
+    parser.add_argument("--model-version", default=model_version)
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:

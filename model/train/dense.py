@@ -18,7 +18,6 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,7 +32,7 @@ from ..dense_baseline import DenseViewDiffusion
 from ..prior import PriorCondition
 from ..weights_io import from_pretrained, save_dense
 from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
-                     train_loop)
+                     shard_model_arguments, train_loop)
 from .prior import PriorPairDataset
 
 __all__ = ["DensePairDataset", "DenseBatch", "collate_dense", "model_card", "main"]
@@ -120,25 +119,9 @@ def _dense_step(module: torch.nn.Module, batch: DenseBatch) -> tuple[torch.Tenso
 def arguments() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.dense", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--shards", required=True, help="token shard directory, glob or file (.vt4da) with clips")
-    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, log, PNG, dense)")
+    shard_model_arguments(parser, what="dense", config="dense-tiny", model_id="dense-tiny", model_version="1.0.0",
+                          ckpt_every=100)
     parser.add_argument("--tokenizer", default="vt4d-tiny", help="tokenizer whose autoencoder is the latent space")
-    parser.add_argument("--config", default="dense-tiny", help="dense config name")
-    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="dense config overrides")
-    parser.add_argument("--steps", type=int, required=True, help="total optimizer steps (resume continues to it)")
-    parser.add_argument("--time-budget", type=float, default=None, help="stop (with a checkpoint) after this many s")
-    parser.add_argument("--batch-size", type=int, default=16)
-    parser.add_argument("--lr", type=float, default=4e-4)
-    parser.add_argument("--warmup", type=int, default=100)
-    parser.add_argument("--workers", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--bf16", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--log-every", type=int, default=20)
-    parser.add_argument("--ckpt-every", type=int, default=100)
-    parser.add_argument("--no-progress", action="store_true")
-    parser.add_argument("--model-id", default="dense-tiny")
-    parser.add_argument("--model-version", default="1.0.0")
     return parser
 
 

@@ -18,7 +18,6 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,7 +33,7 @@ from ..configs import PriorConfig, get_prior_config
 from ..prior import Co4DGen, PriorCondition
 from ..weights_io import save_prior
 from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
-                     train_loop)
+                     shard_model_arguments, train_loop)
 from .tokenize_scenes import ClipStore
 
 __all__ = ["PriorPairDataset", "PriorBatch", "collate_prior", "token_statistics", "model_card", "main"]
@@ -157,23 +156,8 @@ def _prior_step(module: torch.nn.Module, batch: PriorBatch) -> tuple[torch.Tenso
 def arguments() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.prior", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--shards", required=True, help="token shard directory, glob or file (.vt4da)")
-    parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, log, PNG, prior)")
-    parser.add_argument("--config", default="co4dgen-tiny", help="prior config (co4dgen-tiny | co4dgen-paper)")
-    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="prior config overrides")
-    parser.add_argument("--steps", type=int, required=True, help="total optimizer steps (resume continues to it)")
-    parser.add_argument("--batch-size", type=int, default=16)
-    parser.add_argument("--lr", type=float, default=4e-4)
-    parser.add_argument("--warmup", type=int, default=100)
-    parser.add_argument("--workers", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--bf16", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--log-every", type=int, default=20)
-    parser.add_argument("--ckpt-every", type=int, default=250)
-    parser.add_argument("--no-progress", action="store_true")
-    parser.add_argument("--model-id", default="co4dgen-tiny")
-    parser.add_argument("--model-version", default="0.1.0")
+    shard_model_arguments(parser, what="prior", config="co4dgen-tiny", model_id="co4dgen-tiny",
+                          model_version="0.1.0", ckpt_every=250)
     return parser
 
 
