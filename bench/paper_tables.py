@@ -1,12 +1,16 @@
 """The paper's orderings (Tables 2-5) checked against this project's measurements, with a figure per table.
 
     python bench/paper_tables.py [--eval docs/results/eval.json] [--table2 docs/results/table2.json] \
-        [--table3 docs/results/table3_tracks.json] [--figures docs/figures] [--out docs/results/paper_tables.json]
+        [--table3 docs/results/table3_tracks.json] [--table5 docs/results/table5.json] [--figures docs/figures] \
+        [--out docs/results/paper_tables.json]
 
 Reads the committed results of the commands that measure each table (it measures nothing itself):
 
-* Table 4 (token masking) and Table 5 (ablations): ``python -m vt4dcodec.eval`` (docs/results/eval.json; the
-  Table 5 ablations are merged into it with ``--merge --methods no_motion_isolation,fixed_grid``);
+* Table 4 (token masking): ``python -m vt4dcodec.eval`` (docs/results/eval.json, the shipped model);
+* Table 5 (ablations): ``python -m vt4dcodec.eval`` on four training checkpoints at one training step, the
+  full model and its three ablations from one recipe (docs/results/table5.json; the command is in
+  docs/RESULTS.md). Models at different steps are not compared: their orderings read "unequal steps". Without
+  that file Table 5 falls back to whatever ablations eval.json holds;
 * Table 2 (Co4DGen vs the dense per-view baseline): ``bench/bench_table2.py``;
 * Table 3 (track decoding from frozen tokens): ``python -m vt4dcodec.eval.track_probe``.
 
@@ -68,6 +72,13 @@ def orderings_from_eval(rows: list[dict[str, Any]], pairs: list[tuple[str, str]]
             p = paired(rows, view_set, a, b)
             out.append({"claim": f"{a} > {b}", "set": view_set, "difference_db": p, "verdict": verdict(p)})
     return out
+
+
+def table5_steps(models: dict[str, Any]) -> dict[str, int | None]:
+    """Training step of each Table 5 method's model in an eval file's ``models`` (keys main, unified,
+    no_motion, fixed_grid as ``vt4dcodec.eval`` writes them; None for a shipped model, which records none)."""
+    key = {"ours": "main", "no_motion_isolation": "no_motion"}
+    return {m: models[key.get(m, m)].get("training_step") for m, _ in ABLATIONS if key.get(m, m) in models}
 
 
 def bar_figure(summary: dict[str, Any], methods: tuple[tuple[str, str], ...], title: str, path: Path,
@@ -137,24 +148,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval", type=Path, default=ROOT / "docs" / "results" / "eval.json")
     parser.add_argument("--table2", type=Path, default=ROOT / "docs" / "results" / "table2.json")
     parser.add_argument("--table3", type=Path, default=ROOT / "docs" / "results" / "table3_tracks.json")
+    parser.add_argument("--table5", type=Path, default=ROOT / "docs" / "results" / "table5.json")
     parser.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "paper_tables.json")
     args = parser.parse_args(argv)
     result: dict[str, Any] = {"inputs": {}}
+    t5_rows: list[dict[str, Any]] | None = None
+    t5_summary: dict[str, Any] = {}
     if args.eval.is_file():
         ev = json.loads(args.eval.read_text())
         rows, summary = ev["rows"], ev["summary_by_set"]
         result["inputs"]["eval"] = str(args.eval)
         result["table4"] = orderings_from_eval(rows, [("ours", "ours_no_dynamic"), ("ours", "ours_no_static"),
                                                       ("ours_no_dynamic", "ours_no_static")], SETS)
-        present = [m for m, _ in ABLATIONS[1:] if any(m in summary.get(s, {}) for s in SETS)]
-        result["table5"] = orderings_from_eval(rows, [("ours", m) for m in present], SETS)
-        order = [m for m, _ in ABLATIONS[1:]]  # the paper: no_motion > fixed_grid > unified
-        result["table5"] += orderings_from_eval(rows, [(a, b) for i, a in enumerate(order) for b in order[i + 1:]
-                                                       if a in present and b in present], SETS)
-        result["table5_not_measured"] = [m for m, _ in ABLATIONS[1:] if m not in present]
         bar_figure(summary, MASKING, "Table 4: token masking", args.figures / "table4_masking.png", PAPER_T4)
-        bar_figure(summary, ABLATIONS, "Table 5: ablations", args.figures / "table5_ablations.png", PAPER_T5)
+        t5_rows, t5_summary = rows, summary
+        result["table5_steps"] = table5_steps(ev.get("models", {}))
+    if args.table5.is_file():
+        t5 = json.loads(args.table5.read_text())
+        t5_rows, t5_summary = t5["rows"], t5["summary_by_set"]
+        result["inputs"]["table5"] = str(args.table5)
+        result["table5_steps"] = table5_steps(t5.get("models", {}))
+    if t5_rows is not None:
+        present = [m for m, _ in ABLATIONS[1:] if any(m in t5_summary.get(s, {}) for s in SETS)]
+        steps = {result.get("table5_steps", {}).get(m) for m in ["ours", *present]}
+        result["table5"] = orderings_from_eval(t5_rows, [("ours", m) for m in present], SETS)
+        order = [m for m, _ in ABLATIONS[1:]]  # the paper: no_motion > fixed_grid > unified
+        result["table5"] += orderings_from_eval(t5_rows, [(a, b) for i, a in enumerate(order) for b in order[i + 1:]
+                                                          if a in present and b in present], SETS)
+        if len(steps) > 1:  # checkpoints at different training steps: no ordering is a fair comparison
+            for o in result["table5"]:
+                o["verdict"] = f"unequal steps ({o['verdict']})"
+        result["table5_not_measured"] = [m for m, _ in ABLATIONS[1:] if m not in present]
+        bar_figure(t5_summary, ABLATIONS, "Table 5: ablations", args.figures / "table5_ablations.png", PAPER_T5)
     for key, path, fn in (("table2", args.table2, table2_orderings), ("table3", args.table3, table3_orderings)):
         if path.is_file():
             result["inputs"][key] = str(path)
@@ -174,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             unit = d.get("unit", "dB") if d else ""
             diff = f"{d['mean']:+.2f} ± {d['se']:.2f} {unit}" + (f" (n={d['n']})" if d and d.get("n") else "") if d else "—"
             print(f"  {o['claim']:45s} {o.get('set', ''):10s} {diff:28s} {o['verdict']}")
+    if result.get("table5_steps"):
+        print(f"  table 5 training steps: {result['table5_steps']}")
     if result.get("table5_not_measured"):
         print(f"  table 5 not measured yet: {', '.join(result['table5_not_measured'])}")
     print(f"-> {args.out}")

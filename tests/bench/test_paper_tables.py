@@ -44,3 +44,42 @@ def test_orderings_hold_reverse_or_stay_unresolved_by_two_standard_errors(bench,
     assert result["table2"] == result["table3"] == "not measured"
     assert (tmp_path / "fig" / "table4_masking.png").stat().st_size > 1000
     assert (tmp_path / "fig" / "table5_ablations.png").stat().st_size > 1000
+
+
+def _with_steps(path, steps: dict[str, int | None]):
+    data = json.loads(path.read_text())
+    data["models"] = {key: {"training_step": step} for key, step in steps.items()}
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_table5_comes_from_its_own_file_of_checkpoints_at_one_step(bench, tmp_path):
+    ev = _eval_file(tmp_path / "eval.json", {"ours": 0.0, "ours_no_dynamic": -1.0, "ours_no_static": -0.5,
+                                             "unified": 0.5})
+    t5 = _with_steps(_eval_file(tmp_path / "t5.json", {"ours": 0.0, "unified": -0.5, "no_motion_isolation": -1.0,
+                                                       "fixed_grid": 0.3}, seed=1),
+                     {"main": 6000, "unified": 6000, "no_motion": 6000, "fixed_grid": 6000})
+    out = tmp_path / "tables.json"
+    none = str(tmp_path / "none.json")
+    assert bench.main(["--eval", str(ev), "--table2", none, "--table3", none, "--table5", str(t5),
+                       "--figures", str(tmp_path / "fig"), "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    t = {o["claim"]: o for o in result["table5"] if o["set"] == "far"}
+    assert t["ours > unified"]["verdict"] == "holds"  # from t5.json; eval.json's unified is the better one
+    assert t["ours > no_motion_isolation"]["verdict"] == "holds"
+    assert t["ours > fixed_grid"]["verdict"] == "reversed"
+    assert result["table5_steps"] == {"ours": 6000, "no_motion_isolation": 6000, "fixed_grid": 6000, "unified": 6000}
+    assert result["table5_not_measured"] == []
+
+
+def test_table5_checkpoints_at_different_steps_are_not_ranked(bench, tmp_path):
+    t5 = _with_steps(_eval_file(tmp_path / "t5.json", {"ours": 0.0, "unified": -0.5, "fixed_grid": -1.0}),
+                     {"main": 6000, "unified": 6000, "fixed_grid": 2500})
+    out = tmp_path / "tables.json"
+    none = str(tmp_path / "none.json")
+    assert bench.main(["--eval", none, "--table2", none, "--table3", none, "--table5", str(t5),
+                       "--figures", str(tmp_path / "fig"), "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    verdicts = {o["verdict"] for o in result["table5"]}
+    assert verdicts and all(v.startswith("unequal steps") for v in verdicts)
+    assert result["table5_not_measured"] == ["no_motion_isolation"]
