@@ -75,10 +75,12 @@ def orderings_from_eval(rows: list[dict[str, Any]], pairs: list[tuple[str, str]]
 
 
 def table5_steps(models: dict[str, Any]) -> dict[str, int | None]:
-    """Training step of each Table 5 method's model in an eval file's ``models`` (keys main, unified,
-    no_motion, fixed_grid as ``vt4dcodec.eval`` writes them; None for a shipped model, which records none)."""
-    key = {"ours": "main", "no_motion_isolation": "no_motion"}
-    return {m: models[key.get(m, m)].get("training_step") for m, _ in ABLATIONS if key.get(m, m) in models}
+    """Training step of each Table 5 method's model in an eval file's ``models`` (keyed by model, as
+    ``vt4dcodec.eval`` writes them; None for a shipped model, which records none)."""
+    from vt4dcodec.eval.protocol import TOKEN_METHODS  # method -> (label, (model key, ...))
+
+    keys = {m: TOKEN_METHODS[m][1][0] for m, _ in ABLATIONS}
+    return {m: models[keys[m]].get("training_step") for m, _ in ABLATIONS if keys[m] in models}
 
 
 def bar_figure(summary: dict[str, Any], methods: tuple[tuple[str, str], ...], title: str, path: Path,
@@ -130,8 +132,7 @@ def table2_orderings(t2: dict[str, Any]) -> list[dict[str, Any]]:
                     else "holds" if speed >= 3.4 else f"not reached ({speed:.2f}x)"})
     for name, p in t2["paired"].items():
         out.append({"claim": f"{name.split(' - ')[0]} quality >= {name.split(' - ')[1]}", "set": "",
-                    "difference_db": p["psnr_db"], "verdict": verdict(p["psnr_db"]) if p["psnr_db"]["mean"] > 0
-                    else "reversed" if p["psnr_db"]["mean"] < -2 * p["psnr_db"]["se"] else "not resolved"})
+                    "difference_db": p["psnr_db"], "verdict": verdict(p["psnr_db"])})
     return out
 
 
