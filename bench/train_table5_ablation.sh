@@ -10,7 +10,8 @@
 # As the vt4d-tiny 1.0 pair was run (docs/training.md, "After 0.13.0"): steps 0-600 without the Z_d diversity
 # hinge, stopped at the step-600 checkpoint (--stop-at 600) and resumed with --dynamic-diversity 1.0, to step 6,000.
 # Run two ablations side by side on two cores (one thread each); PREFILL_WORKERS > 0 fills the scene cache
-# first (a fresh machine: ~15 min with 2).
+# first (a fresh machine: ~15 min with 2). THREADS=2 gives a run both cores once the other has finished
+# (torch threads only; the recipe and its data order are unchanged, as the pair itself ran on two).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 NAME=${1:?usage: train_table5_ablation.sh NAME FLAG BUDGET_S [PREFILL]}; FLAG=${2:?FLAG, e.g. motion_isolation=false}
@@ -20,7 +21,7 @@ PYTHON=${PYTHON:-python}
 OUT=checkpoints/vt4d-tiny-1.0-$NAME
 CMD=("$PYTHON" -m vt4dcodec.model.train.tokenizer --autoencoder-from vt4d-tiny --out "$OUT"
   --steps 6000 --warmup 200 --lr 3e-4 --scenes 512 --cameras 10 --cache runs/scene_cache --batch-size 8
-  --workers 1 --threads 1 --cache-latents --recon-share 0.3 --neighbour-sigma 45 --tau-one 1.0
+  --workers 1 --threads "${THREADS:-1}" --cache-latents --recon-share 0.3 --neighbour-sigma 45 --tau-one 1.0
   --saturation-weight 0.05 --drop-static 0.1 --multi-share 0.6 --multi-views 2,4,5,5,5 --cell-weight 0.25
   --ssim-weight 0.5 --ckpt-every 100 --log-every 25 --no-progress
   --model-id "vt4d-tiny-$NAME" --model-version 1.0.0
