@@ -81,7 +81,9 @@ def summarize_sets(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[s
 
 
 # --- figure -----------------------------------------------------------------------------------------
-FIGURE_COLUMNS = ("ours", "ours_no_dynamic", "unified", "nearest_frame", "depth_warp")
+# every token method a run evaluated is drawn (Table 5's figure shows all four trainings), then the baselines
+FIGURE_COLUMNS = ("ours", "ours_no_dynamic", "no_motion_isolation", "fixed_grid", "unified", "nearest_frame",
+                  "depth_warp")
 
 
 def save_figure(path: str | Path, kept: dict[int, dict[str, dict[str, Any]]], *, view: int = 0,
