@@ -81,7 +81,8 @@ def summarize_sets(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[s
 
 
 # --- figure -----------------------------------------------------------------------------------------
-# every token method a run evaluated is drawn (Table 5's figure shows all four trainings), then the baselines
+# column order of the scene figures: every method of METHODS but the Z_d-only render and the flat reference
+# (tests/eval/test_report_figure.py keeps the two lists in step); the methods a run did not predict are skipped
 FIGURE_COLUMNS = ("ours", "ours_no_dynamic", "no_motion_isolation", "fixed_grid", "unified", "nearest_frame",
                   "depth_warp")
 
