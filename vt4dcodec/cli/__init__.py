@@ -67,6 +67,11 @@ def trajectory_label(spec: str, index: int) -> str:
     return f"{index:02d}_" + "".join(c if c.isalnum() else "_" for c in spec)[:48]
 
 
+def plural(n: int, word: str, words: str | None = None) -> str:
+    """``n`` and ``word`` in the number that fits: "1 scene", "3 scenes", "0 scenes"."""
+    return f"{n} {word if n == 1 else (words or word + 's')}"
+
+
 def int_at_least(minimum: int):
     """An argparse type: an integer >= ``minimum`` (a usage error, exit code 2, otherwise)."""
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -19,8 +20,8 @@ from ..demo import run_demo
 from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import VIDEO_FORMATS, write_frames
-from . import (add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int, positive_int,
-               progress, read_head, storage_options, trajectory_label, working)
+from . import (EXIT_INTERRUPTED, add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int,
+               plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
 
 __all__ = ["register"]
 
@@ -118,6 +119,38 @@ def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None
     return most
 
 
+COMMIT_SECONDS = 10.0  # encode --archive commits at the first capture boundary after this long
+
+
+def _scene_key(cap: Any, names: list[str], start: int) -> str:
+    """The archive key of a scene: CAPTURE_ID/CAMERAS/CLIP_START (CAMERAS 'all' for every camera of the capture)."""
+    encoded = "all" if len(names) > 1 and len(names) == len(cap.camera_names) else ".".join(names)
+    return f"{cap.capture_id}/{encoded}/{int(start):06d}"
+
+
+def _expected_keys(cap: Any, args: argparse.Namespace, frames: int) -> list[str]:
+    """The keys encoding ``cap`` will write (read from its manifest, before any encoding), for --skip-existing."""
+    if args.cameras is not None:
+        names = parse_camera_list(args.cameras, cap.camera_names, label="--cameras")
+    else:
+        names = [args.camera or cap.camera_names[0]]
+    starts = range(0, cap.num_frames - frames + 1, frames) if args.split else [args.start]
+    return [_scene_key(cap, names, s) for s in starts]
+
+
+def _save_keeping_mode(scene: Any, path: str) -> int:
+    """save(scene, path), keeping the permission bits of a file it replaces (save writes a new file and
+    renames it over the old one, which would otherwise get the default mode)."""
+    try:
+        mode = os.stat(path).st_mode & 0o7777
+    except FileNotFoundError:
+        mode = None
+    n = save(scene, path)
+    if mode is not None:
+        os.chmod(path, mode)
+    return n
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
     if args.output is None and args.archive is None:
         raise CaptureError("give -o FILE.vt4d (one scene) or --archive FILE.vt4da (many scenes)")
@@ -125,6 +158,10 @@ def cmd_encode(args: argparse.Namespace) -> int:
         raise CaptureError("give -o FILE.vt4d or --archive FILE.vt4da, not both")
     if args.replace and args.archive is None:
         raise CaptureError("--replace applies to --archive (-o FILE.vt4d is always replaced)")
+    if args.skip_existing and args.archive is None:
+        raise CaptureError("--skip-existing applies to --archive")
+    if args.skip_existing and args.replace:
+        raise CaptureError("give --skip-existing (keep the scenes there) or --replace (encode them again), not both")
     captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
@@ -143,9 +180,15 @@ def cmd_encode(args: argparse.Namespace) -> int:
         shard = Path(_shard_path(args.archive, rank, world))
         shard.parent.mkdir(parents=True, exist_ok=True)  # e.g. shards/ on a fresh cluster job
         writer = ArchiveWriter(shard)
+    committed_at, skipped = time.monotonic(), []
     try:
         for cap_dir in progress(args, mine, len(mine), "encode", "capture"):
             cap = read_manifest(cap_dir)  # the encode reads only each clip's frames of the encoded cameras
+            if writer is not None and args.skip_existing:
+                keys = _expected_keys(cap, args, model.config.frames)
+                if keys and all(k in writer for k in keys):  # encoded by an earlier run: nothing to do
+                    skipped.extend(keys)
+                    continue
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
                                             seed=args.seed, fit=args.fit)
@@ -155,17 +198,30 @@ def cmd_encode(args: argparse.Namespace) -> int:
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
-                    names = info.get("source_cameras", [info["source_camera"]])
-                    encoded = "all" if len(names) > 1 and len(names) == len(cap.camera_names) else ".".join(names)
-                    key = f"{cap.capture_id}/{encoded}/{info['clip_start']:06d}"
+                    key = _scene_key(cap, info.get("source_cameras", [info["source_camera"]]), info["clip_start"])
+                    if args.skip_existing and key in writer:
+                        skipped.append(key)
+                        continue
                     data = dumps(scene)
                     writer.append(key, data, replace=args.replace)
                     results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
                 else:
-                    n = save(scene, args.output)
+                    n = _save_keeping_mode(scene, args.output)
                     results.append({"file": args.output, "bytes": n, "capture": str(cap_dir)})
+            if writer is not None and time.monotonic() - committed_at >= COMMIT_SECONDS:
+                writer.commit()  # periodic commits: a crash or Ctrl-C loses at most the last few scenes
+                committed_at = time.monotonic()
         if writer is not None:
             writer.commit()
+    except KeyboardInterrupt:
+        if writer is None:
+            raise
+        writer.commit()  # keep every scene finished so far (a capture is appended whole, after its encode)
+        kept = len(results)
+        print(f"vt4d encode: interrupted: kept the {plural(kept, 'scene')} this run encoded in {writer.path} "
+              f"({plural(len(writer), 'scene')} in all); run the same command with --skip-existing to encode "
+              "the rest", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         if writer is not None:
             writer.close(commit=False)
@@ -174,9 +230,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
                "model": fp.to_dict(), "encoding": args.encoding, "rank": rank, "world_size": world,
-               "archive": _shard_path(args.archive, rank, world) if args.archive else None}
+               "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
-    lines.append(f"encoded {len(results)} scene(s) with {fp.short()} in {elapsed:.1f} s "
+    if skipped:
+        lines.append(f"skipped {plural(len(skipped), 'scene')} already in the archive (--skip-existing)")
+    lines.append(f"encoded {plural(len(results), 'scene')} with {fp.short()} in {elapsed:.1f} s "
                  f"(model loaded in {load_s:.1f} s before that)")
     emit(args, summary, lines)
     return 0
@@ -255,6 +313,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip); its folder is created")
     p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
     p.add_argument("--replace", action="store_true", help="replace scenes whose key is already in --archive")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="leave out scenes whose key is already in --archive (resume an interrupted run)")
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
     p.add_argument("--cameras", metavar="all|CAM,CAM,...",
                    help="encode several cameras into one scene: 'all' or a comma-separated list (the first is the "
