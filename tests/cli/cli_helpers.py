@@ -17,6 +17,7 @@ import threading
 from functools import partial
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Iterator
 
 import numpy as np
@@ -46,6 +47,30 @@ def make_scene(*, kind: str | None = None, capture: str | None = None, metadata=
     rng = np.random.default_rng(0)
     return Scene(rng.normal(size=(4, 8)).astype(np.float32), rng.normal(size=(2, 8)).astype(np.float32), cams, fp,
                  metadata=metadata or {}, provenance=None if kind is None else Provenance.now(capture, kind))
+
+
+class StandInCodec:
+    """codec.encode's stand-in for tests of the command's bookkeeping (no model): a small scene per call,
+    Ctrl-C (KeyboardInterrupt) at call ``interrupt_at``; ``on_call(n)`` runs at the n-th call."""
+
+    def __init__(self, monkeypatch, interrupt_at=None, on_call=None):
+        from vt4dcodec import codec
+
+        self.calls: list[str] = []
+        self.interrupt_at, self.on_call = interrupt_at, on_call
+        fp = make_scene().fingerprint
+        monkeypatch.setattr(codec, "load_encoder", lambda *a, **k: SimpleNamespace(config=SimpleNamespace(frames=8)))
+        monkeypatch.setattr(codec, "model_fingerprint", lambda model: fp)
+        monkeypatch.setattr(codec, "encode", self.encode)
+
+    def encode(self, cap, model=None, encoding=None, *, start=0, **options):
+        self.calls.append(cap.capture_id)
+        if self.on_call is not None:
+            self.on_call(len(self.calls))
+        if len(self.calls) == self.interrupt_at:
+            raise KeyboardInterrupt
+        return make_scene(kind="encoded", metadata={"vt4d": {"source_camera": cap.camera_names[0],
+                                                             "clip_start": start}})
 
 
 SMALL = dict(width=64, heads=2, renderer_layers=1, spatial_layers=1, static_query_layers=1, track_layers=1,

@@ -1,8 +1,11 @@
 """Fixtures of the command-line tests (helpers in cli_helpers.py): a torch-free scene file, a small random
-model directory, a capture directory and a scene encoded from it by `vt4d encode`."""
+model directory, a capture directory and a scene encoded from it by `vt4d encode`, and small captures for tests that stand in
+for the codec (cli_helpers.StandInCodec)."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -42,3 +45,20 @@ def encoded_file(tmp_path_factory, small_model, capture_dir) -> Path:
     r = vt4d("encode", capture_dir, "--model", small_model, "-o", out, "-q")
     assert r.returncode == 0, r.stderr
     return out
+
+
+@pytest.fixture(scope="session")
+def small_captures(tmp_path_factory):
+    """A folder of three small captures (one camera, 8 frames of 16x16), ids cap-a, cap-b and cap-c."""
+    from vt4dcodec.capture.io import write_capture
+    from vt4dcodec.synth import SynthConfig, generate_scene
+
+    root = tmp_path_factory.mktemp("captures")
+    write_capture(generate_scene(3, split="test", config=SynthConfig(num_cameras=1, height=16, width=16)).capture,
+                  root / "cap-a")
+    for name in ("cap-a", "cap-b", "cap-c"):
+        if name != "cap-a":
+            shutil.copytree(root / "cap-a", root / name)
+        manifest = json.loads((root / name / "capture.json").read_text())
+        (root / name / "capture.json").write_text(json.dumps({**manifest, "capture_id": name}))
+    return root

@@ -65,6 +65,7 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
                 raise
             w._close_fd()
             w._lock.release_and_remove()
+        os.chmod(tmp, os.stat(path).st_mode & 0o7777)  # the compacted archive keeps the old file's permissions
         os.replace(tmp, path)
         if durable:
             _fsync_dir(path)

@@ -116,6 +116,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
             tmp = f"{target}.tmp-{os.getpid()}"
             with open(tmp, "wb") as f:
                 f.write(data)
+            if os.path.exists(target):  # a file written over keeps its permission bits
+                os.chmod(tmp, os.stat(target).st_mode & 0o7777)
             os.replace(tmp, target)
     emit(args, {"output": args.output, "files": [{"key": e.key, "path": t} for e, t in zip(entries, targets)]},
          [f"extracted {len(entries)} scenes to {args.output} (key a/b/c -> a/b/c.vt4d; `vt4d pack "
