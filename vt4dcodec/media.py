@@ -10,12 +10,15 @@ import numpy as np
 
 from .errors import Vt4dError
 
-__all__ = ["VIDEO_FORMATS", "MP4_CODEC", "MAX_UPSCALE", "write_mp4", "read_mp4", "mp4_codec_name", "upscale",
+__all__ = ["VIDEO_FORMATS", "MP4_CODEC", "MAX_UPSCALE", "DEFAULT_FPS", "CAPTURE_KEY", "scene_fps", "write_mp4",
+           "read_mp4", "mp4_codec_name", "upscale",
            "side_by_side", "write_png_frames", "write_frames", "psnr"]
 
 VIDEO_FORMATS = ("mp4", "png", "npz")
 MP4_CODEC = "h264"   # what every mp4 the project writes holds (decoder name, as PyAV reports it)
 MAX_UPSCALE = 16     # nearest-neighbour factor for viewing; 64x64 renders x4 -> 256x256
+DEFAULT_FPS = 8.0    # videos of scenes that record no frame rate (the synthetic captures' rate)
+CAPTURE_KEY = "capture"  # scene metadata {"capture": {"fps": F}}: the frame rate of the capture it was encoded from
 _CRF = 16            # libx264 constant-rate factor: visually lossless for small renders, a few KB a clip
 
 
@@ -26,6 +29,24 @@ def _check(frames: np.ndarray) -> np.ndarray:
     if frames.shape[0] == 0:
         raise Vt4dError("frames must hold at least one frame")
     return frames
+
+
+def scene_fps(scene: object, default: float = DEFAULT_FPS) -> float:
+    """The frame rate a scene's videos play at: the capture's, as ``vt4d encode`` records it in the metadata
+    (``{"capture": {"fps": F}}``), else the one its cameras' timestamps give (median frame interval), else
+    ``default``."""
+    metadata = getattr(scene, "metadata", None) or {}
+    recorded = metadata.get(CAPTURE_KEY) if isinstance(metadata, dict) else None
+    fps = recorded.get("fps") if isinstance(recorded, dict) else None
+    if isinstance(fps, (int, float)) and not isinstance(fps, bool) and np.isfinite(fps) and fps > 0:
+        return float(fps)
+    cameras = getattr(scene, "cameras", None)
+    times = getattr(cameras, "timestamps", None)
+    if times is not None and len(times) > 1:
+        step = float(np.median(np.diff(np.asarray(times, np.float64))))
+        if np.isfinite(step) and step > 0:
+            return 1.0 / step
+    return default
 
 
 def upscale(frames: np.ndarray, factor: int) -> np.ndarray:
@@ -55,7 +76,7 @@ def side_by_side(*videos: np.ndarray, gap: int = 2) -> np.ndarray:
     return np.concatenate(parts, axis=2)
 
 
-def write_mp4(path: str | os.PathLike, frames: np.ndarray, fps: float = 8.0, *, scale: int = 1) -> Path:
+def write_mp4(path: str | os.PathLike, frames: np.ndarray, fps: float = DEFAULT_FPS, *, scale: int = 1) -> Path:
     """Write RGB ``frames`` (T, H, W, 3) uint8 as an H.264 (High profile, yuv420p) ``.mp4`` through PyAV:
     plays in browsers, notebooks and common players.  ``scale`` > 1 enlarges the frames by pixel
     repetition first (for viewing small renders).  H.264 in yuv420p needs even sides: an odd width or
@@ -120,7 +141,7 @@ def write_png_frames(directory: str | os.PathLike, frames: np.ndarray) -> Path:
     return directory
 
 
-def write_frames(stem: str | os.PathLike, frames: np.ndarray, fmt: str, *, fps: float = 8.0,
+def write_frames(stem: str | os.PathLike, frames: np.ndarray, fmt: str, *, fps: float = DEFAULT_FPS,
                  extra: dict[str, np.ndarray] | None = None, scale: int = 1) -> Path:
     """Write ``frames`` as ``stem.mp4``, ``stem/`` (PNG frames) or ``stem.npz`` (key ``frames`` plus
     ``extra`` arrays such as the trajectory's K and w2c).  ``scale`` (nearest-neighbour upscaling for

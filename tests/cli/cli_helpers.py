@@ -69,8 +69,32 @@ class StandInCodec:
             self.on_call(len(self.calls))
         if len(self.calls) == self.interrupt_at:
             raise KeyboardInterrupt
-        return make_scene(kind="encoded", metadata={"vt4d": {"source_camera": cap.camera_names[0],
-                                                             "clip_start": start}})
+        return make_scene(kind="encoded", metadata={**(options.get("metadata") or {}), "vt4d": {
+            "source_camera": cap.camera_names[0], "clip_start": start}})
+
+
+class StandInDecoder:
+    """SceneDecoder's stand-in for tests of `vt4d decode`'s outputs (no model): every trajectory renders
+    ``frames`` grey 16x16 frames; ``opened`` holds the scenes it was opened on."""
+
+    def __init__(self, monkeypatch, frames: int = 3):
+        import vt4dcodec.cli.codec_commands as commands
+
+        self.frames, self.opened = frames, []
+        self.model = SimpleNamespace(decode_steps=1)
+        fp = make_scene().fingerprint
+        monkeypatch.setattr(commands.SceneDecoder, "open", self.open)
+        monkeypatch.setattr(commands, "model_fingerprint", lambda model: fp)
+
+    def open(self, scene, **options):
+        self.opened.append(scene)
+        return self
+
+    def trajectory(self, spec, capture=None):
+        return make_scene().cameras
+
+    def render(self, trajectory, **options):
+        return np.full((self.frames, 16, 16, 3), 128, np.uint8)
 
 
 SMALL = dict(width=64, heads=2, renderer_layers=1, spatial_layers=1, static_query_layers=1, track_layers=1,

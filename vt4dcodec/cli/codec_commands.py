@@ -19,7 +19,7 @@ from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecode
 from ..demo import run_demo
 from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
-from ..media import VIDEO_FORMATS, write_frames
+from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
 from . import (EXIT_INTERRUPTED, add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int,
                plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
 
@@ -189,12 +189,13 @@ def cmd_encode(args: argparse.Namespace) -> int:
                 if keys and all(k in writer for k in keys):  # encoded by an earlier run: nothing to do
                     skipped.extend(keys)
                     continue
+            recorded = {CAPTURE_KEY: {"fps": float(cap.fps)}}  # decoded videos play at the capture's rate
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                            seed=args.seed, fit=args.fit)
+                                            seed=args.seed, fit=args.fit, metadata=recorded)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                       start=args.start, seed=args.seed, fit=args.fit)]
+                                       start=args.start, seed=args.seed, fit=args.fit, metadata=recorded)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -257,9 +258,34 @@ def _open_scene_source(args: argparse.Namespace):
     return load(source, **options), stem
 
 
+FILE_FORMATS = {".mp4": "mp4", ".npz": "npz"}  # decode -o NAME.mp4 / NAME.npz: one trajectory, that file
+
+
+def _decode_target(args: argparse.Namespace, count: int) -> Path | None:
+    """The file ``-o`` names (``-o v.mp4`` with one trajectory), or None for a folder of outputs; sets
+    args.format from the file's extension.  Checked before the scene is read or a model loaded."""
+    out = Path(args.output)
+    fmt = FILE_FORMATS.get(out.suffix.lower())
+    if fmt is None or out.is_dir():
+        args.format = args.format or "mp4"
+        if out.exists() and not out.is_dir():
+            raise CaptureError(f"-o {out} is a file; give a folder for the outputs, or a .mp4/.npz name for one "
+                               "trajectory")
+        return None
+    if args.format not in (None, fmt):
+        raise CaptureError(f"-o {out} names a .{fmt} file but --format is {args.format}; give a folder for "
+                           f"--format {args.format}")
+    if count != 1:
+        raise CaptureError(f"-o {out} names one file, but {count} trajectories are rendered; give a folder "
+                           "(-o DIR) for one output per trajectory")
+    args.format = fmt
+    return out
+
+
 def cmd_decode(args: argparse.Namespace) -> int:
-    check_upscale(args)
     specs = args.trajectory or ["source"]
+    target = _decode_target(args, len(specs))
+    check_upscale(args)
     for spec in specs:  # every spec checked before the scene is read or a model loaded
         check_trajectory_spec(spec)
     scene, stem = _open_scene_source(args)
@@ -267,20 +293,22 @@ def cmd_decode(args: argparse.Namespace) -> int:
     with working(args, "loading the model"):
         decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
     trajectories = [decoder.trajectory(s, capture=args.capture) for s in specs]  # fail on a bad spec before any rendering
-    out_dir = Path(args.output)
+    out_dir = Path(args.output) if target is None else target.parent
     out_dir.mkdir(parents=True, exist_ok=True)
+    fps = scene_fps(scene)  # the capture's frame rate, as the file records it
     started = time.perf_counter()
     outputs = []
     for i, (spec, traj) in enumerate(progress(args, list(zip(specs, trajectories)), len(specs), "decode",
                                               "trajectory")):
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
-        path = write_frames(out_dir / f"{stem}_{trajectory_label(spec, i)}", frames, args.format,
-                            extra={"K": traj.K, "w2c": traj.w2c}, scale=args.upscale)
+        name = target if target is not None else out_dir / f"{stem}_{trajectory_label(spec, i)}"
+        path = write_frames(name, frames, args.format, fps=fps, extra={"K": traj.K, "w2c": traj.w2c},
+                            scale=args.upscale)
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
     load_s = started - loading
-    result = {"outputs": outputs, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
+    result = {"outputs": outputs, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3), "fps": fps,
               "steps": decoder.model.decode_steps if args.steps is None else args.steps, "seed": args.seed,
               "model": model_fingerprint(decoder.model).to_dict()}
     emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
@@ -347,8 +375,10 @@ def register(subparsers: Any) -> None:
                    help="trajectory: 'source', 'camera:NAME', a preset spec, or a JSON file (repeatable; default source)")
     p.add_argument("--capture", metavar="DIR", default=None,
                    help="the capture directory the scene was encoded from (for -t camera:NAME)")
-    p.add_argument("-o", "--output", required=True, help="output directory")
-    p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="mp4 video, PNG frames or .npz arrays")
+    p.add_argument("-o", "--output", required=True,
+                   help="output directory (one file per trajectory), or with one trajectory a .mp4 or .npz file")
+    p.add_argument("--format", choices=VIDEO_FORMATS, default=None,
+                   help="mp4 video (default), PNG frames or .npz arrays (default: the -o file's extension)")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
                    help="Euler steps of the rectified-flow sampler (default: the model's recorded best-fidelity "
                         "setting, decode_steps in its config.json)")
