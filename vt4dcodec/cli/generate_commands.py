@@ -14,8 +14,8 @@ from ..codec import DEFAULT_STEPS, SceneDecoder, load_model, model_fingerprint
 from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
-from ..media import VIDEO_FORMATS, write_frames
-from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, positive_int, progress, say,
+from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
+from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, plural, positive_int, progress,
                trajectory_label, working)
 
 __all__ = ["register", "split_view_specs"]
@@ -84,19 +84,19 @@ def cmd_generate(args: argparse.Namespace) -> int:
     with working(args, f"sampling the prior ({args.steps} {args.sampler} steps)"):
         scene = generate(cap.frames[camera], cap.cameras[camera], args.anchor, seed=args.seed, model=prior,
                          steps=args.steps, method=args.sampler, start=args.start, encoding=args.encoding,
-                         metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera}},
+                         metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera},
+                                   CAPTURE_KEY: {"fps": float(cap.fps)}},
                          source_capture_id=cap.capture_id)
     sampled = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_path = out_dir / "scene.vt4d"
     size = save(scene, scene_path)
-    say(args, f"sampled 1 token state -> {scene_path} ({size} bytes)")
     decoder = SceneDecoder(scene=scene, model=tokenizer)
     trajectories = [decoder.trajectory(v) for v in views]
     outputs = []
     for i, (spec, traj) in enumerate(progress(args, list(zip(views, trajectories)), len(views), "render", "view")):
         frames = decoder.render(traj, steps=args.render_steps, seed=args.seed)
-        path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format,
+        path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format, fps=cap.fps,
                             extra={"K": traj.K, "w2c": traj.w2c}, scale=args.upscale)
         outputs.append({"view": spec, "path": str(path), "frames": int(frames.shape[0])})
     done = time.perf_counter()
@@ -110,7 +110,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     emit(args, result, [f"sampled 1 token state in {result['sample_seconds']:.1f} s -> {scene_path} ({size} bytes); "
                         f"models loaded in {result['load_seconds']:.1f} s before that"]
          + [f"{o['view']} -> {o['path']}" for o in outputs]
-         + [f"rendered {len(outputs)} view(s) from the one sample in {result['render_seconds']:.1f} s"])
+         + [f"rendered {plural(len(outputs), 'view')} from the one sample in {result['render_seconds']:.1f} s"])
     return 0
 
 
