@@ -18,6 +18,13 @@
    version 1.1 archive, and ``--growth-v10`` commits into a version 1.0 archive (whole index per
    commit) for comparison: file size against the payload and one index, commit time per 1,000
    commits (median, mean, p99, max), open time of the result, and the size after ``compact``.
+   ``--commit-sizes 1-2`` makes each commit hold 1 or 2 scenes at random (seeded) instead of one;
+   ``--scene small`` uses ~400-byte records (4x8 static + 2x8 dynamic int4-rans tokens, 1 frame)
+   instead of the ~11 KB ones.  Size targets (issue 52): 10,000 commits of 1-2 scenes at random
+   <= 1.3x the payload, opening <= 20 segments.
+
+    python bench/bench_archive.py --growth 10000 --commit-sizes 1-2 --out bench/results/archive_growth_mixed.json
+    python bench/bench_archive.py --growth 2000 --scene small --out bench/results/archive_growth_small.json
 
 Writes ``bench/results/archive.json`` (or ``archive_growth.json``); archives live in the workdir and
 are deleted afterwards.
@@ -52,10 +59,13 @@ COLD_READS = 1000
 COLD_FLUSH_BYTES = 64 << 20
 
 
-def _pool() -> list[tuple[bytes, dict]]:
+def _pool(scene: str = "default") -> list[tuple[bytes, dict]]:
     out = []
     for seed in range(POOL):
-        rec = example_record(seed)
+        if scene == "small":
+            rec = example_record(seed, static_shape=(4, 8), dynamic_shape=(2, 8), frames=1, encoding="int4-rans")
+        else:
+            rec = example_record(seed)
         out.append((rec, summarize_payload(rec)))
     return out
 
@@ -162,18 +172,23 @@ def _open_ms(path: str, repeats: int = 7) -> tuple[float, int, float]:
     return min(times) * 1e3, reads, statistics.median(times) * 1e3
 
 
-def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, dict]]) -> dict:
-    """n single-scene commits; commit times per 1,000; file size vs payload + one index."""
+def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, dict]],
+           sizes: tuple[int, int] = (1, 1)) -> dict:
+    """n commits of sizes[0]..sizes[1] scenes (seeded); commit times per 1,000; file size vs payload."""
     times = []
-    payload = 0
+    payload = scenes = most = 0
+    rng = random.Random(52)
     with ArchiveWriter(path, "w", durable=False, version=version) as w:
-        for i in range(n):
-            rec, summary = pool[i % POOL]
+        for _ in range(n):
             t = time.perf_counter()
-            w.append(f"scene-{i:07d}", rec, summary=summary, validate=False)
+            for _ in range(rng.randint(*sizes)):
+                rec, summary = pool[scenes % POOL]
+                w.append(f"scene-{scenes:07d}", rec, summary=summary, validate=False)
+                payload += len(rec)
+                scenes += 1
             w.commit()
             times.append(time.perf_counter() - t)
-            payload += len(rec)
+            most = max(most, len(w._segments))  # index segments the commit names (1.1)
     buckets = []
     for b in range(0, n, 1000):
         chunk = sorted(times[b: b + 1000])
@@ -187,31 +202,34 @@ def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, 
     report = compact_archive(path, version=version, durable=False)
     with open_archive(path) as ar:  # one index: what the compacted archive's single index holds
         one_index = ar.commit.index_length
-    return {"version": f"{version[0]}.{version[1]}", "commits": n, "payload_bytes": payload,
+    return {"version": f"{version[0]}.{version[1]}", "commits": n, "scenes_per_commit": f"{sizes[0]}-{sizes[1]}",
+            "scenes": scenes, "payload_bytes": payload,
             "file_bytes": file_bytes, "one_index_bytes": one_index,
             "file_over_payload": file_bytes / payload,
             "file_over_payload_plus_one_index": file_bytes / (payload + one_index),
             "bound_1_5x_payload_plus_one_index": 1.5 * payload + one_index,
             "within_bound": file_bytes <= 1.5 * payload + one_index,
-            "segments_at_end": segments, "open_ms_best_of_7": open_ms, "open_ms_median_of_7": open_median,
+            "segments_at_end": segments, "segments_max_over_commits": most, "open_ms_best_of_7": open_ms, "open_ms_median_of_7": open_median,
             "open_reads": open_reads,
             "compacted_bytes": report.bytes_after, "commit_time_per_1000": buckets,
             "commit_ms_total": sum(times) * 1e3}
 
 
 def main_growth(args: argparse.Namespace, pool: list[tuple[bytes, dict]]) -> None:
+    lo, _, hi = args.commit_sizes.partition("-")
+    sizes = (int(lo), int(hi or lo))
     results = {"record_bytes": len(pool[0][0]), "pool": POOL, "python": sys.version.split()[0],
                "machine": platform.machine(), "cpus": os.cpu_count(), "durable": False,
                "command": "python bench/bench_archive.py " + " ".join(sys.argv[1:]), "runs": []}
     try:
         for n, version in ((args.growth, (1, 1)), (args.growth_v10, (1, 0))):
             if n:
-                r = growth(os.path.join(args.workdir, f"g{version[1]}.vt4da"), n, version, pool)
+                r = growth(os.path.join(args.workdir, f"g{version[1]}.vt4da"), n, version, pool, sizes)
                 results["runs"].append(r)
                 print(json.dumps({k: v for k, v in r.items() if k != "commit_time_per_1000"}))
     finally:
         shutil.rmtree(args.workdir, ignore_errors=True)
-    out = os.path.join(HERE, "results", "archive_growth.json")
+    out = args.out if args.out else os.path.join(HERE, "results", "archive_growth.json")
     with open(out, "w") as f:
         json.dump(results, f, indent=1)
     print(f"wrote {out}")
@@ -224,12 +242,18 @@ def main() -> None:
     ap.add_argument("--growth-v10", type=int, default=0, metavar="N", help="N single-scene commits (version 1.0)")
     ap.add_argument("--reads", type=int, default=2000)
     ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "archive.json"))
+    ap.add_argument("--commit-sizes", default="1", metavar="A[-B]",
+                    help="--growth: scenes per commit, drawn uniformly from A..B (seeded)")
+    ap.add_argument("--scene", choices=["default", "small"], default="default",
+                    help="records: ~11 KB (default) or ~400 bytes (small)")
+    ap.add_argument("--out", default=None, help="result JSON (default bench/results/archive.json, "
+                    "or archive_growth.json with --growth)")
     args = ap.parse_args()
     os.makedirs(args.workdir, exist_ok=True)
-    pool = _pool()
+    pool = _pool(args.scene)
     if args.growth or args.growth_v10:
         return main_growth(args, pool)
+    args.out = args.out or os.path.join(HERE, "results", "archive.json")
     results = {"record_bytes": len(pool[0][0]), "pool": POOL, "python": sys.version.split()[0],
                "machine": platform.machine(), "cpus": os.cpu_count(), "random_read": [], "command":
                "python bench/bench_archive.py " + " ".join(sys.argv[1:])}

@@ -6,6 +6,7 @@ for 1.8 MB of scenes); in 1.1 a commit writes a segment of its keys plus the sma
 
 import os
 import struct
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from vt4dcodec.archive import ArchiveWriter, compact_archive, open_archive, repair_archive, verify_archive
 from vt4dcodec.archive.layout import (FLAG_SEGMENTED, FOOTER_SIZE, HEADER_SIZE, MAX_SEGMENTS, crc32, pack_footer,
                                       parse_footer)
-from vt4dcodec.archive.segments import FANOUT, plan_merge
+from vt4dcodec.archive.segments import FANOUT, plan_merge, size_class
 from vt4dcodec.archive.verify import UncommittedTailError
 from vt4dcodec.cli import main
 from vt4dcodec.errors import ArchiveError, FormatError, Vt4dError
@@ -96,11 +97,128 @@ def test_version_1_0_archives_stay_1_0_when_appended(tmp_path):
 
 
 def test_plan_merge_is_tiered():
-    assert plan_merge([], 1) == 0
-    assert plan_merge([1, 1, 1], 1) == 3
-    assert plan_merge([1, 1, 4], 1) == 0
-    assert plan_merge([1, 1, 1, 4, 4, 4], 1) == 6  # 4 ones -> 4, then four 4s -> 16
-    assert plan_merge([10**6] * (MAX_SEGMENTS // 2), 1) == MAX_SEGMENTS // 2  # bounded count
+    assert plan_merge([], 1) == []
+    assert plan_merge([1, 1, 1], 1) == [0, 1, 2]
+    assert plan_merge([1, 1, 4], 1) == []
+    assert plan_merge([1, 1, 1, 4, 4, 4], 1) == [0, 1, 2, 3, 4, 5]  # 4 ones -> 4, then four 4s -> 16
+    assert plan_merge([3, 2, 1], 2) == [0, 1, 2]  # 1, 2 and 3 entries are one class: [4^0, 4^1)
+    assert plan_merge([2, 9, 1, 3], 1) == [0, 2, 3]  # not only the newest: the 9 stays
+    assert plan_merge([5, 2, 2, 2], 1, lambda chosen: 1) == [1, 2, 3]  # replaced keys: stays class 0
+    assert plan_merge([10**6] * (MAX_SEGMENTS // 2), 1) == list(range(MAX_SEGMENTS // 2))  # bounded count
+    assert plan_merge([1, 1, 1, 1, 40], 20) == [0, 1, 2, 3, 4]  # another writer's 4 of a class: fold all
+
+
+def test_size_classes_are_powers_of_four():
+    assert [size_class(c) for c in (0, 1, 2, 3, 4, 15, 16, 63, 64, 255, 256, 2**24)] == [0, 0, 0, 0, 1, 1, 2, 2, 3, 3, 4, 12]
+
+
+def _simulate(commits: list[tuple[int, int]], rng_seed: int = 0) -> dict:
+    """The reference writer's merging (``ArchiveWriter._write_commit``) over key sets: each commit adds
+    ``new`` keys and replaces up to ``replace`` live ones.  Returns the worst per-class and total
+    segment counts seen after any commit, the entries written (the index bytes, in entries) and the
+    entries committed."""
+    import random
+
+    rng = random.Random(rng_seed)
+    segments: list[set[int]] = []
+    live: list[int] = []
+    written = committed = worst_class = worst_total = 0
+    for new, replace in commits:
+        pending = set(range(len(live), len(live) + new)) | set(rng.sample(live, min(replace, len(live))))
+        if not pending:
+            continue
+        keys, folded = set(pending), set()
+
+        def merged_count(chosen):
+            for i in chosen:
+                if i not in folded:
+                    keys.update(segments[i])
+                    folded.add(i)
+            return len(keys)
+
+        merge = set(plan_merge([len(s) for s in segments], len(pending), merged_count))
+        merged_count(sorted(merge))
+        segments = [keys] + [s for i, s in enumerate(segments) if i not in merge]
+        live.extend(range(len(live), len(live) + new))
+        written += len(keys)
+        committed += len(pending)
+        per_class = Counter(size_class(len(s)) for s in segments)
+        worst_class = max(worst_class, max(per_class.values()))
+        worst_total = max(worst_total, len(segments))
+    return {"worst_per_class": worst_class, "worst_segments": worst_total, "written": written,
+            "committed": committed, "scenes": len(live), "segments": len(segments)}
+
+
+def _levels(n: int) -> int:
+    return size_class(n) + 1  # size classes an entry count up to n can be in
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 40) | st.integers(1, 3), st.integers(0, 4) | st.just(0)),
+                min_size=1, max_size=400), st.integers(0, 2**16))
+def test_any_sequence_of_commit_sizes_keeps_the_index_bounded(commits, seed):
+    r = _simulate(commits, seed)
+    assert r["worst_per_class"] <= FANOUT - 1  # FORMAT.md II 5.5: at most 3 segments per size class
+    assert r["worst_segments"] <= (FANOUT - 1) * _levels(r["scenes"])  # so open reads are O(log n)
+    # index bytes: every committed entry is rewritten at most once per size class above its own
+    assert r["written"] <= r["committed"] * _levels(r["committed"])
+
+
+@pytest.mark.parametrize("name, commits, max_segments", [
+    ("1 or 2 scenes at random", [(1 + (i * 7919 % 13 > 6), 0) for i in range(10_000)], 20),
+    ("single scenes", [(1, 0)] * 2_000, 20),
+    ("1, 2, 3, 1, 2, 3, ...", [(i % 3 + 1, 0) for i in range(3_000)], 20),
+    ("replacing while adding", [(i % 2, 2) for i in range(5_000)], 20),
+])
+def test_long_commit_sequences_stay_within_the_bounds(name, commits, max_segments):
+    r = _simulate(commits)
+    assert r["worst_per_class"] <= FANOUT - 1
+    assert r["segments"] <= max_segments and r["worst_segments"] <= (FANOUT - 1) * _levels(r["scenes"])
+    assert r["written"] <= r["committed"] * _levels(r["committed"])
+
+
+def test_mixed_commit_sizes_merge_in_a_real_archive(tmp_path):
+    """The issue-52 reproducer: 24 commits of 1, 2, 3, 1, 2, 3, ... scenes left 24 segments."""
+    path = tmp_path / "a.vt4da"
+    n = 0
+    with ArchiveWriter(path, "w", durable=False) as w:
+        for c in range(24):
+            for _ in range(c % 3 + 1):
+                w.append(f"k{n:04d}", payload_for(f"{n}", 20), validate=False)
+                n += 1
+            w.commit()
+    with open_archive(path) as ar:
+        classes = Counter(size_class(r.count) for r in ar.index.refs)
+        assert len(ar) == 48 and max(classes.values()) <= FANOUT - 1 and len(ar.index.refs) <= 6
+        assert ar.source.reads == 3 + len(ar.index.refs) - 1
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.integers(0, 6), st.integers(0, 3)), min_size=1, max_size=30))
+def test_real_writer_keeps_the_bounds_for_any_commit_sizes(tmp_path_factory, commits):
+    path = tmp_path_factory.mktemp("prop") / "a.vt4da"
+    want: dict[str, bytes] = {}
+    index_bytes = entries = n = 0
+    with ArchiveWriter(path, "w", durable=False) as w:
+        for c, (new, replace) in enumerate(commits):
+            keys = [f"k{n + i:04d}" for i in range(new)] + sorted(want)[:replace]
+            n += new
+            for key in keys:
+                want[key] = payload_for(f"{key}/{c}", 10)
+                w.append(key, want[key], validate=False, replace=True)
+            if keys:
+                w.commit()
+                index_bytes += w._commit.index_length
+                entries += len(set(keys))
+                assert max(Counter(size_class(r.count) for r, _ in w._segments).values()) <= FANOUT - 1
+    with open_archive(path) as ar:
+        m = len(ar.index.refs) if ar.commit.segmented else 1
+        assert ar.source.reads == 3 + m - 1  # header, footer, index block, each older segment
+        assert m <= (FANOUT - 1) * _levels(len(want))
+        assert dict(ar.iter_records()) == want
+    per_entry = 48 + 5 + 65  # entry + key + the widest summary payload_for records get
+    per_commit = 32 + 32 * (FANOUT - 1) * _levels(len(want)) + 32  # manifest + segment header
+    assert index_bytes <= len(commits) * per_commit + per_entry * entries * _levels(max(entries, 1))
 
 
 # --- hostile manifests ----------------------------------------------------------------------------

@@ -17,10 +17,12 @@ after the manifest (it ends where the footer starts); the others lie before the 
 before the one listed ahead of it, without overlapping.  Opening costs the header, the footer, the
 index block and one read per older segment.
 
-Writers merge segments *tiered*: a commit writes one segment with its changed keys; whenever the
-``FANOUT`` (4) newest segments are of one size class (``count`` in ``[4^L, 4^(L+1))``) they are
-rewritten as one.  Each entry is so rewritten about log4(n) times (7 times for 10,000 single-scene
-commits) and a commit names at most 3 segments per size class (at most ~25 for 2^24 scenes).
+Writers merge segments *tiered* (``plan_merge``): a commit writes one segment with its changed keys;
+while ``FANOUT - 1`` (3) other segments are of the new segment's size class (``count`` in
+``[4^L, 4^(L+1))``), they are folded into it.  A folded segment may be any of the older ones, not only
+the newest: the new segment holds each of its keys' current entry, so it shadows them all.  Every
+commit so names at most 3 segments per size class, for any sequence of commit sizes, and an entry is
+rewritten at most floor(log4(n)) times when commits add new keys.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from .index import ArchiveIndex, IndexChecksumError, IndexEntry
 from .layout import (HEADER_SIZE, INDEX_ENTRY_SIZE, INDEX_HEADER_SIZE, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC,
                      MAX_SCENES, MAX_SEGMENTS, SEGMENT_REF_SIZE, Commit, crc32)
 
-__all__ = ["SegmentRef", "IndexView", "manifest_length", "pack_manifest", "parse_manifest", "load_index", "plan_merge", "FANOUT"]
+__all__ = ["SegmentRef", "IndexView", "manifest_length", "pack_manifest", "parse_manifest", "load_index", "plan_merge", "size_class", "FANOUT"]
 
 FANOUT = 4
 _MANIFEST = struct.Struct("<4sIQ16x")
@@ -196,19 +198,44 @@ def load_index(read: Callable[[int, int], bytes], commit: Commit) -> IndexView:
     return IndexView(segments, commit.scene_count, refs)
 
 
-def _size_class(count: int) -> int:
-    return max(count, 1).bit_length() // 2  # floor(log4) up to rounding: 1-3 -> 0/1, 4-15 -> 1/2 ...
+def size_class(count: int) -> int:
+    """A segment's size class: ``L`` with ``count`` in ``[4^L, 4^(L+1))``, i.e. floor(log4(count))
+    (0 for 0..3 entries).  Four segments of class ``L`` with distinct keys hold at least 4^(L+1)
+    entries, so folding them moves their entries up a class."""
+    return (max(count, 1).bit_length() - 1) // 2
 
 
-def plan_merge(counts: list[int], new_count: int) -> int:
-    """How many of the existing segments (newest first, their entry ``counts``) to merge into the new
-    one: while the FANOUT newest are of one size class, they become one; beyond MAX_SEGMENTS - 1
-    live segments everything merges."""
-    sizes = [new_count] + list(counts)
-    merged = 0  # existing segments folded into sizes[0]
-    while len(sizes) >= FANOUT and len({_size_class(c) for c in sizes[:FANOUT]}) == 1:
-        sizes = [sum(sizes[:FANOUT])] + sizes[FANOUT:]
-        merged += FANOUT - 1
-    if len(sizes) > MAX_SEGMENTS // 2:
-        merged = len(counts)
-    return merged
+def plan_merge(counts: list[int], new_count: int,
+               merged_count: Callable[[list[int]], int] | None = None) -> list[int]:
+    """Which existing segments (indices into ``counts``, their entry counts newest first) a commit
+    folds into its new segment of ``new_count`` changed keys, in ascending order.
+
+    While the other segments include ``FANOUT - 1`` (3) or more of the new segment's size class,
+    all of those are folded into it (it may so move up a class, and the rule applies again).  If a
+    class still holds more than ``FANOUT - 1`` segments afterwards (a file written by another
+    writer) or more than ``MAX_SEGMENTS // 2`` segments would remain, everything is folded.  So
+    every commit names at most 3 segments per size class, whatever the sequence of commit sizes.
+
+    ``merged_count(indices)`` is the new segment's entry count once those segments are folded in
+    (the distinct keys: a replaced key counts once); without it, keys are assumed distinct.
+    """
+    def count_with(chosen: list[int]) -> int:
+        if merged_count is not None:
+            return merged_count(chosen)
+        return new_count + sum(counts[i] for i in chosen)
+
+    chosen: list[int] = []
+    current = new_count
+    while True:
+        same = [i for i, c in enumerate(counts) if size_class(c) == size_class(current) and i not in chosen]
+        if len(same) < FANOUT - 1:
+            break
+        chosen = sorted(chosen + same)
+        current = count_with(chosen)
+    rest = [c for i, c in enumerate(counts) if i not in chosen] + [current]
+    per_class: dict[int, int] = {}
+    for c in rest:
+        per_class[size_class(c)] = per_class.get(size_class(c), 0) + 1
+    if len(rest) > MAX_SEGMENTS // 2 or max(per_class.values()) > FANOUT - 1:
+        return list(range(len(counts)))
+    return chosen

@@ -375,12 +375,21 @@ class ArchiveWriter:
             raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
                                      "copy the scenes to a new archive with `vt4d compact`")
         if self._segmented:  # version 1.1: write what changed (plus the segments it merges)
-            merge = plan_merge([r.count for r, _ in self._segments], len(self._pending))
-            keys = set(self._pending)
-            for _, seg_keys in self._segments[:merge]:
-                keys.update(seg_keys)
+            keys = set(pending)
+            folded: set[int] = set()
+
+            def merged_count(chosen: list[int]) -> int:  # distinct keys once ``chosen`` are folded in
+                for i in chosen:
+                    if i not in folded:
+                        keys.update(self._segments[i][1])
+                        folded.add(i)
+                return len(keys)
+
+            merge = set(plan_merge([r.count for r, _ in self._segments], len(pending), merged_count))
+            merged_count(sorted(merge))
+            # the folded segments may be any older ones: the new segment holds each key's current entry
             segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys], prefix=True)
-            kept = self._segments[merge:]
+            kept = [s for i, s in enumerate(self._segments) if i not in merge]
             ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
             segments = [(ref, list(keys))] + kept
             index = pack_manifest([r for r, _ in segments], total) + segment  # one block, one read
