@@ -44,6 +44,11 @@ from vt4dcodec.format.writer import build_container  # noqa: E402
 
 VECTORS = ROOT / "vectors"
 
+#: invalid vector name -> the same bytes with the one defect its name gives repaired (a valid scene).  Filled
+#: by the generators; tests/format/test_vectors.py checks every entry loads, which proves the vector is
+#: rejected for that defect and not for another one made along with it.  Not written to spec/vectors.
+REPAIRED: dict[str, bytes] = {}
+
 
 # --- deterministic scene content ---------------------------------------------------------------------
 def dumps_1_1(*args: Any, **kw: Any) -> bytes:
@@ -316,6 +321,8 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         cams = find(bad, "CAMS")
         cams[3], cams[4] = payload, len(payload)
         out[f"compact_cameras_{name}"] = (rebuild(header, bad, **kw), error, why)
+        if not kw:  # the defect is in the payload: the writer's own payload repairs it
+            REPAIRED[f"compact_cameras_{name}"] = rebuild(header, sections)
 
     assert find(sections, "CAMS")[3] == compact_payload(4, 1, [K], pose)  # the writer and the text agree
     with_cams("precision_2", bytes([2, 1]) + compact_payload(4, 1, [K], pose)[2:],
@@ -336,8 +343,13 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     with_cams("zero_focal", compact_payload(4, 1, [[0.0] + K[1:]], pose), "MalformedSectionError", "fx = 0")
     with_cams("scaled_rotation", compact_payload(4, 1, [K], [pose[0], [2.0] + pose[1][1:]]),
               "MalformedSectionError", "R[0][0] = 2 in frame 1: not a rotation")
-    with_cams("legacy_layout_under_flag", find(split(dumps_1_1(scene(4, 2, 4, frames=2)))[1], "CAMS")[3],
-              "MalformedSectionError", "required flag bit 1 but the 1.0 float64 cameras section (P reads as 0)")
+    legacy = find(split(dumps_1_1(scene(4, 2, 4, frames=2), compression_level=None))[1], "CAMS")[3]
+    assert legacy[0] == 0  # the low byte of fx = 100.0 as float64
+    with_cams("legacy_layout_under_flag", legacy, "MalformedSectionError",
+              "required flag bit 1 but the 1.0 float64 cameras section (P reads as 0)", minor=2, required_flags=2)
+    legacy_sections = [list(x) for x in sections]
+    find(legacy_sections, "CAMS")[3:5] = [legacy, len(legacy)]
+    REPAIRED["compact_cameras_legacy_layout_under_flag"] = rebuild(header, legacy_sections, minor=0, required_flags=0)
     with_cams("without_flag", compact_payload(4, 1, [K], pose), "MalformedSectionError",
               "a compact cameras section in a 1.0 file without flag bit 1 (the 1.0 length does not match)",
               minor=0, required_flags=0)
@@ -437,18 +449,28 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     K = [100.0, 0.0, 31.5, 100.0, 23.5]
     t = [0.0, 0.0, 3.0]
 
-    def with_cams(name: str, payload: bytes, why: str) -> None:
-        bad = [list(x) for x in sections]
-        cams = find(bad, "CAMS")
-        cams[2:5] = [0, payload, len(payload)]
-        add(name, rebuild_1_3(header, bad), "MalformedSectionError", why)
+    ts = [0.0, 1 / 30]  # orbit(2) has timestamps: they follow the blocks (I.5.1)
 
-    with_cams("quaternion_zero_norm", compact_payload(4, 1 | 4, [K], [[1.0, 0.0, 0.0, 0.0] + t, [0.0] * 4 + t]),
-              "the second pose's quaternion is (0, 0, 0, 0)")
-    with_cams("quaternion_matrix_length", compact_payload(4, 1 | 4, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
-              "layout flag bit 2 with 12-value pose records: the length does not match")
-    with_cams("cameras_flag_bit_3", compact_payload(4, 1 | 8, [K], [[1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]] * 2),
-              "compact cameras layout flag bit 3 (undefined in 1.3)")
+    def with_cams(name: str, payload: bytes, why: str, repaired: bytes) -> None:
+        for target, stored in ((out, payload), (REPAIRED, repaired)):
+            bad = [list(x) for x in sections]
+            cams = find(bad, "CAMS")
+            cams[2:5] = [0, stored, len(stored)]
+            data = rebuild_1_3(header, bad)
+            if target is out:
+                add(name, data, "MalformedSectionError", why)
+            else:
+                REPAIRED[f"compact_container_{name}"] = data
+
+    quat = [1.0, 0.0, 0.0, 0.0] + t
+    with_cams("quaternion_zero_norm", compact_payload(4, 1 | 4, [K], [quat, [0.0] * 4 + t], ts),
+              "the second pose's quaternion is (0, 0, 0, 0)", compact_payload(4, 1 | 4, [K], [quat, quat], ts))
+    matrix = [1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3.0]
+    with_cams("quaternion_matrix_length", compact_payload(4, 1 | 4, [K], [matrix] * 2, ts),
+              "layout flag bit 2 with 12-value pose records: the length does not match",
+              compact_payload(4, 1, [K], [matrix] * 2, ts))
+    with_cams("cameras_flag_bit_3", compact_payload(4, 1 | 8, [K], [matrix] * 2, ts),
+              "compact cameras layout flag bit 3 (undefined in 1.3)", compact_payload(4, 1, [K], [matrix] * 2, ts))
     return out
 
 

@@ -10,7 +10,7 @@ import zstandard
 
 from format_strategies import REPO, load_vector_tool
 from vt4dcodec import errors
-from vt4dcodec.format import load, open_scene
+from vt4dcodec.format import load, loads, open_scene
 
 VECTORS = REPO / "spec" / "vectors"
 MANIFEST = json.loads((VECTORS / "MANIFEST.json").read_text())
@@ -77,3 +77,20 @@ def test_committed_vectors_equal_what_the_generator_makes():
         if rel.endswith(".json") and not same_zstd:
             continue  # file hashes and sizes inside the JSON depend on the zstd bytes
         assert (VECTORS / rel).read_bytes() == data, f"spec/vectors/{rel} drifted; run python spec/make_vectors.py"
+
+
+def test_invalid_vectors_fail_for_the_defect_their_name_gives():
+    """The same bytes with that one defect repaired are a valid scene (issue 52.6): a vector rejected for
+    a second, accidental defect (timestamps flagged but not stored, say) would still fail here."""
+    mv.REPAIRED.clear()
+    mv.invalid_vectors()
+    assert set(mv.REPAIRED) <= set(MANIFEST["invalid"])
+    for name in ("compact_container_quaternion_zero_norm", "compact_cameras_legacy_layout_under_flag",
+                 "compact_container_quaternion_matrix_length", "compact_cameras_precision_2"):
+        assert name in mv.REPAIRED
+    for name, data in sorted(mv.REPAIRED.items()):
+        try:
+            open_scene(data).verify()
+            loads(data)
+        except errors.FormatError as exc:
+            raise AssertionError(f"{name} repaired is still rejected: {type(exc).__name__}: {exc}") from None
