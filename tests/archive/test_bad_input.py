@@ -11,7 +11,7 @@ from vt4dcodec.archive.index import ENTRY_DTYPE, DuplicateKeyError, IndexChecksu
 from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, Commit, crc32, pack_footer
 from vt4dcodec.archive.reader import NoCommitError
 from vt4dcodec.errors import (ArchiveError, BadMagicError, ChecksumError, LimitExceededError, TruncatedError,
-                              Vt4dError)
+                              UnsupportedVersionError, Vt4dError)
 
 from .helpers import payload_for
 
@@ -79,6 +79,31 @@ def test_damaged_footer_falls_back_to_header_slot_and_verify_reports_it(good, tm
     p.write_bytes(bytes(bad))
     with pytest.raises(ArchiveError):
         verify_archive(str(p), records=False)
+
+
+def _refooter(data: bytes, fmt: str, offset: int, value: int) -> bytes:
+    """The tail footer with one field changed and its CRC fixed: still a written footer (II 7, step 3)."""
+    foot = bytearray(data[-FOOTER_SIZE:])
+    struct.pack_into(fmt, foot, offset, value)
+    struct.pack_into("<I", foot, FOOTER_SIZE - 4, crc32(bytes(foot[:-4])))
+    return data[:-FOOTER_SIZE] + bytes(foot)
+
+
+@pytest.mark.parametrize("field, fmt, offset, value, error", [
+    ("major 2", "<H", 8, 2, UnsupportedVersionError),
+    ("unknown flag bit 5", "<I", 12, 1 << 5, UnsupportedVersionError),
+    ("index offset inside the header", "<Q", 24, 100, ArchiveError),
+    ("scene count over 2^24", "<Q", 40, 2**24 + 1, LimitExceededError),
+])
+def test_a_written_footer_is_never_passed_over_for_an_older_slot(good, field, fmt, offset, value, error):
+    """Issue 52.8: a tail footer whose magics and CRC hold is the last commit's; one this reader cannot
+    use is an error, not a reason to read the state an older slot names (the slots here are intact)."""
+    bad = _refooter(good, fmt, offset, value)
+    with pytest.raises(error):
+        _read_all(bad)
+    torn = bytearray(bad)
+    torn[-1] ^= 1  # the same footer torn (CRC fails): not a written footer, the slots are used
+    assert _read_all(bytes(torn)) == _read_all(good)
 
 
 def test_damaged_footer_and_slots_is_no_commit(good):

@@ -245,7 +245,8 @@ def _manifest(data: bytes) -> tuple[bytearray, int]:
     return bytearray(data[c.index_offset: c.footer_offset]), c.index_offset
 
 
-@pytest.mark.parametrize("edit", ["count", "zero_segments", "ref0_moved", "overlap", "huge_n", "past_manifest"])
+@pytest.mark.parametrize("edit", ["count", "zero_segments", "ref0_moved", "overlap", "huge_n", "past_manifest",
+                                  "ref1_count", "ref2_count"])
 def test_hostile_manifests_raise_typed_errors(segmented, edit):
     index, _ = _manifest(segmented)
     m = struct.unpack_from("<I", index, 4)[0]
@@ -260,6 +261,9 @@ def test_hostile_manifests_raise_typed_errors(segmented, edit):
         struct.pack_into("<Q", index, 96, struct.unpack_from("<Q", index, 64)[0] + 8)
     elif edit == "huge_n":
         struct.pack_into("<Q", index, 80, 2**40)
+    elif edit.endswith("_count"):  # II 5.5: a reference's entry count MUST equal its segment's count
+        at = 32 + 32 * int(edit[3]) + 16
+        struct.pack_into("<Q", index, at, struct.unpack_from("<Q", index, at)[0] - 1)  # lengths still fit
     else:
         struct.pack_into("<Q", index, 64, len(segmented))
     with pytest.raises(FormatError):  # ArchiveError, or LimitExceededError for the huge count

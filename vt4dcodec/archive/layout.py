@@ -30,7 +30,7 @@ __all__ = [
     "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES", "MAX_GENERATION",
     "FLAG_SEGMENTED", "KNOWN_FLAGS", "MANIFEST_HEADER_SIZE", "SEGMENT_REF_SIZE", "MAX_SEGMENTS",
     "Commit", "FrameHeader", "crc32", "check_key",
-    "pack_preamble", "parse_preamble", "pack_slot", "parse_slot", "pack_footer", "parse_footer",
+    "pack_preamble", "parse_preamble", "pack_slot", "parse_slot", "pack_footer", "parse_footer", "is_footer",
     "pack_frame_header", "parse_frame_header",
     "FRAME_MAGIC", "INDEX_MAGIC", "FOOTER_MAGIC",
 ]
@@ -208,6 +208,14 @@ def pack_footer(c: Commit) -> bytes:
     body = _FOOTER.pack(FOOTER_MAGIC, VERSION_MAJOR, minor, c.flags, c.generation, c.index_offset,
                         c.index_length, c.scene_count, c.index_crc32, FOOTER_END_MAGIC, 0)
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
+
+
+def is_footer(data: bytes) -> bool:
+    """Whether 64 bytes are a written footer: both magics and the footer CRC hold (FORMAT.md Part II 7,
+    step 3).  Such a footer must then pass the version and field checks (:func:`parse_footer`); bytes
+    that are not one (a torn or missing footer) send a reader to the header slots."""
+    return (len(data) == FOOTER_SIZE and data[:8] == FOOTER_MAGIC and data[52:56] == FOOTER_END_MAGIC
+            and crc32(data[: FOOTER_SIZE - 4]) == struct.unpack_from("<I", data, FOOTER_SIZE - 4)[0])
 
 
 def parse_footer(data: bytes) -> Commit:

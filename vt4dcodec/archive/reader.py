@@ -15,7 +15,7 @@ from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedE
 from ..format import Scene, SceneFile, loads, open_scene
 from .index import IndexEntry
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
-                     parse_footer, parse_preamble, parse_slot)
+                     is_footer, parse_footer, parse_preamble, parse_slot)
 from .segments import load_index
 from .source import ByteSource, open_source
 
@@ -84,12 +84,11 @@ def find_commit(source: ByteSource, *, allow_truncated: bool = False) -> tuple[C
     parse_preamble(header)
     commit: Commit | None = None
     at_tail = False
-    try:
-        tail = parse_footer(source.read(size - FOOTER_SIZE, FOOTER_SIZE))
+    raw_tail = source.read(size - FOOTER_SIZE, FOOTER_SIZE)
+    if is_footer(raw_tail):  # a written footer is authoritative: an unknown version or bad field raises
+        tail = parse_footer(raw_tail)
         if tail.end == size:
             commit, at_tail = tail, True
-    except ArchiveError:
-        pass
     # A writer may have committed (and moved the slots past our size snapshot) since we measured:
     # re-measure, so slots naming commits that are now complete are not mistaken for truncation.
     if hasattr(source, "refresh"):
