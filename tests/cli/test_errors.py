@@ -41,8 +41,8 @@ def test_every_keyword_hint_in_the_library_has_a_flag():
 
 
 def test_cli_message_rewrites_hints_into_the_commands_flags():
-    assert cli_message("scene 'a' is already in x (pass replace=True)", {"--replace"}) == \
-        "scene 'a' is already in x (pass --replace)"
+    assert cli_message("scene 'a' is already in x (pass replace=True)", {"--overwrite"}) == \
+        "scene 'a' is already in x (pass --overwrite)"
     assert cli_message("decode with the model that made it, or force=True (--force) to try anyway", {"--force"}) == \
         "decode with the model that made it, or --force to try anyway"
     assert cli_message("pass allow_truncated=True (CLI: --allow-truncated) to read it", {"--allow-truncated"}) == \
@@ -53,22 +53,22 @@ def test_cli_message_rewrites_hints_into_the_commands_flags():
     assert cli_message("x; pass model=<path to the model directory>", {"--model"}) == "x; pass --model PATH"
 
 
-def test_encode_into_an_existing_key_names_replace_and_replace_works(small_model, capture_dir, tmp_path):
+def test_encode_into_an_existing_key_names_overwrite_and_replace_still_works(small_model, capture_dir, tmp_path):
     archive = tmp_path / "a.vt4da"
     assert vt4d("encode", capture_dir, "--model", small_model, "--archive", archive, "-q").returncode == 0
     r = vt4d("encode", capture_dir, "--model", small_model, "--archive", archive)
-    assert r.returncode == 1 and "--replace" in r.stderr and "replace=True" not in r.stderr, r.stderr
-    r = vt4d("encode", capture_dir, "--model", small_model, "--archive", archive, "--replace", "--json")
+    assert r.returncode == 1 and "--overwrite" in r.stderr and "replace=True" not in r.stderr, r.stderr
+    r = vt4d("encode", capture_dir, "--model", small_model, "--archive", archive, "--replace", "--json")  # as before
     assert r.returncode == 0, r.stderr
     assert vt4d("encode", capture_dir, "-o", tmp_path / "x.vt4d", "--replace").returncode == 1  # archives only
 
 
-def test_pack_duplicate_key_names_replace(scene_file, tmp_path):
+def test_pack_duplicate_key_names_overwrite(scene_file, tmp_path):
     archive = tmp_path / "a.vt4da"
     assert vt4d("pack", scene_file, "-o", archive, "-q").returncode == 0
     r = vt4d("pack", scene_file, "-o", archive, "--append")
-    assert r.returncode == 1 and "--replace" in r.stderr and "replace=True" not in r.stderr, r.stderr
-    assert vt4d("pack", scene_file, "-o", archive, "--append", "--replace", "-q").returncode == 0
+    assert r.returncode == 1 and "--overwrite" in r.stderr and "replace=True" not in r.stderr, r.stderr
+    assert vt4d("pack", scene_file, "-o", archive, "--append", "--overwrite", "-q").returncode == 0
 
 
 def test_unknown_model_names_the_model_flag(capture_dir, tmp_path, scene_file):

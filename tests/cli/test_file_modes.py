@@ -44,5 +44,5 @@ def test_extract_over_an_existing_file_keeps_its_permission_bits(scene_file, tmp
         w.append("a", scene_file.read_bytes())
     assert cli.main(["extract", str(archive), "-o", str(out), "-q"]) == 0
     os.chmod(out / "a.vt4d", 0o600)
-    assert cli.main(["extract", str(archive), "-o", str(out), "-q", "--force"]) == 0
+    assert cli.main(["extract", str(archive), "-o", str(out), "-q", "-y"]) == 0
     assert _mode(out / "a.vt4d") == 0o600

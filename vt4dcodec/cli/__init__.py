@@ -115,6 +115,51 @@ def check_upscale(args: argparse.Namespace) -> None:
                         "arrays keep the rendered pixels")
 
 
+# --- one overwrite convention ---------------------------------------------------------------------------
+# Every command that writes files takes -y/--overwrite to replace what is there; --force is kept for one
+# thing only, decoding with a model whose fingerprint differs.  The spellings of earlier versions (--force,
+# --replace) still work, hidden from --help, with a note that names the new one.
+OVERWRITE_FLAGS = ("-y", "--overwrite")
+
+
+def add_overwrite_option(p: argparse.ArgumentParser, help: str) -> None:
+    """``-y/--overwrite`` (dest ``overwrite``)."""
+    p.add_argument(*OVERWRITE_FLAGS, dest="overwrite", action="store_true", help=help)
+
+
+class DeprecatedFlag(argparse.Action):
+    """A hidden flag kept so that scripts written for an earlier version still run: sets ``dest`` to True
+    and leaves a note (printed by :func:`main`) naming the flag to use instead."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, instead: str = "-y/--overwrite",
+                 **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=False, help=argparse.SUPPRESS)
+        self.instead = instead
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        setattr(namespace, self.dest, True)
+        notes = list(getattr(namespace, "deprecated_notes", []))
+        notes.append(f"{option_string} is deprecated here; use {self.instead}")
+        namespace.deprecated_notes = notes
+
+
+def add_deprecated_flag(p: argparse.ArgumentParser, flag: str, dest: str, instead: str = "-y/--overwrite") -> None:
+    p.add_argument(flag, dest=dest, action=DeprecatedFlag, instead=instead)
+
+
+def note_replacing(args: argparse.Namespace, paths: Iterable[str | os.PathLike]) -> None:
+    """Commands that used to replace their outputs silently still do (scripts keep working), but say so
+    unless -y/--overwrite asked for it."""
+    if getattr(args, "overwrite", False):
+        return
+    existing = [str(p) for p in paths if os.path.exists(p)]
+    if existing:
+        more = f" and {plural(len(existing) - 1, 'other')}" if len(existing) > 1 else ""
+        say(args, f"note: replacing {existing[0]}{more} (pass -y/--overwrite to say so; a later version "
+                  "will refuse without it)")
+
+
 # --- one shape for every command ----------------------------------------------------------------------
 def add_command(subparsers: Any, name: str, *, help: str, description: str, examples: Sequence[str],
                 notes: str = "", **kwargs: Any) -> argparse.ArgumentParser:
@@ -213,7 +258,7 @@ def read_head(source: str, options: dict[str, str] | None = None, n: int = 16) -
 # flag.  KEYWORD_FLAGS maps each such keyword hint to its flag (tests/cli/test_errors.py checks that every
 # hint in the library's messages is listed here).
 KEYWORD_FLAGS: dict[str, str] = {
-    "replace=True": "--replace",
+    "replace=True": "--overwrite",
     "overwrite=True": "--overwrite",
     "force=True": "--force",
     "allow_truncated=True": "--allow-truncated",
@@ -278,6 +323,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
+    for note in getattr(args, "deprecated_notes", []):
+        say(args, f"vt4d {args.command}: note: {note}")
     try:
         return int(args.func(args) or 0)
     except Vt4dError as exc:

@@ -14,7 +14,8 @@ from typing import Any
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
-from . import add_command, add_storage_option, emit, positive_int, progress, storage_options, working
+from . import (add_command, add_deprecated_flag, add_overwrite_option, add_storage_option, emit, positive_int, progress,
+               storage_options, working)
 
 __all__ = ["register"]
 
@@ -53,13 +54,16 @@ def cmd_pack(args: argparse.Namespace) -> int:
             raise ArchiveError(f"two inputs map to key {key!r}: {seen[key]} and {path}")
         seen[key] = path
     mode = "a" if args.append else "x"
-    if args.force and not args.append:
+    if (args.force or args.overwrite) and not args.append:
         mode = "w"
+    replace = args.replace or (args.overwrite and args.append)
+    if mode == "x" and os.path.exists(args.output):
+        raise FileExistsError(f"{args.output} exists: pass -y/--overwrite to replace it, or --append to add to it")
     policy = "recover" if args.recover else "discard" if args.discard_uncommitted else "error"
     with ArchiveWriter(args.output, mode, on_uncommitted=policy) as writer:
         for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
             with open(path, "rb") as f:
-                writer.append(key, f.read(), replace=args.replace)
+                writer.append(key, f.read(), replace=replace)
             if args.commit_every and n % args.commit_every == 0:
                 writer.commit()
         writer.commit()
@@ -106,10 +110,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
         keys = args.keys or reader.keys()
         entries = [reader.entry(k) for k in keys]  # SceneNotFoundError before anything is written
         targets = [os.path.join(args.output, *e.key.split("/")) + ".vt4d" for e in entries]
-        if not args.force:
+        if not (args.force or args.overwrite):
             clash = [t for t in targets if os.path.exists(t)]
             if clash:
-                raise FileExistsError(f"{clash[0]} exists (use --force to overwrite)")
+                raise FileExistsError(f"{clash[0]} exists (pass -y/--overwrite to replace it)")
         for entry, target in progress(args, list(zip(entries, targets)), len(entries), "extract", "scene"):
             os.makedirs(os.path.dirname(target), exist_ok=True)
             data = reader.read_entry(entry)
@@ -195,12 +199,14 @@ def register(subparsers: Any) -> None:
                     "that directory (a/b/c.vt4d -> key a/b/c), so `vt4d extract` output packs back unchanged.",
                     examples=["vt4d pack scenes/ -o scenes.vt4da",
                               "vt4d extract old.vt4da -o out/ && vt4d pack out/ -o new.vt4da    same keys",
-                              "vt4d pack more/*.vt4d -o scenes.vt4da --append --replace"])
+                              "vt4d pack more/*.vt4d -o scenes.vt4da --append -y    replacing scenes of the same key",
+                              "vt4d pack scenes/ -o scenes.vt4da -y                 replace the archive"])
     p.add_argument("files", nargs="+", help=".vt4d files or directories")
     p.add_argument("-o", "--output", required=True, help="archive path (.vt4da)")
     p.add_argument("--append", action="store_true", help="add to an existing archive")
-    p.add_argument("--force", action="store_true", help="replace an existing archive")
-    p.add_argument("--replace", action="store_true", help="replace scenes whose key exists")
+    add_overwrite_option(p, "replace an existing archive; with --append, replace the scenes whose key is there")
+    add_deprecated_flag(p, "--force", "force")      # earlier spellings: replace the archive,
+    add_deprecated_flag(p, "--replace", "replace")  # and replace scenes whose key exists
     uncommitted = p.add_mutually_exclusive_group()
     uncommitted.add_argument("--recover", action="store_true",
                              help="first keep the complete records a crashed writer left after the last commit")
@@ -222,7 +228,7 @@ def register(subparsers: Any) -> None:
 
     p = add_command(subparsers, "extract", help="extract scenes from an archive as standalone .vt4d files",
                     description="Write scenes of an archive as standalone .vt4d files: key a/b/c becomes "
-                    "OUTPUT/a/b/c.vt4d.  Every key is checked, and no file overwritten without --force, before "
+                    "OUTPUT/a/b/c.vt4d.  Every key is checked, and no file overwritten without -y/--overwrite, before "
                     "anything is written.",
                     examples=["vt4d extract scenes.vt4da -o out/                 every scene",
                               "vt4d extract scenes.vt4da cap-3/cam00/000000 -o out/",
@@ -230,7 +236,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("archive", help="archive path or fsspec URL")
     p.add_argument("keys", nargs="*", help="scene keys (default: all)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
-    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    add_overwrite_option(p, "replace files that exist")
+    add_deprecated_flag(p, "--force", "force")
     add_storage_option(p)
     p.add_argument("--allow-truncated", action="store_true", help=TRUNC_HELP)
     p.set_defaults(func=cmd_extract)

@@ -18,7 +18,7 @@ from ..capture.calibration import CALIBRATION_FORMATS
 from ..capture.importer import IMPORT_MEDIA, import_capture
 from ..capture.io import read_manifest
 from ..capture.probe import check_capture
-from . import add_command, emit, positive_int
+from . import add_command, add_overwrite_option, emit, note_replacing, positive_int
 from .synth_commands import add_synth_parser
 
 __all__ = ["register", "capture_info", "REGISTER"]
@@ -106,6 +106,7 @@ def _run_import(args: argparse.Namespace) -> int:
 
 
 def _run_contact_sheet(args: argparse.Namespace) -> int:
+    note_replacing(args, [args.output])
     capture, numbers = read_sheet_frames(args.directory, args.frames)  # only the frames shown are decoded
     w, h = write_contact_sheet(capture, args.output, thumb_height=args.thumb_height, frame_numbers=numbers)
     emit(args, {"output": args.output, "width": w, "height": h, "cameras": len(capture.cameras)},
@@ -153,7 +154,7 @@ def _register_import(sub: Any) -> None:
     p.add_argument("--capture-id", default=None, help="capture id (default: the output directory's name)")
     p.add_argument("--scale-intrinsics", action="store_true",
                    help="media at a uniform rescale of the calibrated size: rescale K to them")
-    p.add_argument("--overwrite", action="store_true", help="replace a capture already in the output directory")
+    add_overwrite_option(p, "replace a capture already in the output directory")
     p.set_defaults(func=_run_import)
 
 
@@ -166,6 +167,7 @@ def _register_contact_sheet(sub: Any) -> None:
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
     p.add_argument("--frames", type=positive_int, default=8, help="frame columns (default 8)")
     p.add_argument("--thumb-height", type=positive_int, default=96, help="thumbnail height in pixels (default 96)")
+    add_overwrite_option(p, "replace the PNG file if it exists (without it, it is replaced with a note)")
     p.set_defaults(func=_run_contact_sheet)
 
 

@@ -20,8 +20,9 @@ from ..demo import run_demo
 from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
-from . import (EXIT_INTERRUPTED, add_command, add_storage_option, add_upscale_option, check_upscale, emit, nonneg_int,
-               plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
+from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
+               add_upscale_option, check_upscale, emit, nonneg_int, note_replacing, plural, positive_int, progress,
+               read_head, storage_options, trajectory_label, working)
 
 __all__ = ["register"]
 
@@ -31,7 +32,7 @@ ENCODE_EXAMPLES = [
     "vt4d encode demo_out/capture --cameras cam00,cam02,cam04 -o multi.vt4d   one scene from 3 cameras",
     "vt4d encode portrait_capture --fit pad -o s.vt4d           keep the whole portrait frame (black bars)",
     "vt4d encode captures/ --archive train.vt4da                every capture dir under captures/ -> one archive",
-    "vt4d encode captures/ --archive train.vt4da --replace      again, replacing the scenes already there",
+    "vt4d encode captures/ --archive train.vt4da -y             again, replacing the scenes already there",
     "vt4d encode long_capture --split --archive clips.vt4da     a long capture -> consecutive 8-frame clips",
     "torchrun --nproc_per_node=4 -m vt4dcodec encode captures/ --archive shards/train.vt4da",
     "                                                           each rank encodes its share into its own shard",
@@ -160,8 +161,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
         raise CaptureError("--replace applies to --archive (-o FILE.vt4d is always replaced)")
     if args.skip_existing and args.archive is None:
         raise CaptureError("--skip-existing applies to --archive")
-    if args.skip_existing and args.replace:
-        raise CaptureError("give --skip-existing (keep the scenes there) or --replace (encode them again), not both")
+    if args.skip_existing and (args.replace or args.overwrite):
+        raise CaptureError("give --skip-existing (keep the scenes there) or -y/--overwrite (encode them again), "
+                           "not both")
     captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
@@ -169,6 +171,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     rank, world = _dist_rank()
     mine = captures[rank::world]
     if args.output is not None:
+        note_replacing(args, [args.output])
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # like --archive: the folder is made
     loading = time.perf_counter()
     with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
@@ -192,10 +195,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
             recorded = {CAPTURE_KEY: {"fps": float(cap.fps)}}  # decoded videos play at the capture's rate
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                            seed=args.seed, fit=args.fit, metadata=recorded)
+                                            seed=args.seed, fit=args.fit, metadata=recorded, quality=args.quality)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                       start=args.start, seed=args.seed, fit=args.fit, metadata=recorded)]
+                                       start=args.start, seed=args.seed, fit=args.fit, metadata=recorded,
+                                       quality=args.quality)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -204,7 +208,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                         skipped.append(key)
                         continue
                     data = dumps(scene)
-                    writer.append(key, data, replace=args.replace)
+                    writer.append(key, data, replace=args.replace or args.overwrite)
                     results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
                 else:
                     n = _save_keeping_mode(scene, args.output)
@@ -230,7 +234,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     fp = codec.model_fingerprint(model)
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
-               "model": fp.to_dict(), "encoding": args.encoding, "rank": rank, "world_size": world,
+               "model": fp.to_dict(), "encoding": "learned-rans" if args.quality else args.encoding,
+               "quality": args.quality, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
     if skipped:
@@ -289,6 +294,10 @@ def cmd_decode(args: argparse.Namespace) -> int:
     for spec in specs:  # every spec checked before the scene is read or a model loaded
         check_trajectory_spec(spec)
     scene, stem = _open_scene_source(args)
+    ext = "" if args.format == "png" else "." + args.format  # PNG frames go to a folder per trajectory
+    names = [target] if target is not None else [Path(args.output) / f"{stem}_{trajectory_label(spec, i)}{ext}"
+                                                 for i, spec in enumerate(specs)]
+    note_replacing(args, names)
     loading = time.perf_counter()
     with working(args, "loading the model"):
         decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
@@ -302,8 +311,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
                                               "trajectory")):
         frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
                                 drop_dynamic=args.drop == "dynamic")
-        name = target if target is not None else out_dir / f"{stem}_{trajectory_label(spec, i)}"
-        path = write_frames(name, frames, args.format, fps=fps, extra={"K": traj.K, "w2c": traj.w2c},
+        path = write_frames(names[i], frames, args.format, fps=fps, extra={"K": traj.K, "w2c": traj.w2c},
                             scale=args.upscale)
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})
     elapsed = time.perf_counter() - started
@@ -340,7 +348,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("captures", nargs="+", help="capture directories, or directories holding capture directories")
     p.add_argument("-o", "--output", help="output .vt4d file (one capture, one clip); its folder is created")
     p.add_argument("--archive", help="append the scenes to this archive (.vt4da), created if missing")
-    p.add_argument("--replace", action="store_true", help="replace scenes whose key is already in --archive")
+    add_overwrite_option(p, "replace an existing -o file, or the scenes whose key is already in --archive")
+    add_deprecated_flag(p, "--replace", "replace")  # the spelling before -y; for --archive only, as it was
     p.add_argument("--skip-existing", action="store_true",
                    help="leave out scenes whose key is already in --archive (resume an interrupted run)")
     p.add_argument("--camera", help="source camera name (default: the capture's first camera)")
@@ -356,6 +365,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
                    help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
                         "tokens on held-out views, see docs/BENCHMARKS.md)")
+    p.add_argument("--quality", type=int, choices=codec.QUALITY_LEVELS, default=None, metavar="Q",
+                   help="a quality level of the model's entropy model, 1 (fewest bytes) to "
+                        f"{codec.QUALITY_LEVELS[-1]} (best): stores the tokens as learned-rans at that level "
+                        "(format 1.6) instead of --encoding (vt4d info shows the level and bits per pixel)")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
                         "(one camera per scene, ~4x less memory), 'torch' the networks; 'auto' (default) takes "
@@ -384,6 +397,7 @@ def register(subparsers: Any) -> None:
                         "setting, decode_steps in its config.json)")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
+    add_overwrite_option(p, "replace outputs that exist (without it they are replaced with a note)")
     add_upscale_option(p)
     p.set_defaults(func=cmd_decode)
 
@@ -396,8 +410,7 @@ def register(subparsers: Any) -> None:
                   "vt4d demo -o demo_out --steps 4 --json"])
     p.add_argument("-o", "--output", default="demo_out",
                    help="output directory (default demo_out); an earlier demo's output there is replaced")
-    p.add_argument("--overwrite", action="store_true",
-                   help="also replace a capture in OUTPUT/capture that the demo did not write")
+    add_overwrite_option(p, "also replace a capture in OUTPUT/capture that the demo did not write")
     p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS,
                    help="sampler steps (default: the model's recorded decode_steps)")
     add_upscale_option(p, default=4)

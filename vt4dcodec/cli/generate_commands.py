@@ -15,8 +15,8 @@ from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
-from . import (add_command, add_upscale_option, check_upscale, emit, nonneg_int, plural, positive_int, progress,
-               trajectory_label, working)
+from . import (add_command, add_overwrite_option, add_upscale_option, check_upscale, emit, nonneg_int,
+               note_replacing, plural, positive_int, progress, trajectory_label, working)
 
 __all__ = ["register", "split_view_specs"]
 
@@ -66,6 +66,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise CaptureError(f"-o {out_dir} is a file; give a folder")
+    note_replacing(args, [out_dir / "scene.vt4d"])
     manifest = read_manifest(args.capture)
     camera = args.camera or manifest.camera_names[0]
     if camera not in manifest.camera_names:
@@ -136,5 +137,6 @@ def register(subparsers: Any) -> None:
                    help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
                         "0.07 dB of float32 tokens on generated scenes, half the bytes of int8)")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
+    add_overwrite_option(p, "replace outputs that exist (without it they are replaced with a note)")
     add_upscale_option(p)
     p.set_defaults(func=cmd_generate)

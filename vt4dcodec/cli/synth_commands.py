@@ -11,7 +11,7 @@ from typing import Any
 
 from ..synth.dataset_writer import write_dataset
 from ..synth.generator import SynthConfig
-from . import add_command, emit, int_at_least, show_progress
+from . import add_command, add_overwrite_option, emit, int_at_least, show_progress
 
 __all__ = ["add_synth_parser", "run_synth"]
 
@@ -62,5 +62,5 @@ def add_synth_parser(sub: Any) -> None:
     p.add_argument("--max-objects", type=int_at_least(0), default=4, help="most objects (default 4)")
     p.add_argument("--static", action="store_true", help="objects stand still (nothing moves)")
     p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
-    p.add_argument("--overwrite", action="store_true", help="regenerate scenes that already exist")
+    add_overwrite_option(p, "regenerate scenes that already exist")
     p.set_defaults(func=run_synth)
