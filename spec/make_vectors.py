@@ -426,6 +426,12 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     huge = zstandard.ZstdCompressor(level=19).compress(b"\x80" + bytes(1 << 20))
     add("header_declares_over_1_mib", rebuild_1_3(huge, sections, compress=False), "LimitExceededError",
         "the header's zstd frame declares 1 MiB + 1 bytes")
+    fhd = stored[4]
+    assert fhd & 0x23 == 0x20  # single segment (no window byte), no dictionary id: the id byte goes after fhd
+    with_id = stored[:4] + bytes([fhd | 0x01, 0]) + stored[5:]
+    add("header_dictionary_id", rebuild_1_3(with_id, sections, compress=False), "MalformedHeaderError",
+        "the header's zstd frame carries a 1-byte dictionary id (0): I.3.1 forbids one, whatever its value")
+    REPAIRED["compact_container_header_dictionary_id"] = rebuild_1_3(stored, sections, compress=False)
     add("header_unknown_key", rebuild_1_3(dict(header, extra=1), sections), "MalformedHeaderError",
         "an unknown key inside the compressed header of a 1.3 file")
     add("header_bin_type", rebuild_1_3(msgpack.packb(binary_digests(dict(header, metadata={"x": b"bytes"})),
@@ -627,15 +633,15 @@ def rans_valid_vectors() -> dict[str, tuple[bytes, str]]:
 
 def int8_rans_prediction_vector() -> tuple[bytes, str]:
     """int8-rans with centre prediction, built by hand so it does not depend on the writer's choice of
-    mode: residual symbols run over the whole 511-symbol alphabet (0..510), so a reader that keeps
-    symbols in bytes decodes every other vector and fails here (issue 15)."""
+    mode: its static stream's residual symbols run from 5 to 510 of the 511-symbol alphabet (0..510), so a
+    reader that keeps symbols in bytes decodes every other vector and fails here (issue 15)."""
     base = scene(8, 4, 4, provenance=PROVENANCE)
     header, sections = split(dumps_1_1(base, encoding="int8-rans", compression_level=None))
     centres = [10, 250, 128, 0]
     codes = [[255, 0, 128, 255], [254, 1, 0, 0], [200, 250, 255, 7], [10, 5, 127, 1],
              [0, 255, 129, 128], [11, 249, 64, 3], [255, 2, 192, 254], [9, 251, 128, 2]]
     symbols = [q - centres[k] + 255 for row in codes for k, q in enumerate(row)]
-    assert max(symbols) > 255 and min(symbols) < 255 and 0 <= min(symbols) and max(symbols) <= 510
+    assert (min(symbols), max(symbols)) == (5, 510)  # the range the description and FORMAT.md I.13 give
     used = sorted(set(symbols))
     freqs = [0] * 511
     for sym in used:
@@ -645,7 +651,7 @@ def int8_rans_prediction_vector() -> tuple[bytes, str]:
     payload = rans_payload(head, freqs, symbols)
     find(sections, "ZSTA")[2:5] = [0, payload, len(payload)]
     return (rebuild(header, sections, minor=1, required_flags=1),
-            "1.1: int8-rans with centre prediction (prediction 1): residual symbols 5..500 of the "
+            "1.1: int8-rans with centre prediction (prediction 1): residual symbols 5..510 of the "
             "511-symbol alphabet; a reader storing symbols in bytes fails only here")
 
 

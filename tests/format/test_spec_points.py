@@ -106,3 +106,110 @@ def test_declared_raw_lengths_are_bounded_by_the_header_before_decompression():
     finally:
         tracemalloc.stop()
     assert peak < 8 << 20, peak
+
+
+# --- issue 52: the spec and the library agree ----------------------------------------------------------
+def _with_stored_header(edit_frame) -> bytes:
+    """A compact container whose stored header (the zstd frame of I.3.1) is ``edit_frame(frame)``."""
+    from vt4dcodec.format.header import compress_header
+
+    header, sections = MV.split(dumps(simple_scene(provenance=Provenance("0.1", "2026-01-01T00:00:00Z", None,
+                                                                           "encoded"))))
+    frame = compress_header(msgpack.packb(MV.binary_digests(header), use_bin_type=True))
+    return MV.rebuild_1_3(edit_frame(frame), sections, compress=False)
+
+
+@pytest.mark.parametrize("dict_id", [0, 7])
+def test_a_compact_header_frame_with_a_dictionary_id_is_rejected(dict_id):
+    """I.3.1 (52.1): the frame MUST NOT carry a dictionary id, whatever its value."""
+    def with_id(frame: bytes) -> bytes:
+        fhd = frame[4]
+        assert fhd & 0x03 == 0  # the reference writer writes none
+        at = 5 if fhd & 0x20 else 6  # after the Window_Descriptor unless Single_Segment_flag
+        return frame[:4] + bytes([fhd | 0x01]) + frame[5:at] + bytes([dict_id]) + frame[at:]
+    loads(_with_stored_header(lambda f: f))
+    with pytest.raises(MalformedHeaderError, match="dictionary id"):
+        loads(_with_stored_header(with_id))
+
+
+@pytest.mark.parametrize("field", ["library_version", "source_capture_id"])
+@pytest.mark.parametrize("text", ["v1\n", "cap\x00", "del\x7f"])
+def test_provenance_strings_have_no_control_characters(field, text):
+    """I.9 (52.3): like the fingerprint's strings, written down now."""
+    def edit(h):
+        h["provenance"][field] = text
+        return h
+    with pytest.raises(MalformedHeaderError):
+        loads(_with_header(edit))
+    args = dict(library_version="0.1", created_utc="2026-01-01T00:00:00Z", source_capture_id=None, kind="encoded")
+    with pytest.raises(MalformedHeaderError):
+        Provenance(**dict(args, **{field: text}))
+    Provenance(**dict(args, **{field: "caf\u00e9 \u0085 ok"}))
+
+
+@pytest.mark.parametrize("n, ok", [(29_000, True), (29_200, False)])
+def test_metadata_floats_count_as_float64(n, ok):
+    """I.9 (52.4): the canonical size counts every float as 9 bytes, whatever width it is stored in:
+    29,200 float32 values of 0.5 are 146,006 bytes stored, 262,806 canonical (over 262,144)."""
+    def edit(h):
+        h["metadata"] = {"f": "PLACEHOLDER"}
+        raw = msgpack.packb(MV.binary_digests(h), use_bin_type=True)
+        return raw.replace(msgpack.packb("PLACEHOLDER"), msgpack.packb([0.5] * n, use_single_float=True))
+    assert len(msgpack.packb({"f": [0.5] * n})) == 6 + 9 * n
+    data = _with_header(edit)
+    if ok:
+        assert loads(data).metadata["f"] == [0.5] * n
+    else:
+        with pytest.raises(LimitExceededError):
+            loads(data)
+
+
+def test_rans_payload_cut_inside_its_head_is_truncated():
+    """I.11 (52.2): a 1.1 entropy-coded payload that ends inside its group count, parameters, centre codes
+    or frequency table, or before its 4-byte initial state, is TruncatedError (the table said
+    MalformedSectionError; every reader so far raised TruncatedError)."""
+    from vt4dcodec.errors import TruncatedError
+    from vt4dcodec.format.rans_tokens import _parse_payload
+
+    header, sections = MV.split(dumps(MV.narrow_scene(24, 16), encoding="int5-rans", rans_lanes=0))  # 1.1 payloads
+    for name, rows, mode in (("ZSTA", 24, 1), ("ZDYN", 16, 0)):
+        payload = MV.find(sections, name)[3]
+        assert MV.find(sections, name)[2] == 0 and payload[10] == mode  # raw; 1 group; prediction mode
+        head = len(payload) - len(_parse_payload(payload, "int5-rans", rows, 4).stream)
+        for cut in range(head + 4):
+            bad = [list(s) for s in sections]
+            MV.find(bad, name)[3:5] = [payload[:cut], cut]
+            with pytest.raises(TruncatedError):
+                loads(MV.rebuild(header, bad))
+
+
+@pytest.mark.parametrize("stamp, ok", [("0000-01-01T00:00:00Z", False), ("0001-01-01T00:00:00Z", True),
+                                       ("9999-12-31T23:59:59.999999999Z", True)])
+def test_created_utc_years_run_from_0001_to_9999(stamp, ok):
+    """"Text" (52.11): ISO 8601's year 0000 needs an agreement between the parties; this format has none."""
+    if ok:
+        Provenance("0.1", stamp, None, "encoded")
+    else:
+        with pytest.raises(MalformedHeaderError):
+            Provenance("0.1", stamp, None, "encoded")
+
+
+@pytest.mark.parametrize("what", ["string", "array", "map"])
+def test_header_string_array_map_over_65536_is_malformed_not_a_limit(what):
+    """I.7 / I.11 (52.7): these are the header's msgpack rules, so MalformedHeaderError."""
+    big = {"string": "x" * 65_537, "array": [0] * 65_537, "map": {f"k{i}": 0 for i in range(65_537)}}[what]
+
+    def edit(h):
+        h["metadata"] = {"big": big}
+        return msgpack.packb(MV.binary_digests(h), use_bin_type=True)
+    with pytest.raises(MalformedHeaderError):
+        loads(_with_header(edit))
+
+
+def test_a_1_5_header_holds_exactly_the_1_0_keys():
+    """I.3 (52.7): the key set holds in every minor version the document describes, 1.5 included."""
+    data = MV.lanes_valid_vectors()["int4_rans_lanes_1_and_32"][0]
+    assert loads(data) is not None
+    header, sections = MV.split(data)
+    with pytest.raises(MalformedHeaderError, match="unknown key"):
+        loads(MV.rebuild_1_3(dict(header, extra=1), sections, minor=5, required_flags=MV.LANE_FLAGS))

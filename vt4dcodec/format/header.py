@@ -146,6 +146,9 @@ def decompress_header(stored: BytesLike) -> bytes:
         raise MalformedHeaderError("the compact header's zstd frame does not declare its content size")
     if declared > MAX_HEADER_BYTES:
         raise LimitExceededError(f"the compact header declares {declared} bytes; the limit is {MAX_HEADER_BYTES}")
+    if stored[4] & 0x03:  # Frame_Header_Descriptor's Dictionary_ID_Flag (RFC 8878 3.1.1.1.1)
+        raise MalformedHeaderError("the compact header's zstd frame carries a dictionary id; I.3.1 forbids one "
+                                   "(its dictionary is fixed by the format and has none)")
     frame = zstandard.ZstdDecompressor(dict_data=_HEADER_DICT).decompressobj(read_across_frames=False)
     try:
         out = frame.decompress(bytes(stored))  # libzstd refuses output beyond the declared content size
