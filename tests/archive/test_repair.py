@@ -330,3 +330,34 @@ def test_repair_with_nothing_to_do_keeps_a_version_1_1_writer_whole(tmp_path):
     with ArchiveWriter(path, durable=False) as w:
         w.append("new", payload_for("new", 5), validate=False)
     assert _readable(path) == dict(_single) | {"new": payload_for("new", 5)}
+
+
+# --- file modes: every rewrite keeps the archive's permission bits (issue 52) ----------------------------
+@pytest.mark.parametrize("mode", [0o600, 0o640])
+@pytest.mark.parametrize("rewrite", ["append", "repair", "repair_full_scan", "compact", "compact_1_0"])
+def test_every_rewrite_keeps_the_archives_permission_bits(tmp_path, mode, rewrite):
+    import stat
+
+    from vt4dcodec.archive import compact_archive
+
+    path = tmp_path / "a.vt4da"
+    _three_scenes(path)
+    if rewrite.startswith("repair"):  # an uncommitted record and a torn tail for repair to act on
+        w = ArchiveWriter(path, durable=False)
+        w.append("late", payload_for("late", 50), validate=False)
+        os.close(w._fd)
+        w._fd = None
+        w._lock.release()
+        with open(path, "ab") as f:
+            f.write(b"V4AR torn")
+    os.chmod(path, mode)
+    if rewrite == "append":
+        with ArchiveWriter(path, durable=False) as w:
+            w.append("more", payload_for("more", 50), validate=False)
+    elif rewrite.startswith("repair"):
+        report = repair_archive(path, full_scan=rewrite.endswith("full_scan"))
+        assert "late" in _readable(path) and report.complete
+    else:
+        compact_archive(path, version=(1, 0) if rewrite.endswith("1_0") else (1, 1), durable=False)
+    assert stat.S_IMODE(os.stat(path).st_mode) == mode
+    assert len(_readable(path)) >= 3
