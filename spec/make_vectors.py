@@ -321,8 +321,8 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         cams = find(bad, "CAMS")
         cams[3], cams[4] = payload, len(payload)
         out[f"compact_cameras_{name}"] = (rebuild(header, bad, **kw), error, why)
-        if not kw:  # the defect is in the payload: the writer's own payload repairs it
-            REPAIRED[f"compact_cameras_{name}"] = rebuild(header, sections)
+        # a payload defect: the writer's own payload repairs it; a flag or version defect: the writer's flags
+        REPAIRED[f"compact_cameras_{name}"] = rebuild(header, sections)
 
     assert find(sections, "CAMS")[3] == compact_payload(4, 1, [K], pose)  # the writer and the text agree
     with_cams("precision_2", bytes([2, 1]) + compact_payload(4, 1, [K], pose)[2:],
@@ -361,6 +361,11 @@ def compact_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     ts_header = dict(header, cameras=dict(header["cameras"], has_timestamps=True))
     bad = [list(x) for x in sections]
     cams = find(bad, "CAMS")
+    cams[3] = compact_payload(4, 1, [K], pose, [1.0, 0.5])
+    cams[4] = len(cams[3])
+    cams[3] = compact_payload(4, 1, [K], pose, [0.5, 1.0])
+    cams[4] = len(cams[3])
+    REPAIRED["compact_cameras_decreasing_timestamps"] = rebuild(ts_header, bad)
     cams[3] = compact_payload(4, 1, [K], pose, [1.0, 0.5])
     cams[4] = len(cams[3])
     out["compact_cameras_decreasing_timestamps"] = (rebuild(ts_header, bad), "MalformedSectionError",
@@ -415,6 +420,7 @@ def container_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
 
     def add(name: str, data: bytes, error: str, why: str) -> None:
         out[f"compact_container_{name}"] = (data, error, why)
+        REPAIRED.setdefault(f"compact_container_{name}", good)  # the good file with one change, unless given
 
     add("header_not_zstd", rebuild_1_3(raw_header, sections, compress=False), "MalformedHeaderError",
         "required flag bit 2 but the header is plain msgpack, not a zstd frame")
@@ -558,11 +564,21 @@ def extra_cameras_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
 
     def add(name: str, data: bytes, error: str, why: str) -> None:
         out[f"extra_cameras_{name}"] = (data, error, why)
+        REPAIRED.setdefault(f"extra_cameras_{name}", good)  # the good file with one change, unless given
 
-    def with_xcam(name: str, payload: bytes, error: str, why: str, *, legacy_layout: bool = False) -> None:
-        bad = [list(x) for x in (legacy_sections if legacy_layout else sections)]
-        find(bad, "XCAM")[2:5] = [0, payload, len(payload)]
-        add(name, rebuild(legacy_header if legacy_layout else header, bad), error, why)
+    def with_xcam(name: str, payload: bytes, error: str, why: str, *, legacy_layout: bool = False,
+                  repaired: bytes | None = None) -> None:
+        for stored in (repaired, payload):
+            if stored is None:
+                REPAIRED[f"extra_cameras_{name}"] = legacy if legacy_layout else good
+                continue
+            bad = [list(x) for x in (legacy_sections if legacy_layout else sections)]
+            find(bad, "XCAM")[2:5] = [0, stored, len(stored)]
+            data = rebuild(legacy_header if legacy_layout else header, bad)
+            if stored is payload:
+                add(name, data, error, why)
+            else:
+                REPAIRED[f"extra_cameras_{name}"] = data
 
     def pack(*recs: bytes) -> bytes:
         return bytes([len(recs)]) + struct.pack(f"<{len(recs)}I", *map(len, recs)) + b"".join(recs)
@@ -592,14 +608,17 @@ def extra_cameras_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
               "record 1 is 0 bytes (no room for P and F)")
     with_xcam("nan_focal", pack(records[0], compact_payload(4, 3, [[float("nan")] + K[1:]],
                                                             [[1.0, 0, 0, -0.75, 0, 1.0, 0, 0, 0, 0, 1.0, 2.0]])),
-              "MalformedSectionError", "record 1's fx is a float32 NaN")
+              "MalformedSectionError", "record 1's fx is a float32 NaN",
+              repaired=pack(records[0], compact_payload(4, 3, [K], [[1.0, 0, 0, -0.75, 0, 1.0, 0, 0, 0, 0, 1.0, 2.0]])))
     with_xcam("distortion_in_record", pack(records[0], records[1] + np.zeros(4, "<f8").tobytes()),
               "MalformedSectionError", "record 1 carries 4 float64 distortion terms, which extra cameras do not have")
     first = find(legacy_sections, "XCAM")[3][9:9 + 400]  # 2 frames of I.5 float64 K and w2c
     three = cameras(3)
     with_xcam("legacy_three_frames", pack(first, np.concatenate([three.K.ravel(), three.w2c.ravel()]).astype("<f8")
                                           .tobytes()), "MalformedSectionError",
-              "a float64 record of 3 frames in a 2-frame file", legacy_layout=True)
+              "a float64 record of 3 frames in a 2-frame file", legacy_layout=True,
+              repaired=pack(first, np.concatenate([three.K[:2].ravel(), three.w2c[:2].ravel()]).astype("<f8")
+                            .tobytes()))
     with_xcam("legacy_compact_record", pack(first, records[1]), "MalformedSectionError",
               "a compact cameras record in a file without required flag bit 1 (its records are I.5 float64)",
               legacy_layout=True)
@@ -665,13 +684,19 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
 
-    def with_payload(name: str, payload: bytes, error: str, why: str) -> None:
-        bad = [list(s) for s in sections]
-        find(bad, "ZSTA")[3:5] = [payload, len(payload)]
-        out[name] = (rebuild(header, bad, minor=1, required_flags=1), error, why)
-
     head = struct.pack("<HffB", 1, 0.5, -1.0, 0)  # one group: scale 0.5, offset -1; no prediction
     codes = [0, 1, 2, 3] * 4
+    full = rans_payload(head, [4096] * 4, codes)
+
+    def with_payload(name: str, payload: bytes, error: str, why: str, repaired: bytes = full) -> None:
+        for target, stored in ((out, payload), (REPAIRED, repaired)):
+            bad = [list(s) for s in sections]
+            find(bad, "ZSTA")[3:5] = [stored, len(stored)]
+            data = rebuild(header, bad, minor=1, required_flags=1)
+            if target is out:
+                out[name] = (data, error, why)
+            else:
+                REPAIRED[name] = data
     with_payload("rans_table_bad_sum", head + b"\x00\x00\x04\x00" + bytes([0x80, 0x20] * 3 + [0x7F]) +
                  rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError",
                  "frequency table sums to 12,415, not 16,384")
@@ -680,7 +705,6 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
                  "a 2-bit alphabet (symbols 0..3) but the table covers symbols 2..5")
     with_payload("rans_table_overlong_varint", head + b"\x00\x00\x01\x00\x80\x80\x81\x00" + b"\x00\x00\x80\x00",
                  "MalformedSectionError", "a 4-byte varint in the frequency table")
-    full = rans_payload(head, [4096] * 4, codes)
     with_payload("rans_truncated_stream", full[:-1], "TruncatedError", "the rANS stream lost its last byte")
     with_payload("rans_trailing_stream_bytes", full + b"\x00", "MalformedSectionError",
                  "one byte after the end of the rANS stream")
@@ -699,15 +723,20 @@ def rans_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
                  rans_encode(np.array(codes), [4096] * 4), "MalformedSectionError", "prediction mode 2")
     with_payload("rans_centre_out_of_range", centred + bytes([0, 1, 4, 3]) +
                  rans_payload(b"", [0, 0, 0, 16384], [3] * 16),
-                 "MalformedSectionError", "centre code 4 in a 2-bit alphabet")
+                 "MalformedSectionError", "centre code 4 in a 2-bit alphabet",
+                 centred + bytes([0, 1, 3, 3]) + rans_payload(b"", [0, 0, 0, 16384], [3] * 16))
     with_payload("rans_residual_out_of_range", centred + bytes([3, 3, 3, 3]) +
                  rans_payload(b"", [0] * 4 + [16384, 0, 0], [4] * 16), "MalformedSectionError",
-                 "residual symbol 4 (+1) on centre code 3 gives code 4 in a 2-bit alphabet")
+                 "residual symbol 4 (+1) on centre code 3 gives code 4 in a 2-bit alphabet",
+                 centred + bytes([2, 2, 2, 2]) + rans_payload(b"", [0] * 4 + [16384, 0, 0], [4] * 16))
+    REPAIRED.update(dict.fromkeys(("rans_without_flag", "rans_in_1_0_file", "rans_with_quant_section",
+                                   "rans_too_many_values"), good))
     out["rans_without_flag"] = (patch_preamble(good, 16, "<Q", 0), "MalformedHeaderError",
                                 "int2-rans tokens but required flag bit 0 is clear")
     out["rans_in_1_0_file"] = (patch_preamble(good, 12, "<H", 0), "MalformedHeaderError",
                                "int2-rans tokens in a file that says version 1.0")
     int8 = dumps_1_1(scene(4, 2, 4), encoding="int8", compression_level=None)
+    REPAIRED["flag_without_rans"] = patch_preamble(int8, 12, "<H", 1)  # the 1.1 file, without flag bit 0
     out["flag_without_rans"] = (patch_preamble(patch_preamble(int8, 12, "<H", 1), 16, "<Q", 1),
                                 "MalformedHeaderError", "required flag bit 0 set on an int8 file")
     quant = [list(s) for s in sections]
@@ -765,14 +794,19 @@ def lanes_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     header, sections = split(good)
     out: dict[str, tuple[bytes, str, str]] = {}
 
-    def with_payload(name: str, payload: bytes, error: str, why: str) -> None:
-        bad = [list(x) for x in sections]
-        find(bad, "ZSTA")[3:5] = [payload, len(payload)]
-        out[f"rans_lanes_{name}"] = (rebuild_1_3(header, bad, minor=5, required_flags=LANE_FLAGS), error, why)
-
     head = struct.pack("<HffB", 1, 0.5, -1.0, 0) + pack_table([4096] * 4)  # G = 1, P = 0, uniform 2-bit table
     codes = np.array([0, 1, 2, 3] * 4)
     stream = rans_encode(codes, [4096] * 4, 4)
+
+    def with_payload(name: str, payload: bytes, error: str, why: str) -> None:
+        for target, stored in ((out, payload), (REPAIRED, head + bytes([4]) + stream)):
+            bad = [list(x) for x in sections]
+            find(bad, "ZSTA")[3:5] = [stored, len(stored)]
+            data = rebuild_1_3(header, bad, minor=5, required_flags=LANE_FLAGS)
+            if target is out:
+                out[f"rans_lanes_{name}"] = (data, error, why)
+            else:
+                REPAIRED[f"rans_lanes_{name}"] = data
     written = find(sections, "ZSTA")[3]  # the writer and the text agree: K = 4 right after the table
     table_end = 11 + parse_rans_table(written[11:], 4)[1]  # (G = 1 and P = 0 there too)
     assert written[10] == 0 and written[table_end] == 4 and len(written) >= table_end + 1 + 16
@@ -795,10 +829,13 @@ def lanes_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
                  "the shared byte stream lost its last byte")
     with_payload("trailing_byte", head + bytes([4]) + stream + b"\x00", "MalformedSectionError",
                  "one byte after the end of the shared byte stream")
+    REPAIRED["rans_lanes_in_1_4_file"] = rebuild_1_3(header, sections, minor=5, required_flags=LANE_FLAGS)
     out["rans_lanes_in_1_4_file"] = (rebuild_1_3(header, sections, minor=4, required_flags=LANE_FLAGS),
                                      "UnsupportedFeatureError",
                                      "required flag bit 4 in a file that says minor version 4 (unknown there)")
     int8 = dumps(scene(4, 2, 4), encoding="int8", compression_level=None)
+    REPAIRED["rans_lanes_flag_without_rans"] = patch_preamble(patch_preamble(int8, 12, "<H", 5), 16, "<Q",
+                                                              FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS)
     out["rans_lanes_flag_without_rans"] = (
         patch_preamble(patch_preamble(int8, 12, "<H", 5), 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS
                        | FLAG_RANS_LANES), "MalformedHeaderError",
@@ -808,6 +845,7 @@ def lanes_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     constant.dynamic_tokens[:] = 0.75
     old = dumps(constant, encoding="int3-rans", rans_lanes=0)  # streams 00 00 80 00: one chain, no K byte
     assert find(split(old)[1], "ZSTA")[3].endswith(b"\x00\x00\x80\x00")
+    REPAIRED["rans_lanes_flag_on_1_1_payloads"] = old
     out["rans_lanes_flag_on_1_1_payloads"] = (
         patch_preamble(patch_preamble(old, 12, "<H", 5), 16, "<Q", LANE_FLAGS), "MalformedSectionError",
         "required flag bit 4 on a file whose payloads have no K byte: K reads as the stream's first byte, 0")
@@ -821,6 +859,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
 
     def add(name: str, data: bytes, error: str, why: str) -> None:
         out[name] = (data, error, why)
+        REPAIRED[name] = good  # each is the good file with one change
 
     def with_header(**changes: Any) -> bytes:
         h = dict(header, **changes)
