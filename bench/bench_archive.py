@@ -19,8 +19,8 @@
    commit) for comparison: file size against the payload and one index, commit time per 1,000
    commits (median, mean, p99, max), open time of the result, and the size after ``compact``.
    ``--commit-sizes 1-2`` makes each commit hold 1 or 2 scenes at random (seeded) instead of one;
-   ``--scene small`` uses ~400-byte records (4x8 static + 2x8 dynamic int4-rans tokens, 1 frame)
-   instead of the ~11 KB ones.  Size targets (issue 52): 10,000 commits of 1-2 scenes at random
+   ``--scene small`` uses records of 400-900 bytes (4x8 static + 2x8 dynamic int4-rans tokens, 1 frame),
+   ``--scene medium`` ~6.6 KB ones (48x64 + 24x64 int8, 4 frames), instead of the ~11 KB ones.  Size targets (issue 52): 10,000 commits of 1-2 scenes at random
    <= 1.3x the payload, opening <= 20 segments.
 
     python bench/bench_archive.py --growth 10000 --commit-sizes 1-2 --out bench/results/archive_growth_mixed.json
@@ -64,6 +64,8 @@ def _pool(scene: str = "default") -> list[tuple[bytes, dict]]:
     for seed in range(POOL):
         if scene == "small":
             rec = example_record(seed, static_shape=(4, 8), dynamic_shape=(2, 8), frames=1, encoding="int4-rans")
+        elif scene == "medium":  # the ~6.6 KB scenes of issue 52's growth measurements
+            rec = example_record(seed, static_shape=(48, 64), dynamic_shape=(24, 64))
         else:
             rec = example_record(seed)
         out.append((rec, summarize_payload(rec)))
@@ -244,8 +246,8 @@ def main() -> None:
     ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
     ap.add_argument("--commit-sizes", default="1", metavar="A[-B]",
                     help="--growth: scenes per commit, drawn uniformly from A..B (seeded)")
-    ap.add_argument("--scene", choices=["default", "small"], default="default",
-                    help="records: ~11 KB (default) or ~400 bytes (small)")
+    ap.add_argument("--scene", choices=["default", "medium", "small"], default="default",
+                    help="records: ~11 KB (default), ~6.6 KB (medium) or ~400-900 bytes (small)")
     ap.add_argument("--out", default=None, help="result JSON (default bench/results/archive.json, "
                     "or archive_growth.json with --growth)")
     args = ap.parse_args()
