@@ -35,8 +35,8 @@ def test_capture_info_text_and_errors(capture_dir, tmp_path, capsys):
     assert main(["capture-info", str(capture_dir)]) == 0
     out = capsys.readouterr().out
     assert "2 cameras, 5 frames" in out and "cam_b" in out
-    assert main(["capture-info", str(tmp_path / "missing")]) == 1
-    assert "error" in capsys.readouterr().err
+    assert main(["capture-info", str(tmp_path / "missing")]) == 3  # a missing input: exit 3 on every command
+    assert "missing: no such file or directory" in capsys.readouterr().err
     (capture_dir / "capture.json").write_text("{}")
     assert main(["capture-info", str(capture_dir)]) == 1
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import json
 import os
@@ -34,13 +35,18 @@ import textwrap
 import threading
 import time
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Iterable, Iterator, NoReturn, Sequence
 
-from ..errors import FormatError, Vt4dError
+from ..errors import BadMagicError, FormatError, Vt4dError
+from ..format.layout import SCENE_MAGIC
 from ..format.reader import open_binary
 from ..version import __version__
 
 EXIT_OK, EXIT_INVALID, EXIT_USAGE, EXIT_OS, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
+# OpenCV's own "[ WARN:0@...] global loadsave.cpp ..." lines would reach a user's terminal beside the command's
+# message for the same problem: the commands say what is wrong themselves (read once, when cv2 loads).
+os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
 
 # Command modules, in the order their commands appear in --help.
 COMMAND_MODULES = (
@@ -300,21 +306,133 @@ def _command_flags(parser: argparse.ArgumentParser, command: str | None) -> set[
     return set()
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, with a usage error said in one line first (the usage itself is `--help`'s)."""
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n(`{self.prog} --help` lists the options)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="vt4d",
         description=(
             "vt4dcodec: compress multi-camera captures into small .vt4d token files, keep them in "
             "archives, and render any camera view back.  Run `vt4d COMMAND --help` for each command."
         ),
-        epilog="Exit codes: 0 ok, 1 invalid input or failed verification, 2 usage, 3 file system error.",
+        epilog="Exit codes: 0 ok, 1 invalid input or failed verification, 2 usage, 3 file system error "
+               "(a missing input, a folder that cannot be written), 130 interrupted.",
     )
 
     parser.add_argument("--version", action="version", version=f"vt4dcodec {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")  # subcommands are Parsers too
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
+
+
+# The inputs (argument dests) of each command that must exist, checked before any work: a missing one is a
+# file system error (exit 3) on every command.  URLs are left to the command.
+INPUTS: dict[str, tuple[str, ...]] = {
+    "info": ("file",), "encode": ("captures",), "decode": ("source", "capture"), "pack": ("files",),
+    "ls": ("archive",), "extract": ("archive",), "repair": ("archive",), "compact": ("archive",),
+    "import": ("calibration", "media_dir"), "capture-info": ("directory",), "contact-sheet": ("directory",),
+    "generate": ("capture",),
+}
+_URL = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*://")
+
+
+def _missing_input(args: argparse.Namespace) -> str | None:
+    for dest in INPUTS.get(args.command, ()):
+        values = getattr(args, dest, None)
+        for value in values if isinstance(values, list) else [values]:
+            if value is None or _URL.match(str(value)):
+                continue
+            path = str(value).split("::", 1)[0] if dest == "source" else str(value)
+            if not os.path.exists(path):
+                if args.command in ARCHIVE_COMMANDS:
+                    return f"{path}: no such archive (no file at that path)"
+                return f"{path}: no such file or directory"
+    return None
+
+
+def _url_reason(exc: OSError) -> str:
+    """Why a URL could not be read, in words (fsspec raises FileNotFoundError(url) from the HTTP client's error)."""
+    cause = exc.__cause__ or exc.__context__
+    status = getattr(cause, "status", None)
+    if isinstance(status, int):
+        return f"the server answered {status} {getattr(cause, 'message', '') or ''}".rstrip()
+    host = getattr(cause, "host", None)
+    if host is not None:
+        os_error = getattr(cause, "os_error", None)
+        code = getattr(os_error, "errno", None)
+        reason = os.strerror(code) if isinstance(code, int) else "connection failed"
+        return f"cannot connect to {host}:{getattr(cause, 'port', '')} ({reason.lower()})"
+    if cause is not None and str(cause):
+        return str(cause)
+    return "no such file there" if isinstance(exc, FileNotFoundError) else "it cannot be read"
+
+
+ARCHIVE_COMMANDS = ("ls", "extract", "repair", "compact")
+
+
+def _wrong_kind(args: argparse.Namespace) -> str | None:
+    """An archive command given a single scene file: say what it is and what to run instead."""
+    path = getattr(args, "archive", None) if args.command in ARCHIVE_COMMANDS else None
+    if path is None or _URL.match(str(path)) or not os.path.isfile(path):
+        return None
+    with open(path, "rb") as fh:
+        if not fh.read(len(SCENE_MAGIC)).startswith(SCENE_MAGIC[:5]):
+            return None
+    return (f"{path} is a single .vt4d scene, not an archive (.vt4da): `vt4d info {path}` shows it, "
+            f"`vt4d pack {path} -o NAME.vt4da` puts it in an archive")
+
+
+def os_error_message(exc: OSError) -> str:
+    """An OSError in words: the path and what is wrong with it, without ``[Errno N]``; a writer's lock file
+    is named as the archive's folder it lives in."""
+    if exc.errno is None or exc.strerror is None:
+        url = str(exc.args[0]) if exc.args else ""
+        return f"cannot read {url}: {_url_reason(exc)}" if _URL.match(url) else str(exc)
+    path = exc.filename
+    what = {errno.ENOENT: "no such file or directory", errno.EACCES: "permission denied",
+            errno.EPERM: "operation not permitted", errno.EEXIST: "already exists (pass -y/--overwrite to replace it)",
+            errno.EISDIR: "is a folder, not a file", errno.ENOTDIR: "a part of this path is a file, not a folder",
+            errno.ENOSPC: "no space left on the device", errno.EROFS: "the file system is read-only"
+            }.get(exc.errno, exc.strerror[:1].lower() + exc.strerror[1:])
+    if path is None:
+        return what
+    path = os.fspath(path)
+    if isinstance(path, bytes):
+        path = path.decode(errors="replace")
+    if path.endswith(".lock") and exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT):
+        folder = os.path.dirname(path) or "."
+        return (f"cannot write beside {path[:-5]}: {what} in folder {folder} (a writer keeps a lock file next to "
+                "the archive)")
+    if exc.errno == errno.ENOENT and "tmp-" in os.path.basename(path):
+        folder = os.path.dirname(path) or "."
+        return f"cannot write in folder {folder}: it does not exist"
+    return f"{path}: {what}"
+
+
+_SCENE_MAGIC_TEXT = re.compile(r"the file starts with b(['\"]).*?(?<!\\)\1, expected b(['\"]).*?(?<!\\)\2")
+_SIGNATURE_TEXT = re.compile(r" \(signature b(['\"]).*?(?<!\\)\1\)")
+
+
+def in_words(message: str) -> str:
+    """A library message without magic bytes: what the file is not, in words."""
+    message = _SCENE_MAGIC_TEXT.sub("it does not start with the .vt4d signature", message)
+    message = _SIGNATURE_TEXT.sub("", message)
+    return message.replace("not a vt4d archive (bad magic; expected \\x89V4A\\r\\n\\x1a\\n)",
+                           "not a .vt4da archive (it does not start with the archive signature)")
+
+
+def _first_input(args: argparse.Namespace) -> str | None:
+    dests = INPUTS.get(args.command, ())
+    values = getattr(args, dests[0], None) if dests else None
+    if isinstance(values, list):
+        return values[0] if len(values) == 1 else None
+    return values
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -325,24 +443,35 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     for note in getattr(args, "deprecated_notes", []):
         say(args, f"vt4d {args.command}: note: {note}")
+    missing = _missing_input(args)
+    if missing is not None:
+        print(f"vt4d {args.command}: error: {missing}", file=sys.stderr)
+        return EXIT_OS
+    wrong = _wrong_kind(args)
+    if wrong is not None:
+        print(f"vt4d {args.command}: error: {wrong}", file=sys.stderr)
+        return EXIT_INVALID
     try:
         return int(args.func(args) or 0)
     except Vt4dError as exc:
-        print(f"vt4d {args.command}: error: {cli_message(str(exc), _command_flags(parser, args.command))}",
-              file=sys.stderr)
+        message = in_words(cli_message(str(exc), _command_flags(parser, args.command)))
+        source = _first_input(args)
+        if isinstance(exc, BadMagicError) and source and not message.startswith(str(source)):
+            message = f"{source}: {message}"
+        print(f"vt4d {args.command}: error: {message}", file=sys.stderr)
         return EXIT_INVALID
     except OSError as exc:
-        print(f"vt4d {args.command}: error: {exc}", file=sys.stderr)
+        print(f"vt4d {args.command}: error: {os_error_message(exc)}", file=sys.stderr)
         return EXIT_OS
     except ModuleNotFoundError as exc:  # a command of the codec on the core install
         extra = EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
         if extra is None:
             raise
         print(f"vt4d {args.command}: error: this command needs {exc.name}, which the core install leaves out: "
-              f'pip install "vt4dcodec[{extra}]"', file=sys.stderr)
+              f'pip install "vt4dcodec[{extra}]" (from a clone: pip install -e ".[{extra}]")', file=sys.stderr)
         return EXIT_INVALID
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print(f"vt4d {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 

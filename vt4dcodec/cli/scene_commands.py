@@ -8,21 +8,22 @@ import json
 import sys
 from typing import Any
 
-from ..archive import is_archive, verify_archive
+from ..archive import is_archive, open_archive, verify_archive
 from ..errors import Vt4dError
 from ..format import open_scene, verify
-from . import add_command, add_storage_option, emit, read_head, storage_options
+from . import add_command, add_storage_option, emit, in_words, os_error_message, plural, read_head, storage_options
 
 EXIT_OK, EXIT_INVALID, EXIT_OS = 0, 1, 3
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    info = add_command(subparsers, "info", help="show what a .vt4d scene file holds",
+    info = add_command(subparsers, "info", help="show what a .vt4d scene file (or an archive) holds",
                        description="Print the header of a .vt4d scene: model fingerprint, token shapes, encoding, "
-                                   "cameras, provenance and sections.  Reads the header only; no torch.",
+                                   "cameras, provenance and sections.  Reads the header only; no torch.  On an archive (.vt4da): "
+                                   "its scene count, and the commands that list, extract and render its scenes.",
                        examples=["vt4d info scene.vt4d",
                                  "vt4d info https://example.org/scene.vt4d --json"])
-    info.add_argument("file", help="a .vt4d scene file (path or fsspec URL)")
+    info.add_argument("file", help="a .vt4d scene file or a .vt4da archive (path or fsspec URL)")
     add_storage_option(info)
     info.set_defaults(func=run_info)
     verify = add_command(subparsers, "verify", help="check .vt4d files (scenes or archives) byte by byte",
@@ -52,13 +53,14 @@ def run_verify(args: argparse.Namespace) -> int:
             else:
                 verify(path, **options)
         except Vt4dError as exc:
-            result.update(ok=False, error=type(exc).__name__, message=str(exc), exit=EXIT_INVALID)
+            result.update(ok=False, error=type(exc).__name__, message=in_words(str(exc)), exit=EXIT_INVALID)
         except OSError as exc:
-            result.update(ok=False, error=type(exc).__name__, message=str(exc), exit=EXIT_OS)
+            result.update(ok=False, error=type(exc).__name__, message=os_error_message(exc), exit=EXIT_OS)
         results.append(result)
         if not args.json:
             if not result["ok"]:
-                print(f"FAIL  {path}: {result['error']}: {result['message']}", file=sys.stderr)
+                message = result["message"]  # in words (the error's kind stays in --json's "error")
+                print(f"FAIL  {message if message.startswith(path) else f'{path}: {message}'}", file=sys.stderr)
             elif not args.quiet:
                 print(f"OK    {path} ({result['kind']})")
     codes = {r.pop("exit", EXIT_OK) for r in results}
@@ -91,11 +93,26 @@ def _provenance(summary: dict[str, Any], metadata: dict[str, Any]) -> str:
     return f"{text}, at {when}"
 
 
+def _archive_info(args: argparse.Namespace, options: dict[str, str]) -> int:
+    """`vt4d info` on an archive: what it is, and the commands that show and get its scenes."""
+    with open_archive(args.file, **options) as reader:
+        keys = reader.keys()
+        summary = {"file": args.file, "kind": "archive", "scenes": len(keys), "generation": reader.generation,
+                   "uncommitted_bytes": reader.uncommitted_bytes}
+    key = keys[0] if keys else "KEY"
+    lines = [f"{args.file}: a .vt4da archive of {plural(len(keys), 'scene')} (generation {summary['generation']})",
+             f"  list its scenes:        vt4d ls {args.file}",
+             f"  one scene's header:     vt4d extract {args.file} {key} -o out/ && vt4d info out/{key}.vt4d",
+             f"  render a scene:         vt4d decode {args.file} --key {key} -o views/",
+             f"  check every record:     vt4d verify {args.file}"]
+    emit(args, summary, lines)
+    return EXIT_OK
+
+
 def run_info(args: argparse.Namespace) -> int:
     options = storage_options(args.storage_option)
     if _is_archive(args.file, options):
-        print(f"{args.file} is an archive; list its scenes with `vt4d ls {args.file}`", file=sys.stderr)
-        return EXIT_INVALID
+        return _archive_info(args, options)
     scene = open_scene(args.file, **options)
     summary = scene.summary()
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
