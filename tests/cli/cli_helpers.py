@@ -57,11 +57,15 @@ class StandInCodec:
         from vt4dcodec import codec
 
         self.calls: list[str] = []
-        self.interrupt_at, self.on_call = interrupt_at, on_call
+        self.interrupt_at, self.on_call, self.loaded = interrupt_at, on_call, False
         fp = make_scene().fingerprint
-        monkeypatch.setattr(codec, "load_encoder", lambda *a, **k: SimpleNamespace(config=SimpleNamespace(frames=8)))
+        monkeypatch.setattr(codec, "load_encoder", self.load_encoder)
         monkeypatch.setattr(codec, "model_fingerprint", lambda model: fp)
         monkeypatch.setattr(codec, "encode", self.encode)
+
+    def load_encoder(self, *args, **kwargs):
+        self.loaded = True
+        return SimpleNamespace(config=SimpleNamespace(frames=8))
 
     def encode(self, cap, model=None, encoding=None, *, start=0, **options):
         self.calls.append(cap.capture_id)

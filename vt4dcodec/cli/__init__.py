@@ -166,6 +166,32 @@ def note_replacing(args: argparse.Namespace, paths: Iterable[str | os.PathLike])
                   "will refuse without it)")
 
 
+# --- output paths, checked before any work -------------------------------------------------------------
+def check_output_file(flag: str, path: str | os.PathLike, suffix: str, what: str, hint: str = "") -> None:
+    """``path`` (given with ``flag``) names a file ``what`` ending in ``suffix``, that is not a folder, in a
+    folder that is one (or can be made) and can be written: refused before any work otherwise."""
+    text = os.fspath(path)
+    if not text.lower().endswith(suffix):
+        found = Path(text).suffix
+        raise Vt4dError(f"{flag} {text}: {what} ends in {suffix}, not {found or 'no extension'}"
+                        + (f"; {hint}" if hint else f" (e.g. {flag} {Path(text).stem or 'out'}{suffix})"))
+    if os.path.isdir(text):
+        raise Vt4dError(f"{flag} {text} is a folder; give a file name ending in {suffix}")
+    check_output_folder(flag, os.path.dirname(os.path.abspath(text)))
+
+
+def check_output_folder(flag: str, folder: str | os.PathLike) -> None:
+    """The folder outputs go to (made when missing) is not a file and, where it exists, can be written."""
+    folder = Path(folder)
+    for part in (folder, *folder.parents):
+        if part.exists():
+            if not part.is_dir():
+                raise Vt4dError(f"{flag}: {part} is a file, so no folder can be made there")
+            if not os.access(part, os.W_OK | os.X_OK):
+                raise PermissionError(errno.EACCES, "Permission denied", str(part))
+            return
+
+
 # --- one shape for every command ----------------------------------------------------------------------
 def add_command(subparsers: Any, name: str, *, help: str, description: str, examples: Sequence[str],
                 notes: str = "", **kwargs: Any) -> argparse.ArgumentParser:

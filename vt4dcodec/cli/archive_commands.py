@@ -14,8 +14,8 @@ from typing import Any
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
-from . import (add_command, add_deprecated_flag, add_overwrite_option, add_storage_option, emit, positive_int, progress,
-               storage_options, working)
+from . import (add_command, add_deprecated_flag, add_overwrite_option, add_storage_option, check_output_file,
+               check_output_folder, emit, positive_int, progress, storage_options, working)
 
 __all__ = ["register"]
 
@@ -44,6 +44,8 @@ def _scene_files(inputs: list[str]) -> list[tuple[str, str]]:
 
 
 def cmd_pack(args: argparse.Namespace) -> int:
+    check_output_file("-o", args.output, ".vt4da", "an archive",
+                      "a .vt4d file holds one scene" if args.output.lower().endswith(".vt4d") else "")
     pairs = _scene_files(args.files)
     if not pairs:
         raise ArchiveError(f"no .vt4d files to pack in {', '.join(args.files)} (directories are searched recursively)")
@@ -110,6 +112,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
         keys = args.keys or reader.keys()
         entries = [reader.entry(k) for k in keys]  # SceneNotFoundError before anything is written
         targets = [os.path.join(args.output, *e.key.split("/")) + ".vt4d" for e in entries]
+        if os.path.isfile(args.output):
+            raise ArchiveError(f"-o {args.output} is a file; give the folder the scenes go to")
+        check_output_folder("-o", args.output)
         if not (args.force or args.overwrite):
             clash = [t for t in targets if os.path.exists(t)]
             if clash:

@@ -18,7 +18,7 @@ from ..capture.calibration import CALIBRATION_FORMATS
 from ..capture.importer import IMPORT_MEDIA, import_capture
 from ..capture.io import read_manifest
 from ..capture.probe import check_capture
-from . import add_command, add_overwrite_option, emit, note_replacing, positive_int
+from . import add_command, add_overwrite_option, check_output_file, emit, note_replacing, positive_int
 from .synth_commands import add_synth_parser
 
 __all__ = ["register", "capture_info", "REGISTER"]
@@ -106,6 +106,7 @@ def _run_import(args: argparse.Namespace) -> int:
 
 
 def _run_contact_sheet(args: argparse.Namespace) -> int:
+    check_output_file("-o", args.output, ".png", "a contact sheet")
     note_replacing(args, [args.output])
     capture, numbers = read_sheet_frames(args.directory, args.frames)  # only the frames shown are decoded
     w, h = write_contact_sheet(capture, args.output, thumb_height=args.thumb_height, frame_numbers=numbers)

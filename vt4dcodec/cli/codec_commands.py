@@ -21,8 +21,8 @@ from ..errors import CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
 from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
-               add_upscale_option, check_upscale, emit, nonneg_int, note_replacing, plural, positive_int, progress,
-               read_head, storage_options, trajectory_label, working)
+               add_upscale_option, check_output_file, check_output_folder, check_upscale, emit, nonneg_int,
+               note_replacing, plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
 
 __all__ = ["register"]
 
@@ -164,6 +164,14 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.skip_existing and (args.replace or args.overwrite):
         raise CaptureError("give --skip-existing (keep the scenes there) or -y/--overwrite (encode them again), "
                            "not both")
+    if args.output is not None:  # output paths checked before any work
+        check_output_file("-o", args.output, ".vt4d", "a scene file",
+                          "--archive FILE.vt4da writes an archive" if args.output.lower().endswith(".vt4da")
+                          else "videos are rendered from it by `vt4d decode`" if args.output.lower().endswith(
+                              (".mp4", ".png", ".npz", ".mov", ".mkv", ".webm", ".avi")) else "")
+    else:
+        check_output_file("--archive", args.archive, ".vt4da", "an archive",
+                          "-o FILE.vt4d writes one scene" if args.archive.lower().endswith(".vt4d") else "")
     captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
@@ -274,6 +282,7 @@ def _decode_target(args: argparse.Namespace, count: int) -> Path | None:
         if out.exists() and not out.is_dir():
             raise CaptureError(f"-o {out} is a file; give a folder for the outputs, or a .mp4/.npz name for one "
                                "trajectory")
+        check_output_folder("-o", out)
         return None
     if args.format not in (None, fmt):
         raise CaptureError(f"-o {out} names a .{fmt} file but --format is {args.format}; give a folder for "
@@ -281,6 +290,7 @@ def _decode_target(args: argparse.Namespace, count: int) -> Path | None:
     if count != 1:
         raise CaptureError(f"-o {out} names one file, but {count} trajectories are rendered; give a folder "
                            "(-o DIR) for one output per trajectory")
+    check_output_folder("-o", out.parent)
     args.format = fmt
     return out
 

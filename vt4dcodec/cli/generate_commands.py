@@ -15,8 +15,8 @@ from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
-from . import (add_command, add_overwrite_option, add_upscale_option, check_upscale, emit, nonneg_int,
-               note_replacing, plural, positive_int, progress, trajectory_label, working)
+from . import (add_command, add_overwrite_option, add_upscale_option, check_output_folder, check_upscale, emit,
+               nonneg_int, note_replacing, plural, positive_int, progress, trajectory_label, working)
 
 __all__ = ["register", "split_view_specs"]
 
@@ -66,6 +66,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise CaptureError(f"-o {out_dir} is a file; give a folder")
+    check_output_folder("-o", out_dir)
     note_replacing(args, [out_dir / "scene.vt4d"])
     manifest = read_manifest(args.capture)
     camera = args.camera or manifest.camera_names[0]
