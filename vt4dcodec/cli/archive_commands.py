@@ -15,7 +15,7 @@ from typing import Any
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
 from . import (add_command, add_deprecated_flag, add_overwrite_option, add_storage_option, check_output_file,
-               check_output_folder, emit, positive_int, progress, storage_options, working)
+               check_output_folder, emit, plural, positive_int, progress, storage_options, working)
 
 __all__ = ["register"]
 
@@ -71,7 +71,7 @@ def cmd_pack(args: argparse.Namespace) -> int:
         writer.commit()
         total, generation = len(writer), writer.generation
     emit(args, {"archive": args.output, "packed": [k for k, _ in pairs], "scenes": total, "generation": generation},
-         [f"{args.output}: packed {len(pairs)} scenes ({total} in archive, generation {generation})"])
+         [f"{args.output}: packed {plural(len(pairs), 'scene')} ({total} in the archive, generation {generation})"])
     return 0
 
 
@@ -102,7 +102,7 @@ def cmd_ls(args: argparse.Namespace) -> int:
     for r in table:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
     tail = f" ({info['uncommitted_bytes']} uncommitted bytes: run `vt4d repair`)" if info["uncommitted_bytes"] else ""
-    print(f"{info['scenes']} scenes, generation {info['generation']}{tail}")
+    print(f"{plural(info['scenes'], 'scene')}, generation {info['generation']}{tail}")
     return 0
 
 
@@ -129,7 +129,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
                 os.chmod(tmp, os.stat(target).st_mode & 0o7777)
             os.replace(tmp, target)
     emit(args, {"output": args.output, "files": [{"key": e.key, "path": t} for e, t in zip(entries, targets)]},
-         [f"extracted {len(entries)} scenes to {args.output} (key a/b/c -> a/b/c.vt4d; `vt4d pack "
+         [f"extracted {plural(len(entries), 'scene')} to {args.output} (key a/b/c -> a/b/c.vt4d; `vt4d pack "
           f"{args.output} -o NEW.vt4da` packs them back under the same keys)"])
     return 0
 
@@ -148,7 +148,7 @@ def cmd_repair(args: argparse.Namespace) -> int:
     if report.last_generation is None:
         start = "no commit verifies; a full scan of the record frames"
     else:
-        start = f"generation {report.last_generation} ({report.committed} scenes)"
+        start = f"generation {report.last_generation} ({plural(report.committed, 'scene')})"
         if report.full_scan:
             start += ", every record checked"
     recover, cut, copy = ("would recover", "would cut", "would copy") if args.dry_run else ("recovered", "cut", "copied")
@@ -158,15 +158,16 @@ def cmd_repair(args: argparse.Namespace) -> int:
     if report.damaged_bytes:
         lines.append(f"skipped {report.damaged_bytes} damaged bytes between valid records (left in place)")
     if report.copied:
-        lines.append(f"{copy} {len(report.copied)} records whose frame header is damaged but whose "
+        lines.append(f"{copy} {plural(len(report.copied), 'record')} whose frame header is damaged but whose "
                      f"payload verifies into fresh frames: {', '.join(report.copied)}")
     if report.lost_generation is not None:
         lines.append(f"the file was truncated: commit generation {report.lost_generation} "
-                     f"({report.lost_scenes} scenes) was cut off its end; its records still in the file are kept")
+                     f"({plural(report.lost_scenes, 'scene')}) was cut off its end; its records still in the file "
+                     "are kept")
     if report.new_generation is not None:
-        lines.append(f"committed generation {report.new_generation} ({report.scenes} scenes)")
+        lines.append(f"committed generation {report.new_generation} ({plural(report.scenes, 'scene')})")
     elif args.dry_run:
-        lines.append(f"dry run: nothing written; the repaired archive would hold {report.scenes} scenes")
+        lines.append(f"dry run: nothing written; the repaired archive would hold {plural(report.scenes, 'scene')}")
     else:
         lines.append("nothing to repair")
     print("\n".join(lines))
@@ -176,10 +177,10 @@ def cmd_repair(args: argparse.Namespace) -> int:
 
 def _repair_errors(args: argparse.Namespace, report: Any) -> None:
     if report.unrecoverable:
-        print(f"{args.archive}: error: {len(report.unrecoverable)} committed scenes could not be recovered "
+        print(f"{args.archive}: error: {plural(len(report.unrecoverable), 'committed scene')} could not be recovered "
               f"(their records fail their checksum): {', '.join(report.unrecoverable)}", file=sys.stderr)
     elif not report.complete:
-        print(f"{args.archive}: error: the truncated commit held {report.lost_scenes} scenes, "
+        print(f"{args.archive}: error: the truncated commit held {plural(report.lost_scenes, 'scene')}, "
               f"{report.scenes} could be recovered", file=sys.stderr)
 
 
@@ -188,7 +189,7 @@ def cmd_compact(args: argparse.Namespace) -> int:
     with working(args, f"compacting {args.archive}"):
         report = compact_archive(args.archive, version=(int(major), int(minor or 0)))
     emit(args, report.to_dict(),
-         [f"{args.archive}: {report.scenes} scenes, {report.bytes_before} -> {report.bytes_after} bytes, "
+         [f"{args.archive}: {plural(report.scenes, 'scene')}, {report.bytes_before} -> {report.bytes_after} bytes, "
           f"generation {report.generation}, format {report.version[0]}.{report.version[1]}"])
     return 0
 

@@ -18,7 +18,7 @@ from ..capture.calibration import CALIBRATION_FORMATS
 from ..capture.importer import IMPORT_MEDIA, import_capture
 from ..capture.io import read_manifest
 from ..capture.probe import check_capture
-from . import add_command, add_overwrite_option, check_output_file, emit, note_replacing, positive_int
+from . import add_command, add_overwrite_option, check_output_file, emit, note_replacing, plural, positive_int
 from .synth_commands import add_synth_parser
 
 __all__ = ["register", "capture_info", "REGISTER"]
@@ -63,7 +63,7 @@ def capture_info(directory: str) -> dict[str, Any]:
 
 def _info_lines(info: dict[str, Any]) -> list[str]:
     lines = [f"capture {info['capture_id']!r} in {info['directory']}",
-             f"  {info['num_cameras']} cameras, {info['num_frames']} frames at {info['fps']:.3f} fps"]
+             f"  {plural(info['num_cameras'], 'camera')}, {plural(info['num_frames'], 'frame')} at {info['fps']:.3f} fps"]
     for c in info["cameras"]:
         depth = c["depth"]["type"] if c["depth"] else "no depth"
         motion = "static" if c["static"] else f"moving, path {c['path_length_m']:.3f} m"
@@ -85,7 +85,7 @@ def _run_capture_info(args: argparse.Namespace) -> int:
         problems = [p for c in cameras for p in c["problems"]]
         info["check"] = {"ok": not problems, "cameras": cameras}
         if not problems:
-            lines.append(f"  check: every medium matches the manifest ({len(cameras)} cameras probed)")
+            lines.append(f"  check: every medium matches the manifest ({plural(len(cameras), 'camera')} probed)")
     emit(args, info, lines)
     for p in problems:
         print(f"vt4d capture-info: error: {p}", file=sys.stderr)
@@ -100,7 +100,7 @@ def _run_import(args: argparse.Namespace) -> int:
     result = {"directory": str(m.directory), "capture_id": m.capture_id, "num_cameras": len(m.cameras),
               "num_frames": m.num_frames, "fps": m.fps, "cameras": [e.name for e in m.cameras],
               "calibration": calib}
-    emit(args, result, [f"imported {len(m.cameras)} cameras x {m.num_frames} frames at {m.fps:.3f} fps into "
+    emit(args, result, [f"imported {plural(len(m.cameras), 'camera')} x {plural(m.num_frames, 'frame')} at {m.fps:.3f} fps into "
                         f"{m.directory}", f"  calibration: {calib['format']}, {calib['units']}"])
     return 0
 
@@ -111,7 +111,7 @@ def _run_contact_sheet(args: argparse.Namespace) -> int:
     capture, numbers = read_sheet_frames(args.directory, args.frames)  # only the frames shown are decoded
     w, h = write_contact_sheet(capture, args.output, thumb_height=args.thumb_height, frame_numbers=numbers)
     emit(args, {"output": args.output, "width": w, "height": h, "cameras": len(capture.cameras)},
-         [f"wrote {args.output} ({w}x{h}, {len(capture.cameras)} cameras)"])
+         [f"wrote {args.output} ({w}x{h}, {plural(len(capture.cameras), 'camera')})"])
     return 0
 
 

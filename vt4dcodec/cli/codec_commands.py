@@ -328,7 +328,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
               "steps": decoder.model.decode_steps if args.steps is None else args.steps, "seed": args.seed,
               "model": model_fingerprint(decoder.model).to_dict()}
     emit(args, result, [f"{o['trajectory']} -> {o['path']}" for o in outputs]
-         + [f"rendered {len(outputs)} trajectory(ies) in {elapsed:.1f} s (model loaded in {load_s:.1f} s before that)"])
+         + [f"rendered {plural(len(outputs), 'trajectory', 'trajectories')} in {elapsed:.1f} s (model loaded in {load_s:.1f} s before that)"])
     return 0
 
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..synth.dataset_writer import write_dataset
 from ..synth.generator import SynthConfig
-from . import add_command, add_overwrite_option, emit, int_at_least, show_progress
+from . import add_command, add_overwrite_option, emit, int_at_least, plural, show_progress
 
 __all__ = ["add_synth_parser", "run_synth"]
 
@@ -31,7 +31,7 @@ def run_synth(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     emit(args, {"output": args.output, "split": args.split, "scenes": [str(p) for p in paths],
                 "seconds": round(elapsed, 3)},
-         [f"{len(paths)} {args.split} scenes (seeds {args.seed}..{args.seed + len(paths) - 1}) in "
+         [f"{plural(len(paths), args.split + ' scene')} (seeds {args.seed}..{args.seed + len(paths) - 1}) in "
           f"{args.output} [{elapsed:.1f} s]"])
     return 0
 
