@@ -84,7 +84,8 @@ def write_mp4(path: str | os.PathLike, frames: np.ndarray, fps: float = DEFAULT_
     try:
         import av
     except ImportError:
-        raise Vt4dError('writing mp4 needs PyAV: pip install "vt4dcodec[codec]"') from None
+        raise Vt4dError('writing mp4 needs PyAV, in the codec extra: pip install -e ".[codec]" in a clone of '
+                        'vt4dcodec (README, install)') from None
     frames = upscale(frames, scale)
     if not (np.isfinite(fps) and fps > 0):
         raise Vt4dError(f"fps must be a positive number, got {fps!r}")

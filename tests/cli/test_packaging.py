@@ -91,3 +91,13 @@ def test_type_hints_ship_and_no_module_needs_fcntl():
     assert (ROOT / "vt4dcodec" / "py.typed").is_file()
     assert "py.typed" in PYPROJECT["tool"]["setuptools"]["package-data"]["vt4dcodec"]
     assert not [p for p in (ROOT / "vt4dcodec").rglob("*.py") if re.search(r"^\s*import fcntl", p.read_text(), re.M)]
+
+
+def test_the_readme_installs_from_a_clone_not_an_index_that_lacks_the_package():
+    """`pip install vt4dcodec` is not published: the README says so and installs from a clone (or a wheel built
+    there); no install line names the package as if an index had it."""
+    readme = (ROOT / "README.md").read_text()
+    by_name = re.findall(r'pip install "?vt4dcodec(?![-\w])[^`]*', readme)  # not a wheel's file name
+    assert by_name == ['pip install vt4dcodec'], by_name  # the one that says it finds nothing
+    assert "`pip install vt4dcodec` finds nothing" in readme and "from a\nclone of this repository" in readme
+    assert 'pip install ".[codec]"' in readme and "pip wheel --no-deps -w dist ." in readme
