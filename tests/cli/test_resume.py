@@ -59,3 +59,15 @@ def test_skip_existing_needs_an_archive_and_excludes_replace(small_captures, tmp
     assert cli.main(["encode", str(small_captures), "--archive", str(tmp_path / "a.vt4da"), "--skip-existing",
                      "--replace"]) == 1
     assert "--skip-existing" in capsys.readouterr().err
+
+
+def test_keys_already_there_are_refused_before_the_model_loads(small_captures, tmp_path, monkeypatch, capsys):
+    archive = tmp_path / "a.vt4da"
+    StandInCodec(monkeypatch)
+    assert cli.main(["encode", str(small_captures / "cap-b"), "--archive", str(archive), "-q"]) == 0
+    stand_in = StandInCodec(monkeypatch)
+    assert cli.main(["encode", str(small_captures), "--archive", str(archive)]) == 1
+    err = capsys.readouterr().err
+    assert "scene 'cap-b/cam00/000000' is already in" in err and "-y/--overwrite" in err and "--skip-existing" in err
+    assert not stand_in.loaded and stand_in.calls == []  # refused before the model loaded or anything encoded
+    assert _keys(archive) == ["cap-b/cam00/000000"]

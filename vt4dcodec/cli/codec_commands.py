@@ -17,7 +17,7 @@ from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
                      parse_camera_list)
 from ..demo import run_demo
-from ..errors import CaptureError
+from ..errors import ArchiveError, CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
 from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
@@ -139,6 +139,18 @@ def _expected_keys(cap: Any, args: argparse.Namespace, frames: int) -> list[str]
     return [_scene_key(cap, names, s) for s in starts]
 
 
+def _check_keys_free(args: argparse.Namespace, captures: list[Path], taken: Any, frames: int, archive: str) -> None:
+    """Before any encoding: a scene this run would write whose key the archive holds needs -y/--overwrite
+    (encode it again) or --skip-existing (keep it)."""
+    if args.replace or args.overwrite or args.skip_existing:
+        return
+    for cap_dir in captures:
+        for key in _expected_keys(read_manifest(cap_dir), args, frames):
+            if key in taken:
+                raise ArchiveError(f"scene {key!r} is already in {archive}: pass -y/--overwrite to encode it "
+                                   "again, or --skip-existing to keep it and encode the rest")
+
+
 def _save_keeping_mode(scene: Any, path: str) -> int:
     """save(scene, path), keeping the permission bits of a file it replaces (save writes a new file and
     renames it over the old one, which would otherwise get the default mode)."""
@@ -181,6 +193,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.output is not None:
         note_replacing(args, [args.output])
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # like --archive: the folder is made
+    elif not args.split and os.path.isfile(_shard_path(args.archive, rank, world)):
+        with open_archive(_shard_path(args.archive, rank, world)) as reader:  # keys taken: before the model loads
+            _check_keys_free(args, mine, set(reader.keys()), 0, reader.name)
     loading = time.perf_counter()
     with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
         model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, args.runtime, cameras=views)
@@ -191,6 +206,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
         shard = Path(_shard_path(args.archive, rank, world))
         shard.parent.mkdir(parents=True, exist_ok=True)  # e.g. shards/ on a fresh cluster job
         writer = ArchiveWriter(shard)
+        if args.split:  # the clip starts follow the model's frame count
+            try:
+                _check_keys_free(args, mine, writer, model.config.frames, str(shard))
+            except BaseException:
+                writer.close(commit=False)
+                raise
     committed_at, skipped = time.monotonic(), []
     try:
         for cap_dir in progress(args, mine, len(mine), "encode", "capture"):
