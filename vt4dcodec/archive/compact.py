@@ -18,7 +18,7 @@ from .layout import MAX_GENERATION, VERSION_MINOR
 from .lock import WriterLock
 from .reader import open_archive
 from .verify import UncommittedTailError
-from .writer import ArchiveWriter, _check_version, _fsync_dir
+from .writer import ArchiveWriter, _check_magic, _check_version, _fsync_dir
 
 __all__ = ["CompactReport", "compact_archive"]
 
@@ -43,6 +43,7 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
     _check_version(version)
     if not os.path.exists(path):
         raise ArchiveError(f"{path}: no such archive")
+    _check_magic(path)  # before the lock: a file that is no archive gets no .lock beside it
     lock = WriterLock(path).acquire()
     tmp = f"{path}.compact-{os.getpid()}"
     try:
