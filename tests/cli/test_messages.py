@@ -107,3 +107,10 @@ def test_info_on_an_archive_says_what_it_is_and_what_to_run(scene_file, tmp_path
     out = capsys.readouterr().out
     assert f"{archive}: a .vt4da archive of 1 scene" in out, out
     assert f"vt4d ls {archive}" in out and f"vt4d decode {archive} --key cap/cam00/000000" in out, out
+
+
+def test_the_readme_states_the_exit_codes_the_commands_return():
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert (f"Exit codes are {cli.EXIT_OK} ok, {cli.EXIT_INVALID} invalid input or failed verification, "
+            f"{cli.EXIT_USAGE} usage, {cli.EXIT_OS} file system error (a missing input, on every command), "
+            f"{cli.EXIT_INTERRUPTED} interrupted.") in text
