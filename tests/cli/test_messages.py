@@ -114,3 +114,11 @@ def test_the_readme_states_the_exit_codes_the_commands_return():
     assert (f"Exit codes are {cli.EXIT_OK} ok, {cli.EXIT_INVALID} invalid input or failed verification, "
             f"{cli.EXIT_USAGE} usage, {cli.EXIT_OS} file system error (a missing input, on every command), "
             f"{cli.EXIT_INTERRUPTED} interrupted.") in text
+
+
+def test_an_unknown_option_is_said_by_its_command_with_the_nearest_one(capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["encode", "cap", "--ovewrite"])
+    assert stop.value.code == cli.EXIT_USAGE
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first == "vt4d encode: error: unrecognized arguments: --ovewrite (did you mean --overwrite?)", first

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import errno
 import importlib
 import json
@@ -461,9 +462,20 @@ def _first_input(args: argparse.Namespace) -> str | None:
     return values
 
 
+def _unknown_options(parser: argparse.ArgumentParser, command: str | None, extra: list[str]) -> NoReturn:
+    """Unrecognized arguments, said by the command they were given to, with the nearest option it has."""
+    sub = next((a.choices[command] for a in parser._actions
+                if isinstance(a, argparse._SubParsersAction) and command in a.choices), parser)
+    known = [s for a in sub._actions if a.help != argparse.SUPPRESS for s in a.option_strings]
+    near = difflib.get_close_matches(extra[0].split("=")[0], known, n=1) if extra[0].startswith("-") else []
+    sub.error(f"unrecognized arguments: {' '.join(extra)}" + (f" (did you mean {near[0]}?)" if near else ""))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _unknown_options(parser, getattr(args, "command", None), extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
