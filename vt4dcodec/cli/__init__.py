@@ -18,7 +18,7 @@ One meaning for the common options, on every command (:func:`add_command` adds t
     -q/--quiet   print nothing on stdout but what --json asks for, and no progress; errors still go
                  to stderr
 Progress bars (stderr) appear only on a terminal.  Library errors name Python keywords
-(``replace=True``); :func:`cli_message` rewrites them into the flag that fixes them (``--replace``).
+(``replace=True``); :func:`cli_message` rewrites them into the flag that fixes them (``--overwrite``).
 """
 
 from __future__ import annotations

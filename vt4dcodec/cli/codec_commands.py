@@ -170,7 +170,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.output is not None and args.archive is not None:
         raise CaptureError("give -o FILE.vt4d or --archive FILE.vt4da, not both")
     if args.replace and args.archive is None:
-        raise CaptureError("--replace applies to --archive (-o FILE.vt4d is always replaced)")
+        raise CaptureError("--replace applies to --archive; an existing -o FILE.vt4d is replaced with -y/--overwrite")
     if args.skip_existing and args.archive is None:
         raise CaptureError("--skip-existing applies to --archive")
     if args.skip_existing and (args.replace or args.overwrite):
