@@ -122,3 +122,12 @@ def test_an_unknown_option_is_said_by_its_command_with_the_nearest_one(capsys):
     assert stop.value.code == cli.EXIT_USAGE
     first = capsys.readouterr().err.splitlines()[0]
     assert first == "vt4d encode: error: unrecognized arguments: --ovewrite (did you mean --overwrite?)", first
+
+
+def test_an_unknown_calibration_format_names_the_flag_and_its_values(small_captures, tmp_path, capsys):
+    calibration = tmp_path / "calib.txt"
+    calibration.write_text("fx fy cx cy\n")
+    assert cli.main(["import", str(calibration), str(small_captures / "cap-a"), "-o", str(tmp_path / "c")]) == 1
+    err = capsys.readouterr().err
+    assert "cannot tell the calibration format" in err and "--format opencv|toml|colmap|nerf" in err, err
+    assert "format= one of" not in err and "('opencv'" not in err, err

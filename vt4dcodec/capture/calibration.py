@@ -163,8 +163,9 @@ def detect_format(path: str | os.PathLike) -> str:
         return "opencv"
     if text.lstrip().startswith("%YAML"):
         return "opencv"
-    raise CaptureError(f"{path}: cannot tell the calibration format; pass format= one of {CALIBRATION_FORMATS} "
-                       "(--format)")
+    raise CaptureError(f"{path}: cannot tell the calibration format (none of OpenCV YAML/JSON, TOML, COLMAP text or "
+                       f"NeRF transforms.json); name it with --format {'|'.join(CALIBRATION_FORMATS)} (in Python: "
+                       "format=NAME)")
 
 
 def read_calibration(path: str | os.PathLike, format: str = "auto") -> tuple[str, list[CameraCalibration]]:
