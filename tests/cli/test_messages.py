@@ -131,3 +131,9 @@ def test_an_unknown_calibration_format_names_the_flag_and_its_values(small_captu
     err = capsys.readouterr().err
     assert "cannot tell the calibration format" in err and "--format opencv|toml|colmap|nerf" in err, err
     assert "format= one of" not in err and "('opencv'" not in err, err
+
+
+def test_an_unknown_camera_lists_the_cameras_in_words(small_captures, tmp_path, capsys):
+    assert cli.main(["encode", str(small_captures / "cap-a"), "--camera", "cam9", "-o", str(tmp_path / "s.vt4d")]) == 1
+    err = capsys.readouterr().err
+    assert err.rstrip().endswith("has no camera 'cam9' (--camera); it has cam00"), err

@@ -115,7 +115,7 @@ def _check_cameras(captures: list[Path], camera: str | None, cameras: str | None
         wanted = [camera] if camera is not None else parse_camera_list(cameras, names, label="--cameras")
         missing = [c for c in wanted if c not in names]
         if missing:
-            raise CaptureError(f"{cap_dir} has no camera {missing[0]!r} ({flag}); it has {names}")
+            raise CaptureError(f"{cap_dir} has no camera {missing[0]!r} ({flag}); it has {', '.join(names)}")
         most = max(most, len(wanted))
     return most
 

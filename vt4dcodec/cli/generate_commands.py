@@ -72,7 +72,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     camera = args.camera or manifest.camera_names[0]
     if camera not in manifest.camera_names:
         raise CaptureError(f"capture {manifest.capture_id!r} has no camera {camera!r} (--camera); it has "
-                           f"{manifest.camera_names}")
+                           f"{', '.join(manifest.camera_names)}")
     cap = read_capture(manifest, cameras=[camera])  # the conditioning camera alone
     loading = time.perf_counter()
     with working(args, "loading the prior and its tokenizer"):
