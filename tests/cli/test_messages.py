@@ -91,6 +91,10 @@ def test_os_errors_in_words_without_lock_or_temporary_paths():
     gone = cli.os_error_message(FileNotFoundError(errno.ENOENT, "No such file", "out/s.vt4d.tmp-11904"))
     assert gone == "cannot write in folder out: it does not exist"
     assert cli.os_error_message(IsADirectoryError(errno.EISDIR, "Is a directory", "v")) == "v: is a folder, not a file"
+    full = cli.os_error_message(OSError(errno.ENOSPC, "No space left on device", "out/a.vt4da.compact-77"))
+    assert full == "cannot write out/a.vt4da: no space left on the device"
+    denied = cli.os_error_message(PermissionError(errno.EACCES, "Permission denied", "out/s.vt4d.tmp-11904"))
+    assert denied == "cannot write out/s.vt4d: permission denied"
 
 
 def test_no_opencv_warning_lines():

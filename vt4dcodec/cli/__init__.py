@@ -436,9 +436,11 @@ def os_error_message(exc: OSError) -> str:
         folder = os.path.dirname(path) or "."
         return (f"cannot write beside {path[:-5]}: {what} in folder {folder} (a writer keeps a lock file next to "
                 "the archive)")
-    if exc.errno == errno.ENOENT and "tmp-" in os.path.basename(path):
-        folder = os.path.dirname(path) or "."
-        return f"cannot write in folder {folder}: it does not exist"
+    temporary = re.search(r"\.(?:tmp|compact)-\d+$", path)  # the file a command writes, then renames
+    if temporary and exc.errno == errno.ENOENT:
+        return f"cannot write in folder {os.path.dirname(path) or '.'}: it does not exist"
+    if temporary:
+        return f"cannot write {path[:temporary.start()]}: {what}"
     return f"{path}: {what}"
 
 
