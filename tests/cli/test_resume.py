@@ -71,3 +71,30 @@ def test_keys_already_there_are_refused_before_the_model_loads(small_captures, t
     assert "scene 'cap-b/cam00/000000' is already in" in err and "-y/--overwrite" in err and "--skip-existing" in err
     assert not stand_in.loaded and stand_in.calls == []  # refused before the model loaded or anything encoded
     assert _keys(archive) == ["cap-b/cam00/000000"]
+
+
+def test_a_real_sigint_keeps_the_finished_scenes(small_captures, tmp_path):
+    """The same through the operating system's Ctrl-C: the process signals itself (SIGINT) while encoding
+    its third capture, and exits 130 with the two finished scenes committed."""
+    import os
+    import subprocess
+    import sys
+
+    from cli_helpers import ROOT
+
+    archive = tmp_path / "a.vt4da"
+    driver = f"""
+import os, signal, sys
+sys.path.insert(0, {str(ROOT / "tests" / "cli")!r})
+import pytest
+from cli_helpers import StandInCodec
+import vt4dcodec.cli as cli
+patch = pytest.MonkeyPatch()
+StandInCodec(patch, on_call=lambda n: n == 3 and os.kill(os.getpid(), signal.SIGINT))
+sys.exit(cli.main(["encode", {str(small_captures)!r}, "--archive", {str(archive)!r}]))
+"""
+    r = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, cwd=ROOT, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == 130, r.stderr
+    assert "interrupted: kept the 2 scenes this run encoded" in r.stderr, r.stderr
+    assert _keys(archive) == ["cap-a/cam00/000000", "cap-b/cam00/000000"]
