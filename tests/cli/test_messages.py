@@ -87,9 +87,11 @@ def test_an_unreachable_url_says_why(capsys):
 
 def test_os_errors_in_words_without_lock_or_temporary_paths():
     denied = cli.os_error_message(PermissionError(errno.EACCES, "Permission denied", "data/a.vt4da.lock"))
-    assert denied.startswith("cannot write beside data/a.vt4da: permission denied in folder data") and _clean(denied)
+    assert denied.startswith("cannot write data/a.vt4da: permission denied in folder data") and _clean(denied)
     gone = cli.os_error_message(FileNotFoundError(errno.ENOENT, "No such file", "out/s.vt4d.tmp-11904"))
-    assert gone == "cannot write in folder out: it does not exist"
+    assert gone == "cannot write out/s.vt4d: folder out does not exist"
+    gone = cli.os_error_message(FileNotFoundError(errno.ENOENT, "No such file", "out/a.vt4da.lock"))
+    assert gone == "cannot write out/a.vt4da: folder out does not exist"
     assert cli.os_error_message(IsADirectoryError(errno.EISDIR, "Is a directory", "v")) == "v: is a folder, not a file"
     full = cli.os_error_message(OSError(errno.ENOSPC, "No space left on device", "out/a.vt4da.compact-77"))
     assert full == "cannot write out/a.vt4da: no space left on the device"

@@ -53,3 +53,9 @@ def test_decode_and_contact_sheet_check_their_outputs_first(scene_file, small_ca
     assert decoder.opened == []
     assert cli.main(["contact-sheet", str(small_captures / "cap-a"), "-o", str(tmp_path / "sheet.jpg")]) == 1
     assert "a contact sheet ends in .png, not .jpg" in capsys.readouterr().err
+
+
+def test_pack_makes_the_archives_folder_as_encode_does(scene_file, tmp_path):
+    archive = tmp_path / "new" / "dir" / "a.vt4da"
+    assert cli.main(["pack", str(scene_file), "-o", str(archive), "-q"]) == 0
+    assert archive.is_file()

@@ -432,13 +432,15 @@ def os_error_message(exc: OSError) -> str:
     path = os.fspath(path)
     if isinstance(path, bytes):
         path = path.decode(errors="replace")
+    folder = os.path.dirname(path) or "."
     if path.endswith(".lock") and exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT):
-        folder = os.path.dirname(path) or "."
-        return (f"cannot write beside {path[:-5]}: {what} in folder {folder} (a writer keeps a lock file next to "
-                "the archive)")
+        if exc.errno == errno.ENOENT:
+            return f"cannot write {path[:-5]}: folder {folder} does not exist"
+        return (f"cannot write {path[:-5]}: {what} in folder {folder} (a writer keeps a lock file beside the "
+                "archive)")
     temporary = re.search(r"\.(?:tmp|compact)-\d+$", path)  # the file a command writes, then renames
     if temporary and exc.errno == errno.ENOENT:
-        return f"cannot write in folder {os.path.dirname(path) or '.'}: it does not exist"
+        return f"cannot write {path[:temporary.start()]}: folder {folder} does not exist"
     if temporary:
         return f"cannot write {path[:temporary.start()]}: {what}"
     return f"{path}: {what}"

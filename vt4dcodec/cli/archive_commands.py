@@ -62,6 +62,7 @@ def cmd_pack(args: argparse.Namespace) -> int:
     if mode == "x" and os.path.exists(args.output):
         raise FileExistsError(f"{args.output} exists: pass -y/--overwrite to replace it, or --append to add to it")
     policy = "recover" if args.recover else "discard" if args.discard_uncommitted else "error"
+    os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)  # as encode --archive: made
     with ArchiveWriter(args.output, mode, on_uncommitted=policy) as writer:
         for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
             with open(path, "rb") as f:
@@ -208,7 +209,7 @@ def register(subparsers: Any) -> None:
                               "vt4d pack more/*.vt4d -o scenes.vt4da --append -y    replacing scenes of the same key",
                               "vt4d pack scenes/ -o scenes.vt4da -y                 replace the archive"])
     p.add_argument("files", nargs="+", help=".vt4d files or directories")
-    p.add_argument("-o", "--output", required=True, help="archive path (.vt4da)")
+    p.add_argument("-o", "--output", required=True, help="archive path (.vt4da); its folder is created")
     p.add_argument("--append", action="store_true", help="add to an existing archive")
     add_overwrite_option(p, "replace an existing archive; with --append, replace the scenes whose key is there")
     add_deprecated_flag(p, "--force", "force")      # earlier spellings: replace the archive,
