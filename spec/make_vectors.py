@@ -35,7 +35,8 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
-                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_RANS_LANES, PREAMBLE_SIZE,
+                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_LEARNED_TOKENS,
+                                     FLAG_RANS_LANES, PREAMBLE_SIZE,
                                      crc32, entry_size, parse_preamble, parse_table)
 from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode  # noqa: E402
 from vt4dcodec.format.rans import parse_table as parse_rans_table  # noqa: E402
@@ -141,16 +142,19 @@ def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = 
                 required_flags: int | None = None, **kw: Any) -> bytes:
     """A compact container (1.3) with correct checksums: the header map (its digests made binary) or raw
     msgpack bytes, compressed with the spec dictionary, or with ``compress=False`` ``header`` bytes stored as
-    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``-rans`` encoding), and bit 3 with
-    an ``XCAM`` section; the minor version to 3, or 4 with an ``XCAM`` section."""
+    they are.  Required flags default to bit 2 and bit 1 (and bit 0 for an ``int<b>-rans`` encoding, bit 5 for
+    ``learned-rans``), and bit 3 with an ``XCAM`` section; the minor version to 3, or 4 with an ``XCAM`` section,
+    or 6 for ``learned-rans``."""
     raw = header if isinstance(header, bytes) else msgpack.packb(binary_digests(header), use_bin_type=True)
+    encoding = str(_header_map(header).get("encoding", ""))
+    learned = encoding == "learned-rans"  # format 1.6 (I.6.2): bit 5, never bit 0
     if minor is None:
-        minor = 4 if _extra_cameras(sections) else 3
+        minor = 6 if learned else 4 if _extra_cameras(sections) else 3
     if required_flags is None:
-        rans = str(_header_map(header).get("encoding", "")).endswith("-rans")
+        rans = encoding.endswith("-rans") and not learned
         legacy_cameras = _legacy_cameras(header, sections)  # bit 1 unless CAMS is known to be the 1.0 section
         required_flags = (FLAG_COMPACT_CONTAINER | (0 if legacy_cameras else FLAG_COMPACT_CAMERAS)
-                          | (FLAG_ENTROPY_CODED_TOKENS if rans else 0)
+                          | (FLAG_ENTROPY_CODED_TOKENS if rans else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
                           | (FLAG_EXTRA_CAMERAS if _extra_cameras(sections) else 0))
     stored = compress_header(raw) if compress else raw
     return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)

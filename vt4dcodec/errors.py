@@ -33,7 +33,7 @@ __all__ = [
     # models and the codec
     "ModelError",
     "ModelNotFoundError",
-    "ModelMismatchError",
+    "ModelMismatchError", "EntropyTablesError",
 ]
 
 
@@ -72,6 +72,11 @@ class MalformedHeaderError(FormatError):
 
 class MalformedSectionError(FormatError):
     """A section's layout or contents contradict the header or the specification."""
+
+
+class EntropyTablesError(FormatError, LookupError):
+    """The tokens are coded with a model's entropy tables (``learned-rans``) that are not at hand, or tables
+    given for them belong to another model or are malformed."""
 
 
 class LimitExceededError(FormatError):

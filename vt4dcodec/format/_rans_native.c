@@ -712,6 +712,154 @@ done:
     return result;
 }
 
+/* Context-coded streams (format 1.6, learned-rans): one chain, symbol k coded with frequency table ctx[k]
+ * of T tables of A symbols each (freqs_u32 holds T * A values, table t at t * A).  Every table must sum
+ * to PROB_SCALE (checked here again); a symbol of frequency 0 cannot be encoded.
+ *   encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> bytes, or None if a symbol has frequency 0 or lies
+ *       outside its table
+ *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16) -> (symbols_decoded, stream_pos, final_state) */
+static uint32_t *ctx_cums(Py_buffer *fb, Py_ssize_t alphabet, Py_ssize_t *tables) {
+    if (alphabet < 1 || alphabet > MAX_ALPHABET || fb->len % (4 * alphabet) || fb->len == 0) {
+        PyErr_SetString(PyExc_ValueError, "freqs must be T x A uint32 values");
+        return NULL;
+    }
+    *tables = fb->len / (4 * alphabet);
+    uint32_t *cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)(*tables) * (size_t)(alphabet + 1));
+    if (!cum) {
+        PyErr_NoMemory();
+        return NULL;
+    }
+    const uint32_t *freqs = (const uint32_t *)fb->buf;
+    for (Py_ssize_t t = 0; t < *tables; t++) {
+        uint32_t *c = cum + t * (alphabet + 1);
+        if (!build_cum(freqs + t * alphabet, alphabet, c)) {
+            PyMem_Free(cum);
+            PyErr_SetString(PyExc_ValueError, "a frequency table does not sum to 2^14");
+            return NULL;
+        }
+        c[alphabet] = PROB_SCALE;
+    }
+    return cum;
+}
+
+static PyObject *rans_encode_ctx(PyObject *self, PyObject *args) {
+    Py_buffer sb, xb, fb;
+    Py_ssize_t alphabet, tables;
+    if (!PyArg_ParseTuple(args, "y*y*y*n", &sb, &xb, &fb, &alphabet)) return NULL;
+    PyObject *result = NULL;
+    uint8_t *buf = NULL;
+    uint32_t *cum = NULL;
+    if (sb.len % 2 || sb.len != xb.len) {
+        PyErr_SetString(PyExc_ValueError, "symbols and ctx must be uint16 buffers of one length");
+        goto done;
+    }
+    cum = ctx_cums(&fb, alphabet, &tables);
+    if (!cum) goto done;
+    const Py_ssize_t n = sb.len / 2;
+    const uint16_t *sym = (const uint16_t *)sb.buf, *ctx = (const uint16_t *)xb.buf;
+    const uint32_t *freqs = (const uint32_t *)fb.buf;
+    const size_t cap = 2 * (size_t)n + 4;
+    buf = PyMem_Malloc(cap);
+    if (!buf) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    uint8_t *p = buf + cap;
+    uint32_t x = STATE_LOWER;
+    int bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t k = n - 1; k >= 0; k--) {
+        const Py_ssize_t t = ctx[k], s = sym[k];
+        if (t >= tables || s >= alphabet || freqs[t * alphabet + s] == 0) {
+            bad = 1;
+            break;
+        }
+        const uint32_t f = freqs[t * alphabet + s], c = cum[t * (alphabet + 1) + s];
+        const uint32_t x_max = f << UPPER_SHIFT;
+        while (x >= x_max) {
+            *--p = (uint8_t)x;
+            x >>= 8;
+        }
+        x = ((x / f) << PROB_BITS) + (x % f) + c;
+    }
+    Py_END_ALLOW_THREADS
+    if (bad) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    p -= 4;
+    p[0] = (uint8_t)x;
+    p[1] = (uint8_t)(x >> 8);
+    p[2] = (uint8_t)(x >> 16);
+    p[3] = (uint8_t)(x >> 24);
+    result = PyBytes_FromStringAndSize((const char *)p, (Py_ssize_t)(buf + cap - p));
+done:
+    PyMem_Free(buf);
+    PyMem_Free(cum);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    return result;
+}
+
+static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
+    Py_buffer sb, xb, fb, ob;
+    Py_ssize_t alphabet, tables;
+    if (!PyArg_ParseTuple(args, "y*y*y*nw*", &sb, &xb, &fb, &alphabet, &ob)) return NULL;
+    PyObject *result = NULL;
+    uint32_t *cum = NULL;
+    if (ob.len % 2 || ob.len != xb.len || sb.len < 4) {
+        PyErr_SetString(PyExc_ValueError, "out and ctx must be uint16 buffers of one length, the stream >= 4 bytes");
+        goto done;
+    }
+    cum = ctx_cums(&fb, alphabet, &tables);
+    if (!cum) goto done;
+    const uint8_t *data = (const uint8_t *)sb.buf;
+    const uint16_t *ctx = (const uint16_t *)xb.buf;
+    const uint32_t *freqs = (const uint32_t *)fb.buf;
+    uint16_t *out = (uint16_t *)ob.buf;
+    const Py_ssize_t n = ob.len / 2, end = sb.len;
+    uint32_t x = read_u32(data);
+    Py_ssize_t pos = 4, i = 0;
+    int bad_ctx = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (; i < n; i++) {
+        const Py_ssize_t t = ctx[i];
+        if (t >= tables) {
+            bad_ctx = 1;
+            break;
+        }
+        const uint32_t *c = cum + t * (alphabet + 1);
+        const uint32_t slot = x & (PROB_SCALE - 1);
+        Py_ssize_t lo = 0, hi = alphabet; /* the symbol s with c[s] <= slot < c[s + 1] */
+        while (hi - lo > 1) {
+            const Py_ssize_t mid = (lo + hi) / 2;
+            if (c[mid] <= slot) lo = mid;
+            else hi = mid;
+        }
+        x = freqs[t * alphabet + lo] * (x >> PROB_BITS) + slot - c[lo];
+        while (x < STATE_LOWER) {
+            if (pos >= end) goto stop;
+            x = (x << 8) | data[pos++];
+        }
+        out[i] = (uint16_t)lo;
+    }
+stop:
+    Py_END_ALLOW_THREADS
+    if (bad_ctx) {
+        PyErr_SetString(PyExc_ValueError, "a context index lies outside the tables");
+        goto done;
+    }
+    result = Py_BuildValue("(nnk)", i, pos, (unsigned long)x);
+done:
+    PyMem_Free(cum);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"decode", rans_decode, METH_VARARGS,
      "decode(stream, freqs_u32, out_u16[, lanes]) -> (symbols_decoded, stream_pos, final_states)"},
@@ -723,6 +871,10 @@ static PyMethodDef methods[] = {
      " ...] for 1 or 2 streams"},
     {"column_histograms", column_histograms, METH_VARARGS,
      "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
+    {"encode_ctx", rans_encode_ctx, METH_VARARGS,
+     "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
+    {"decode_ctx", rans_decode_ctx, METH_VARARGS,
+     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -36,10 +36,13 @@ from .rans_tokens import (RANS_BITS, RANS_ENCODINGS, check_groups, decode_rans_c
                           encode_rans_tokens)
 
 __all__ = ["ENCODINGS", "V1_0_ENCODINGS", "RANS_ENCODINGS", "EncodedTokens", "encode_tokens", "decode_tokens",
-           "codes_from_payload", "dequantize", "payload_size", "is_affine", "is_entropy_coded", "FLOAT16_MAX", "max_abs_error"]
+           "codes_from_payload", "dequantize", "payload_size", "is_affine", "is_entropy_coded", "is_learned", "LEARNED_ENCODING", "ALL_ENCODINGS", "FLOAT16_MAX", "max_abs_error"]
 
 V1_0_ENCODINGS = ("float32", "float16", "int8", "int4")
+LEARNED_ENCODING = "learned-rans"  # format 1.6: the model's quantizer and entropy tables (learned.py)
+# the encodings whose file carries everything to decode it; learned-rans also needs its model's tables
 ENCODINGS = V1_0_ENCODINGS + RANS_ENCODINGS
+ALL_ENCODINGS = ENCODINGS + (LEARNED_ENCODING,)
 _BITS = {"int8": 8, "int4": 4}
 FLOAT16_MAX = 65504.0
 
@@ -52,6 +55,11 @@ def is_affine(encoding: str) -> bool:
 def is_entropy_coded(encoding: str) -> bool:
     """True for the ``int<b>-rans`` encodings (format 1.1, required feature flag bit 0)."""
     return encoding in RANS_BITS
+
+
+def is_learned(encoding: str) -> bool:
+    """True for ``learned-rans`` (format 1.6, required feature flag bit 5): codes of the model's tables."""
+    return encoding == LEARNED_ENCODING
 
 
 def payload_size(encoding: str, rows: int, cols: int) -> int:

@@ -32,7 +32,7 @@ import zstandard
 from ..cameras import DISTORTION_LENGTHS
 from ..errors import LimitExceededError, MalformedHeaderError
 from .checks import exact_keys, require_bool, require_int, require_map, require_shape
-from .encodings import ENCODINGS
+from .encodings import ALL_ENCODINGS
 from .rans_tokens import MAX_RANS_VALUES, RANS_BITS
 from .fingerprint import ModelFingerprint, Provenance
 from .layout import BytesLike
@@ -250,8 +250,8 @@ def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool 
     if static_shape[1] != dynamic_shape[1]:
         raise MalformedHeaderError(f"static tokens have d = {static_shape[1]} but dynamic tokens d = {dynamic_shape[1]}")
     encoding = h["encoding"]
-    if encoding not in ENCODINGS:
-        raise MalformedHeaderError(f"encoding {encoding!r:.40} is not one of {ENCODINGS}")
+    if encoding not in ALL_ENCODINGS:
+        raise MalformedHeaderError(f"encoding {encoding!r:.40} is not one of {ALL_ENCODINGS}")
     if encoding in RANS_BITS and max(static_shape[0] * static_shape[1], dynamic_shape[0] * dynamic_shape[1]) > MAX_RANS_VALUES:
         raise LimitExceededError(f"encoding {encoding} allows at most {MAX_RANS_VALUES} values per token matrix")
     cam = require_map(h["cameras"], "cameras")

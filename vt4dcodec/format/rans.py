@@ -50,7 +50,8 @@ except ImportError:  # built without a C compiler: the pure-Python coder below d
     NATIVE = False
 
 __all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "MAX_LANES", "NATIVE", "normalize_counts", "pack_table",
-           "parse_table", "is_lane_count", "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped"]
+           "parse_table", "is_lane_count", "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped",
+           "rans_encode_ctx", "rans_decode_ctx"]
 
 PROB_BITS = 14
 PROB_SCALE = 1 << PROB_BITS          # M: frequencies sum to this
@@ -338,4 +339,87 @@ def _decode_py(data: bytes, states: list[int], freqs: list[int], count: int) -> 
         states[i % lanes] = x
         syms[i] = s
     _check_end(data, pos, states)
+    return np.array(syms, dtype=np.uint16)
+
+
+# --- context-coded streams (format 1.6, FORMAT.md I.6.2) -------------------------------------------------
+def _ctx_args(ctx: np.ndarray, freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    table = np.ascontiguousarray(freqs, dtype=np.uint32)
+    if table.ndim != 2 or table.shape[0] < 1 or table.shape[1] < 1:
+        raise ValueError("freqs must be a (T, A) table")
+    return np.ascontiguousarray(ctx, dtype=np.uint16).reshape(-1), table, table.shape[1]
+
+
+def rans_encode_ctx(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> bytes:
+    """The single-chain rANS stream of ``symbols`` (1-D) where symbol ``k`` is coded with row ``ctx[k]`` of
+    ``freqs`` (T, A), each row a table summing to 2^14. ValueError where a symbol has frequency 0."""
+    ctx16, table, alphabet = _ctx_args(ctx, freqs)
+    syms = np.ascontiguousarray(symbols, dtype=np.int64).reshape(-1)
+    if syms.shape != ctx16.shape:
+        raise ValueError("one context per symbol")
+    if syms.size and (syms.min() < 0 or syms.max() >= alphabet or int(ctx16.max()) >= table.shape[0]):
+        raise ValueError("a symbol or context lies outside the tables")
+    if NATIVE:
+        stream = _rans_native.encode_ctx(syms.astype(np.uint16), ctx16, table, alphabet)
+        if stream is None:
+            raise ValueError("a symbol to encode has frequency 0")
+        return stream
+    return _encode_ctx_py(syms, ctx16, table)
+
+
+def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> bytes:
+    """Pure-Python :func:`rans_encode_ctx` (the reference)."""
+    table = freqs.astype(np.int64)
+    cums = np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
+    x, out = STATE_LOWER, bytearray()
+    for s, t in zip(symbols.tolist()[::-1], ctx.tolist()[::-1]):
+        f = int(table[t, s])
+        if f == 0:
+            raise ValueError("a symbol to encode has frequency 0")
+        x_max = f << _STATE_UPPER_SHIFT
+        while x >= x_max:
+            out.append(x & 0xFF)
+            x >>= 8
+        x = ((x // f) << PROB_BITS) + (x % f) + int(cums[t, s])
+    out.reverse()
+    return x.to_bytes(4, "little") + bytes(out)
+
+
+def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+    """Decode ``len(ctx)`` symbols (uint16) of a single-chain stream, symbol ``k`` with row ``ctx[k]`` of
+    ``freqs`` (T, A; every row validated to sum to 2^14 by the caller). TruncatedError if the stream ends
+    early, MalformedSectionError if bytes are left over or the final state is not ``L``."""
+    ctx16, table, alphabet = _ctx_args(ctx, freqs)
+    data, states = _opened(stream, 1)
+    if ctx16.size and int(ctx16.max()) >= table.shape[0]:
+        raise ValueError("a context lies outside the tables")
+    if not NATIVE:
+        return _decode_ctx_py(data, states[0], ctx16, table)
+    out = np.empty(ctx16.size, np.uint16)
+    done, pos, final = _rans_native.decode_ctx(data, ctx16, table, alphabet, out)
+    if done < ctx16.size:
+        raise TruncatedError(f"rANS stream ends after {done} of {ctx16.size} symbols")
+    _check_end(data, pos, (final,))
+    return out
+
+
+def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+    """Pure-Python :func:`rans_decode_ctx` after the initial-state check (the reference)."""
+    table = freqs.astype(np.int64)
+    cums = np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
+    mask, end, pos = PROB_SCALE - 1, len(data), 4
+    rows = {t: (table[t].tolist(), cums[t].tolist()) for t in set(ctx.tolist())}
+    syms = [0] * len(ctx)
+    for i, t in enumerate(ctx.tolist()):
+        f, cum = rows[t]
+        slot = x & mask
+        s = int(np.searchsorted(cums[t], slot, side="right")) - 1
+        x = f[s] * (x >> PROB_BITS) + slot - cum[s]
+        while x < STATE_LOWER:
+            if pos >= end:
+                raise TruncatedError(f"rANS stream ends after {i} of {len(ctx)} symbols")
+            x = (x << 8) | data[pos]
+            pos += 1
+        syms[i] = s
+    _check_end(data, pos, (x,))
     return np.array(syms, dtype=np.uint16)

@@ -8,9 +8,11 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..cameras import Trajectory
-from ..errors import (ChecksumError, FormatError, MalformedHeaderError, MalformedSectionError, TruncatedError,
+from ..errors import (ChecksumError, EntropyTablesError, FormatError, LimitExceededError, MalformedHeaderError,
+                      MalformedSectionError, TruncatedError,
                       UnsupportedFeatureError)
-from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, parse_quant, payload_size
+from .encodings import codes_from_payload, decode_tokens, is_affine, is_entropy_coded, is_learned, parse_quant, payload_size
+from .learned import MAX_LEARNED_VALUES, EntropyTables, decode_learned_tokens, find_tables, parse_learned_payload
 from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
@@ -18,7 +20,7 @@ from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -109,7 +111,8 @@ class SceneFile:
         sections: the section table entries in file order.
     """
 
-    def __init__(self, data: BytesLike) -> None:
+    def __init__(self, data: BytesLike, *, tables: EntropyTables | None = None) -> None:
+        self._tables = tables
         if not isinstance(data, bytes):
             try:
                 data = memoryview(data).cast("B")
@@ -166,6 +169,11 @@ class SceneFile:
         if self.rans_lanes and not flagged:
             raise MalformedHeaderError(
                 "required flag bit 4 (rANS lanes) is set without bit 0 (entropy-coded tokens), which it needs")
+        learned = is_learned(self._info.encoding)
+        if learned != bool(self.preamble.required_flags & FLAG_LEARNED_TOKENS):
+            raise MalformedHeaderError(
+                f"encoding {self._info.encoding} {'requires' if learned else 'must not set'} required feature flag "
+                "bit 5 (learned-rans tokens)")
 
     def _check_section_set(self) -> None:
         required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
@@ -202,7 +210,12 @@ class SceneFile:
                   SECTION_EXTRA_CAMERAS: extra_cameras_max_raw_length(self._info.cameras.num_frames)}
         for name, (rows, cols) in ((SECTION_STATIC, self._info.static_shape),
                                    (SECTION_DYNAMIC, self._info.dynamic_shape)):
-            if is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, [K, K - 1 more states,] <= 2 bytes a code
+            if is_learned(self._info.encoding):  # I.6.2: level, views, state, <= 2 bytes a code
+                if rows * cols > MAX_LEARNED_VALUES:
+                    raise LimitExceededError(f"{rows * cols} learned-rans values in one matrix exceed the limit of "
+                                             f"{MAX_LEARNED_VALUES}")
+                limits[name] = 2 + 4 + 2 * rows * cols
+            elif is_entropy_coded(self._info.encoding):  # I.6.1: parameters, table, [K, K - 1 more states,] <= 2 bytes a code
                 limits[name] = (2 + 8 * cols + 1 + cols + 4 + 3 * 511 + 4 + 2 * rows * cols
                                 + (1 + 4 * (MAX_LANES - 1) if self.rans_lanes else 0))
             else:
@@ -346,6 +359,9 @@ class SceneFile:
         """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only; for
         ``int<b>-rans`` each channel gets its group's pair)."""
         tok_name, quant_name = _TOKENS[which]
+        if is_learned(self.encoding):
+            raise FormatError("learned-rans tokens have per-model quantizer steps, not per-file parameters "
+                              "(SceneFile.entropy_tables().steps)")
         if is_entropy_coded(self.encoding):
             rows, cols = self.static_shape if which == "static" else self.dynamic_shape
             return decode_rans_codes(self.raw_section(tok_name), self.encoding, rows, cols, lanes=self.rans_lanes)[1:]
@@ -353,10 +369,28 @@ class SceneFile:
             raise FormatError(f"encoding {self.encoding} has no quantization parameters")
         return parse_quant(self.raw_section(quant_name), self.static_shape[1])
 
+    @property
+    def quality(self) -> int | None:
+        """The quality level (1 = the coarsest) of a ``learned-rans`` file, read from the checksum-verified
+        ``ZSTA`` payload without the model's tables; None for the other encodings."""
+        if not is_learned(self.encoding):
+            return None
+        return parse_learned_payload(self.raw_section(SECTION_STATIC))[0] + 1
+
+    def entropy_tables(self) -> EntropyTables:
+        """The entropy tables the ``learned-rans`` tokens need: those given to :func:`open_scene`, else the
+        installed model's with this file's fingerprint (EntropyTablesError when there is none)."""
+        self._tables = find_tables(self.fingerprint, self._tables)
+        return self._tables
+
     def _tokens(self, which: str, dequantize: bool) -> np.ndarray:
         tok_name, quant_name = _TOKENS[which]
         rows, cols = self.static_shape if which == "static" else self.dynamic_shape
         payload = self.raw_section(tok_name)
+        if is_learned(self.encoding):
+            tokens, _ = decode_learned_tokens(payload, self.entropy_tables(), rows, cols, which,
+                                              views=1 + self.num_extra_cameras)
+            return tokens
         if not dequantize:
             return codes_from_payload(payload, self.encoding, rows, cols, lanes=self.rans_lanes)
         quant = self.raw_section(quant_name) if is_affine(self.encoding) else None
@@ -398,6 +432,19 @@ class SceneFile:
             if entry.type not in KNOWN_SECTIONS:
                 if crc32(self._data[entry.offset:end]) != entry.crc32:
                     raise ChecksumError(f"ancillary section {entry.type} is damaged (CRC-32 mismatch)")
+        if is_learned(self.encoding):
+            try:
+                self.entropy_tables()
+            except EntropyTablesError:  # without the model: every byte but the token codes (FORMAT.md I.6.2)
+                _ = (self.cameras, self.extra_cameras)  # decoded and checked
+                views = 1 + self.num_extra_cameras
+                for name in (SECTION_STATIC, SECTION_DYNAMIC):
+                    level, stored = parse_learned_payload(self.raw_section(name))
+                    if stored != views:
+                        raise MalformedSectionError(f"learned-rans payload of {name} says {stored} encoded cameras; "
+                                                    f"the file has {views}")
+                self._verified_scene = None
+                return
         self._verified_scene = self.to_scene()
 
     def to_scene(self) -> Scene:
@@ -409,7 +456,7 @@ class SceneFile:
             static_tokens=static if static.flags.writeable else static.copy(),
             dynamic_tokens=dynamic if dynamic.flags.writeable else dynamic.copy(), cameras=self.cameras,
             fingerprint=self.fingerprint, metadata=dict(self.metadata), provenance=self.provenance,
-            encoding=self.encoding, extra_cameras=self.extra_cameras)
+            encoding=self.encoding, extra_cameras=self.extra_cameras, quality=self.quality)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-able overview: format_version, bytes, frames, width, height, static_shape, dynamic_shape,
@@ -422,6 +469,7 @@ class SceneFile:
             "frames": cams.num_frames, "width": cams.width, "height": cams.height,
             "static_shape": list(self.static_shape), "dynamic_shape": list(self.dynamic_shape),
             "encoding": self.encoding,
+            **({"quality": self.quality} if is_learned(self.encoding) else {}),
             "fingerprint": self.fingerprint.to_dict(),
             "source_capture_id": None if prov is None else prov.source_capture_id,
             "kind": None if prov is None else prov.kind,
@@ -446,30 +494,36 @@ class SceneFile:
                 f"Z_s {self.static_shape}, Z_d {self.dynamic_shape}, {self.num_frames} frames>")
 
 
-def open_scene(source: Any, **storage_options: Any) -> SceneFile:
+def open_scene(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> SceneFile:
     """Open a scene lazily from a path, fsspec URL, bytes-like object or binary file: the preamble, header
-    and section table are parsed and checked now; sections are decoded on access.  ``storage_options``
-    go to fsspec for a URL."""
-    return SceneFile(read_container_bytes(source, **storage_options))
+    and section table are parsed and checked now; sections are decoded on access.  ``tables``: the entropy
+    tables of a ``learned-rans`` file's model (default: the installed model's, found by fingerprint).
+    ``storage_options`` go to fsspec for a URL."""
+    return SceneFile(read_container_bytes(source, **storage_options), tables=tables)
 
 
-def load(source: Any, **storage_options: Any) -> Scene:
+def load(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> Scene:
     """Read and fully validate a scene (path, URL, bytes or binary file): everything
-    :meth:`SceneFile.verify` checks, then decode."""
-    f = open_scene(source, **storage_options)
+    :meth:`SceneFile.verify` checks, then decode (a ``learned-rans`` file needs its model's tables:
+    EntropyTablesError without them)."""
+    f = open_scene(source, tables=tables, **storage_options)
     f.verify()
+    if f._verified_scene is None:
+        f.entropy_tables()  # raises: the tokens cannot be decoded without them
+        raise AssertionError("unreachable: verify decoded the tokens whenever the tables are at hand")
     return f._verified_scene
 
 
-def loads(data: bytes) -> Scene:
+def loads(data: bytes, *, tables: EntropyTables | None = None) -> Scene:
     """:func:`load` from bytes."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise FormatError(f"loads() takes bytes, got {type(data).__name__}")
-    return load(data)
+    return load(data, tables=tables)
 
 
-def verify(source: Any, **storage_options: Any) -> None:
+def verify(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> None:
     """Check a whole scene file (path, URL, bytes or binary file); raises the FormatError subclass
-    describing the first problem."""
-    open_scene(source, **storage_options).verify()
+    describing the first problem. A ``learned-rans`` file whose model is not at hand is checked except for
+    its token codes (FORMAT.md I.6.2)."""
+    open_scene(source, tables=tables, **storage_options).verify()
 

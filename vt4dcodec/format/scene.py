@@ -9,7 +9,7 @@ import numpy as np
 
 from ..cameras import Trajectory
 from ..errors import FormatError, LimitExceededError
-from .encodings import ENCODINGS
+from .encodings import ALL_ENCODINGS
 from .fingerprint import ModelFingerprint, Provenance
 from .limits import MAX_EXTRA_CAMERAS, MAX_FRAMES, MAX_IMAGE_SIDE
 from .metadata import normalize_metadata
@@ -80,6 +80,8 @@ class Scene:
             given without timestamps takes them).  Stored in the extra cameras section (format 1.4), each as
             ``cameras`` is stored (FORMAT.md I.5.3): bit for bit with ``cameras="exact"`` or ``"legacy"``, by
             default within 0.01 px of reprojection.
+        quality: the quality level (1 = the coarsest) of a ``learned-rans`` scene, whose tokens are then exactly
+            that level's quantized values; None for the other encodings (and a scene to be saved with another).
     """
 
     static_tokens: np.ndarray
@@ -90,6 +92,7 @@ class Scene:
     provenance: Provenance | None = None
     encoding: str = "int8"
     extra_cameras: tuple[Trajectory, ...] = ()
+    quality: int | None = None
 
     def __post_init__(self) -> None:
         self.static_tokens = _tokens(self.static_tokens, "static_tokens")
@@ -100,8 +103,8 @@ class Scene:
             raise FormatError("fingerprint must be a ModelFingerprint")
         if self.provenance is not None and not isinstance(self.provenance, Provenance):
             raise FormatError("provenance must be a Provenance or None")
-        if self.encoding not in ENCODINGS:
-            raise FormatError(f"encoding must be one of {ENCODINGS}, got {self.encoding!r}")
+        if self.encoding not in ALL_ENCODINGS:
+            raise FormatError(f"encoding must be one of {ALL_ENCODINGS}, got {self.encoding!r}")
         if self.static_tokens.shape != self.fingerprint.static_shape:
             raise FormatError(f"static_tokens have shape {self.static_tokens.shape} but the model fingerprint "
                               f"says {self.fingerprint.static_shape}")
@@ -114,6 +117,9 @@ class Scene:
             raise LimitExceededError(f"{self.cameras.num_frames} frames exceed the limit of {MAX_FRAMES}")
         if max(self.cameras.width, self.cameras.height) > MAX_IMAGE_SIDE:
             raise LimitExceededError(f"image size exceeds {MAX_IMAGE_SIDE} pixels per side")
+        if self.quality is not None and (isinstance(self.quality, bool) or not isinstance(self.quality, int)
+                                         or not 1 <= self.quality <= 16):
+            raise FormatError(f"quality must be None or a level from 1 to 16, got {self.quality!r}")
         self.extra_cameras = normalize_extra_cameras(self.cameras, self.extra_cameras)
         self.metadata = normalize_metadata(self.metadata)
 
@@ -147,7 +153,7 @@ class Scene:
         unhashable (``__hash__`` is None): a scene is mutable."""
         if not isinstance(other, Scene):
             return NotImplemented
-        return (self.encoding == other.encoding and self.fingerprint == other.fingerprint
+        return (self.encoding == other.encoding and self.quality == other.quality and self.fingerprint == other.fingerprint
                 and self.provenance == other.provenance and self.metadata == other.metadata
                 and self.cameras.equals(other.cameras)
                 and len(self.extra_cameras) == len(other.extra_cameras)
@@ -159,4 +165,4 @@ class Scene:
         return (f"Scene(Z_s {self.static_shape[0]}x{self.static_shape[1]}, Z_d {self.dynamic_shape[0]}x"
                 f"{self.dynamic_shape[1]}, {self.num_frames} frames {self.cameras.width}x{self.cameras.height}"
                 f"{f', {len(self.extra_cameras)} extra cameras' if self.extra_cameras else ''}"
-                f", encoding={self.encoding}, model={self.fingerprint.short()})")
+                f", encoding={self.encoding}{'' if self.quality is None else f' quality {self.quality}'}, model={self.fingerprint.short()})")

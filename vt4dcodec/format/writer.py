@@ -10,13 +10,14 @@ from typing import BinaryIO
 import numpy as np
 
 from ..errors import FormatError
-from .encodings import ENCODINGS, encode_tokens
+from .encodings import ALL_ENCODINGS, encode_tokens
 from .header import HeaderInfo, compress_header, pack_header
-from .encodings import is_entropy_coded
+from .encodings import is_entropy_coded, is_learned
+from .learned import EntropyTables, encode_learned_tokens, find_tables
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
 from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
-                     FLAG_EXTRA_CAMERAS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
+                     FLAG_EXTRA_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
                      entry_size, pack_preamble, pack_table)
 from .rans_tokens import check_lanes, policy_lanes
 from .limits import PREAMBLE_SIZE
@@ -73,7 +74,8 @@ def build_container(header: bytes, sections: Sequence[SectionParts], *,
 
 def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
-          cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None) -> bytes:
+          cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None,
+          quality: int | None = None, tables: EntropyTables | None = None) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
     The file says the lowest format version that describes it: 1.5 with required flag bit 4 when its
@@ -108,17 +110,28 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             no lanes at all (the 1.1 layout, byte for byte as before 1.5) when both matrices are smaller.
             ``0``: no lanes (for readers older than 1.5).  ``1`` to ``32``: that many lanes in both sections
             (format 1.5, required flag bit 4).
+        quality, tables: ``learned-rans`` only (format 1.6, required flag bit 5, FORMAT.md I.6.2): the quality
+            level (1 = the coarsest; default ``scene.quality``) and the entropy tables of the scene's model
+            (default: the installed model's, found by fingerprint; EntropyTablesError without them).
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
     encoding = scene.encoding if encoding is None else encoding
-    if encoding not in ENCODINGS:
-        raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ENCODINGS}")
+    if encoding not in ALL_ENCODINGS:
+        raise FormatError(f"unknown token encoding {encoding!r}; choose one of {ALL_ENCODINGS}")
     if cameras not in CAMERA_MODES:
         raise FormatError(f"unknown cameras mode {cameras!r}; choose one of {CAMERA_MODES}")
     if header not in HEADER_MODES:
         raise FormatError(f"unknown header mode {header!r}; choose one of {HEADER_MODES}")
     check_lanes(rans_lanes)
+    learned = is_learned(encoding)
+    if learned:
+        tables = find_tables(scene.fingerprint, tables)
+        quality = scene.quality if quality is None else quality
+        if quality is None:
+            raise FormatError(f"learned-rans needs a quality level (1 to {tables.levels})")
+        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= tables.levels:
+            raise FormatError(f"quality must be a level from 1 to {tables.levels}, got {quality!r}")
     entropy_coded = is_entropy_coded(encoding)
     matrices = (scene.static_tokens, scene.dynamic_tokens)
     if not entropy_coded or rans_lanes == 0:
@@ -144,6 +157,11 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact)))
     for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
                                             (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, lanes[1])):
+        if learned:
+            assert tables is not None and quality is not None
+            which = "static" if tok_name == SECTION_STATIC else "dynamic"
+            parts.append((tok_name, encode_learned_tokens(tokens, tables, quality - 1, 1 + len(extras), which)))
+            continue
         enc = encode_tokens(tokens, encoding, groups=groups, lanes=k)
         if enc.quant is not None:
             parts.append((quant_name, enc.quant))
@@ -152,32 +170,33 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     for name, raw in parts:
         tokens_section = name in (SECTION_STATIC, SECTION_DYNAMIC)
         # rANS streams are incompressible: their sections are stored raw without trying zstd (FORMAT.md I.6.1)
-        level = None if entropy_coded and tokens_section else compression_level
+        level = None if (entropy_coded or learned) and tokens_section else compression_level
         # in a compact container a fixed-width token array is worth zstd only when it saves 1/8 of it: raw,
         # it is read in place (aligned), while decompressing e.g. int8 tokens, which zstd shrinks by ~7 %,
         # costs a verified load a sixth of its time (bench/bench_format.py)
         saving = TOKEN_ZSTD_MIN_SAVING if compact and tokens_section else 0.0
         compression, stored = compress_payload(raw, level, min_saving=saving)
         # a compact container aligns only what a reader can use in place: raw fixed-width token arrays
-        aligned = tokens_section and not entropy_coded and compression == COMPRESSION_RAW
+        aligned = tokens_section and not (entropy_coded or learned) and compression == COMPRESSION_RAW
         sections.append((name, True, compression, stored, len(raw), aligned))
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
              | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0)
-             | (FLAG_RANS_LANES if lanes[0] is not None else 0))
-    minor = (5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
+             | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0))
+    minor = (6 if learned else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
              else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
 
 
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
-         header: str = "compact", rans_lanes: int | None = None) -> int:
+         header: str = "compact", rans_lanes: int | None = None, quality: int | None = None,
+         tables: EntropyTables | None = None) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
     data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
-                 header=header, rans_lanes=rans_lanes)
+                 header=header, rans_lanes=rans_lanes, quality=quality, tables=tables)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)

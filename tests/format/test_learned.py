@@ -1,0 +1,249 @@
+"""learned-rans (format 1.6, FORMAT.md I.6.2): the context rANS coder, the tables, the payloads, reading
+without the model, damage and fuzzing. Tables here are made with numpy (no model, no torch)."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vt4dcodec import errors
+from vt4dcodec.cameras import Trajectory
+from vt4dcodec.format import EntropyTables, ModelFingerprint, Scene, dumps, loads, open_scene, rans
+from vt4dcodec.format.layout import FLAG_ENTROPY_CODED_TOKENS, FLAG_LEARNED_TOKENS
+
+NS, ND, D = 12, 3, 4
+
+
+def fingerprint(tag: str = "t") -> ModelFingerprint:
+    return ModelFingerprint("vt4d-learned-test", "1.0", hashlib.sha256(b"cfg" + tag.encode()).hexdigest(),
+                            hashlib.sha256(b"w" + tag.encode()).hexdigest(), (NS, D), (ND, D))
+
+
+def laplace_table(q: int, width: float, change: bool = False) -> np.ndarray:
+    """Integer frequencies (>= 1 each, sum 2^14) of a discrete Laplacian over 2q+1 (4q+1) symbols."""
+    n = (4 if change else 2) * q + 1
+    p = np.exp(-np.abs(np.arange(n) - n // 2) / width)
+    f = np.floor(p / p.sum() * (16384 - n)).astype(np.int64) + 1
+    f[n // 2] += 16384 - f.sum()
+    return f
+
+
+def make_tables(tag: str = "t", steps=(0.5, 0.125)) -> EntropyTables:
+    L = len(steps)
+    qs = [int(np.floor(1 / s + 0.5)) for s in steps]
+    A = 4 * max(qs) + 1
+    freqs = np.zeros((L, 3, D, A), np.int64)
+    for level, q in enumerate(qs):
+        for c in range(D):
+            for cls in (0, 1, 2):
+                f = laplace_table(q, 1.0 + c, change=cls == 1)
+                freqs[level, cls, c, :len(f)] = f
+    st_ = np.array([[[s] * D, [s] * D] for s in steps], np.float32)
+    origins = np.tile(np.arange(NS), (64, 1))
+    origins[0, 4:] = np.arange(4, NS) % 4  # one camera: tokens 4.. are copies of the first 4 (frame copies)
+    return EntropyTables(st_, freqs, origins, fingerprint(tag))
+
+
+def trajectory(frames: int = 2) -> Trajectory:
+    K = np.tile(np.array([[50.0, 0, 16], [0, 50.0, 16], [0, 0, 1]]), (frames, 1, 1))
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, 2, 3] = 2.0
+    return Trajectory(K=K, w2c=w2c, width=32, height=32)
+
+
+def make_scene(seed: int = 0, quality: int | None = 2, tag: str = "t") -> Scene:
+    rng = np.random.default_rng(seed)
+    zs = np.tanh(rng.normal(0, 0.6, (NS, D))).astype(np.float32)
+    zs[4:] = zs[np.arange(4, NS) % 4] + rng.normal(0, 0.05, (NS - 4, D)).astype(np.float32)
+    zd = np.tanh(rng.normal(0, 0.6, (ND, D))).astype(np.float32)
+    return Scene(np.clip(zs, -0.999, 0.999), zd, trajectory(), fingerprint(tag), encoding="learned-rans",
+                 quality=quality)
+
+
+TABLES = make_tables()
+
+
+# --- the context coder ------------------------------------------------------------------------------------
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 400))
+def test_context_coder_c_and_python_agree(seed, n):
+    rng = np.random.default_rng(seed)
+    tables = np.stack([np.pad(laplace_table(3, w), (0, 6)) for w in (0.3, 1.0, 4.0)])  # 3 tables of 13 symbols
+    ctx = rng.integers(0, 3, n)
+    symbols = np.array([rng.choice(7, p=tables[t][:7] / tables[t][:7].sum()) for t in ctx])
+    stream = rans.rans_encode_ctx(symbols, ctx, tables)
+    assert stream == rans._encode_ctx_py(symbols, ctx.astype(np.uint16), tables.astype(np.uint32))
+    assert np.array_equal(rans.rans_decode_ctx(stream, ctx, tables), symbols)
+    x = int.from_bytes(stream[:4], "little")
+    assert np.array_equal(rans._decode_ctx_py(stream, x, ctx.astype(np.uint16), tables), symbols)
+
+
+def test_context_coder_rejects_damaged_streams():
+    tables = np.stack([laplace_table(2, 1.0)])
+    ctx = np.zeros(300, np.int64)
+    stream = rans.rans_encode_ctx(np.full(300, 1), ctx, tables)
+    with pytest.raises(errors.TruncatedError):
+        rans.rans_decode_ctx(stream[:-1], ctx, tables)
+    with pytest.raises(errors.MalformedSectionError):
+        rans.rans_decode_ctx(stream + b"\x00", ctx, tables)
+    with pytest.raises(errors.MalformedSectionError):
+        rans.rans_decode_ctx(b"\x00\x00\x00\x00" + stream[4:], ctx, tables)
+    with pytest.raises(ValueError):
+        rans.rans_encode_ctx(np.full(3, 9), np.zeros(3), tables)  # a symbol outside the table
+
+
+# --- tables ---------------------------------------------------------------------------------------------
+def test_tables_reject_malformed_rows():
+    good = make_tables()
+    freqs = good.freqs.copy()
+    freqs[0, 0, 0, 0] += 1  # no longer sums to 2^14
+    with pytest.raises(errors.EntropyTablesError):
+        EntropyTables(good.steps, freqs, good.origins, good.fingerprint)
+    freqs = good.freqs.copy()
+    freqs[1, 1, 0] = np.pad(laplace_table(8, 1.0), (0, freqs.shape[3] - 17))  # CHANGE not 4Q+1 symbols
+    with pytest.raises(errors.EntropyTablesError):
+        EntropyTables(good.steps, freqs, good.origins, good.fingerprint)
+    origins = good.origins.copy()
+    origins[0, 2] = 5  # a later token as origin
+    with pytest.raises(errors.EntropyTablesError):
+        EntropyTables(good.steps, good.freqs, origins, good.fingerprint)
+    with pytest.raises(errors.EntropyTablesError):
+        EntropyTables(-good.steps, good.freqs, good.origins, good.fingerprint)
+
+
+# --- round trips ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("quality", [1, 2])
+def test_round_trip_is_the_quantized_tokens(quality):
+    scene = make_scene()
+    data = dumps(scene, quality=quality, tables=TABLES)
+    back = loads(data, tables=TABLES)
+    assert back.quality == quality and back.encoding == "learned-rans"
+    step = TABLES.steps[quality - 1]
+    for got, want, g in ((back.static_tokens, scene.static_tokens, 0), (back.dynamic_tokens, scene.dynamic_tokens, 1)):
+        q = np.clip(np.rint(want.astype(np.float64) / step[g]), -TABLES.half_range(quality - 1)[g],
+                    TABLES.half_range(quality - 1)[g])
+        assert np.array_equal(got, (q * step[g]).astype(np.float32))  # f32(q * step), exactly
+    assert dumps(back, tables=TABLES) == data  # re-saving a loaded scene gives the same bytes
+    f = open_scene(data)
+    assert f.version == (1, 6) and f.preamble.required_flags & FLAG_LEARNED_TOKENS
+    assert not f.preamble.required_flags & FLAG_ENTROPY_CODED_TOKENS
+
+
+def test_finer_level_costs_more_and_errs_less():
+    scene = make_scene()
+    coarse, fine = (dumps(scene, quality=q, tables=TABLES) for q in (1, 2))
+    assert len(coarse) < len(fine)
+    err = [np.abs(loads(d, tables=TABLES).static_tokens - scene.static_tokens).max() for d in (coarse, fine)]
+    assert err[1] < err[0] <= 0.25 + 1e-6
+
+
+def test_unchanged_copies_cost_next_to_nothing():
+    scene = make_scene()
+    scene.static_tokens[4:] = np.random.default_rng(1).uniform(-0.9, 0.9, (NS - 4, D))  # copies unlike their origins
+    varied = len(dumps(scene, quality=2, tables=TABLES))
+    scene.static_tokens[4:] = scene.static_tokens[np.arange(4, NS) % 4]  # the copies equal their origins
+    assert len(dumps(scene, quality=2, tables=TABLES)) < varied
+
+
+def test_multi_camera_scene_uses_its_origin_row():
+    scene = make_scene()
+    scene.extra_cameras = (trajectory(),)
+    data = dumps(scene, quality=2, tables=TABLES)
+    assert open_scene(data).num_extra_cameras == 1 and data[:0] == b""
+    back = loads(data, tables=TABLES)  # V = 2: row 1 of origins (every token its own origin here)
+    assert np.abs(back.static_tokens - scene.static_tokens).max() <= 0.0625 + 1e-6
+
+
+# --- without the model, or with another's tables ---------------------------------------------------------
+def test_reader_without_tables_verifies_but_refuses_tokens():
+    data = dumps(make_scene(), quality=2, tables=TABLES)
+    f = open_scene(data)
+    f.verify()  # every byte but the codes
+    assert f.quality == 2 and f.summary()["quality"] == 2 and f.static_shape == (NS, D)
+    with pytest.raises(errors.EntropyTablesError, match="not installed"):
+        f.static_tokens()
+    with pytest.raises(errors.EntropyTablesError):
+        loads(data)
+    with pytest.raises(errors.EntropyTablesError, match="belong to model"):
+        loads(data, tables=make_tables("other"))
+
+
+def test_writer_needs_tables_and_a_level():
+    scene = make_scene(quality=None)
+    with pytest.raises(errors.EntropyTablesError):
+        dumps(scene, quality=1)
+    with pytest.raises(errors.FormatError, match="quality"):
+        dumps(scene, tables=TABLES)
+    with pytest.raises(errors.FormatError, match="quality"):
+        dumps(scene, quality=3, tables=TABLES)
+
+
+# --- damage ----------------------------------------------------------------------------------------------
+def payload_swap(data: bytes, section: str, payload: bytes) -> bytes:
+    import sys
+
+    from format_strategies import REPO
+
+    sys.path.insert(0, str(REPO / "spec"))
+    import make_vectors as mv  # noqa: E402
+
+    header, sections = mv.split(data)
+    entry = mv.find(sections, section)
+    entry[3:5] = [payload, len(payload)]
+    return mv.rebuild(header, sections)
+
+
+@pytest.mark.parametrize("mutate, error", [
+    (lambda p: p[:5], errors.TruncatedError),
+    (lambda p: bytes([7]) + p[1:], errors.MalformedSectionError),   # level 7 of a 2-level model
+    (lambda p: p[:1] + bytes([3]) + p[2:], errors.MalformedSectionError),  # 3 cameras in a 1-camera file
+    (lambda p: p + b"\x00", errors.MalformedSectionError),          # a byte after the stream
+])
+def test_damaged_payloads_give_their_errors(mutate, error):
+    data = dumps(make_scene(), quality=2, tables=TABLES)
+    payload = bytes(open_scene(data).raw_section("ZSTA"))
+    bad = payload_swap(data, "ZSTA", mutate(payload))
+    with pytest.raises(error):
+        loads(bad, tables=TABLES)
+
+
+def test_change_code_outside_range_is_rejected():
+    """A forged CHANGE symbol that moves a copy outside -Q .. Q of its level."""
+    level, views = 1, 1
+    q = TABLES.half_range(level)[0]
+    ctx = TABLES.contexts("static", views)
+    symbols = np.where(ctx // D == 1, 4 * q[None, :], q[None, :])  # MEAN codes 0, CHANGE codes +2Q
+    stream = rans.rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), TABLES.freqs[level].reshape(-1, TABLES.freqs.shape[3]))
+    data = dumps(make_scene(), quality=2, tables=TABLES)
+    bad = payload_swap(data, "ZSTA", bytes([level, views]) + stream)
+    with pytest.raises(errors.MalformedSectionError, match="outside"):
+        loads(bad, tables=TABLES)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.data())
+def test_fuzzed_learned_files_give_only_library_errors(data):
+    """Random byte flips, cuts and insertions anywhere in a learned-rans file: the reader returns tokens
+    equal to the original's (the change was harmless) or raises a FormatError, never anything else."""
+    original = dumps(make_scene(), quality=2, tables=TABLES)
+    buf = bytearray(original)
+    for _ in range(data.draw(st.integers(1, 4))):
+        kind = data.draw(st.sampled_from(["flip", "cut", "insert"]))
+        pos = data.draw(st.integers(0, max(0, len(buf) - 1)))
+        if kind == "flip" and buf:
+            buf[pos] ^= data.draw(st.integers(1, 255))
+        elif kind == "cut":
+            del buf[pos:pos + data.draw(st.integers(1, 8))]
+        else:
+            buf[pos:pos] = bytes(data.draw(st.binary(min_size=1, max_size=4)))
+    try:
+        scene = loads(bytes(buf), tables=TABLES)
+    except errors.FormatError:
+        return
+    good = loads(original, tables=TABLES)
+    assert np.array_equal(scene.static_tokens, good.static_tokens)
+    assert np.array_equal(scene.dynamic_tokens, good.dynamic_tokens)

@@ -1,0 +1,222 @@
+"""The ``learned-rans`` token encoding (format 1.6, required flag bit 5; FORMAT.md I.6.2).
+
+Tokens are quantized with the per-level, per-channel steps of the model that made them and coded with that
+model's integer rANS tables, one table per context (class x channel): the entropy model of the tokenizer
+(``model.entropy``), frozen into integers when the model shipped. The tables are not in the file: the file
+names its model by fingerprint, and a reader decodes the tokens only with the tables of that model
+(:class:`EntropyTables`, found by the resolver the package installs, or passed in). Without them a reader
+still opens, verifies checksums and reads shapes, cameras and metadata; the tokens raise
+:class:`~vt4dcodec.errors.EntropyTablesError`.
+
+Decoding is integers only (the context rANS coder of ``rans.py``) up to the last step, ``f32(q * step)``.
+
+Payload of ``ZSTA`` / ``ZDYN``: ``u8 level``, ``u8 views``, then one rANS chain of ``N * d`` symbols.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..errors import EntropyTablesError, FormatError, LimitExceededError, MalformedSectionError, TruncatedError
+from .encodings import LEARNED_ENCODING
+from .fingerprint import ModelFingerprint
+from .layout import BytesLike
+from .rans import PROB_SCALE, rans_decode_ctx, rans_encode_ctx
+
+__all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
+           "decode_learned_tokens", "parse_learned_payload", "quantize", "set_tables_resolver", "find_tables",
+           "MAX_LEARNED_VALUES"]
+
+MAX_VIEWS = 64
+MEAN, CHANGE, DYNAMIC = 0, 1, 2
+MAX_LEVELS = 16
+MAX_LEARNED_VALUES = 1 << 21  # N * d per matrix, as the other entropy-coded encodings (I.7)
+
+
+@dataclass(frozen=True, eq=False)
+class EntropyTables:
+    """The frozen entropy model of one tokenizer (FORMAT.md I.6.2, "Tables").
+
+    steps: float32 (L, 2, d), the quantizer step of each level for Z_s (index 0) and Z_d (1), each > 0;
+    freqs: int64 (L, 3, d, A), the rANS frequencies of each level, class (MEAN, CHANGE, DYNAMIC) and
+        channel: each row a run of ``n >= 1`` positive frequencies summing to 2^14 followed by zeros, with
+        ``n = 2Q + 1`` for MEAN and DYNAMIC and ``4Q + 1`` for CHANGE, Q the level's half-range of codes;
+    origins: int64 (64, N_s), for 1..64 encoded cameras the anchor origin of each static token (``o <= i``,
+        and ``origins[v, o] = o``): a token with ``o = i`` is of class MEAN, else CHANGE;
+    fingerprint: the model these tables belong to.
+    """
+
+    steps: np.ndarray
+    freqs: np.ndarray
+    origins: np.ndarray
+    fingerprint: ModelFingerprint
+
+    def __post_init__(self) -> None:
+        steps = np.asarray(self.steps, dtype=np.float32)
+        freqs = np.asarray(self.freqs).astype(np.int64)
+        origins = np.asarray(self.origins).astype(np.int64)
+        d = self.fingerprint.static_shape[1]
+        n_s = self.fingerprint.static_shape[0]
+        if steps.ndim != 3 or steps.shape[1:] != (2, d) or not 1 <= steps.shape[0] <= MAX_LEVELS:
+            raise EntropyTablesError(f"entropy tables: steps must be (L, 2, {d}) with 1 <= L <= {MAX_LEVELS}")
+        L = steps.shape[0]
+        if freqs.ndim != 4 or freqs.shape[:3] != (L, 3, d) or freqs.shape[3] < 3:
+            raise EntropyTablesError(f"entropy tables: freqs must be ({L}, 3, {d}, A)")
+        if origins.shape != (MAX_VIEWS, n_s):
+            raise EntropyTablesError(f"entropy tables: origins must be ({MAX_VIEWS}, {n_s})")
+        if not (np.isfinite(steps).all() and (steps > 0).all()):
+            raise EntropyTablesError("entropy tables: every step must be finite and > 0")
+        size = (freqs > 0).sum(axis=3)
+        prefix = np.arange(freqs.shape[3])[None, None, None, :] < size[..., None]
+        if (freqs < 0).any() or ((freqs > 0) != prefix).any() or (freqs.sum(axis=3) != PROB_SCALE).any():
+            raise EntropyTablesError("entropy tables: each table must be positive frequencies summing to 2^14, "
+                                     "then zeros")
+        if ((size[:, [MEAN, DYNAMIC]] - 1) % 2).any():
+            raise EntropyTablesError("entropy tables: a MEAN or DYNAMIC table must have an odd symbol count")
+        half = (size[:, [MEAN, DYNAMIC]] - 1) // 2  # (L, 2, d): Q of Z_s and Z_d
+        if (size[:, CHANGE] != 4 * half[:, 0] + 1).any():
+            raise EntropyTablesError("entropy tables: a CHANGE table must have 4Q + 1 symbols (Q of its MEAN table)")
+        index = np.arange(n_s)[None, :]
+        if (origins < 0).any() or (origins > index).any() or \
+                (np.take_along_axis(origins, origins, axis=1) != origins).any():
+            raise EntropyTablesError("entropy tables: each origin must be an earlier token that is its own origin")
+        for name, value in (("steps", steps), ("freqs", freqs), ("origins", origins)):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "_half", half)
+
+    @property
+    def levels(self) -> int:
+        return int(self.steps.shape[0])
+
+    def half_range(self, level: int) -> np.ndarray:
+        """(2, d) int64: Q of Z_s and Z_d at ``level``, codes lie in -Q .. Q."""
+        return self._half[level]  # type: ignore[attr-defined, no-any-return]
+
+    def contexts(self, which: str, views: int) -> np.ndarray:
+        """(N, d) int64 context (class * d + channel) of each value of the "static" or "dynamic" matrix."""
+        d = self.steps.shape[2]
+        channel = np.arange(d)[None, :]
+        if which == "dynamic":
+            return np.broadcast_to(DYNAMIC * d + channel, self.fingerprint.dynamic_shape)
+        origin = self.origins[views - 1]
+        cls = np.where(origin == np.arange(len(origin)), MEAN, CHANGE)
+        out: np.ndarray = cls[:, None] * d + channel
+        return out
+
+
+_resolver: Callable[[ModelFingerprint], EntropyTables | None] | None = None
+
+
+def set_tables_resolver(resolver: Callable[[ModelFingerprint], EntropyTables | None] | None) -> None:
+    """Install the function that finds the entropy tables of a model fingerprint (None when it has no
+    such model). ``import vt4dcodec`` installs one that looks in the shipped and ``$VT4D_MODEL_PATH``
+    models."""
+    global _resolver
+    _resolver = resolver
+
+
+def find_tables(fingerprint: ModelFingerprint, tables: EntropyTables | None = None) -> EntropyTables:
+    """``tables`` when given (it must belong to ``fingerprint``), else the resolver's. EntropyTablesError
+    when there are none: the file's tokens cannot be read without the model that coded them."""
+    if tables is None and _resolver is not None:
+        tables = _resolver(fingerprint)
+    if tables is None:
+        raise EntropyTablesError(
+            f"the tokens are coded with the entropy tables of model {fingerprint.model_id} "
+            f"{fingerprint.model_version} (weights {fingerprint.weights_sha256[:12]}), which is not installed: "
+            f"install that model or put its directory under $VT4D_MODEL_PATH (shapes, cameras and metadata "
+            f"read without it)")
+    if tables.fingerprint != fingerprint:
+        raise EntropyTablesError(
+            f"the entropy tables given belong to model {tables.fingerprint.model_id} "
+            f"{tables.fingerprint.model_version}, not to the file's {fingerprint.model_id} {fingerprint.model_version}")
+    return tables
+
+
+def _check_level(tables: EntropyTables, level: int) -> None:
+    if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level < tables.levels:
+        raise FormatError(f"quality level index must be 0 .. {tables.levels - 1}, got {level!r}")
+
+
+def quantize(tokens: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
+    """int64 codes q = clip(round_half_to_even(x / step), -Q, Q) of a (N, d) token matrix (binary64)."""
+    g = 0 if which == "static" else 1
+    step = tables.steps[level, g].astype(np.float64)
+    half = tables.half_range(level)[g]
+    codes: np.ndarray = np.clip(np.rint(np.asarray(tokens, np.float64) / step), -half, half).astype(np.int64)
+    return codes
+
+
+def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
+    """float32 f32(q * step), the product computed exactly (binary64) and rounded once."""
+    step = tables.steps[level, 0 if which == "static" else 1].astype(np.float64)
+    values: np.ndarray = (codes.astype(np.float64) * step).astype(np.float32)
+    return values
+
+
+def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int, views: int, which: str) -> bytes:
+    """The ``ZSTA`` ("static") or ``ZDYN`` ("dynamic") payload of a token matrix at ``level`` for a scene of
+    ``views`` encoded cameras."""
+    _check_level(tables, level)
+    if not 1 <= views <= MAX_VIEWS:
+        raise FormatError(f"a learned-rans scene has 1 to {MAX_VIEWS} encoded cameras, not {views}")
+    x = np.asarray(tokens, dtype=np.float32)
+    if x.size > MAX_LEARNED_VALUES:
+        raise LimitExceededError(f"{x.size} learned-rans values in one matrix exceed the limit of {MAX_LEARNED_VALUES}")
+    if not np.isfinite(x).all():
+        raise FormatError("tokens must be finite")
+    q = quantize(x, tables, level, which)
+    half = tables.half_range(level)[0 if which == "static" else 1]
+    ctx = tables.contexts(which, views)
+    if which == "static":
+        origin = tables.origins[views - 1]
+        change = origin != np.arange(len(origin))
+        symbols = q + half[None, :]
+        symbols[change] = q[change] - q[origin[change]] + 2 * half[None, :]
+    else:
+        symbols = q + half[None, :]
+    freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
+    stream = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), freqs)
+    return bytes([level, views]) + stream
+
+
+def parse_learned_payload(payload: BytesLike) -> tuple[int, int]:
+    """(level, views) of a learned-rans payload; TruncatedError when it is shorter than its 2-byte head
+    and rANS state."""
+    if len(payload) < 6:
+        raise TruncatedError(f"a learned-rans token payload is {len(payload)} bytes, shorter than its 2-byte "
+                             f"head and 4-byte rANS state")
+    return int(payload[0]), int(payload[1])
+
+
+def decode_learned_tokens(payload: BytesLike, tables: EntropyTables, rows: int, cols: int, which: str,
+                          views: int | None = None) -> tuple[np.ndarray, int]:
+    """(float32 (rows, cols) tokens, level) of a learned-rans payload. ``views``: the file's encoded camera
+    count, which the payload's must equal (None: not checked). MalformedSectionError for a level or view
+    count the tables do not have, a code outside -Q .. Q, or a damaged stream; TruncatedError if it ends early."""
+    level, stored_views = parse_learned_payload(payload)
+    if level >= tables.levels:
+        raise MalformedSectionError(f"learned-rans payload names quality level index {level}; the model has "
+                                    f"{tables.levels} levels")
+    if not 1 <= stored_views <= MAX_VIEWS or (views is not None and stored_views != views):
+        raise MalformedSectionError(f"learned-rans payload says {stored_views} encoded cameras; the file has "
+                                    f"{views if views is not None else f'1 to {MAX_VIEWS}'}")
+    if (rows, cols) != (tables.fingerprint.static_shape if which == "static" else tables.fingerprint.dynamic_shape):
+        raise MalformedSectionError("token shape differs from the entropy tables' model")
+    ctx = tables.contexts(which, stored_views)
+    freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
+    symbols = rans_decode_ctx(memoryview(payload)[2:], ctx.reshape(-1), freqs).astype(np.int64).reshape(rows, cols)
+    half = tables.half_range(level)[0 if which == "static" else 1][None, :]
+    q = symbols - half
+    if which == "static":
+        origin = tables.origins[stored_views - 1]
+        change = origin != np.arange(len(origin))
+        q[change] = q[origin[change]] + symbols[change] - 2 * half
+        if (np.abs(q) > half).any():
+            raise MalformedSectionError("learned-rans payload decodes a frame-copy code outside -Q .. Q: damaged "
+                                        "or forged bytes")
+    return dequantize(q, tables, level, which), level
