@@ -230,6 +230,9 @@ class ModelConfig(_Config):
         (its camera's latent at the track plus the patch offsets, averaged over the track's valid frames:
         ``VideoTok4D.patch_targets``), as token_from_cell gives each static token its cell: what the
         token's patch should show reaches it without the attention having to find it.
+        entropy_levels: > 0 gives the model a learned entropy model (``model.entropy``) with that many
+        quality levels: per-level quantizer steps, per-channel token densities trained with a rate term,
+        frozen into integer rANS tables at ship time. 0: no entropy model (the fixed-point encodings only).
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -281,6 +284,7 @@ class ModelConfig(_Config):
     dynamic_gate_deg: float = 0.0
     dynamic_gate_copies: bool = False
     dynamic_from_patch: bool = False
+    entropy_levels: int = 0
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -291,7 +295,7 @@ class ModelConfig(_Config):
                                                "view_gate_deg": 0.0, "pixel_splat": False,
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
-                                               "dynamic_from_patch": False}
+                                               "dynamic_from_patch": False, "entropy_levels": 0}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -357,6 +361,9 @@ class ModelConfig(_Config):
         if self.dynamic_from_patch and not (self.dynamic_splat > 0 and not self.unified_tokens):
             raise ModelError("config dynamic_from_patch needs dynamic_splat > 0 and the full model (it reads each "
                              "dynamic token's track, which unified_tokens has not)")
+        if isinstance(self.entropy_levels, bool) or not isinstance(self.entropy_levels, int) \
+                or not 0 <= self.entropy_levels <= 16:
+            raise ModelError(f"config entropy_levels must be an integer from 0 to 16, got {self.entropy_levels!r}")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -28,6 +28,7 @@ from .autoencoder import LatentAutoencoder
 from .bottleneck import TokenBottleneck, centred_slot_spread, saturation_penalty, slot_diversity_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
+from .entropy import MAX_VIEWS, TokenEntropyModel
 from .identity import ModelIdentity, fingerprint_fields
 from .layers import dynamic_patch_offsets, patchify
 from .rays import latent_rays
@@ -77,6 +78,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.cell_frames = nn.Linear(cfg.latent_channels * cfg.patch_size ** 2, cfg.token_dim)
             nn.init.zeros_(self.cell_frames.weight)
             nn.init.zeros_(self.cell_frames.bias)
+        self.entropy: TokenEntropyModel | None = None
+        if cfg.entropy_levels:  # quality levels: quantizer steps and token densities (model.entropy)
+            self.entropy = TokenEntropyModel(cfg.entropy_levels, cfg.n_static, cfg.token_dim)
         self.track_direct: nn.Linear | None = None
         if cfg.dynamic_splat and not cfg.unified_tokens:  # Z_d pre-activation + W * its track's (u, v, valid) per frame
             self.track_direct = nn.Linear(3 * cfg.frames, cfg.token_dim)
@@ -288,7 +292,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             drop_static: torch.Tensor | None = None, x0_weight: float = 0.0,
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
                             ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0,
-                            patch_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+                            patch_weight: float = 0.0, rate_level: int | None = None,
+                            rate_lambda: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -318,6 +323,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         each dynamic token must say where its track goes.
         patch_weight: weight of :meth:`patch_loss` (``config.dynamic_splat``): each dynamic token's patch
         content must be the source latent around its track.
+        rate_level: with ``config.entropy_levels``, the quality level whose quantization the tokens get in
+        place of the int8-sized noise (:meth:`TokenEntropyModel.noisy`), and ``rate_lambda`` the weight of
+        its rate in bits per source pixel (bits / (views x frames x H x W)): the loss D + lambda R.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -329,7 +337,14 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if (cell_weight > 0 or patch_weight > 0) and batch.latents is None:  # encoder and losses: same latents
             batch = dataclasses.replace(batch, latents=self.latents(batch.frames))
         a_s, a_d = self.encode_preactivations(batch)
-        z_s, z_d = self._bound(a_s, a_d)
+        bits = None
+        if rate_level is not None:
+            if self.entropy is None:
+                raise ModelError("rate_level needs a model with an entropy model (config entropy_levels > 0)")
+            z_s, z_d, bits = self.entropy.noisy(torch.tanh(a_s), torch.tanh(a_d), rate_level,
+                                                self.static_origins(batch.views))
+        else:
+            z_s, z_d = self._bound(a_s, a_d)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)
         y1 = torch.randn(y0.shape, generator=generator).to(y0.device)
         if tau is None:
@@ -367,6 +382,10 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if cell_weight > 0:
             cell = self.cell_loss(batch, z_s)
             loss = loss + cell_weight * cell
+        bpp = torch.zeros(())
+        if bits is not None:
+            bpp = (bits / (batch.views * T * self.config.image_size ** 2)).mean()
+            loss = loss + rate_lambda * bpp
         pixel, ssim = torch.zeros(()), torch.ones(())
         if pixel_weight > 0 or ssim_weight > 0:
             decoded = self.autoencoder.decode(x0_hat).float()
@@ -381,12 +400,32 @@ class VideoTok4D(ModelIdentity, nn.Module):
                 "pixel_mse": float(pixel.detach()), "cell_mse": float(cell.detach()),
                 "track_loss": float(track.detach()), "track_px": float(track_px.detach()),
                 "patch_mse": float(patch.detach()),
+                **({} if bits is None else {"bpp": float(bpp.detach()), "token_bytes": float(bits.detach().mean()) / 8,
+                                            "level": float(rate_level)}),
                 "ssim": float(ssim.detach()),
                 "saturation_penalty": float(sat.detach()), "tau": float(tau.mean()),
                 "dynamic_centred_spread": float(centred_slot_spread(z_d.detach())),
                 "z_s_abs": float(z_s.detach().abs().mean()), "z_d_abs": float(z_d.detach().abs().mean()),
                 **token_health(z_s, z_d)}
         return loss, logs
+
+    def static_origins(self, views: int) -> torch.Tensor:
+        """(N_s,) long: the anchor origin of each static token when ``views`` cameras are encoded: the
+        time-average token of its anchor for a frame copy (``Renderer.copy_origin``), itself otherwise
+        (every token of a model without frame copies). The entropy model codes a copy given its origin."""
+        index = torch.arange(self.config.n_static, device=self.renderer.anchor_cells.device)
+        if not self.config.frame_copies:
+            return index
+        origin = index.clone()
+        origin[:self.renderer.n_anchored] = self.renderer.copy_origin(views).long()
+        return origin
+
+    @torch.no_grad()
+    def update_entropy(self) -> None:
+        """Freeze the entropy model's tables (:meth:`TokenEntropyModel.update`) with the static origins for
+        1 .. MAX_VIEWS encoded cameras; a no-op without an entropy model. Run before a model ships."""
+        if self.entropy is not None:
+            self.entropy.update(torch.stack([self.static_origins(v) for v in range(1, MAX_VIEWS + 1)]).cpu())
 
     def chosen_tracks(self, batch: SourceBatch) -> torch.Tensor:
         """(S, N_d) the track of each dynamic token (:func:`select_tracks`; a mask of ones without

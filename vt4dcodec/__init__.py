@@ -16,8 +16,17 @@ from .cameras import Trajectory  # noqa: F401
 from .format import (  # noqa: F401,E402  (the single-scene container: numpy + msgpack + zstandard only)
     ModelFingerprint, Provenance, Scene, dumps, load, loads, open_scene, save, verify,
 )
+from . import format  # noqa: E402
 from .archive import ArchiveWriter, open_archive, verify_archive  # noqa: F401,E402  (torch-free too)
 from .generate import generate  # noqa: F401,E402  (eager: the submodule shares the name; torch loads on call)
+
+def _entropy_tables(fingerprint: ModelFingerprint) -> Any:
+    """The entropy tables of an installed model (shipped or under $VT4D_MODEL_PATH) with this fingerprint,
+    for ``learned-rans`` files (torch-free: the model directory's safetensors are parsed directly)."""
+    return importlib.import_module(".model.tables", __name__).entropy_tables(fingerprint)
+
+
+format.set_tables_resolver(_entropy_tables)
 
 # The codec needs torch; it is imported on first use so that `import vt4dcodec` stays light.
 _LAZY = {"encode": "codec", "encode_clips": "codec", "decode": "codec", "SceneDecoder": "codec"}

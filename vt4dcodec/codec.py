@@ -42,8 +42,8 @@ from .capture.io import MANIFEST_NAME, CaptureManifest, read_capture, read_manif
 from .capture.resample import check_fit, fit_capture, fit_trajectory, plan_fit
 from .capture.targets import camera_target, check_camera_spec, cut_to_clip, is_camera_spec
 from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
-from .errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError
-from .format import ModelFingerprint, Provenance, Scene, load
+from .errors import CaptureError, EntropyTablesError, ModelMismatchError, ModelNotFoundError, TrajectoryError
+from .format import ModelFingerprint, Provenance, Scene, load, open_scene
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
-    "RUNTIMES",
+    "RUNTIMES", "QUALITY_LEVELS", "quality_levels",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -67,6 +67,9 @@ DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fideli
 # int5-rans, +0.079 dB; 0.7.0: int4-rans, +0.091 dB; 0.6.0: int5-rans; 0.2.0-0.5.0: int4-rans.) Re-measure
 # with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4"
+# Quality levels of models with an entropy model (config entropy_levels): 1 = the coarsest. encode(quality=Q)
+# stores the tokens as learned-rans at that level (format 1.6); QUALITY_LEVELS are those of the default model.
+QUALITY_LEVELS = (1, 2, 3, 4, 5, 6)
 RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
@@ -211,6 +214,7 @@ def encode(
     metadata: dict[str, Any] | None = None,
     fit: str = "crop",
     runtime: str = "auto",
+    quality: int | None = None,
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -240,6 +244,9 @@ def encode(
             (resize the longer side, letterbox on black bars: the whole picture is kept, at fewer
             pixels; recorded as ``metadata["vt4d"]["fit"]``).
         runtime: ``"auto"``, ``"torch"`` or ``"onnx"``: which runtime runs the encoder (module docstring).
+        quality: a quality level of the model's entropy model (:func:`quality_levels`; 1 = the fewest bytes):
+            the scene is stored as ``learned-rans`` at that level (``encoding`` is then ignored). ModelError for
+            a model without quality levels.
     Returns:
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
@@ -248,8 +255,32 @@ def encode(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
+    encoding = _quality_encoding(net, encoding, quality)
     clip = read_clip(source, names, start, net.config.frames)
-    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit)
+    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
+
+
+def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL) -> tuple[int, ...]:
+    """The quality levels (1 .. L) a model offers: ``()`` for a model without an entropy model."""
+    from .model.directories import model_directory, read_model_meta  # torch-free
+
+    config = model.config if not isinstance(model, (str, os.PathLike)) else \
+        read_model_meta(model_directory(model))["config"]
+    return tuple(range(1, config.entropy_levels + 1))
+
+
+def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: int | None) -> str:
+    """The encoding a scene of ``net`` is stored with: learned-rans when a quality level is asked for."""
+    if quality is None:
+        return encoding
+    from .errors import ModelError
+
+    levels = quality_levels(net)
+    if not levels:
+        raise ModelError("this model has no quality levels (no entropy model); choose an --encoding instead")
+    if isinstance(quality, bool) or not isinstance(quality, int) or quality not in levels:
+        raise ModelError(f"quality must be one of {list(levels)}, got {quality!r}")
+    return "learned-rans"
 
 
 def encode_clips(
@@ -263,6 +294,7 @@ def encode_clips(
     metadata: dict[str, Any] | None = None,
     fit: str = "crop",
     runtime: str = "auto",
+    quality: int | None = None,
 ) -> list[Scene]:
     """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
     (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
@@ -273,15 +305,16 @@ def encode_clips(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
+    encoding = _quality_encoding(net, encoding, quality)
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")
-    return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit)
+    return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit, quality)
             for s in range(0, source.num_frames - T + 1, T)]
 
 
 def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
-                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop") -> Scene:
+                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None) -> Scene:
     """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
     from .model.inputs.preprocess import prepare_source  # lazy: `import vt4dcodec` / `vt4d` load no OpenCV
     from .model.onnx_encoder import OnnxEncoder  # torch-free
@@ -323,6 +356,7 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
         metadata={**(metadata or {}), "vt4d": info},
         provenance=Provenance.now(clip.capture_id, "encoded"),
         encoding=encoding,
+        quality=quality,
     )
 
 
@@ -389,7 +423,7 @@ class SceneDecoder:
              model: "str | os.PathLike | VideoTok4D | None" = None, force: bool = False) -> "SceneDecoder":
         """Load the scene and the model that made it (found from the stored fingerprint unless ``model``
         is given).  A different model is refused with both fingerprints named unless ``force``."""
-        scene = scene_or_path if isinstance(scene_or_path, Scene) else load(scene_or_path)
+        scene = scene_or_path if isinstance(scene_or_path, Scene) else _load_scene(scene_or_path, model)
         stored = scene.fingerprint
         try:
             net = load_model(stored.model_id if model is None else model)
@@ -478,6 +512,21 @@ class SceneDecoder:
                 for i, video in zip(chunk, videos):
                     out[i] = video
         return [v for v in out if v is not None]
+
+
+def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike | VideoTok4D | None") -> Scene:
+    """``load(source)``; a learned-rans file whose model is not installed reads with the tables of ``model``
+    (a model directory given to the decoder), when that is the file's model."""
+    try:
+        return load(source)
+    except EntropyTablesError:
+        if model is None or not isinstance(model, (str, os.PathLike)):
+            raise
+        from .model.directories import model_directory
+        from .model.tables import tables_from_directory
+
+        stored = open_scene(source).fingerprint
+        return load(source, tables=tables_from_directory(model_directory(model), stored))
 
 
 def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Trajectory | str | os.PathLike" = "source",

@@ -40,7 +40,7 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     model_from_run, resolve_device, scene_pool_and_seeds, seed_everything, setup_distributed,
+                     model_from_run, resolve_device, scene_pool_and_seeds, seed_everything, setup_distributed, to_device,
                      train_loop, trained_decode_steps)
 from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents, prefill_scenes
 
@@ -77,16 +77,54 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
               cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
-              track_weight: float = 0.0, patch_weight: float = 0.0
+              track_weight: float = 0.0, patch_weight: float = 0.0, rate_lambdas: tuple[float, ...] = ()
               ) -> tuple[torch.Tensor, dict[str, float]]:
+    """One training loss. With ``rate_lambdas`` (one per quality level of the entropy model) each batch
+    draws a level uniformly and trains D + lambda_level R at that level's quantization."""
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
+    rate = {}
+    if rate_lambdas:
+        level = int(torch.randint(len(rate_lambdas), ()))
+        rate = {"rate_level": level, "rate_lambda": rate_lambdas[level]}
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
                   pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
                   diversity_weight=diversity_weight, track_weight=track_weight,
-                  patch_weight=patch_weight)
+                  patch_weight=patch_weight, **rate)
+
+
+def calibrate_entropy(model: VideoTok4D, batches, count: int, iterations: int = 300, lr: float = 0.05) -> dict[str, float]:
+    """Fit a fresh entropy model's densities (steps fixed) to the noise-free tokens of ``count`` training
+    batches before rate training starts, so the rate term's first gradients come from the real token
+    distribution rather than a uniform density. Returns the bits per value before and after."""
+    entropy = model.entropy
+    assert entropy is not None
+    samples = []
+    model.eval()
+    with torch.no_grad():
+        for _ in range(count):
+            batch = next(batches)
+            src = to_device(batch.source, entropy.logits.device)
+            a_s, a_d = model.encode_preactivations(src)
+            samples.append((torch.tanh(a_s), torch.tanh(a_d), model.static_origins(src.views)))
+    model.train()
+    opt = torch.optim.Adam([entropy.logits], lr=lr)
+    before = after = 0.0
+    gen = torch.Generator().manual_seed(0)
+    for it in range(iterations):  # one sample at one level a step (~70 ms), each level and sample in turn
+        zs, zd, origin = samples[it % len(samples)]
+        loss = entropy.density_loss(zs, zd, origin, level=int(torch.randint(entropy.levels, (), generator=gen)))
+        if it < len(samples):
+            before += float(loss.detach()) / len(samples)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if it >= iterations - len(samples):
+            after += float(loss.detach()) / len(samples)
+    entropy.log_step.grad = None
+    return {"bits_per_value_before": before, "bits_per_value_after": after}
 
 
 @torch.no_grad()
@@ -299,6 +337,13 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--track-weight", type=float, default=0.0, metavar="W",
                         help="weight of the track loss (config dynamic_splat): each dynamic token must decode where "
                              "its track goes, supervised by the synthetic scenes' depth")
+    recipe.add_argument("--rate-lambdas", default="", metavar="L,L,...",
+                        help="rate-distortion training (config entropy_levels = the number of values): lambda of each "
+                             "quality level, coarsest first; each batch draws a level and adds lambda x bits per "
+                             "source pixel to the loss")
+    recipe.add_argument("--calibrate-batches", type=int, default=16, metavar="N",
+                        help="with --rate-lambdas, a run that starts without a checkpoint first fits the entropy "
+                             "model's densities to the tokens of N batches")
     recipe.add_argument("--patch-weight", type=float, default=0.0, metavar="W",
                         help="weight of the patch loss (config dynamic_splat): each dynamic token's splat patch must "
                              "hold the source latent around its track")
@@ -325,6 +370,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--multi-spread must be in [0, 1]")
     if args.cell_weight < 0 or (args.cell_weight > 0 and not cfg.token_splat):
         parser.error("--cell-weight must be >= 0 and needs --set token_splat=true (it trains the splat's read)")
+    try:
+        rate_lambdas = tuple(float(v) for v in args.rate_lambdas.split(",")) if args.rate_lambdas else ()
+    except ValueError:
+        parser.error(f"--rate-lambdas takes comma-separated numbers, got {args.rate_lambdas!r}")
+    if rate_lambdas and (len(rate_lambdas) != cfg.entropy_levels or not all(v >= 0 for v in rate_lambdas)):
+        parser.error(f"--rate-lambdas needs one lambda >= 0 per quality level: the config has entropy_levels="
+                     f"{cfg.entropy_levels} (--set entropy_levels=N)")
     args.out.mkdir(parents=True, exist_ok=True)
 
     starts = [flag for flag, value in (("--init", args.init), ("--autoencoder", args.autoencoder),
@@ -366,12 +418,19 @@ def main(argv: list[str] | None = None) -> int:
                              saturation_weight=args.saturation_weight, drop_static=args.drop_static,
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
-                             track_weight=args.track_weight, patch_weight=args.patch_weight)
+                             track_weight=args.track_weight, patch_weight=args.patch_weight,
+                             rate_lambdas=rate_lambdas)
+    if rate_lambdas and args.calibrate_batches > 0 and not (args.out / "checkpoint" / "state.json").is_file():
+        fit = calibrate_entropy(model, batches, args.calibrate_batches)
+        if info.is_main:
+            print(f"entropy model calibrated on {args.calibrate_batches} batches: {fit['bits_per_value_before']:.3f} -> "
+                  f"{fit['bits_per_value_after']:.3f} bits per token value (mean over levels)")
     records = train_loop(args, info, module, model, optimizer, batches, step,
                          title="stage 2: tokenizer + renderer", extra_state={"config": cfg.to_dict()},
                          device=device)
     model.cpu()  # saved and sampled on the CPU, wherever it trained
     if info.is_main:
+        model.update_entropy()  # the integer tables the codec reads, from the final densities and steps
         model.decode_steps = trained_decode_steps(vars(args))
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
                                     model_version=args.model_version)

@@ -224,10 +224,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
             recorded = {CAPTURE_KEY: {"fps": float(cap.fps)}}  # decoded videos play at the capture's rate
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                            seed=args.seed, fit=args.fit, metadata=recorded)
+                                            seed=args.seed, fit=args.fit, metadata=recorded, quality=args.quality)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                       start=args.start, seed=args.seed, fit=args.fit, metadata=recorded)]
+                                       start=args.start, seed=args.seed, fit=args.fit, metadata=recorded,
+                                       quality=args.quality)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -262,7 +263,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     fp = codec.model_fingerprint(model)
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
-               "model": fp.to_dict(), "encoding": args.encoding, "rank": rank, "world_size": world,
+               "model": fp.to_dict(), "encoding": "learned-rans" if args.quality else args.encoding,
+               "quality": args.quality, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
     if skipped:
@@ -394,6 +396,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
                    help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
                         "tokens on held-out views, see docs/BENCHMARKS.md)")
+    p.add_argument("--quality", type=int, choices=codec.QUALITY_LEVELS, default=None, metavar="Q",
+                   help="a quality level of the model's entropy model, 1 (fewest bytes) to "
+                        f"{codec.QUALITY_LEVELS[-1]} (best): stores the tokens as learned-rans at that level "
+                        "(format 1.6) instead of --encoding (vt4d info shows the level and bits per pixel)")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
                         "(one camera per scene, ~4x less memory), 'torch' the networks; 'auto' (default) takes "

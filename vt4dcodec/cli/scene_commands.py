@@ -118,6 +118,9 @@ def run_info(args: argparse.Namespace) -> int:
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
                 "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
                 "camera_encoding": scene.camera_encoding(), "extra_cameras": scene.num_extra_cameras}
+    # bits per pixel of what the file stores: every byte over the encoded cameras' pixels (all frames)
+    pixels = (1 + summary["extra_cameras"]) * summary["frames"] * summary["width"] * summary["height"]
+    summary["bits_per_pixel"] = round(8 * summary["bytes"] / pixels, 5)
     if args.json or args.quiet:
         emit(args, summary)
         return EXIT_OK
@@ -128,7 +131,10 @@ def run_info(args: argparse.Namespace) -> int:
         f"({summary['token_bytes']} of tokens, {summary['non_token_bytes']} of everything else, "
         f"{summary['header_bytes']} of them the {'compressed ' if summary['compact_container'] else ''}header)",
         f"tokens          Z_s {summary['static_shape'][0]}x{summary['static_shape'][1]}, "
-        f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}",
+        f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}"
+        + (f" at quality {summary['quality']}" if summary.get("quality") else ""),
+        f"rate            {summary['bits_per_pixel']:.4f} bits per pixel of the encoded camera"
+        + (f"s ({1 + summary['extra_cameras']})" if summary["extra_cameras"] else "") + " (the whole file)",
         f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "
         f"{summary['camera_encoding']}"
         + (f", {summary['extra_cameras']} extra encoded camera{'s' if summary['extra_cameras'] > 1 else ''}"

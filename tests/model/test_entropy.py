@@ -1,0 +1,138 @@
+"""The learned entropy model (model/entropy.py): densities, the rate proxy against the real coder, frozen
+tables that the format reads, and the torch-free table reader of model/tables.py."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+import torch
+
+from vt4dcodec.errors import EntropyTablesError
+from vt4dcodec.format import EntropyTables, dumps, loads
+from vt4dcodec.format.learned import encode_learned_tokens
+from vt4dcodec.model.configs import get_config
+from vt4dcodec.model.entropy import (ALPHABET, CHANGE, MAX_VIEWS, MEAN, TokenEntropyModel, bin_probabilities,
+                                     frequencies, symbol_count)
+from vt4dcodec.model.tables import read_safetensors, tables_from_directory
+
+# a miniature tokenizer with frame copies (80 static tokens on 16 cells: 5 copies a cell with one camera)
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=80, n_dynamic=4, token_dim=8, n_tracks=8, patch_size=2,
+             locality_sigma=0.35, query_from_grid=True, project_anchors=True, prediction="x0", anchor_views=True,
+             token_splat=True, token_from_cell=True, frame_copies=True)
+
+
+@pytest.mark.parametrize("step, cls", [(1.0, MEAN), (0.3, CHANGE), (1 / 32, MEAN), (1 / 32, CHANGE), (0.07, 2)])
+def test_bin_probabilities_and_frequencies(step, cls):
+    logits = np.random.default_rng(0).normal(0, 2, 256)
+    p = bin_probabilities(logits, step, cls)
+    assert len(p) == symbol_count(step, cls) <= ALPHABET and abs(p.sum() - 1) < 1e-9 and (p >= 0).all()
+    f = frequencies(p)
+    assert f.sum() == 1 << 14 and (f >= 1).all()
+
+
+@functools.lru_cache(maxsize=1)
+def fitted_model(d: int = 4, n_static: int = 10, levels: int = 3) -> TokenEntropyModel:
+    """Densities fitted to tokens of known spread (one fit per test session; the tests do not change it)."""
+    torch.manual_seed(0)
+    model = TokenEntropyModel(levels, n_static, d)
+    z_s = torch.tanh(torch.randn(32, n_static, d) * torch.linspace(0.1, 1.0, d))
+    z_d = torch.tanh(torch.randn(32, 3, d) * 0.5)
+    origin = torch.arange(n_static)
+    origin[5:] = torch.arange(5, n_static) % 5
+    opt = torch.optim.Adam([model.logits], lr=0.05)
+    for it in range(120):
+        loss = model.density_loss(z_s, z_d, origin, level=it % levels)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    model.update(torch.stack([origin] * MAX_VIEWS))
+    return model
+
+
+def test_rate_proxy_matches_the_coder():
+    """The trained bits of noisy tokens predict what the integer tables really cost, within 10 %."""
+    from vt4dcodec.format import ModelFingerprint
+
+    model = fitted_model()
+    assert model.frozen
+    fp = ModelFingerprint("t", "1", "0" * 64, "1" * 64, (10, 4), (3, 4))
+    tables = EntropyTables(model.steps.numpy(), model.freqs.numpy(), model.origins.numpy(), fp)
+    torch.manual_seed(1)
+    z_s = torch.tanh(torch.randn(100, 10, 4) * torch.linspace(0.1, 1.0, 4))
+    z_d = torch.tanh(torch.randn(100, 3, 4) * 0.5)
+    origin = torch.as_tensor(model.origins[0], dtype=torch.long)
+    for level in range(model.levels):
+        with torch.no_grad():
+            proxy = float(model.noisy(z_s, z_d, level, origin)[2].sum()) / 8
+        real = sum(len(encode_learned_tokens(z_s[i].numpy(), tables, level, 1, "static"))
+                   + len(encode_learned_tokens(z_d[i].numpy(), tables, level, 1, "dynamic")) - 12 for i in range(100))
+        assert abs(real - proxy) < 0.1 * real + 100, (level, real, proxy)
+
+
+def test_finer_levels_cost_more_bits():
+    model = fitted_model()
+    z_s = torch.tanh(torch.randn(32, 10, 4))
+    z_d = torch.tanh(torch.randn(32, 3, 4))
+    origin = torch.as_tensor(model.origins[0], dtype=torch.long)
+    with torch.no_grad():
+        bits = [float(model.noisy(z_s, z_d, level, origin)[2].mean()) for level in range(model.levels)]
+    assert bits == sorted(bits)
+
+
+def test_rate_gradient_reaches_tokens_and_steps():
+    model = fitted_model()
+    z_s = torch.tanh(torch.randn(4, 10, 4)).requires_grad_()
+    z_d = torch.tanh(torch.randn(4, 3, 4)).requires_grad_()
+    origin = torch.as_tensor(model.origins[0], dtype=torch.long)
+    model.zero_grad()
+    model.noisy(z_s, z_d, 1, origin)[2].sum().backward()
+    assert z_s.grad.abs().sum() > 0 and z_d.grad.abs().sum() > 0 and model.log_step.grad[1].abs().sum() > 0
+    model.zero_grad()
+
+
+def test_saved_model_tables_read_without_torch(tmp_path):
+    """A model with entropy levels, saved and frozen: the torch-free reader gives the module's tables, checks
+    them against weights_sha256, and a scene written with them loads back."""
+    from vt4dcodec.model import VideoTok4D
+    from vt4dcodec.model.weights_io import save_pretrained
+
+    cfg = get_config("tiny", **SMALL, entropy_levels=3)
+    model = VideoTok4D(cfg)
+    model.update_entropy()
+    directory = save_pretrained(model, tmp_path / "m", model_id="vt4d-entropy-test", model_version="0.0.1")
+    tables = tables_from_directory(directory)
+    assert np.array_equal(tables.freqs, model.entropy.freqs.numpy()) and tables.levels == 3
+    assert np.array_equal(tables.steps, model.entropy.steps.numpy())
+    assert np.array_equal(tables.origins[0], model.static_origins(1).numpy())
+    assert (tables.origins[0] != np.arange(80)).sum() == 64  # one camera: 4 frame copies of each of 16 cells
+    weights = directory / "model.safetensors"
+    raw = bytearray(weights.read_bytes())
+    raw[-1] ^= 1  # one weight changed: the tables can no longer be trusted to be the fingerprint's model's
+    weights.write_bytes(bytes(raw))
+    with pytest.raises(EntropyTablesError, match="weights_sha256"):
+        tables_from_directory(directory)
+    assert read_safetensors(weights)["entropy.freqs"].dtype == np.int16
+
+
+def test_model_tables_code_a_scene(tmp_path):
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.format import Scene
+    from vt4dcodec.model import VideoTok4D
+    from vt4dcodec.model.weights_io import save_pretrained
+
+    cfg = get_config("tiny", **SMALL, entropy_levels=2)
+    model = VideoTok4D(cfg)
+    model.update_entropy()
+    directory = save_pretrained(model, tmp_path / "m", model_id="vt4d-entropy-test", model_version="0.0.2")
+    tables = tables_from_directory(directory)
+    z_s, z_d = (np.tanh(np.random.default_rng(0).normal(0, 0.5, shape)).astype(np.float32)
+                for shape in (cfg.static_shape, cfg.dynamic_shape))
+    K = np.tile(np.array([[50.0, 0, 16], [0, 50.0, 16], [0, 0, 1]]), (cfg.frames, 1, 1))
+    w2c = np.tile(np.eye(4), (cfg.frames, 1, 1))
+    scene = Scene(z_s, z_d, Trajectory(K=K, w2c=w2c, width=32, height=32), tables.fingerprint,
+                  encoding="learned-rans", quality=2)
+    back = loads(dumps(scene, tables=tables), tables=tables)
+    assert np.abs(back.static_tokens - z_s).max() <= tables.steps[1, 0].max() / 2 + 1e-6
