@@ -32,13 +32,15 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
-from vt4dcodec.format import ModelFingerprint, Provenance, Scene, dumps, open_scene  # noqa: E402
+from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene, dumps, open_scene,  # noqa: E402
+                              set_tables_resolver)
+from vt4dcodec.format import learned as _learned  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_LEARNED_TOKENS,
                                      FLAG_RANS_LANES, PREAMBLE_SIZE,
                                      crc32, entry_size, parse_preamble, parse_table)
-from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode  # noqa: E402
+from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode, rans_encode_ctx  # noqa: E402
 from vt4dcodec.format.rans import parse_table as parse_rans_table  # noqa: E402
 from vt4dcodec.format.rans_tokens import decode_rans_codes, encode_rans_tokens  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
@@ -247,6 +249,122 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
     out.update(compact_valid_vectors())
     out.update(container_valid_vectors())
     out.update(extra_cameras_valid_vectors())
+    out.update(learned_valid_vectors())
+    return out
+
+
+# --- format 1.6: learned-rans tokens with a model's tables (FORMAT.md I.6.2) -----------------------------------
+LEARNED_TABLES_FILE = "tables/vt4d-test-learned.json"
+
+
+def _laplace_row(q: int, width: float, change: bool) -> list[int]:
+    """A positive run of 2q+1 (4q+1 for a change) frequencies summing to 2^14, peaked at the middle."""
+    n = (4 if change else 2) * q + 1
+    p = np.exp(-np.abs(np.arange(n) - n // 2) / width)
+    f = np.floor(p / p.sum() * (16384 - n)).astype(np.int64) + 1
+    f[n // 2] += 16384 - int(f.sum())
+    return [int(v) for v in f]
+
+
+def learned_tables() -> EntropyTables:
+    """The test model's entropy tables: 2 levels, d = 2, N_s = 3 (one camera: token 2 is a frame copy of
+    token 0), N_d = 1; steps 1/2 and 1/4 (level 0), 1/8 (level 1), Z_d one step coarser."""
+    steps = np.array([[[0.5, 0.25], [0.5, 0.5]], [[0.125, 0.125], [0.25, 0.125]]], np.float32)
+    q = np.floor(1 / steps.astype(np.float64) + 0.5).astype(int)
+    freqs = np.zeros((2, 3, 2, 4 * int(q[:, 0].max()) + 1), np.int64)
+    for level in range(2):
+        for c in range(2):
+            for cls, (g, change) in enumerate(((0, False), (0, True), (1, False))):
+                row = _laplace_row(int(q[level, g, c]), 0.7 + c, change)
+                freqs[level, cls, c, :len(row)] = row
+    origins = np.tile(np.arange(3), (64, 1))
+    origins[0, 2] = 0
+    return EntropyTables(steps, freqs, origins, fingerprint((3, 2), (1, 2)))
+
+
+def install_spec_tables() -> None:
+    """Let readers find the test model's tables by its fingerprint, as an installed model's are found (the
+    vectors' expected content, tests/format). Other fingerprints go to the resolver installed before."""
+    previous = _learned._resolver
+    if getattr(previous, "spec_tables", False):
+        return
+    tables = learned_tables()
+
+    def resolve(fp: ModelFingerprint) -> EntropyTables | None:
+        return tables if fp == tables.fingerprint else previous(fp) if previous is not None else None
+
+    resolve.spec_tables = True  # type: ignore[attr-defined]
+    set_tables_resolver(resolve)
+
+
+def learned_tables_json(tables: EntropyTables) -> dict[str, Any]:
+    """The tables as spec/vectors stores them: each frequency row as its positive run only."""
+    return {"fingerprint": tables.fingerprint.to_dict(), "steps": tables.steps.astype(np.float64).tolist(),
+            "freqs": [[[[int(v) for v in row if v] for row in cls] for cls in level] for level in tables.freqs],
+            "origins": tables.origins.tolist()}
+
+
+def learned_scene(**kw: Any) -> Scene:
+    zs = np.array([[0.6, -0.3], [-0.95, 0.1], [0.55, -0.05]], np.float32)  # token 2 a copy of token 0
+    zd = np.array([[0.2, -0.7]], np.float32)
+    return Scene(zs, zd, cameras(2), fingerprint((3, 2), (1, 2)), encoding="learned-rans", **kw)
+
+
+def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
+    tables = learned_tables()
+    two = learned_scene(provenance=PROVENANCE)
+    two.extra_cameras = (shifted(cameras(2), 0.5),)
+    return {
+        "learned_rans_one_camera": (
+            dumps(learned_scene(quality=1), tables=tables, compression_level=None),
+            "1.6: learned-rans at quality level index 0 of the test model (spec/vectors/tables/vt4d-test-learned.json); "
+            "static token 2 is a frame copy of token 0 (class CHANGE)"),
+        "learned_rans_fine_level": (
+            dumps(learned_scene(quality=2), tables=tables),
+            "1.6: learned-rans at level index 1 (steps 1/8, Z_d 1/4 and 1/8), zstd on the other sections"),
+        "learned_rans_two_cameras": (
+            dumps(two, quality=2, tables=tables),
+            "1.6 with an extra camera (V = 2): the origins row of two cameras, every static token MEAN"),
+    }
+
+
+def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
+    tables = learned_tables()
+    good = dumps(learned_scene(quality=2), tables=tables, compression_level=None)
+    header, sections = split(good)
+    payload = bytes(find(sections, "ZSTA")[3])
+    out: dict[str, tuple[bytes, str, str]] = {}
+
+    def with_payload(name: str, bad_payload: bytes, error: str, why: str) -> None:
+        bad = [list(x) for x in sections]
+        find(bad, "ZSTA")[3:5] = [bad_payload, len(bad_payload)]
+        out[f"learned_rans_{name}"] = (rebuild(header, bad), error, why)
+        REPAIRED[f"learned_rans_{name}"] = good
+
+    with_payload("short_payload", payload[:5], "TruncatedError", "a 5-byte ZSTA payload: no room for the rANS state")
+    with_payload("level_beyond_tables", bytes([2]) + payload[1:], "MalformedSectionError",
+                 "level index 2 of a model with 2 levels")
+    with_payload("views_mismatch", payload[:1] + bytes([2]) + payload[2:], "MalformedSectionError",
+                 "V = 2 in a file without extra cameras")
+    with_payload("trailing_byte", payload + b"\x00", "MalformedSectionError", "one byte after the rANS stream")
+    with_payload("truncated_stream", payload[:-1], "TruncatedError", "the rANS stream lost its last byte")
+    level, q = 1, 8  # Q_s of level 1: the MEAN codes 0 (symbol 8), the CHANGE code +2Q past its origin's 0
+    ctx = tables.contexts("static", 1)
+    symbols = np.where(ctx // 2 == 1, 4 * q, q)
+    forged = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), tables.freqs[level].reshape(-1, tables.freqs.shape[3]))
+    with_payload("change_code_out_of_range", bytes([level, 1]) + forged, "MalformedSectionError",
+                 "token 2's CHANGE symbol 4Q puts its code at +2Q = 16, outside -8 .. 8")
+    out["learned_rans_without_flag"] = (patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS),
+                                        "MalformedHeaderError", "encoding learned-rans with required flag bit 5 clear")
+    REPAIRED["learned_rans_without_flag"] = good
+    out["learned_rans_with_bit_0"] = (
+        patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | FLAG_LEARNED_TOKENS
+                       | FLAG_ENTROPY_CODED_TOKENS), "MalformedHeaderError",
+        "required flag bit 0 (int<b>-rans payloads) beside bit 5")
+    REPAIRED["learned_rans_with_bit_0"] = good
+    out["learned_rans_flag_in_1_5"] = (patch_preamble(good, 12, "<H", 5), "UnsupportedFeatureError",
+                                       "required flag bit 5 in a file that says 1.5")
+    REPAIRED["learned_rans_flag_in_1_5"] = good
     return out
 
 
@@ -965,6 +1083,7 @@ def invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     find(cams, "CAMS")[3] = cam.tobytes()
     add("bad_rotation", rebuild(header, cams), "MalformedSectionError", "w2c[0] has a scaled rotation")
     out.update(rans_invalid_vectors())
+    out.update(learned_invalid_vectors())
     out.update(lanes_invalid_vectors())
     out.update(compact_invalid_vectors())
     out.update(container_invalid_vectors())
@@ -1020,8 +1139,10 @@ def uses_zstd(data: bytes) -> bool:
 
 
 def generate() -> dict[str, bytes]:
-    """Every vector file (relative path -> bytes), including expected JSON and the manifest."""
-    files: dict[str, bytes] = {}
+    """Every vector file (relative path -> bytes), including expected JSON, the manifest and the test model's
+    entropy tables (format 1.6)."""
+    install_spec_tables()
+    files: dict[str, bytes] = {LEARNED_TABLES_FILE: _json(learned_tables_json(learned_tables()))}
     manifest: dict[str, Any] = {"zstd_version": ".".join(map(str, zstandard.ZSTD_VERSION)),
                                 "valid": {}, "invalid": {}}
     for name, (data, why) in valid_vectors().items():
@@ -1051,7 +1172,7 @@ def main() -> int:
         for p in bad:
             print(f"differs: spec/vectors/{p}")
         return 1 if bad else 0
-    for sub in ("valid", "invalid"):
+    for sub in ("valid", "invalid", "tables"):
         (VECTORS / sub).mkdir(parents=True, exist_ok=True)
         for old in (VECTORS / sub).iterdir():
             if f"{sub}/{old.name}" not in files:

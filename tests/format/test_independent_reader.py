@@ -62,12 +62,14 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 32 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 64 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
     assert minor >= 5 or not required & 16  # I.6.1: rANS lanes since 1.5
     assert required & 1 or not required & 16  # ... only beside bit 0
+    assert minor >= 6 or not required & 32  # I.6.2: learned-rans since 1.6, never beside bit 0
+    assert not (required & 32 and required & 1)
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
@@ -99,7 +101,9 @@ def read_scene(data: bytes) -> dict:
         assert len(payload) == raw
         sections[code.decode()] = payload
     assert cursor == file_length
-    entropy = header["encoding"].endswith("-rans")
+    learned = header["encoding"] == "learned-rans"
+    assert bool(required & 32) == learned
+    entropy = header["encoding"].endswith("-rans") and not learned
     assert bool(required & 1) == entropy and (minor >= 1 or not entropy)
     assert minor >= 2 or not required & 2  # compact cameras (I.5.1) since 1.2
     assert ("XCAM" in sections) == bool(required & 8)  # I.5.3: present exactly with required flag bit 3
@@ -235,10 +239,51 @@ def rans_codes(raw: bytes, bits: int, rows: int, cols: int, lanes: bool = False)
     return codes, [scale[c // width] for c in range(cols)], [offset[c // width] for c in range(cols)]
 
 
+def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, views: int) -> list[float]:
+    """FORMAT.md I.6.2: u8 level, u8 V, one rANS chain whose symbol k = i d + c uses the frequency row of its
+    class (MEAN / CHANGE by the origin of static token i for V cameras, DYNAMIC) and channel; codes from the
+    half-ranges the rows' symbol counts give; value f32(q * step)."""
+    M, L = 1 << 14, 1 << 23
+    assert len(raw) >= 6
+    level, V = raw[0], raw[1]
+    assert level < len(tables["steps"]) and V == views
+    freqs = tables["freqs"][level]  # [class][channel] -> the positive run of the row
+    half = [[(len(freqs[k][c]) - 1) // 2 for c in range(cols)] for k in (0, 2)]  # Q_s, Q_d per channel
+    assert all(len(freqs[1][c]) == 4 * half[0][c] + 1 for c in range(cols))
+    static = tok == "ZSTA"
+    origin = tables["origins"][V - 1] if static else None
+    x, pos, codes = struct.unpack_from("<I", raw, 2)[0], 6, []
+    assert x >= L
+    for k in range(rows * cols):
+        i, c = divmod(k, cols)
+        cls = (0 if origin[i] == i else 1) if static else 2
+        f = freqs[cls][c]
+        cum = [sum(f[:s]) for s in range(len(f))]
+        slot = x % M
+        s = max(t for t in range(len(f)) if cum[t] <= slot)
+        x = f[s] * (x // M) + slot - cum[s]
+        while x < L:
+            x, pos = x * 256 + raw[pos], pos + 1
+        Q = half[0 if static else 1][c]
+        q = s - Q if cls != 1 else codes[origin[i] * cols + c] + s - 2 * Q
+        assert -Q <= q <= Q
+        codes.append(q)
+    assert pos == len(raw) and x == L
+    steps = tables["steps"][level][0 if static else 1]
+    return [struct.unpack("<f", struct.pack("<f", q * steps[k % cols]))[0] for k, q in enumerate(codes)]
+
+
+LEARNED_TABLES = json.loads((VECTORS / "tables" / "vt4d-test-learned.json").read_text())
+
+
 def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[list[float]]:
     enc, (rows, cols) = scene["header"]["encoding"], shape
     n, raw = rows * cols, scene["sections"][tok]
-    if enc == "float32":
+    if enc == "learned-rans":  # the tables of the model the fingerprint names: here the test model's file
+        assert scene["header"]["fingerprint"] == LEARNED_TABLES["fingerprint"]
+        views = 1 + (struct.unpack_from("<B", scene["sections"]["XCAM"], 0)[0] if "XCAM" in scene["sections"] else 0)
+        values = learned_values(raw, LEARNED_TABLES, tok, rows, cols, views)
+    elif enc == "float32":
         values = list(struct.unpack(f"<{n}f", raw))
     elif enc == "float16":
         values = list(struct.unpack(f"<{n}e", raw))
@@ -530,3 +575,26 @@ def test_format_md_alone_reads_or_rejects_every_archive_vector(name):
             read_archive(data)
         # section 10.1 names the class; "ArchiveError" is the catch-all (any structural violation)
         assert info.value.kind == expected["error"] or expected["error"] == "ArchiveError", info.value.kind
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 2), st.integers(0, 2**32 - 1), st.booleans())
+def test_format_md_alone_reads_what_the_writer_makes_in_learned_rans(quality, seed, two_cameras):
+    """learned-rans (I.6.2) as the library writes it, at either level of the test model, with one camera
+    (a frame copy coded given its origin) or two: the spec-only decoder gives the library's own values."""
+    from format_strategies import load_vector_tool
+    from vt4dcodec.format import dumps, loads
+
+    mv = load_vector_tool()
+    scene = mv.learned_scene(quality=quality)
+    rng = np.random.default_rng(seed)
+    scene.static_tokens = rng.uniform(-1.2, 1.2, (3, 2)).astype(np.float32)  # beyond +-1: clipped to +-Q
+    scene.dynamic_tokens = rng.uniform(-1, 1, (1, 2)).astype(np.float32)
+    if two_cameras:
+        scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
+    tables = mv.learned_tables()
+    data = dumps(scene, tables=tables)
+    mine = read_scene(data)
+    ours = loads(data, tables=tables)
+    for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
+        assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()

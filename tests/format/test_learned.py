@@ -184,13 +184,9 @@ def test_writer_needs_tables_and_a_level():
 
 # --- damage ----------------------------------------------------------------------------------------------
 def payload_swap(data: bytes, section: str, payload: bytes) -> bytes:
-    import sys
+    from format_strategies import load_vector_tool
 
-    from format_strategies import REPO
-
-    sys.path.insert(0, str(REPO / "spec"))
-    import make_vectors as mv  # noqa: E402
-
+    mv = load_vector_tool()
     header, sections = mv.split(data)
     entry = mv.find(sections, section)
     entry[3:5] = [payload, len(payload)]
