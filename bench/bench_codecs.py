@@ -274,13 +274,23 @@ def quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return m["psnr"], m["ssim"]
 
 
+def vt4d_bytes(scene: Any, encoding: str, net: Any) -> bytes:
+    """The file of ``scene`` at a token encoding, or at quality level N of the model's entropy model for
+    ``encoding = "qN"`` (learned-rans, format 1.6, with the model's own frozen tables)."""
+    from vt4dcodec import codec
+    from vt4dcodec.format import dumps
+
+    if re.fullmatch(r"q\d+", encoding):
+        return dumps(scene, encoding="learned-rans", quality=int(encoding[1:]), tables=codec.model_tables(net))
+    return dumps(scene, encoding=encoding)
+
+
 def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], encodings: Sequence[str],
                   quick: bool, seed: int = 0) -> dict[str, Any]:
     """Every setting of one clip: vt4d per encoding and each codec per quality step, each as
     {bytes, psnr, ssim} (bytes of the stored cameras, PSNR / SSIM averaged over the evaluated views)."""
     from vt4dcodec import codec
     from vt4dcodec.eval.baselines import mean_colour
-    from vt4dcodec.format import dumps
 
     t0 = time.perf_counter()
     T = net.config.frames
@@ -297,7 +307,7 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
         rendered[set_name], file_bytes[set_name] = {}, {}
         targets = [n for n in names if any(n in views_of(names, stored, k) for k in ("captured", "novel"))]
         for enc in encodings:
-            data = dumps(scene, encoding=enc)
+            data = vt4d_bytes(scene, enc, net)
             file_bytes[set_name][enc] = len(data)
             videos = codec.SceneDecoder.open(data, model=net).render_many([trajs[n] for n in targets], seed=seed)
             rendered[set_name][enc] = {n: quality(v, truth[n]) for n, v in zip(targets, videos)}
@@ -557,8 +567,13 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
     torch.set_num_threads(args.threads)
     net = codec.load_model(args.model).eval()
     cfg = net.config
-    encodings = ENCODINGS if args.encodings == "all" else tuple(e.strip() for e in args.encodings.split(","))
-    reference = codec.DEFAULT_ENCODING if codec.DEFAULT_ENCODING in encodings else encodings[0]
+    levels = tuple(f"q{q}" for q in codec.quality_levels(net))
+    encodings = ENCODINGS + levels if args.encodings == "all" else levels if args.encodings == "levels" else \
+        tuple(e.strip() for e in args.encodings.split(","))
+    bad = [e for e in encodings if e not in ENCODINGS + levels]
+    if bad:
+        raise SystemExit(f"--encodings: unknown {bad}; the model's quality levels are {list(levels) or 'none'}")
+    reference = args.reference or (codec.DEFAULT_ENCODING if codec.DEFAULT_ENCODING in encodings else encodings[0])
     codecs = available_codecs([c.strip() for c in args.codecs.split(",")])
     fp = codec.model_fingerprint(net)
     started, cpu0 = time.perf_counter(), time.process_time()
@@ -638,7 +653,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--cameras", type=int, default=10, help="cameras per synthetic capture")
     p.add_argument("--capture", default=None, help="caliscope recording (default: shared/data/caliscope_4cam)")
     p.add_argument("--real-clips", type=int, default=-1, help="caliscope clips (-1: all, 0: skip real footage)")
-    p.add_argument("--encodings", default="all", help="token encodings, comma-separated, or 'all'")
+    p.add_argument("--encodings", default="all",
+                   help="token encodings and quality levels (q1, q2, ... of a model with an entropy model: learned-rans "
+                        "at that level), comma-separated; 'levels' (every quality level) or 'all' (every encoding and level)")
+    p.add_argument("--reference", default=None,
+                   help="the encoding or level whose point the equal-quality tables compare (default: the codec's "
+                        "default encoding when measured, else the first)")
     p.add_argument("--codecs", default="h264,h265,av1")
     p.add_argument("--quick", action="store_true", help="3-point codec sweeps; with the defaults also 2 scenes "
                    "and 2 caliscope clips")

@@ -43,7 +43,7 @@ from .capture.resample import check_fit, fit_capture, fit_trajectory, plan_fit
 from .capture.targets import camera_target, check_camera_spec, cut_to_clip, is_camera_spec
 from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
 from .errors import CaptureError, EntropyTablesError, ModelMismatchError, ModelNotFoundError, TrajectoryError
-from .format import ModelFingerprint, Provenance, Scene, load, open_scene
+from .format import EntropyTables, ModelFingerprint, Provenance, Scene, load, open_scene
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
-    "RUNTIMES", "QUALITY_LEVELS", "quality_levels",
+    "RUNTIMES", "QUALITY_LEVELS", "quality_levels", "model_tables",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -267,6 +267,15 @@ def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAU
     config = model.config if not isinstance(model, (str, os.PathLike)) else \
         read_model_meta(model_directory(model))["config"]
     return tuple(range(1, config.entropy_levels + 1))
+
+
+def model_tables(model: "VideoTok4D") -> EntropyTables | None:
+    """The frozen entropy tables of a loaded model (None without an entropy model or before
+    ``update_entropy``): what a learned-rans file of this model is read and written with."""
+    entropy = getattr(model, "entropy", None)
+    if entropy is None or not entropy.frozen:
+        return None
+    return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(), model_fingerprint(model))
 
 
 def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: int | None) -> str:
@@ -516,12 +525,17 @@ class SceneDecoder:
 
 def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike | VideoTok4D | None") -> Scene:
     """``load(source)``; a learned-rans file whose model is not installed reads with the tables of ``model``
-    (a model directory given to the decoder), when that is the file's model."""
+    (a model directory or a loaded model given to the decoder), when that is the file's model."""
     try:
         return load(source)
     except EntropyTablesError:
-        if model is None or not isinstance(model, (str, os.PathLike)):
+        if model is None:
             raise
+        if not isinstance(model, (str, os.PathLike)):  # a loaded model: its own tables, if it made the file
+            tables = model_tables(model)
+            if tables is None or tables.fingerprint != open_scene(source).fingerprint:
+                raise
+            return load(source, tables=tables)
         from .model.directories import model_directory
         from .model.tables import tables_from_directory
 
