@@ -37,7 +37,8 @@ from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene
 from vt4dcodec.format import learned as _learned  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
-                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_LEARNED_TOKENS,
+                                     FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
+                                     FLAG_LEARNED_TOKENS,
                                      FLAG_RANS_LANES, PREAMBLE_SIZE,
                                      crc32, entry_size, parse_preamble, parse_table)
 from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode, rans_encode_ctx  # noqa: E402
@@ -157,6 +158,7 @@ def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = 
         legacy_cameras = _legacy_cameras(header, sections)  # bit 1 unless CAMS is known to be the 1.0 section
         required_flags = (FLAG_COMPACT_CONTAINER | (0 if legacy_cameras else FLAG_COMPACT_CAMERAS)
                           | (FLAG_ENTROPY_CODED_TOKENS if rans else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
+                          | (FLAG_FIXED_CAMERAS if learned and not legacy_cameras else 0)
                           | (FLAG_EXTRA_CAMERAS if _extra_cameras(sections) else 0))
     stored = compress_header(raw) if compress else raw
     return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)
@@ -354,17 +356,39 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     forged = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), tables.freqs[level].reshape(-1, tables.freqs.shape[3]))
     with_payload("change_code_out_of_range", bytes([level, 1]) + forged, "MalformedSectionError",
                  "token 2's CHANGE symbol 4Q puts its code at +2Q = 16, outside -8 .. 8")
-    out["learned_rans_without_flag"] = (patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS),
+    out["learned_rans_without_flag"] = (patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS
+                                                       | FLAG_FIXED_CAMERAS),
                                         "MalformedHeaderError", "encoding learned-rans with required flag bit 5 clear")
     REPAIRED["learned_rans_without_flag"] = good
     out["learned_rans_with_bit_0"] = (
         patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS | FLAG_LEARNED_TOKENS
-                       | FLAG_ENTROPY_CODED_TOKENS), "MalformedHeaderError",
+                       | FLAG_FIXED_CAMERAS | FLAG_ENTROPY_CODED_TOKENS), "MalformedHeaderError",
         "required flag bit 0 (int<b>-rans payloads) beside bit 5")
     REPAIRED["learned_rans_with_bit_0"] = good
     out["learned_rans_flag_in_1_5"] = (patch_preamble(good, 12, "<H", 5), "UnsupportedFeatureError",
                                        "required flag bit 5 in a file that says 1.5")
     REPAIRED["learned_rans_flag_in_1_5"] = good
+    # fixed-point cameras (I.5.4): the learned file's CAMS is P = 0
+    cams = bytes(find(sections, "CAMS")[3])
+    assert cams[0] == 0, "the test trajectory is stored in fixed point"
+
+    def with_cams(name: str, payload: bytes, why: str) -> None:
+        bad = [list(x) for x in sections]
+        find(bad, "CAMS")[2:5] = [0, payload, len(payload)]
+        out[f"fixed_cameras_{name}"] = (rebuild(header, bad), "MalformedSectionError", why)
+        REPAIRED[f"fixed_cameras_{name}"] = good
+
+    with_cams("without_quaternion_flag", cams[:1] + bytes([cams[1] & ~4]) + cams[2:],
+              "a fixed-point record without layout flag bit 2 (quaternion poses)")
+    with_cams("exponent_53", cams[:2] + bytes([53]) + cams[3:], "e_K = 53, above 52")
+    with_cams("varint_past_end", cams[:-1], "the section lost its last byte: the last varint runs past its end")
+    with_cams("trailing_byte", cams + b"\x00", "one byte after the timestamps")
+    out["fixed_cameras_flag_without_compact_container"] = (
+        patch_preamble(dumps_1_2(learned_scene(quality=2), tables=tables, compression_level=None), 16, "<Q",
+                       FLAG_COMPACT_CAMERAS | FLAG_LEARNED_TOKENS | (1 << 6)),
+        "MalformedHeaderError", "required flag bit 6 (fixed-point cameras) without bit 2 (compact container)")
+    REPAIRED["fixed_cameras_flag_without_compact_container"] = dumps_1_2(learned_scene(quality=2), tables=tables,
+                                                                         compression_level=None)
     return out
 
 

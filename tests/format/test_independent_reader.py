@@ -62,7 +62,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 64 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 128 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
@@ -70,6 +70,8 @@ def read_scene(data: bytes) -> dict:
     assert required & 1 or not required & 16  # ... only beside bit 0
     assert minor >= 6 or not required & 32  # I.6.2: learned-rans since 1.6, never beside bit 0
     assert not (required & 32 and required & 1)
+    assert minor >= 6 or not required & 64  # I.5.4: fixed-point cameras since 1.6, in compact containers
+    assert not required & 64 or (required & 6) == 6
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
@@ -138,6 +140,27 @@ def read_cameras(scene: dict, raw: bytes | None = None, *, extra: bool = False) 
         K = [[list(values[9 * f + 3 * r: 9 * f + 3 * r + 3]) for r in range(3)] for f in range(t)]
         w2c = [[list(values[9 * t + 16 * f + 4 * r: 9 * t + 16 * f + 4 * r + 4]) for r in range(4)] for f in range(t)]
         tail = values[25 * t:]
+    elif raw[0] == 0:  # I.5.4 (1.6, required flag bit 6): fixed point, predicted, zigzag varint residuals
+        assert scene["required"] & 64
+        flags, exps = raw[1], list(raw[2:5])
+        assert flags & 4 and flags < 8 and max(exps) <= 52
+        n_k, n_w = (1 if flags & 1 else t), (1 if flags & 2 else t)
+        pos, blocks = 5, []
+        for records, scale in ((n_k, [exps[0]] * 5), (n_w, [exps[1]] * 4 + [exps[2]] * 3)):
+            k: list[list[int]] = []
+            for r in range(records):
+                row: list[int] = []
+                for j in range(len(scale)):
+                    z, pos = read_varint(raw, pos, limit=70)
+                    pred = 0 if r == 0 else k[r - 1][j] if r == 1 else 2 * k[r - 1][j] - k[r - 2][j]
+                    row.append(pred + (z >> 1 if z % 2 == 0 else -(z >> 1) - 1))
+                k.append(row)
+            blocks.append([[v * 2.0 ** -e for v, e in zip(row, scale)] for row in k])
+        kv, pv = blocks[0], [quaternion_pose(p) for p in blocks[1]]
+        assert len(raw) - pos == 8 * (n + (t if has_ts else 0))
+        K = [[[k[0], k[1], k[2]], [0.0, k[3], k[4]], [0.0, 0.0, 1.0]] for k in (kv[f % n_k] for f in range(t))]
+        w2c = [[p[0:4], p[4:8], p[8:12], [0.0, 0.0, 0.0, 1.0]] for p in (pv[f % n_w] for f in range(t))]
+        tail = struct.unpack(f"<{(len(raw) - pos) // 8}d", raw[pos:])
     else:
         width, flags = raw[0], raw[1]
         assert width in (4, 8) and flags < (8 if scene["required"] & 4 else 4)  # bit 2: I.5.2, 1.3 only
@@ -185,14 +208,14 @@ def quaternion_pose(p: list[float]) -> list[float]:
             s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y), t2]
 
 
-def read_varint(raw: bytes, pos: int) -> tuple[int, int]:
+def read_varint(raw: bytes, pos: int, limit: int = 21) -> tuple[int, int]:
     value = shift = 0
     while True:
         byte = raw[pos]
         value |= (byte & 0x7F) << shift
         pos, shift = pos + 1, shift + 7
         if byte < 0x80:
-            assert shift <= 21 and not (byte == 0 and shift > 7)
+            assert shift <= limit and not (byte == 0 and shift > 7)
             return value, pos
 
 

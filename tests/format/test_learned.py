@@ -243,3 +243,55 @@ def test_fuzzed_learned_files_give_only_library_errors(data):
     good = loads(original, tables=TABLES)
     assert np.array_equal(scene.static_tokens, good.static_tokens)
     assert np.array_equal(scene.dynamic_tokens, good.dynamic_tokens)
+
+
+# --- fixed-point cameras (format 1.6, required flag bit 6, FORMAT.md I.5.4) ---------------------------------
+def moving_trajectory(rng: np.random.Generator, frames: int, f: float, size: int) -> Trajectory:
+    from vt4dcodec.format.compact_cameras import quaternion_to_rotation
+
+    q0, dq = rng.normal(size=4), rng.normal(scale=0.02, size=4)
+    q = np.array([q0 + i * dq + rng.normal(scale=0.002, size=4) for i in range(frames)])
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, :3, :3] = quaternion_to_rotation(q)
+    w2c[:, :3, 3] = rng.uniform(-3, 3, 3) + np.arange(frames)[:, None] * rng.normal(scale=0.05, size=3)
+    K = np.tile(np.array([[f, 0, size / 2], [0, f * 1.01, size / 2 - 1], [0, 0, 1]]), (frames, 1, 1))
+    return Trajectory(K=K, w2c=w2c, width=size, height=size)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 12), st.floats(20.0, 2000.0), st.sampled_from([32, 64, 640]))
+def test_fixed_point_cameras_keep_the_bound_and_resave_to_the_same_bytes(seed, frames, f, size):
+    from vt4dcodec.format.compact_cameras import pack_compact_cameras, reprojection_change, unpack_compact_cameras
+    from vt4dcodec.format.header import CameraLayout
+
+    traj = moving_trajectory(np.random.default_rng(seed), frames, f, size)
+    raw = pack_compact_cameras(traj, quaternions=True, fixed=True)
+    layout = CameraLayout(frames, size, size, 0, False)
+    back = unpack_compact_cameras(raw, layout, quaternions=True, fixed=True)
+    assert reprojection_change(traj, back) <= 0.01
+    assert pack_compact_cameras(back, quaternions=True, fixed=True) == raw  # load + save: the same bytes
+    if raw[0] == 0:
+        with pytest.raises(errors.MalformedSectionError):  # P = 0 needs required flag bit 6
+            unpack_compact_cameras(raw, layout, quaternions=True, fixed=False)
+
+
+def test_learned_files_store_cameras_in_fixed_point_and_fewer_bytes():
+    from vt4dcodec.format.layout import FLAG_FIXED_CAMERAS
+
+    rng = np.random.default_rng(3)
+    scene = make_scene()
+    scene.cameras = moving_trajectory(rng, 2, 40.0, 32)
+    scene.extra_cameras = tuple(moving_trajectory(rng, 2, 40.0, 32) for _ in range(5))
+    learned_file = dumps(scene, quality=2, tables=TABLES)
+    f = open_scene(learned_file)
+    assert f.preamble.required_flags & FLAG_FIXED_CAMERAS and f.raw_section("CAMS")[0] == 0
+    float_file = dumps(Scene(scene.static_tokens, scene.dynamic_tokens, scene.cameras, scene.fingerprint,
+                             encoding="int4", extra_cameras=scene.extra_cameras))
+    cams = [sum(e.stored_length for e in open_scene(d).sections if e.type in ("CAMS", "XCAM"))
+            for d in (learned_file, float_file)]
+    assert cams[0] < 0.8 * cams[1]
+    back = loads(learned_file, tables=TABLES)
+    from vt4dcodec.format.compact_cameras import reprojection_change
+
+    for a, b in zip((scene.cameras, *scene.extra_cameras), (back.cameras, *back.extra_cameras)):
+        assert reprojection_change(a, b) <= 0.01

@@ -42,6 +42,8 @@ __all__ = ["CAMERA_MODES", "COMPACT_PRECISIONS", "REPROJECTION_TOLERANCE_PX", "p
 
 CAMERA_MODES = ("compact", "exact", "legacy")  # what save() offers: see writer.dumps
 COMPACT_PRECISIONS = (4, 8)
+FIXED_POINT = 0  # P = 0 (format 1.6, required flag bit 6): fixed-point values, predicted, varint residuals
+MAX_EXPONENT = 52  # a fixed-point value is k * 2^-e, |k| <= 2^53 (exact in binary64)
 CONSTANT_INTRINSICS, STATIC_POSE, QUATERNION_POSES = 1 << 0, 1 << 1, 1 << 2
 KNOWN_LAYOUT_FLAGS = CONSTANT_INTRINSICS | STATIC_POSE  # and QUATERNION_POSES in compact containers (1.3)
 INTRINSIC_VALUES, POSE_VALUES, QUATERNION_POSE_VALUES = 5, 12, 7
@@ -206,6 +208,120 @@ def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = N
     return b"".join(parts)
 
 
+def _zigzag(v: int) -> int:
+    return 2 * v if v >= 0 else -2 * v - 1
+
+
+def _varint(v: int) -> bytes:
+    out = bytearray()
+    while v >= 0x80:
+        out.append((v & 0x7F) | 0x80)
+        v >>= 7
+    out.append(v)
+    return bytes(out)
+
+
+def _predicted(k: list[list[int]], r: int, j: int) -> int:
+    """The prediction of value j of record r from the records before it: 0, the previous value, or the
+    linear extrapolation 2 k[r-1] - k[r-2] (FORMAT.md I.5.4)."""
+    return 0 if r == 0 else k[r - 1][j] if r == 1 else 2 * k[r - 1][j] - k[r - 2][j]
+
+
+def _fixed_block(k: list[list[int]]) -> bytes:
+    """Fixed-point integers, each predicted from the records before it, residuals zigzag LEB128, row-major."""
+    return b"".join(_varint(_zigzag(v - _predicted(k, r, j))) for r, row in enumerate(k) for j, v in enumerate(row))
+
+
+def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int]) -> tuple[np.ndarray, int]:
+    """Inverse of :func:`_fixed_block` and the scaling k * 2^-e; MalformedSectionError for a varint that runs
+    past the payload, is longer than 10 bytes or ends in a zero group, or a value beyond 2^53."""
+    k: list[list[int]] = []
+    for r in range(records):
+        row: list[int] = []
+        for j in range(len(exponents)):
+            value = shift = 0
+            while True:
+                if pos >= len(raw):
+                    raise MalformedSectionError("compact cameras: a fixed-point varint runs past the section")
+                byte = raw[pos]
+                pos += 1
+                value |= (byte & 0x7F) << shift
+                shift += 7
+                if byte < 0x80:
+                    break
+                if shift >= 70:
+                    raise MalformedSectionError("compact cameras: a fixed-point varint is longer than 10 bytes")
+            if byte == 0 and shift > 7:
+                raise MalformedSectionError("compact cameras: a fixed-point varint ends in a zero group")
+            row.append(_predicted(k + [row], r, j) + (value >> 1 if not value & 1 else -(value >> 1) - 1))
+            if abs(row[-1]) > 1 << 53:
+                raise MalformedSectionError("compact cameras: a fixed-point value exceeds 2^53")
+        k.append(row)
+    values = np.array([[v * 2.0 ** -e for v, e in zip(row, exponents)] for row in k], dtype=np.float64)
+    return values.reshape(records, len(exponents)), pos
+
+
+def fixed_exponents(traj: Trajectory) -> tuple[int, int, int]:
+    """The reference writer's exponents (e_K, e_R, e_t) for a trajectory: steps small enough that rounding
+    moves no probe point (depths down to 0.1 m) by more than a few thousandths of a pixel, from the image size and the
+    largest focal length (in powers of two, so a decoded trajectory gives the same exponents)."""
+    side = max(traj.width, traj.height)
+    f = float(np.abs(traj.K[:, :2, :2]).max())
+    log_f = max(0, int(np.floor(np.log2(max(f, 1.0)))) + 1)  # f < 2^log_f
+    log_side = int(np.ceil(np.log2(side)))
+    e_k = log_side + 9   # K: centre and focal steps 2^-(e_K + 1) move an edge pixel < 0.004 px
+    e_r = log_f + 13     # quaternion: the rotation error, times f < 2^log_f px, stays near 0.002 px
+    e_t = log_f + 13     # translation: step / 2 at 0.1 m, times f
+    return min(e_k, MAX_EXPONENT), min(e_r, MAX_EXPONENT), min(e_t, MAX_EXPONENT)
+
+
+def _grid_quaternions(q: np.ndarray, e: int) -> list[list[int]]:
+    """Integer quaternions k (k * 2^-e ~ q) that are fixed points of normalise-and-round, so that the rotation
+    they decode to gives the same integers again (a saved file saves to the same bytes)."""
+    out = []
+    for row in q:
+        k = [int(round(float(v) * 2.0 ** e)) for v in row]
+        for _ in range(8):
+            norm = float(np.sqrt(sum(float(v) ** 2 for v in k))) * 2.0 ** -e
+            nxt = [int(round(v / norm)) for v in k]
+            if nxt == k:
+                break
+            k = nxt
+        out.append(k)
+    return out
+
+
+def _encode_fixed(traj: Trajectory) -> bytes | None:
+    """The P = 0 payload (FORMAT.md I.5.4): quaternion poses, exponents from :func:`fixed_exponents`."""
+    flags = _flags(traj) | QUATERNION_POSES
+    K = traj.K[:1] if flags & CONSTANT_INTRINSICS else traj.K
+    w2c = traj.w2c[:1] if flags & STATIC_POSE else traj.w2c
+    e_k, e_r, e_t = fixed_exponents(traj)
+    q = _grid_quaternions(rotation_to_quaternion(w2c[:, :3, :3]), e_r)
+    k_int = [[int(round(float(v) * 2.0 ** e_k)) for v in row] for row in _intrinsic_records(K)]
+    poses = [qr + [int(round(float(v) * 2.0 ** e_t)) for v in t] for qr, t in zip(q, w2c[:, :3, 3])]
+    if max(abs(v) for row in k_int + poses for v in row) > 1 << 53:
+        return None
+    parts = [bytes([FIXED_POINT, flags, e_k, e_r, e_t]), _fixed_block(k_int), _fixed_block(poses)]
+    for extra in (traj.distortion, traj.timestamps):
+        if extra is not None:
+            parts.append(np.ascontiguousarray(extra, dtype="<f8").tobytes())
+    return b"".join(parts)
+
+
+def _fixed_candidate(traj: Trajectory) -> tuple[bytes, Trajectory] | None:
+    raw = _encode_fixed(traj)
+    if raw is None:
+        return None
+    try:
+        back = _decode(raw, traj.num_frames, traj.width, traj.height,
+                       0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
+                       quaternions=True, fixed=True)
+    except MalformedSectionError:
+        return None
+    return (raw, back) if reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX else None
+
+
 def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     """The largest pixel distance between where camera ``a`` and camera ``b`` (same frame) put the same
     world point, over the reference writer's probe points: a 5 x 5 grid over each frame's image
@@ -230,7 +346,8 @@ def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     return worst
 
 
-def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False) -> bytes:
+def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False,
+                         fixed: bool = False) -> bytes:
     """The compact cameras payload of ``traj``.  ``mode`` "exact": float64 matrices (the trajectory reads
     back bit for bit); "compact": the first of float32 quaternion poses (only with ``quaternions``, which a
     compact container allows), float32 matrices and float64 matrices whose decoded trajectory is valid and
@@ -240,6 +357,10 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
     if mode not in ("compact", "exact"):
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
+        if fixed and quaternions:  # format 1.6 (I.5.4): fixed point, when it reads back to the same payload
+            found = _fixed_candidate(traj)
+            if found is not None and _encode_fixed(found[1]) == found[0]:
+                return found[0]
         for raw, back in _within_tolerance(traj, quaternions):
             if next(_within_tolerance(back, quaternions), (None, None))[0] == raw:
                 return raw
@@ -267,11 +388,13 @@ def _within_tolerance(traj: Trajectory, quaternions: bool) -> Iterator[tuple[byt
 
 
 def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: int, has_timestamps: bool, *,
-            quaternions: bool = False) -> Trajectory:
+            quaternions: bool = False, fixed: bool = False) -> Trajectory:
     raw = bytes(raw)
     if len(raw) < 2:
         raise MalformedSectionError(f"compact cameras section is {len(raw)} bytes; it needs at least 2")
     precision, flags = raw[0], raw[1]
+    if precision == FIXED_POINT and fixed:
+        return _decode_fixed(raw, T, width, height, distortion_terms, has_timestamps)
     if precision not in COMPACT_PRECISIONS:
         raise MalformedSectionError(f"compact cameras: precision {precision} is not 4 (float32) or 8 (float64)")
     if flags & ~(KNOWN_LAYOUT_FLAGS | (QUATERNION_POSES if quaternions else 0)):
@@ -290,6 +413,37 @@ def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: i
     pv = _unpack_block(raw[pos:pos + precision * m * n_p], n_p, m, precision)
     pos += precision * m * n_p
     tail = np.frombuffer(raw[pos:], dtype="<f8").astype(np.float64)
+    return _assemble(kv, pv, flags, T, width, height, tail, distortion_terms, has_timestamps)
+
+
+def _decode_fixed(raw: bytes, T: int, width: int, height: int, distortion_terms: int,
+                  has_timestamps: bool) -> Trajectory:
+    """A P = 0 payload (format 1.6, required flag bit 6, FORMAT.md I.5.4)."""
+    flags = raw[1]
+    if flags & ~KNOWN_LAYOUT_FLAGS != QUATERNION_POSES:
+        raise MalformedSectionError(f"compact cameras: fixed-point layout flags 0x{flags:02x} must set bit 2 "
+                                    f"(quaternion poses) and no undefined bit")
+    if len(raw) < 5:
+        raise MalformedSectionError("compact cameras: a fixed-point section is shorter than its 3 exponents")
+    e_k, e_r, e_t = raw[2], raw[3], raw[4]
+    if max(e_k, e_r, e_t) > MAX_EXPONENT:
+        raise MalformedSectionError(f"compact cameras: a fixed-point exponent is above {MAX_EXPONENT}")
+    n_k = 1 if flags & CONSTANT_INTRINSICS else T
+    n_p = 1 if flags & STATIC_POSE else T
+    kv, pos = _read_fixed_block(raw, 5, n_k, [e_k] * 5)
+    pv, pos = _read_fixed_block(raw, pos, n_p, [e_r] * 4 + [e_t] * 3)
+    tail_len = 8 * (distortion_terms + (T if has_timestamps else 0))
+    if len(raw) - pos != tail_len:
+        raise MalformedSectionError(f"compact cameras: {len(raw) - pos} bytes follow the fixed-point records; "
+                                    f"the distortion and timestamps need {tail_len}")
+    tail = np.frombuffer(raw[pos:], dtype="<f8").astype(np.float64)
+    return _assemble(kv, pv, flags, T, width, height, tail, distortion_terms, has_timestamps)
+
+
+def _assemble(kv: np.ndarray, pv: np.ndarray, flags: int, T: int, width: int, height: int, tail: np.ndarray,
+              distortion_terms: int, has_timestamps: bool) -> Trajectory:
+    """The trajectory of decoded intrinsics and pose records (one each, or one per frame)."""
+    n_k, n_p = len(kv), len(pv)
     K = np.zeros((n_k, 3, 3))
     K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2] = kv.T
     K[:, 2, 2] = 1.0
@@ -308,8 +462,10 @@ def _decode(raw: BytesLike, T: int, width: int, height: int, distortion_terms: i
         raise MalformedSectionError(f"cameras section breaks the camera conventions: {exc}") from None
 
 
-def unpack_compact_cameras(raw: BytesLike, layout: CameraLayout, *, quaternions: bool = False) -> Trajectory:
+def unpack_compact_cameras(raw: BytesLike, layout: CameraLayout, *, quaternions: bool = False,
+                           fixed: bool = False) -> Trajectory:
     """Rebuild the trajectory from a compact cameras payload; any problem is a MalformedSectionError.
-    ``quaternions``: the file is a compact container (format 1.3), where layout flag bit 2 is defined."""
+    ``quaternions``: the file is a compact container (format 1.3), where layout flag bit 2 is defined;
+    ``fixed``: the file sets required flag bit 6 (format 1.6), where precision 0 (fixed point) is defined."""
     return _decode(raw, layout.num_frames, layout.width, layout.height, layout.distortion_terms,
-                   layout.has_timestamps, quaternions=quaternions)
+                   layout.has_timestamps, quaternions=quaternions, fixed=fixed)

@@ -39,7 +39,8 @@ def extra_cameras_max_raw_length(num_frames: int) -> int:
     return 1 + MAX_EXTRA_CAMERAS * (4 + 8 * 25 * num_frames)
 
 
-def pack_extra_cameras(extras: Sequence[Trajectory], mode: str = "compact", *, quaternions: bool = False) -> bytes:
+def pack_extra_cameras(extras: Sequence[Trajectory], mode: str = "compact", *, quaternions: bool = False,
+                       fixed: bool = False) -> bytes:
     """The ``XCAM`` payload of ``extras`` (1..63 trajectories), each record encoded as ``CAMS`` is for the
     same ``save(cameras=mode)``: ``"legacy"`` the I.5 float64 ``K`` and ``w2c``; ``"compact"`` / ``"exact"`` a
     compact cameras payload (:func:`pack_compact_cameras`, ``quaternions`` in a compact container).
@@ -51,7 +52,7 @@ def pack_extra_cameras(extras: Sequence[Trajectory], mode: str = "compact", *, q
         bare = traj if traj.timestamps is None and traj.distortion is None else replace(
             traj, timestamps=None, distortion=None)
         records.append(pack_cameras(bare)[1] if mode == "legacy" else
-                       pack_compact_cameras(bare, mode, quaternions=quaternions))
+                       pack_compact_cameras(bare, mode, quaternions=quaternions, fixed=fixed))
     return bytes([len(records)]) + struct.pack(f"<{len(records)}I", *map(len, records)) + b"".join(records)
 
 
@@ -83,10 +84,10 @@ def extra_camera_records(raw: BytesLike) -> list[tuple[int, int]]:
 
 
 def _decode_record(record: BytesLike, index: int, layout: CameraLayout, timestamps: np.ndarray | None, *,
-                   compact_cameras: bool, quaternions: bool) -> Trajectory:
+                   compact_cameras: bool, quaternions: bool, fixed: bool = False) -> Trajectory:
     bare = CameraLayout(layout.num_frames, layout.width, layout.height, 0, False)
     try:
-        traj = (unpack_compact_cameras(record, bare, quaternions=quaternions) if compact_cameras
+        traj = (unpack_compact_cameras(record, bare, quaternions=quaternions, fixed=fixed) if compact_cameras
                 else unpack_cameras(record, bare))
     except MalformedSectionError as exc:
         raise MalformedSectionError(f"extra camera {index} (XCAM record {index}): {exc}") from None
@@ -94,7 +95,7 @@ def _decode_record(record: BytesLike, index: int, layout: CameraLayout, timestam
 
 
 def unpack_extra_cameras(raw: BytesLike, layout: CameraLayout, timestamps: np.ndarray | None, *,
-                         compact_cameras: bool, quaternions: bool = False,
+                         compact_cameras: bool, quaternions: bool = False, fixed: bool = False,
                          index: int | None = None) -> tuple[Trajectory, ...]:
     """Decode an ``XCAM`` payload: every trajectory, or with ``index`` that one alone (after checking the
     count and length table).  ``compact_cameras``: required flag bit 1 (records are I.5.1 payloads);
@@ -106,4 +107,5 @@ def unpack_extra_cameras(raw: BytesLike, layout: CameraLayout, timestamps: np.nd
     if index is not None and not 0 <= index < len(records):
         raise FormatError(f"extra camera {index} does not exist: the file holds {len(records)}")
     return tuple(_decode_record(view[records[i][0]:records[i][0] + records[i][1]], i, layout, timestamps,
-                                compact_cameras=compact_cameras, quaternions=quaternions) for i in chosen)
+                                compact_cameras=compact_cameras, quaternions=quaternions, fixed=fixed)
+                 for i in chosen)

@@ -20,7 +20,7 @@ from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     FLAG_FIXED_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -169,6 +169,9 @@ class SceneFile:
         if self.rans_lanes and not flagged:
             raise MalformedHeaderError(
                 "required flag bit 4 (rANS lanes) is set without bit 0 (entropy-coded tokens), which it needs")
+        if self.fixed_cameras and not (self.compact_container and self.compact_cameras):
+            raise MalformedHeaderError("required flag bit 6 (fixed-point cameras) is set without bits 1 and 2 "
+                                       "(compact cameras in a compact container), which it needs")
         learned = is_learned(self._info.encoding)
         if learned != bool(self.preamble.required_flags & FLAG_LEARNED_TOKENS):
             raise MalformedHeaderError(
@@ -296,6 +299,11 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_RANS_LANES)
 
     @property
+    def fixed_cameras(self) -> bool:
+        """Whether compact camera records may be fixed point (format 1.6, required flag bit 6, FORMAT.md I.5.4)."""
+        return bool(self.preamble.required_flags & FLAG_FIXED_CAMERAS)
+
+    @property
     def has_extra_cameras(self) -> bool:
         """Whether the file holds the extra cameras section (format 1.4, required flag bit 3)."""
         return bool(self.preamble.required_flags & FLAG_EXTRA_CAMERAS)
@@ -322,7 +330,8 @@ class SceneFile:
         if self._cameras is None:
             raw = self.raw_section(SECTION_CAMERAS)
             if self.compact_cameras:
-                self._cameras = unpack_compact_cameras(raw, self._info.cameras, quaternions=self.compact_container)
+                self._cameras = unpack_compact_cameras(raw, self._info.cameras, quaternions=self.compact_container,
+                                                       fixed=self.fixed_cameras)
             else:
                 self._cameras = unpack_cameras(raw, self._info.cameras)
         return self._cameras
@@ -353,7 +362,7 @@ class SceneFile:
         raw = self.raw_section(SECTION_EXTRA_CAMERAS)
         return unpack_extra_cameras(raw, self._info.cameras, self.cameras.timestamps,
                                     compact_cameras=self.compact_cameras, quaternions=self.compact_container,
-                                    index=index)
+                                    fixed=self.fixed_cameras, index=index)
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only; for

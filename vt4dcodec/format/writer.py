@@ -17,7 +17,7 @@ from .learned import EntropyTables, encode_learned_tokens, find_tables
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
 from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
-                     FLAG_EXTRA_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
+                     FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
                      entry_size, pack_preamble, pack_table)
 from .rans_tokens import check_lanes, policy_lanes
 from .limits import PREAMBLE_SIZE
@@ -143,9 +143,11 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         if any(k is not None for k in lanes):
             lanes = [1 if k is None else k for k in lanes]
     compact = header == "compact"
+    # learned-rans files (already 1.6) store their cameras in fixed point where it keeps the 0.01 px bound (I.5.4)
+    fixed = learned and compact and cameras == "compact"
     layout, cams = pack_cameras(scene.cameras)
     if cameras != "legacy":
-        cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact)
+        cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact, fixed=fixed)
     head = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
                                   scene.provenance, scene.metadata, {}), binary_digests=compact)
     if compact:
@@ -154,7 +156,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     # re-checked here: a scene is mutable, and an extra camera must still fit the cameras it is stored beside
     extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
     if extras:
-        parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact)))
+        parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact, fixed=fixed)))
     for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
                                             (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, lanes[1])):
         if learned:
@@ -181,7 +183,8 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         sections.append((name, True, compression, stored, len(raw), aligned))
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
              | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0)
-             | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0))
+             | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
+             | (FLAG_FIXED_CAMERAS if fixed else 0))
     minor = (6 if learned else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
              else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
