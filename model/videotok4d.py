@@ -413,7 +413,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         """(N_s,) long: the anchor origin of each static token when ``views`` cameras are encoded: the
         time-average token of its anchor for a frame copy (``Renderer.copy_origin``), itself otherwise
         (every token of a model without frame copies). The entropy model codes a copy given its origin."""
-        index = torch.arange(self.config.n_static, device=self.renderer.anchor_cells.device)
+        index = torch.arange(self.config.n_static, device=self.static_bottleneck.proj.weight.device)
         if not self.config.frame_copies:
             return index
         origin = index.clone()

@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
-    "RUNTIMES", "QUALITY_LEVELS", "quality_levels", "model_tables",
+    "RUNTIMES", "quality_levels", "model_tables",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -68,8 +68,8 @@ DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fideli
 # with bench/bench_rate_distortion.py when the model changes.
 DEFAULT_ENCODING = "int4"
 # Quality levels of models with an entropy model (config entropy_levels): 1 = the coarsest. encode(quality=Q)
-# stores the tokens as learned-rans at that level (format 1.6); QUALITY_LEVELS are those of the default model.
-QUALITY_LEVELS = (1, 2, 3, 4, 5, 6)
+# stores the tokens as learned-rans at that level (format 1.6). codec.QUALITY_LEVELS is quality_levels() of the
+# default model, read from its config on first access (module __getattr__): () while the shipped model has none.
 RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
@@ -255,7 +255,7 @@ def encode(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
-    encoding = _quality_encoding(net, encoding, quality)
+    encoding = _quality_encoding(net, encoding, quality, model)
     clip = read_clip(source, names, start, net.config.frames)
     return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
 
@@ -278,17 +278,40 @@ def model_tables(model: "VideoTok4D") -> EntropyTables | None:
     return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(), model_fingerprint(model))
 
 
-def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: int | None) -> str:
-    """The encoding a scene of ``net`` is stored with: learned-rans when a quality level is asked for."""
+def __getattr__(name: str) -> Any:
+    if name == "QUALITY_LEVELS":
+        return quality_levels(DEFAULT_MODEL)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: int | None,
+                      source: "str | os.PathLike | VideoTok4D | OnnxEncoder") -> str:
+    """The encoding a scene of ``net`` (loaded from ``source``) is stored with: learned-rans when a quality level
+    is asked for, its model's tables then registered so that the scene saves wherever the model lives."""
     if quality is None:
         return encoding
     from .errors import ModelError
 
     levels = quality_levels(net)
     if not levels:
-        raise ModelError("this model has no quality levels (no entropy model); choose an --encoding instead")
+        raise ModelError(f"--quality {quality}: model {model_fingerprint(net).short()} has no quality levels (no "
+                         f"entropy model); leave --quality out and choose an --encoding")
     if isinstance(quality, bool) or not isinstance(quality, int) or quality not in levels:
-        raise ModelError(f"quality must be one of {list(levels)}, got {quality!r}")
+        raise ModelError(f"--quality must be one of {list(levels)} for this model, got {quality!r}")
+    from .format.learned import register_tables
+
+    if isinstance(source, (str, os.PathLike)):
+        from .model.directories import model_directory
+        from .model.tables import tables_from_directory
+
+        tables = tables_from_directory(model_directory(source), model_fingerprint(net))
+    else:
+        found = model_tables(net) if hasattr(net, "entropy") else None
+        if found is None:
+            raise ModelError("--quality with a loaded model needs its frozen tables (VideoTok4D.update_entropy); "
+                             "or pass the model directory")
+        tables = found
+    register_tables(tables)
     return "learned-rans"
 
 
@@ -314,7 +337,7 @@ def encode_clips(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
-    encoding = _quality_encoding(net, encoding, quality)
+    encoding = _quality_encoding(net, encoding, quality, model)
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")

@@ -396,10 +396,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
                    help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
                         "tokens on held-out views, see docs/BENCHMARKS.md)")
-    p.add_argument("--quality", type=int, choices=codec.QUALITY_LEVELS, default=None, metavar="Q",
-                   help="a quality level of the model's entropy model, 1 (fewest bytes) to "
-                        f"{codec.QUALITY_LEVELS[-1]} (best): stores the tokens as learned-rans at that level "
-                        "(format 1.6) instead of --encoding (vt4d info shows the level and bits per pixel)")
+    p.add_argument("--quality", type=int, default=None, metavar="Q",
+                   help="a quality level of the model's entropy model, 1 (fewest bytes) up to its number of "
+                        "levels (models trained with a rate term; codec.quality_levels): stores the tokens as "
+                        "learned-rans at that level (format 1.6) instead of --encoding (vt4d info shows the level and "
+                        "bits per pixel)")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
                         "(one camera per scene, ~4x less memory), 'torch' the networks; 'auto' (default) takes "

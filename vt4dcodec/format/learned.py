@@ -27,7 +27,7 @@ from .layout import BytesLike
 from .rans import PROB_SCALE, rans_decode_ctx, rans_encode_ctx
 
 __all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
-           "decode_learned_tokens", "parse_learned_payload", "quantize", "set_tables_resolver", "find_tables",
+           "decode_learned_tokens", "parse_learned_payload", "quantize", "set_tables_resolver", "register_tables", "find_tables",
            "MAX_LEARNED_VALUES"]
 
 MAX_VIEWS = 64
@@ -109,6 +109,13 @@ class EntropyTables:
 
 
 _resolver: Callable[[ModelFingerprint], EntropyTables | None] | None = None
+_registered: dict[ModelFingerprint, EntropyTables] = {}
+
+
+def register_tables(tables: EntropyTables) -> None:
+    """Make ``tables`` findable by their fingerprint in this process (the codec registers the tables of every
+    model it encodes with, so a scene it made saves and loads even when the model is not installed)."""
+    _registered[tables.fingerprint] = tables
 
 
 def set_tables_resolver(resolver: Callable[[ModelFingerprint], EntropyTables | None] | None) -> None:
@@ -122,6 +129,8 @@ def set_tables_resolver(resolver: Callable[[ModelFingerprint], EntropyTables | N
 def find_tables(fingerprint: ModelFingerprint, tables: EntropyTables | None = None) -> EntropyTables:
     """``tables`` when given (it must belong to ``fingerprint``), else the resolver's. EntropyTablesError
     when there are none: the file's tokens cannot be read without the model that coded them."""
+    if tables is None:
+        tables = _registered.get(fingerprint)
     if tables is None and _resolver is not None:
         tables = _resolver(fingerprint)
     if tables is None:
