@@ -93,3 +93,19 @@ def test_verify_routes_archive_signatures_to_the_archive_module(tmp_path, capsys
     assert main(["verify", "--json", str(path)]) == 1
     result = json.loads(capsys.readouterr().out)[0]
     assert result["kind"] == "archive" and not result["ok"]
+
+
+def test_info_and_verify_of_a_learned_file_need_no_model(capsys):
+    """Format 1.6: `vt4d info` says the quality level and the bits per pixel of a learned-rans file, and
+    `vt4d verify` checks it, without the model whose tables code its tokens (the spec vector's test model)."""
+    from format_strategies import REPO
+
+    path = REPO / "spec" / "vectors" / "valid" / "learned_rans_one_camera.vt4d"
+    assert main(["info", "--json", str(path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["encoding"] == "learned-rans" and summary["quality"] == 1
+    assert summary["bits_per_pixel"] == round(8 * path.stat().st_size / (2 * 64 * 48), 5)
+    assert main(["info", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "at quality 1" in text and "bits per pixel" in text
+    assert main(["verify", str(path)]) == 0
