@@ -216,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         model = reconfigure(model, overrides)
     if args.decoder_from is not None:
         swap_decoder(model, args.decoder_from / AE_WEIGHTS)
+    model.update_entropy()  # the integer tables the codec reads (a no-op without an entropy model)
     notes = args.notes.read_text() if args.notes else ""
     stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
     (args.dest / args.id / ONNX_FILE).unlink(missing_ok=True)  # an encoder of the old weights never stays
