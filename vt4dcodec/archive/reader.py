@@ -13,6 +13,7 @@ from typing import Any, Iterator
 
 from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
 from ..format import Scene, SceneFile, loads, open_scene
+from ..format.sections import DEFAULT_MAX_DECODED_BYTES, decoded_budget
 from .index import IndexEntry
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
                      is_footer, parse_footer, parse_preamble, parse_slot)
@@ -119,10 +120,14 @@ class ArchiveReader:
     """A read-only view of an archive's last commit.
 
     ``path_or_url`` is a local path, an fsspec URL (``memory://``, ``http://``, ``s3://``...; extra
-    ``storage_options`` go to fsspec), raw bytes, or a :class:`ByteSource`.
+    ``storage_options`` go to fsspec), raw bytes, or a :class:`ByteSource`.  ``max_decoded_bytes``: the
+    decoded-size budget of each scene :meth:`open_scene` and :meth:`load` read (FORMAT.md I.7; default 64 MiB,
+    None for none; an attribute, so it can be raised later).
     """
 
-    def __init__(self, path_or_url: Any, *, allow_truncated: bool = False, **storage_options: Any):
+    def __init__(self, path_or_url: Any, *, allow_truncated: bool = False,
+                 max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any):
+        self.max_decoded_bytes = decoded_budget(max_decoded_bytes)
         self.source: ByteSource = open_source(path_or_url, **storage_options)
         try:
             self.commit, self.committed_at_tail = find_commit(self.source, allow_truncated=allow_truncated)
@@ -183,12 +188,12 @@ class ArchiveReader:
         return self.read_entry(self.entry(key), check=check)
 
     def open_scene(self, key: str) -> SceneFile:
-        """A lazy ``vt4dcodec.format.SceneFile`` over the record."""
-        return open_scene(self.read_bytes(key))
+        """A lazy ``vt4dcodec.format.SceneFile`` over the record (within :attr:`max_decoded_bytes`)."""
+        return open_scene(self.read_bytes(key), max_decoded_bytes=self.max_decoded_bytes)
 
     def load(self, key: str) -> Scene:
-        """The fully validated ``vt4dcodec.format.Scene``."""
-        return loads(self.read_bytes(key))
+        """The fully validated ``vt4dcodec.format.Scene`` (LimitExceededError over :attr:`max_decoded_bytes`)."""
+        return loads(self.read_bytes(key), max_decoded_bytes=self.max_decoded_bytes)
 
     def iter_records(self, *, check: bool = True, chunk_bytes: int = 8 << 20) -> Iterator[tuple[str, bytes]]:
         """(key, payload) for every scene in file order.
@@ -230,12 +235,15 @@ class ArchiveReader:
         return f"ArchiveReader({self.name!r}, scenes={len(self)}, generation={self.generation})"
 
 
-def open_archive(path_or_url: Any, *, allow_truncated: bool = False, **storage_options: Any) -> ArchiveReader:
+def open_archive(path_or_url: Any, *, allow_truncated: bool = False,
+                 max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any) -> ArchiveReader:
     """Open an archive for reading (see :class:`ArchiveReader`).
 
     A truncated archive (a header slot names a commit cut off the end) raises
     :class:`ArchiveTruncatedError`; ``allow_truncated=True`` reads its last intact commit instead.
+    ``max_decoded_bytes``: the decoded-size budget of each scene read (FORMAT.md I.7).
     """
     if isinstance(path_or_url, os.PathLike):
         path_or_url = os.fspath(path_or_url)
-    return ArchiveReader(path_or_url, allow_truncated=allow_truncated, **storage_options)
+    return ArchiveReader(path_or_url, allow_truncated=allow_truncated, max_decoded_bytes=max_decoded_bytes,
+                         **storage_options)

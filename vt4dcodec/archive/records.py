@@ -10,6 +10,7 @@ from typing import Any
 
 from ..errors import ArchiveError
 from ..format import Scene, dumps, open_scene, verify
+from ..format.sections import DEFAULT_MAX_DECODED_BYTES
 
 __all__ = ["record_from", "summarize_payload", "verify_payload", "SUMMARY_FIELDS"]
 
@@ -38,20 +39,23 @@ def summarize_payload(payload: bytes) -> dict[str, Any]:
     return summary
 
 
-def verify_payload(payload: bytes) -> None:
-    """Full container validation of one record (raises a FormatError subclass)."""
-    verify(payload)
+def verify_payload(payload: bytes, *, max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES) -> None:
+    """Full container validation of one record (raises a FormatError subclass; LimitExceededError for a
+    scene that decodes to more than ``max_decoded_bytes``, FORMAT.md I.7)."""
+    verify(payload, max_decoded_bytes=max_decoded_bytes)
 
 
-def record_from(obj: Any, *, validate: bool = True) -> bytes:
+def record_from(obj: Any, *, validate: bool = True,
+                max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES) -> bytes:
     """``.vt4d`` bytes for a Scene or for bytes/bytearray/memoryview already in the container format.
 
-    With ``validate`` the bytes are fully verified by the container (so nothing invalid is archived).
+    With ``validate`` the bytes are fully verified by the container (so nothing invalid is archived), within
+    the decoded-size budget ``max_decoded_bytes``.
     """
     if isinstance(obj, (bytes, bytearray, memoryview)):
         payload = bytes(obj)
         if validate:
-            verify_payload(payload)
+            verify_payload(payload, max_decoded_bytes=max_decoded_bytes)
         return payload
     if isinstance(obj, Scene):
         return dumps(obj)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from ..errors import ArchiveError, FormatError
+from ..format.sections import DEFAULT_MAX_DECODED_BYTES
 from .layout import (FOOTER_SIZE, FRAME_HEADER_SIZE, HEADER_SIZE, crc32, frame_meta_crc, parse_footer,
                      parse_frame_header, parse_preamble)
 from .reader import ArchiveReader, RecordChecksumError, open_archive
@@ -19,15 +20,16 @@ class UncommittedTailError(ArchiveError):
 
 def verify_archive(path_or_url: Any, *, records: bool = True, allow_uncommitted: bool = False,
                    progress: Callable[[int], None] | None = None, containers: bool = True,
-                   **storage_options: Any) -> None:
+                   max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any) -> None:
     """Check an archive end to end; raise the first problem as an ArchiveError/FormatError subclass.
 
     Checks the preamble, the last commit's footer and index (CRC, bounds, order, overlaps), and with
     ``records`` every record: frame header, key and summary match the index, payload CRC, and full
     container validation of the ``.vt4d`` payload (``containers=False`` skips only that last step,
-    for archives of opaque payloads).  ``progress(n)`` is called after each record.
+    for archives of opaque payloads).  ``progress(n)`` is called after each record.  A record that would
+    decode to more than ``max_decoded_bytes`` (FORMAT.md I.7; None: no budget) is LimitExceededError.
     """
-    with open_archive(path_or_url, **storage_options) as reader:
+    with open_archive(path_or_url, max_decoded_bytes=max_decoded_bytes, **storage_options) as reader:
         parse_preamble(reader.source.read(0, HEADER_SIZE))
         footer = parse_footer(reader.source.read(reader.commit.footer_offset, FOOTER_SIZE))
         if footer != reader.commit:
@@ -60,7 +62,7 @@ def _verify_records(reader: ArchiveReader, progress: Callable[[int], None] | Non
             raise RecordChecksumError(f"record {entry.key!r} fails its checksum")
         try:
             if containers:
-                verify_payload(payload)
+                verify_payload(payload, max_decoded_bytes=reader.max_decoded_bytes)
         except ArchiveError:
             raise
         except FormatError as exc:  # the container's error: name the record, keep the class

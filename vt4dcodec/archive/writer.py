@@ -31,6 +31,7 @@ from .lock import WriterLock
 from .reader import best_slot, find_commit
 from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
+from ..format.sections import DEFAULT_MAX_DECODED_BYTES
 from .segments import IndexView, SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
@@ -318,11 +319,12 @@ class ArchiveWriter:
         return len(self._entries.keys() | self._pending.keys())
 
     def append(self, key: str, record: Any, *, summary: dict[str, Any] | None = None, replace: bool = False,
-               validate: bool = True) -> IndexEntry:
+               validate: bool = True, max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES) -> IndexEntry:
         """Write one scene (a Scene or complete ``.vt4d`` bytes); visible to readers after commit().
 
         ``summary`` defaults to the container's ``SceneFile.summary()``; ``validate=False`` stores
-        bytes without container validation (then pass ``summary`` or get ``{"bytes": n}``).
+        bytes without container validation (then pass ``summary`` or get ``{"bytes": n}``); validated
+        bytes must decode within ``max_decoded_bytes`` (FORMAT.md I.7).
         Appending a key that exists raises :class:`DuplicateKeyError` unless ``replace=True``.
         """
         self._check_open()
@@ -330,7 +332,7 @@ class ArchiveWriter:
         if not replace and key in self:
             raise DuplicateKeyError(f"scene {key!r} is already in {self.path} (pass replace=True)")
         if validate or not isinstance(record, (bytes, bytearray, memoryview)):
-            payload = record_from(record, validate=validate)
+            payload = record_from(record, validate=validate, max_decoded_bytes=max_decoded_bytes)
         else:
             payload = bytes(record)
         if summary is None:

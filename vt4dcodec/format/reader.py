@@ -25,8 +25,9 @@ from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
 from .scene import Scene
-from .sections import (KNOWN_SECTIONS, SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
-                       SECTION_STATIC_QUANT, section_payload, unpack_cameras)
+from .sections import (DECODED_CAMERA_BYTES_PER_FRAME, DEFAULT_MAX_DECODED_BYTES, KNOWN_SECTIONS, SECTION_CAMERAS,
+                       SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC, SECTION_STATIC_QUANT,
+                       check_decoded_budget, decoded_budget, section_payload, unpack_cameras)
 
 __all__ = ["SceneFile", "open_scene", "load", "loads", "verify", "read_container_bytes", "open_binary", "is_url"]
 
@@ -109,10 +110,14 @@ class SceneFile:
         header: the decoded msgpack header (dict).
         preamble: the parsed preamble (version, flags, sizes).
         sections: the section table entries in file order.
+        max_decoded_bytes: the decoded-size budget (FORMAT.md I.7): no section is decompressed when the scene
+            would decode to more (LimitExceededError); None reads any size.
     """
 
-    def __init__(self, data: BytesLike, *, tables: EntropyTables | None = None) -> None:
+    def __init__(self, data: BytesLike, *, tables: EntropyTables | None = None,
+                 max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES) -> None:
         self._tables = tables
+        self.max_decoded_bytes = decoded_budget(max_decoded_bytes)
         if not isinstance(data, bytes):
             try:
                 data = memoryview(data).cast("B")
@@ -145,6 +150,7 @@ class SceneFile:
                                                         compact=compact)
         self._by_type = {e.type: e for e in self.sections}
         self._check_section_set()
+        self._decoded_bytes = self._declared_decoded_bytes()
         self._cameras: Trajectory | None = None
         self._extra_cameras: tuple[Trajectory, ...] | None = None
 
@@ -233,11 +239,20 @@ class SceneFile:
                     f"{'at most ' if entry.type in (SECTION_STATIC, SECTION_DYNAMIC) and is_entropy_coded(self._info.encoding) else ''}"
                     f"{limit}")
 
+    def _declared_decoded_bytes(self) -> int:
+        """FORMAT.md I.7, decoded-size budget: the raw lengths of the sections a reader decodes, the float32 token
+        matrices and one decoded camera (the extra cameras are added once ``XCAM`` says how many)."""
+        (ns, ds), (nd, dd) = self._info.static_shape, self._info.dynamic_shape
+        return (sum(e.raw_length for e in self.sections if e.type in KNOWN_SECTIONS) + 4 * (ns * ds + nd * dd)
+                + DECODED_CAMERA_BYTES_PER_FRAME * self._info.cameras.num_frames)
+
     def raw_section(self, name: str) -> bytes | memoryview:
-        """The decompressed, checksum-verified bytes of section ``name`` (a zero-copy view when stored raw)."""
+        """The decompressed, checksum-verified bytes of section ``name`` (a zero-copy view when stored raw);
+        LimitExceededError first when the scene's decoded size exceeds :attr:`max_decoded_bytes`."""
         entry = self._by_type.get(name)
         if entry is None:
             raise MalformedSectionError(f"the file has no section {name!r}; it has {[e.type for e in self.sections]}")
+        check_decoded_budget(self._decoded_bytes, self.max_decoded_bytes)
         return section_payload(self._data, entry)
 
     # --- header fields -----------------------------------------------------------------------------
@@ -360,6 +375,8 @@ class SceneFile:
 
     def _unpack_extra_cameras(self, index: int | None) -> tuple[Trajectory, ...]:
         raw = self.raw_section(SECTION_EXTRA_CAMERAS)
+        extras = len(extra_camera_records(raw)) * DECODED_CAMERA_BYTES_PER_FRAME * self._info.cameras.num_frames
+        check_decoded_budget(self._decoded_bytes + extras, self.max_decoded_bytes)
         return unpack_extra_cameras(raw, self._info.cameras, self.cameras.timestamps,
                                     compact_cameras=self.compact_cameras, quaternions=self.compact_container,
                                     fixed=self.fixed_cameras, index=index)
@@ -503,19 +520,24 @@ class SceneFile:
                 f"Z_s {self.static_shape}, Z_d {self.dynamic_shape}, {self.num_frames} frames>")
 
 
-def open_scene(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> SceneFile:
+def open_scene(source: Any, *, tables: EntropyTables | None = None,
+               max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any) -> SceneFile:
     """Open a scene lazily from a path, fsspec URL, bytes-like object or binary file: the preamble, header
     and section table are parsed and checked now; sections are decoded on access.  ``tables``: the entropy
     tables of a ``learned-rans`` file's model (default: the installed model's, found by fingerprint).
+    ``max_decoded_bytes``: the decoded-size budget (FORMAT.md I.7; default 64 MiB, None for none): a scene that
+    would decode to more raises LimitExceededError before any section is decompressed.
     ``storage_options`` go to fsspec for a URL."""
-    return SceneFile(read_container_bytes(source, **storage_options), tables=tables)
+    return SceneFile(read_container_bytes(source, **storage_options), tables=tables,
+                     max_decoded_bytes=max_decoded_bytes)
 
 
-def load(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> Scene:
+def load(source: Any, *, tables: EntropyTables | None = None,
+         max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any) -> Scene:
     """Read and fully validate a scene (path, URL, bytes or binary file): everything
     :meth:`SceneFile.verify` checks, then decode (a ``learned-rans`` file needs its model's tables:
-    EntropyTablesError without them)."""
-    f = open_scene(source, tables=tables, **storage_options)
+    EntropyTablesError without them).  ``max_decoded_bytes``: as for :func:`open_scene`."""
+    f = open_scene(source, tables=tables, max_decoded_bytes=max_decoded_bytes, **storage_options)
     f.verify()
     if f._verified_scene is None:
         f.entropy_tables()  # raises: the tokens cannot be decoded without them
@@ -523,16 +545,19 @@ def load(source: Any, *, tables: EntropyTables | None = None, **storage_options:
     return f._verified_scene
 
 
-def loads(data: bytes, *, tables: EntropyTables | None = None) -> Scene:
+def loads(data: bytes, *, tables: EntropyTables | None = None,
+          max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES) -> Scene:
     """:func:`load` from bytes."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise FormatError(f"loads() takes bytes, got {type(data).__name__}")
-    return load(data, tables=tables)
+    return load(data, tables=tables, max_decoded_bytes=max_decoded_bytes)
 
 
-def verify(source: Any, *, tables: EntropyTables | None = None, **storage_options: Any) -> None:
+def verify(source: Any, *, tables: EntropyTables | None = None,
+           max_decoded_bytes: int | None = DEFAULT_MAX_DECODED_BYTES, **storage_options: Any) -> None:
     """Check a whole scene file (path, URL, bytes or binary file); raises the FormatError subclass
     describing the first problem. A ``learned-rans`` file whose model is not at hand is checked except for
-    its token codes (FORMAT.md I.6.2)."""
-    open_scene(source, tables=tables, **storage_options).verify()
+    its token codes (FORMAT.md I.6.2).  ``max_decoded_bytes``: as for :func:`open_scene` (a scene over the
+    budget raises LimitExceededError)."""
+    open_scene(source, tables=tables, max_decoded_bytes=max_decoded_bytes, **storage_options).verify()
 

@@ -10,13 +10,14 @@ import numpy as np
 import zstandard
 
 from ..cameras import Trajectory
-from ..errors import CameraError, ChecksumError, MalformedSectionError, UnsupportedFeatureError
+from ..errors import CameraError, ChecksumError, LimitExceededError, MalformedSectionError, UnsupportedFeatureError
 from .header import CameraLayout
 from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, BytesLike, SectionEntry, crc32
 
 __all__ = ["SECTION_CAMERAS", "SECTION_STATIC", "SECTION_DYNAMIC", "SECTION_STATIC_QUANT",
            "SECTION_DYNAMIC_QUANT", "SECTION_EXTRA_CAMERAS", "KNOWN_SECTIONS", "compress_payload", "section_payload",
-           "pack_cameras", "unpack_cameras"]
+           "pack_cameras", "unpack_cameras", "DEFAULT_MAX_DECODED_BYTES", "DECODED_CAMERA_BYTES_PER_FRAME",
+           "check_decoded_budget", "decoded_budget"]
 
 SECTION_CAMERAS = "CAMS"
 SECTION_STATIC = "ZSTA"
@@ -26,6 +27,31 @@ SECTION_DYNAMIC_QUANT = "QDYN"
 SECTION_EXTRA_CAMERAS = "XCAM"  # format 1.4, required flag bit 3: see extra_cameras.py
 KNOWN_SECTIONS = (SECTION_CAMERAS, SECTION_EXTRA_CAMERAS, SECTION_STATIC_QUANT, SECTION_STATIC, SECTION_DYNAMIC_QUANT,
                   SECTION_DYNAMIC)
+
+#: The default decoded-size budget of one scene read (FORMAT.md I.7, "Decoded-size budget"): 64 MiB, ~80 times
+#: a paper-size float32 scene (1024 + 512 tokens of 64 floats: ~0.8 MB decoded).  Readers take
+#: ``max_decoded_bytes=`` to raise it (``None``: no budget) for files they trust.
+DEFAULT_MAX_DECODED_BYTES = 64 << 20
+#: What one decoded camera costs a reader per frame: K (9) and w2c (16) float64, and a float64 timestamp.
+DECODED_CAMERA_BYTES_PER_FRAME = 208
+
+
+def decoded_budget(value: object) -> int | None:
+    """``value`` checked as a ``max_decoded_bytes`` argument: a non-negative int or None (no budget)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"max_decoded_bytes must be a non-negative int or None, got {value!r}")
+    return value
+
+
+def check_decoded_budget(size: int, budget: int | None) -> None:
+    """LimitExceededError, before anything is decompressed or decoded, when a scene's decoded size (FORMAT.md
+    I.7: its sections' raw lengths, its float32 token matrices and its decoded cameras) exceeds ``budget``."""
+    if budget is not None and size > budget:
+        raise LimitExceededError(
+            f"the scene decodes to {size:,} bytes (sections' raw lengths, float32 tokens, decoded cameras), over "
+            f"the reader's budget of {budget:,}; if you trust the file, pass max_decoded_bytes={size} (or None)")
 
 
 def compress_payload(raw: bytes, level: int | None, *, min_saving: float = 0.0) -> tuple[int, bytes]:
