@@ -104,7 +104,9 @@ class ArchiveWriter:
     ``"recover"`` commits the complete records among them, ``"discard"`` truncates them.
     ``durable=False`` skips fsync (tests and throwaway benchmarks only).
 
-    As a context manager it commits on normal exit and aborts (drops pending records) on error.
+    As a context manager it commits on normal exit and aborts (drops pending records) on error, except
+    KeyboardInterrupt (Ctrl-C, or a signal a program turns into one): then every scene whose ``append``
+    returned is committed (a frame the interrupt tore is cut off first), so a long write keeps what finished.
     """
 
     def __init__(self, path: str | os.PathLike[str], mode: str = "a", *, on_uncommitted: Policy = "error",
@@ -369,6 +371,8 @@ class ArchiveWriter:
         return self._write_commit()
 
     def _write_commit(self) -> int:
+        if os.fstat(self._handle).st_size > self._end:  # a frame torn by an interrupted append: not ours to keep
+            os.ftruncate(self._handle, self._end)
         # O(changed) for 1.1: the committed entries are updated in place after the commit point
         pending, committed = self._pending, self._entries
         total = len(committed) + sum(1 for k in pending if k not in committed)
@@ -412,8 +416,9 @@ class ArchiveWriter:
         return new.generation
 
     def abort(self) -> None:
-        """Drop pending scenes: truncate the file back to the last commit."""
-        if self._fd is not None and self._pending and not self._dry_run and self._commit is not None:
+        """Drop pending scenes: truncate the file back to the last commit (with any frame an error tore)."""
+        if self._fd is not None and not self._dry_run and self._commit is not None and (
+                self._pending or os.fstat(self._handle).st_size > self._commit.end):
             os.ftruncate(self._handle, self._commit.end)
             self._end = self._commit.end
         self._pending = {}
@@ -447,7 +452,8 @@ class ArchiveWriter:
         return self
 
     def __exit__(self, exc_type: Any, *exc: Any) -> None:
-        self.close(commit=exc_type is None)
+        interrupted = exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
+        self.close(commit=exc_type is None or (interrupted and bool(self._pending)))
 
     def __repr__(self) -> str:
         return f"ArchiveWriter({self.path!r}, committed={len(self._entries)}, pending={len(self._pending)})"

@@ -7,15 +7,19 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import sys
-from typing import Any
+import threading
+from typing import Any, Iterator
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
 from ..errors import ArchiveError
-from . import (add_command, add_deprecated_flag, add_overwrite_option, add_storage_option, check_output_file,
-               check_output_folder, emit, plural, positive_int, progress, storage_options, working)
+from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
+               check_output_file, check_output_folder, emit, plural, positive_int, progress, storage_options,
+               working)
 
 __all__ = ["register"]
 
@@ -43,6 +47,27 @@ def _scene_files(inputs: list[str]) -> list[tuple[str, str]]:
     return pairs
 
 
+@contextlib.contextmanager
+def _interruptible(caught: list[int]) -> Iterator[None]:
+    """While the block runs, SIGTERM raises KeyboardInterrupt as Ctrl-C (SIGINT) does, so an ArchiveWriter
+    leaving the block commits every scene whose append returned; the signal's number goes to ``caught``.
+    A signal the parent set to be ignored stays ignored; off the main thread nothing changes."""
+    def interrupt(signum: int, frame: Any) -> None:
+        caught.append(signum)
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) in (signal.default_int_handler, signal.SIG_DFL):
+                previous[sig] = signal.signal(sig, interrupt)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def cmd_pack(args: argparse.Namespace) -> int:
     check_output_file("-o", args.output, ".vt4da", "an archive",
                       "a .vt4d file holds one scene" if args.output.lower().endswith(".vt4d") else "")
@@ -63,14 +88,33 @@ def cmd_pack(args: argparse.Namespace) -> int:
         raise FileExistsError(f"{args.output} exists: pass -y/--overwrite to replace it, or --append to add to it")
     policy = "recover" if args.recover else "discard" if args.discard_uncommitted else "error"
     os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)  # as encode --archive: made
-    with ArchiveWriter(args.output, mode, on_uncommitted=policy) as writer:
-        for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
-            with open(path, "rb") as f:
-                writer.append(key, f.read(), replace=replace)
-            if args.commit_every and n % args.commit_every == 0:
+    writer, finished = None, 0
+    caught: list[int] = []
+    try:
+        # Ctrl-C or SIGTERM: the writer commits every scene packed so far as it leaves the block
+        with _interruptible(caught), ArchiveWriter(args.output, mode, on_uncommitted=policy) as writer:
+            try:
+                for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
+                    with open(path, "rb") as f:
+                        writer.append(key, f.read(), replace=replace)
+                    finished = n
+                    if args.commit_every and n % args.commit_every == 0:
+                        writer.commit()
                 writer.commit()
-        writer.commit()
-        total, generation = len(writer), writer.generation
+            except KeyboardInterrupt:  # it may have come after the append returned, before ``finished`` counted it
+                finished += finished < len(pairs) and pairs[finished][0] in writer.pending_keys
+                raise
+            total, generation = len(writer), writer.generation
+    except KeyboardInterrupt:
+        name = signal.Signals(caught[0]).name if caught else "SIGINT"
+        if writer is None or not finished:
+            print(f"vt4d pack: interrupted ({name}) before any scene was packed", file=sys.stderr)
+        else:
+            print(f"vt4d pack: interrupted ({name}): {args.output} keeps the {plural(finished, 'scene')} packed "
+                  f"before it, committed ({plural(len(writer), 'scene')} in the archive, generation "
+                  f"{writer.generation}); {plural(len(pairs) - finished, 'input')} not packed: run the command again "
+                  "with --append -y to pack them (replacing the scenes packed already)", file=sys.stderr)
+        return EXIT_INTERRUPTED if not caught or caught[0] == signal.SIGINT else 128 + caught[0]
     emit(args, {"archive": args.output, "packed": [k for k, _ in pairs], "scenes": total, "generation": generation},
          [f"{args.output}: packed {plural(len(pairs), 'scene')} ({total} in the archive, generation {generation})"])
     return 0
@@ -203,7 +247,9 @@ def register(subparsers: Any) -> None:
     p = add_command(subparsers, "pack", help="pack .vt4d files into an archive (.vt4da)",
                     description="Pack .vt4d scene files (or directories of them, searched recursively) into an "
                     "archive.  A file's key is its name without .vt4d; below a directory, its path relative to "
-                    "that directory (a/b/c.vt4d -> key a/b/c), so `vt4d extract` output packs back unchanged.",
+                    "that directory (a/b/c.vt4d -> key a/b/c), so `vt4d extract` output packs back unchanged.  "
+                    "Ctrl-C or SIGTERM commits the scenes packed so far and exits 130 or 143 (the same command "
+                    "with --append -y then packs the rest).",
                     examples=["vt4d pack scenes/ -o scenes.vt4da",
                               "vt4d extract old.vt4da -o out/ && vt4d pack out/ -o new.vt4da    same keys",
                               "vt4d pack more/*.vt4d -o scenes.vt4da --append -y    replacing scenes of the same key",
