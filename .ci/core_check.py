@@ -55,6 +55,17 @@ def check(folder: str) -> None:
     run(["pack", os.path.join(folder, "out"), "-o", os.path.join(folder, "b.vt4da"), "-q"])
     assert [e["key"] for e in json.loads(run(["ls", os.path.join(folder, "b.vt4da"), "--json"]))["entries"]] == [
         "cap-1/cam00/000000"]
+    # a learned-rans file (format 1.6) whose model is not installed: verified, its level read, tokens refused
+    learned = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "spec", "vectors", "valid",
+                           "learned_rans_one_camera.vt4d")
+    scene = vt4dcodec.open_scene(learned)
+    scene.verify()
+    assert scene.quality == 1 and json.loads(run(["info", learned, "--json"]))["quality"] == 1
+    try:
+        scene.static_tokens()
+        raise AssertionError("learned-rans tokens decoded without their model's tables")
+    except vt4dcodec.EntropyTablesError:
+        pass
     loaded = sorted(m for m in sys.modules if m.split(".")[0] in CODEC_ONLY)
     assert not loaded, f"the core imported {loaded}"
 

@@ -23,7 +23,11 @@ from .generate import generate  # noqa: F401,E402  (eager: the submodule shares 
 def _entropy_tables(fingerprint: ModelFingerprint) -> Any:
     """The entropy tables of an installed model (shipped or under $VT4D_MODEL_PATH) with this fingerprint,
     for ``learned-rans`` files (torch-free: the model directory's safetensors are parsed directly)."""
-    return importlib.import_module(".model.tables", __name__).entropy_tables(fingerprint)
+    try:
+        tables = importlib.import_module(".model.tables", __name__)
+    except ImportError:  # a tree without the model package (e.g. the source tree, not installed): none here
+        return None
+    return tables.entropy_tables(fingerprint)
 
 
 format.set_tables_resolver(_entropy_tables)
