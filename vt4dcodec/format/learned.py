@@ -96,14 +96,19 @@ class EntropyTables:
         """(2, d) int64: Q of Z_s and Z_d at ``level``, codes lie in -Q .. Q."""
         return self._half[level]  # type: ignore[attr-defined, no-any-return]
 
+    def copies(self, views: int) -> tuple[np.ndarray, np.ndarray]:
+        """(origin (N_s,), change (N_s,) bool) for ``views`` encoded cameras: each static token's origin, and
+        whether the token is a frame copy (class CHANGE, coded given its origin) rather than MEAN."""
+        origin = self.origins[views - 1]
+        return origin, origin != np.arange(len(origin))
+
     def contexts(self, which: str, views: int) -> np.ndarray:
         """(N, d) int64 context (class * d + channel) of each value of the "static" or "dynamic" matrix."""
         d = self.steps.shape[2]
         channel = np.arange(d)[None, :]
         if which == "dynamic":
             return np.broadcast_to(DYNAMIC * d + channel, self.fingerprint.dynamic_shape)
-        origin = self.origins[views - 1]
-        cls = np.where(origin == np.arange(len(origin)), MEAN, CHANGE)
+        cls = np.where(self.copies(views)[1], CHANGE, MEAN)
         out: np.ndarray = cls[:, None] * d + channel
         return out
 
@@ -151,18 +156,22 @@ def _check_level(tables: EntropyTables, level: int) -> None:
         raise FormatError(f"quality level index must be 0 .. {tables.levels - 1}, got {level!r}")
 
 
+def _group(which: str) -> int:
+    """Index of a token matrix in the tables' steps and half-ranges: 0 for "static" (Z_s), 1 for Z_d."""
+    return 0 if which == "static" else 1
+
+
 def quantize(tokens: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
     """int64 codes q = clip(round_half_to_even(x / step), -Q, Q) of a (N, d) token matrix (binary64)."""
-    g = 0 if which == "static" else 1
-    step = tables.steps[level, g].astype(np.float64)
-    half = tables.half_range(level)[g]
+    step = tables.steps[level, _group(which)].astype(np.float64)
+    half = tables.half_range(level)[_group(which)]
     codes: np.ndarray = np.clip(np.rint(np.asarray(tokens, np.float64) / step), -half, half).astype(np.int64)
     return codes
 
 
 def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
     """float32 f32(q * step), the product computed exactly (binary64) and rounded once."""
-    step = tables.steps[level, 0 if which == "static" else 1].astype(np.float64)
+    step = tables.steps[level, _group(which)].astype(np.float64)
     values: np.ndarray = (codes.astype(np.float64) * step).astype(np.float32)
     return values
 
@@ -179,15 +188,12 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
     if not np.isfinite(x).all():
         raise FormatError("tokens must be finite")
     q = quantize(x, tables, level, which)
-    half = tables.half_range(level)[0 if which == "static" else 1]
+    half = tables.half_range(level)[_group(which)][None, :]
     ctx = tables.contexts(which, views)
-    if which == "static":
-        origin = tables.origins[views - 1]
-        change = origin != np.arange(len(origin))
-        symbols = q + half[None, :]
-        symbols[change] = q[change] - q[origin[change]] + 2 * half[None, :]
-    else:
-        symbols = q + half[None, :]
+    symbols = q + half
+    if which == "static":  # a frame copy: its code's difference to its origin's, centred on 2Q
+        origin, change = tables.copies(views)
+        symbols[change] = q[change] - q[origin[change]] + 2 * half
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
     stream = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), freqs)
     return bytes([level, views]) + stream
@@ -219,11 +225,10 @@ def decode_learned_tokens(payload: BytesLike, tables: EntropyTables, rows: int, 
     ctx = tables.contexts(which, stored_views)
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
     symbols = rans_decode_ctx(memoryview(payload)[2:], ctx.reshape(-1), freqs).astype(np.int64).reshape(rows, cols)
-    half = tables.half_range(level)[0 if which == "static" else 1][None, :]
+    half = tables.half_range(level)[_group(which)][None, :]
     q = symbols - half
     if which == "static":
-        origin = tables.origins[stored_views - 1]
-        change = origin != np.arange(len(origin))
+        origin, change = tables.copies(stored_views)
         q[change] = q[origin[change]] + symbols[change] - 2 * half
         if (np.abs(q) > half).any():
             raise MalformedSectionError("learned-rans payload decodes a frame-copy code outside -Q .. Q: damaged "

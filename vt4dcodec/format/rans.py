@@ -367,10 +367,15 @@ def rans_encode_ctx(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> 
     return _encode_ctx_py(syms, ctx16, table)
 
 
+def _rows_and_cumulative(freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(int64 frequency rows (T, A), their cumulative sums (T, A + 1), each row starting at 0)."""
+    table = freqs.astype(np.int64)
+    return table, np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
+
+
 def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> bytes:
     """Pure-Python :func:`rans_encode_ctx` (the reference)."""
-    table = freqs.astype(np.int64)
-    cums = np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
+    table, cums = _rows_and_cumulative(freqs)
     x, out = STATE_LOWER, bytearray()
     for s, t in zip(symbols.tolist()[::-1], ctx.tolist()[::-1]):
         f = int(table[t, s])
@@ -405,8 +410,7 @@ def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray) -> np
 
 def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray) -> np.ndarray:
     """Pure-Python :func:`rans_decode_ctx` after the initial-state check (the reference)."""
-    table = freqs.astype(np.int64)
-    cums = np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
+    table, cums = _rows_and_cumulative(freqs)
     mask, end, pos = PROB_SCALE - 1, len(data), 4
     rows = {t: (table[t].tolist(), cums[t].tolist()) for t in set(ctx.tolist())}
     syms = [0] * len(ctx)
