@@ -1,0 +1,85 @@
+"""Give a trained rate-distortion tokenizer coarser quality levels, as the warm start of a fine-tune.
+
+    python -m vt4dcodec.model.train.add_levels --run checkpoints/vt4d-tiny-2.0-rd --out runs/rd-init \
+        --ratios 2.0,1.4
+
+Reads the run's latest checkpoint (or ``--model DIR``, a saved model), and writes a saved model
+(``config.json`` + ``model.safetensors``) whose entropy model has ``len(ratios)`` more levels in front of
+the coarsest one: new level ``i`` starts with the old coarsest steps times ``ratios[i]`` (largest first, so
+levels stay ordered coarsest first). Every other weight, the densities included, is copied; the frozen
+tables are rebuilt (:meth:`VideoTok4D.update_entropy`). Train on from it with ``train.tokenizer --init OUT
+--init-partial`` and one more ``--rate-lambdas`` value per added level. The densities serve any step
+(``model.entropy``), so the new levels are usable before the fine-tune; the fine-tune adapts the encoder,
+the renderer and the steps to them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+from vt4dcodec.errors import ModelError
+
+from ..entropy import MAX_STEP
+from ..videotok4d import VideoTok4D
+from ..weights_io import from_pretrained, save_pretrained
+from .common import model_from_run
+
+
+def add_levels(model: VideoTok4D, ratios: list[float]) -> VideoTok4D:
+    """A copy of ``model`` with ``len(ratios)`` coarser levels prepended (steps = the coarsest x ratio)."""
+    if model.entropy is None:
+        raise ModelError("the model has no entropy model (config entropy_levels = 0)")
+    if not ratios or any(not (r > 1.0) or not math.isfinite(r) for r in ratios):
+        raise ModelError(f"ratios must be finite numbers above 1, got {ratios}")
+    cfg = dataclasses.replace(model.config, entropy_levels=model.config.entropy_levels + len(ratios))
+    out = VideoTok4D(cfg)
+    state = {k: v for k, v in model.state_dict().items() if k not in ("entropy.steps", "entropy.freqs",
+                                                                      "entropy.origins")}
+    old = state["entropy.log_step"]
+    coarsest = old[:1].clamp(max=math.log(MAX_STEP))
+    state["entropy.log_step"] = torch.cat([coarsest + math.log(r) for r in sorted(ratios, reverse=True)] + [old])
+    missing, unexpected = out.load_state_dict(state, strict=False)
+    if unexpected or set(missing) != {"entropy.steps", "entropy.freqs", "entropy.origins"}:
+        raise ModelError(f"the model does not fit its own config: missing {missing}, unexpected {unexpected}")
+    out.decode_steps = model.decode_steps
+    out.eval()
+    out.update_entropy()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--run", type=Path, help="a training run directory (its latest checkpoint)")
+    src.add_argument("--model", type=Path, help="a saved model directory")
+    p.add_argument("--out", type=Path, required=True, help="directory of the model to write")
+    p.add_argument("--ratios", required=True, help="comma-separated step ratios (> 1) of the new levels")
+    p.add_argument("--id", default="vt4d-tiny", help="model id recorded in the written model")
+    p.add_argument("--version", default="0.0.0-init", help="model version recorded in the written model")
+    args = p.parse_args(argv)
+    try:
+        ratios = [float(v) for v in args.ratios.split(",")]
+    except ValueError:
+        p.error(f"--ratios takes comma-separated numbers, got {args.ratios!r}")
+    try:
+        model = model_from_run(args.run)[0] if args.run else from_pretrained(args.model)
+        out = add_levels(model, ratios)
+    except ModelError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    save_pretrained(out, args.out, model_id=args.id, model_version=args.version)
+    steps = out.entropy.step_values().mean(-1)
+    print(f"{args.out}: {out.config.entropy_levels} levels, mean steps Z_s "
+          + " ".join(f"{v:.3f}" for v in steps[:, 0].tolist()) + ", Z_d "
+          + " ".join(f"{v:.3f}" for v in steps[:, 1].tolist()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
