@@ -215,3 +215,26 @@ def test_real_footage_command_on_the_source_camera(models, tmp_path):
     assert results["source"] == results["target"] and results["target_mode"] == "source"
     assert set(results["summary"]) == {"ours", "mean_colour", "ours_minus_flat"}
     assert results["steps"] == 1 and (tmp_path / "real.png").is_file()
+
+
+def test_quality_stores_the_main_model_at_that_level_and_the_ablation_as_int8(models, tmp_path):
+    """--quality N: a model with quality levels is evaluated from learned-rans files at level N (smaller
+    files at a lower level); a model without levels (here the unified ablation) stays int8."""
+    torch.manual_seed(5)
+    net = VideoTok4D(get_config("tiny", patch_size=4, entropy_levels=3)).eval()
+    net.update_entropy()
+    model_dir = save_pretrained(net, tmp_path / "levels", model_id="test-levels", model_version="0", decode_steps=1)
+    args = ["--model", str(model_dir), "--unified", models[1], "--scenes", "1", "--sets", "source",
+            "--methods", "ours,unified", "--no-progress"]
+    sizes = {}
+    for quality in ("1", "3"):
+        out = tmp_path / f"q{quality}.json"
+        assert main(args + ["--quality", quality, "--out", str(out)]) == 0
+        result = json.loads(out.read_text())
+        assert result["settings"]["quality"] == int(quality)
+        assert result["models"]["main"]["encoding"] == f"learned-rans q{quality}"
+        assert result["models"]["unified"]["encoding"] == "int8"
+        sizes[quality] = {r["method"]: r["bytes"] for r in result["rows"]}
+    assert sizes["1"]["ours"] < sizes["3"]["ours"] and sizes["1"]["unified"] == sizes["3"]["unified"]
+    with pytest.raises(EvaluationError):
+        EvalSettings(quality=0)

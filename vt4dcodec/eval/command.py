@@ -66,6 +66,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="Euler steps of the renderer (default: each model's "
                    "recorded decode_steps)")
     p.add_argument("--seed", type=int, default=0, help="sampling noise and track seed")
+    p.add_argument("--quality", type=int, default=None, metavar="N",
+                   help="store the tokens of models with quality levels as learned-rans at level N (default: int8 "
+                        "for every model; models without levels stay int8)")
     p.add_argument("--methods", default=None, help=f"comma-separated subset of {','.join(METHODS)} (default: all "
                    "that have a model)")
     p.add_argument("--merge", action="store_true", help="add/replace these methods in an existing --out file")
@@ -155,7 +158,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     cfg = models["main"].config
     settings = EvalSettings(scenes=args.scenes, first_seed=args.first_seed, views=args.views, steps=args.steps,
                             seed=args.seed, num_cameras=args.cameras or max(4, args.views + 1),
-                            frames=cfg.frames, image_size=cfg.image_size)
+                            frames=cfg.frames, image_size=cfg.image_size, quality=args.quality)
     available = [m for m in METHODS if m not in TOKEN_METHODS or TOKEN_METHODS[m][1][0] in models]
     methods = args.methods.split(",") if args.methods else available
     out = Path(args.out)

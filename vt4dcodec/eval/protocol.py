@@ -21,7 +21,8 @@ the target cameras along their trajectories.  Five target sets (``VIEW_SETS``; r
 
 The methods:
 
-* ``ours``: ``codec.encode`` camera 0 with the model, store it as an int8 ``.vt4d`` (``format.dumps``;
+* ``ours``: ``codec.encode`` camera 0 with the model, store it as an int8 ``.vt4d`` (or, with the
+  setting ``quality`` = N and a model with quality levels, as learned-rans at level N) (``format.dumps``;
   its length is the reported size), load those bytes back with ``SceneDecoder`` and
   ``render_many`` the target trajectories (``steps`` Euler steps, None: each model's recorded
   ``decode_steps``; noise seed ``seed``);
@@ -127,11 +128,12 @@ class EvalSettings:
     num_cameras: int = 4
     frames: int = 8
     image_size: int = 64
+    quality: int | None = None  # None: int8 tokens; N: learned-rans level N for models with quality levels
 
     def __post_init__(self) -> None:
-        for key in ("scenes", "views", "steps", "frames", "image_size"):
+        for key in ("scenes", "views", "steps", "frames", "image_size", "quality"):
             value = getattr(self, key)
-            if (value is None and key != "steps") or (value is not None and value < 1):
+            if (value is None and key not in ("steps", "quality")) or (value is not None and value < 1):
                 raise EvaluationError(f"{key} must be >= 1")
         if self.num_cameras < self.views + 1:
             raise EvaluationError(f"num_cameras ({self.num_cameras}) must be at least views + 1 ({self.views + 1})")
@@ -215,17 +217,24 @@ def set_targets(sc: SynthScene, settings: EvalSettings, view_set: str = "far") -
 
 
 # --- predictions ------------------------------------------------------------------------------------
+def stored_encoding(net: VideoTok4D, quality: int | None) -> str:
+    """How the protocol stores a model's tokens: ``learned-rans qN`` for a model with quality levels when
+    ``quality`` = N is asked for, else :data:`ENCODING` (int8; the ablations have no entropy model)."""
+    return f"learned-rans q{quality}" if quality is not None and codec.quality_levels(net) else ENCODING
+
+
 def _render_tokens(net: VideoTok4D, sc: SynthScene, sources: Sequence[str], targets: Sequence[str],
                    settings: EvalSettings, variants: dict[str, tuple[bool, bool]]
                    ) -> tuple[dict[str, list[np.ndarray]], int, float, codec.SceneDecoder]:
-    """Encode ``sources`` (one camera or several) into an int8 .vt4d, decode the bytes, render every
-    target per variant.
+    """Encode ``sources`` (one camera or several) into a .vt4d (:func:`stored_encoding`), decode the bytes,
+    render every target per variant.
 
     Returns (variant -> videos, file bytes, seconds spent, the decoder of the stored bytes).
     """
     t0 = time.perf_counter()
-    scene = codec.encode(sc.capture, net, ENCODING, cameras=list(sources), seed=settings.seed)
-    blob = dumps(scene)
+    quality = settings.quality if codec.quality_levels(net) else None
+    scene = codec.encode(sc.capture, net, ENCODING, cameras=list(sources), seed=settings.seed, quality=quality)
+    blob = dumps(scene, tables=codec.model_tables(net) if quality is not None else None)
     decoder = codec.SceneDecoder.open(blob, model=net)
     trajectories = [sc.capture.cameras[k] for k in targets]
     videos = {name: decoder.render_many(trajectories, steps=settings.steps, seed=settings.seed,
@@ -339,6 +348,7 @@ def describe_model(net: VideoTok4D, settings: EvalSettings | None = None) -> dic
             "track_attention": cfg.track_attention, "decode_steps": int(net.decode_steps)}
     if settings is not None:
         info["steps"] = settings.steps_for(net)
+        info["encoding"] = stored_encoding(net, settings.quality)
     return info
 
 
