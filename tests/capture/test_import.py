@@ -119,12 +119,13 @@ def test_opencv_json_easymocap_names_metres(tmp_path):
 
 
 # --- TOML (Pose2Sim / Anipose) -----------------------------------------------------------------------
-def toml_text():
+def toml_text(names=NAMES, size=(W, H)):
+    """Pose2Sim's Calib.toml for the true cameras, named ``names`` (in NAMES order), calibrated at ``size``."""
     parts = []
-    for i, n in enumerate(NAMES):
+    for i, (n, name) in enumerate(zip(NAMES, names)):
         K = K_TRUE[n].tolist()
         r, t = rodrigues_vector(W2C_TRUE[n][:3, :3]).tolist(), W2C_TRUE[n][:3, 3].tolist()
-        parts.append(f"[cam_{i}]\nname = \"{n}\"\nsize = [ {W}.0, {H}.0,]\n"
+        parts.append(f"[cam_{i}]\nname = \"{name}\"\nsize = [ {size[0]}.0, {size[1]}.0,]\n"
                      f"matrix = [ [ {K[0][0]!r}, 0.0, {K[0][2]!r},], [ 0.0, {K[1][1]!r}, {K[1][2]!r},], [ 0.0, 0.0, 1.0,],]\n"
                      f"distortions = [ 0.0, 0.0, 0.0, 0.0,]\n"
                      f"rotation = [ {r[0]!r}, {r[1]!r}, {r[2]!r},]\ntranslation = [ {t[0]!r}, {t[1]!r}, {t[2]!r},]\n"

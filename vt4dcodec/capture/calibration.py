@@ -1,6 +1,6 @@
 """Multi-camera calibration files of common tools, read into the project's camera conventions.
 
-Four families, detected from the file (or forced with ``format=``):
+Six families, detected from the file (or forced with ``format=``):
 
 ``opencv``  OpenCV FileStorage YAML or JSON (``cv2.FileStorage``): per camera a camera matrix, distortion
             and R (3x3, or a Rodrigues 3-vector) or rvec, and T/tvec, world-to-camera.  Accepted layouts:
@@ -21,8 +21,25 @@ Four families, detected from the file (or forced with ``format=``):
             ``camera_angle_x``, optional ``k1 k2 p1 p2``, globally or per frame; each frame is a camera
             named after its ``file_path`` (without extension).  Poses become OpenCV world-to-camera by
             flipping the camera's y and z axes.
+``n3dv``    N3DV / DyNeRF ``poses_bounds.npy`` (LLFF's layout, a directory holding it or the file): N rows of
+            17 numbers, a 3x5 matrix ``[R | t | hwf]`` and the near/far depth bounds.  ``[R | t]`` is
+            camera-to-world with LLFF's camera axes [down, right, backwards] (LLFF's imgs2poses writes COLMAP's
+            [right, down, forwards] columns as ``[c1, c0, -c2]``), so the OpenCV axes are ``x = c1, y = c0,
+            z = -c2``; ``hwf`` is the image height, width and the focal length in pixels, the principal point
+            the image centre (LLFF keeps only COLMAP's focal length).  Rows are cameras ``cam00``, ``cam01``...
+            (the importer pairs row i with the i-th video in name order, as the DyNeRF loaders do); near/far
+            are kept per camera.
+``multicamvideo``  ReCamMaster's MultiCamVideo ``cameras/camera_extrinsics.json`` (a scene directory holding
+            it, or the file): ``frame<i>`` -> ``cam<NN>`` -> an Unreal Engine 4x4 transform written row by row
+            (``"[r] [r] [r] [r]"``, row vectors: rows 0-2 the camera's forward, right and up axes, row 3 its
+            position in centimetres).  The world becomes metres with Unreal's y axis negated (x forward, y
+            left, z up: right-handed), the camera's OpenCV axes are (right, -up, forward), which gives the
+            relative poses of ReCamMaster's own loader; one pose per frame.  Intrinsics as the dataset
+            documents them: 1280x1280 frames from a 23.76 x 23.76 mm sensor, the focal length in mm taken
+            from the folder name ``f<mm>_aperture<N>`` or given, the principal point the image centre.
 
-Translations are returned in the file's own units; :func:`decide_units` tells metres from millimetres.
+Translations are returned in the file's own units (MultiCamVideo: metres); :func:`decide_units` tells metres
+from millimetres.
 """
 
 from __future__ import annotations
@@ -43,7 +60,7 @@ from ..errors import CameraError, CaptureError
 __all__ = ["CameraCalibration", "CALIBRATION_FORMATS", "read_calibration", "detect_format", "decide_units",
            "rodrigues"]
 
-CALIBRATION_FORMATS = ("opencv", "toml", "colmap", "nerf")
+CALIBRATION_FORMATS = ("opencv", "toml", "colmap", "nerf", "n3dv", "multicamvideo")
 MAX_CALIBRATION_BYTES = 64 * 1024 * 1024
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # flips a camera's y and z axes (OpenGL <-> OpenCV)
 
@@ -55,9 +72,10 @@ class CameraCalibration:
     Attributes:
         name: the camera's name in the calibration (media are matched to it).
         K: (3, 3) intrinsics in pixels, pixel centres at integer coordinates.
-        w2c: (4, 4) world-to-camera pose; translation in the calibration's units.
+        w2c: (4, 4) world-to-camera pose, or (T, 4, 4) one per frame; translation in the calibration's units.
         width, height: image size the intrinsics refer to, or None when the file does not say.
         distortion: OpenCV distortion terms or None.
+        near_far: the scene's depth bounds seen from the camera (LLFF's), in the calibration's units, or None.
     """
 
     name: str
@@ -66,6 +84,7 @@ class CameraCalibration:
     width: int | None = None
     height: int | None = None
     distortion: np.ndarray | None = None
+    near_far: tuple[float, float] | None = None
 
 
 def rodrigues(r: Any, where: str) -> np.ndarray:
@@ -120,11 +139,15 @@ def _camera(name: str, K: Any, w2c: np.ndarray, size: Any, dist: Any, where: str
     return CameraCalibration(name=str(name), K=KK, w2c=w2c, width=width, height=height, distortion=d)
 
 
-def _read_text(path: Path) -> str:
+def _check_file(path: Path) -> None:
     if not path.is_file():
         raise CaptureError(f"{path}: calibration file not found")
     if path.stat().st_size > MAX_CALIBRATION_BYTES:
         raise CaptureError(f"{path}: larger than {MAX_CALIBRATION_BYTES} bytes; not a calibration file")
+
+
+def _read_text(path: Path) -> str:
+    _check_file(path)
     try:
         return path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -143,11 +166,18 @@ def detect_format(path: str | os.PathLike) -> str:
             return "nerf"
         if {"intri.yml", "extri.yml"} <= names:
             return "opencv"
+        if N3DV_FILE in names:
+            return "n3dv"
+        if MULTICAMVIDEO_FILE in names or (path / "cameras" / MULTICAMVIDEO_FILE).is_file():
+            return "multicamvideo"
         raise CaptureError(f"{path}: a directory without cameras.txt + images.txt (COLMAP), transforms.json "
-                           "(NeRF) or intri.yml + extri.yml (OpenCV); give the calibration file itself")
+                           f"(NeRF), intri.yml + extri.yml (OpenCV), {N3DV_FILE} (N3DV/DyNeRF) or "
+                           f"cameras/{MULTICAMVIDEO_FILE} (MultiCamVideo); give the calibration file itself")
     suffix = path.suffix.lower()
     if path.name in ("cameras.txt", "images.txt"):
         return "colmap"
+    if suffix == ".npy":
+        return "n3dv"
     if suffix == ".toml":
         return "toml"
     if suffix in (".yml", ".yaml", ".xml"):
@@ -160,6 +190,8 @@ def detect_format(path: str | os.PathLike) -> str:
             raise CaptureError(f"{path}: not valid JSON ({exc})") from None
         if isinstance(doc, dict) and isinstance(doc.get("frames"), list):
             return "nerf"
+        if isinstance(doc, dict) and isinstance(doc.get("frame0"), dict):
+            return "multicamvideo"
         return "opencv"
     if text.lstrip().startswith("%YAML"):
         return "opencv"
@@ -168,17 +200,26 @@ def detect_format(path: str | os.PathLike) -> str:
                        "format=NAME)")
 
 
-def read_calibration(path: str | os.PathLike, format: str = "auto") -> tuple[str, list[CameraCalibration]]:
+def read_calibration(path: str | os.PathLike, format: str = "auto", *,
+                     focal_mm: float | None = None) -> tuple[str, list[CameraCalibration]]:
     """Read a calibration: (the format read, its cameras in file order).  ``format`` is ``"auto"`` or one
-    of :data:`CALIBRATION_FORMATS`.  Problems raise CaptureError (files) or CameraError (numbers)."""
+    of :data:`CALIBRATION_FORMATS`; ``focal_mm`` is MultiCamVideo's lens (default: from the scene's folder
+    name).  Problems raise CaptureError (files) or CameraError (numbers)."""
     path = Path(path)
     if not path.exists():
         raise CaptureError(f"{path}: calibration not found")
     fmt = detect_format(path) if format == "auto" else format
     if fmt not in CALIBRATION_FORMATS:
         raise CaptureError(f"calibration format must be 'auto' or one of {CALIBRATION_FORMATS}, got {format!r}")
-    reader = {"opencv": _read_opencv, "toml": _read_toml, "colmap": _read_colmap, "nerf": _read_nerf}[fmt]
-    cams = reader(path)
+    if focal_mm is not None and fmt != "multicamvideo":
+        raise CaptureError(f"focal_mm (--focal-mm) is MultiCamVideo's lens; a {fmt} calibration holds its own "
+                           "intrinsics")
+    if fmt == "multicamvideo":
+        cams = _read_multicamvideo(path, focal_mm)
+    else:
+        reader = {"opencv": _read_opencv, "toml": _read_toml, "colmap": _read_colmap, "nerf": _read_nerf,
+                  "n3dv": _read_n3dv}[fmt]
+        cams = reader(path)
     if not cams:
         raise CaptureError(f"{path}: no cameras found in the {fmt} calibration")
     names = [c.name for c in cams]
@@ -460,6 +501,140 @@ def _read_nerf(path: Path) -> list[CameraCalibration]:
     return cams
 
 
+# --- N3DV / DyNeRF poses_bounds.npy (LLFF) ------------------------------------------------------------
+N3DV_FILE = "poses_bounds.npy"
+
+
+def n3dv_file(path: Path) -> Path:
+    """The ``poses_bounds.npy`` that ``path`` (the file or its directory) names."""
+    return path / N3DV_FILE if path.is_dir() else path
+
+
+def _read_n3dv(path: Path) -> list[CameraCalibration]:
+    file = n3dv_file(path)
+    _check_file(file)
+    try:
+        rows = np.load(file, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise CaptureError(f"{file}: not a NumPy .npy array ({str(exc)[:120]})") from None
+    if rows.ndim != 2 or rows.shape[1] != 17 or rows.shape[0] < 1 or rows.dtype.kind not in "fiu":
+        raise CaptureError(f"{file}: an N3DV/LLFF {N3DV_FILE} is an N x 17 array of numbers (a 3x5 pose-and-hwf "
+                           f"matrix and near, far per camera), got {rows.dtype} {rows.shape}")
+    cams = []
+    for i, row in enumerate(_floats(rows, file.name)):
+        where, name = f"{file.name} row {i}", f"cam{i:02d}"
+        m = row[:15].reshape(3, 5)
+        h, w, f = m[:, 4]
+        if not (h >= 1 and w >= 1 and h == round(h) and w == round(w) and f > 0):
+            raise CameraError(f"{where}: hwf must be the image height and width in pixels and a positive focal "
+                              f"length, got {[float(h), float(w), float(f)]}")
+        c2w = np.eye(4)
+        c2w[:3, :3] = np.stack([m[:, 1], m[:, 0], -m[:, 2]], axis=1)  # LLFF [down, right, back] -> OpenCV
+        c2w[:3, 3] = m[:, 3]
+        R = c2w[:3, :3].T
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = R, -R @ c2w[:3, 3]
+        K = [[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]]  # principal point: the image centre
+        near, far = float(row[15]), float(row[16])
+        cam = _camera(name, K, w2c, [w, h], None, where)
+        cams.append(replace(cam, near_far=(near, far)))
+    return cams
+
+
+# --- MultiCamVideo (ReCamMaster) cameras/camera_extrinsics.json -------------------------------------------
+MULTICAMVIDEO_FILE = "camera_extrinsics.json"
+MULTICAMVIDEO_SIZE = 1280          # the dataset's frames are 1280 x 1280
+MULTICAMVIDEO_SENSOR_MM = 23.76    # ... from a 23.76 mm x 23.76 mm sensor
+_FOCAL_FOLDER = re.compile(r"^f(\d+(?:\.\d+)?)_aperture", re.IGNORECASE)  # train/f18_aperture10/scene1
+_UNREAL_AXES = np.diag([1.0, -1.0, 1.0])  # Unreal's left-handed world with y negated: right-handed
+_UNREAL_UNIT = 0.01                         # Unreal's centimetres, in metres
+
+
+def multicamvideo_file(path: Path) -> Path:
+    """The ``camera_extrinsics.json`` that ``path`` (the file, its scene directory or ``cameras/``) names."""
+    if not path.is_dir():
+        return path
+    return path / MULTICAMVIDEO_FILE if (path / MULTICAMVIDEO_FILE).is_file() else path / "cameras" / MULTICAMVIDEO_FILE
+
+
+def multicamvideo_scene(path: Path) -> Path:
+    """The scene directory of a MultiCamVideo calibration (it holds ``cameras/`` and ``videos/``)."""
+    file = multicamvideo_file(path)
+    return file.parent.parent if file.parent.name == "cameras" else file.parent
+
+
+def _focal_from_folders(scene: Path) -> float | None:
+    for folder in (scene, *scene.resolve().parents):
+        m = _FOCAL_FOLDER.match(folder.name)
+        if m:
+            return float(m.group(1))
+    return None
+
+
+def _unreal_matrix(text: Any, where: str) -> np.ndarray:
+    """An Unreal transform written as bracketed rows (``"[1 0 0 0] [0 1 0 0] [0 0 1 0] [x y z 1]"``; rows of
+    three are read with the implied last column 0 0 0 1)."""
+    if not isinstance(text, str):
+        raise CaptureError(f"{where}: expected a matrix string \"[r00 r01 r02 0] ... [x y z 1]\"")
+    rows = re.findall(r"\[([^\[\]]*)\]", text)
+    try:
+        values = [[float(v) for v in row.split()] for row in rows]
+    except ValueError:
+        raise CaptureError(f"{where}: expected numbers in {text[:80]!r}") from None
+    if len(values) != 4 or {len(r) for r in values} not in ({3}, {4}):
+        raise CaptureError(f"{where}: expected four bracketed rows of 4 (or 3) numbers, got {text[:80]!r}")
+    if len(values[0]) == 3:
+        values = [r + [float(i == 3)] for i, r in enumerate(values)]
+    m = _floats(values, where)
+    if np.abs(m[:, 3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:
+        raise CameraError(f"{where}: the last column must be 0 0 0 1 (row vectors: the position is the last row)")
+    return m
+
+
+def _read_multicamvideo(path: Path, focal_mm: float | None) -> list[CameraCalibration]:
+    file = multicamvideo_file(path)
+    try:
+        doc = json.loads(_read_text(file))
+    except json.JSONDecodeError as exc:
+        raise CaptureError(f"{file}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("frame0"), dict) or not doc["frame0"]:
+        raise CaptureError(f"{file}: a MultiCamVideo {MULTICAMVIDEO_FILE} maps frame0, frame1, ... to the "
+                           "cameras' matrices")
+    frames = [f"frame{i}" for i in range(len(doc))]
+    missing = [k for k in frames if not isinstance(doc.get(k), dict)]
+    if missing:
+        raise CaptureError(f"{file}: frames must be frame0..frame{len(doc) - 1} without gaps; {missing[0]} is missing")
+    names = sorted(doc["frame0"], key=natural_key)
+    if focal_mm is None:
+        focal_mm = _focal_from_folders(multicamvideo_scene(path))
+    if focal_mm is None:
+        raise CaptureError(f"{file}: the focal length is not in a folder name f<mm>_aperture<N> (the dataset's "
+                           "train/f18_aperture10/scene1/ layout); pass it in millimetres with focal_mm=F "
+                           "(--focal-mm F)")
+    if not (np.isfinite(focal_mm) and focal_mm > 0):
+        raise CaptureError(f"focal_mm (--focal-mm) must be a positive number of millimetres, got {focal_mm!r}")
+    f = focal_mm / MULTICAMVIDEO_SENSOR_MM * MULTICAMVIDEO_SIZE
+    c = (MULTICAMVIDEO_SIZE - 1) / 2
+    K = [[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]]
+    cams = []
+    for name in names:
+        w2c = np.empty((len(frames), 4, 4))
+        for t, key in enumerate(frames):
+            where = f"{file.name} {key} {name}"
+            if name not in doc[key]:
+                raise CaptureError(f"{where}: camera {name} is missing from {key} (every frame lists every camera)")
+            m = _unreal_matrix(doc[key][name], where)
+            forward, right, up, position = m[0, :3], m[1, :3], m[2, :3], m[3, :3]
+            c2w = np.eye(4)  # OpenCV camera axes (right, down, forward) in the metric right-handed world
+            c2w[:3, :3] = _UNREAL_AXES @ np.stack([right, -up, forward], axis=1)
+            c2w[:3, 3] = _UNREAL_AXES @ position * _UNREAL_UNIT
+            R = c2w[:3, :3].T
+            w2c[t] = np.eye(4)
+            w2c[t, :3, :3], w2c[t, :3, 3] = R, -R @ c2w[:3, 3]
+        cams.append(_camera(name, K, w2c, [MULTICAMVIDEO_SIZE, MULTICAMVIDEO_SIZE], None, f"{file.name} {name}"))
+    return cams
+
+
 # --- units -------------------------------------------------------------------------------------------
 MM_THRESHOLD = 50.0  # a median camera spacing above this many units is millimetres, not metres
 
@@ -475,7 +650,8 @@ def decide_units(cams: list[CameraCalibration], units: str = "auto") -> tuple[fl
         return 1e-3, "millimetres (given)"
     if units != "auto":
         raise CaptureError(f"units must be 'auto', 'm' or 'mm', got {units!r}")
-    centres = np.array([-c.w2c[:3, :3].T @ c.w2c[:3, 3] for c in cams])
+    first = [c.w2c.reshape(-1, 4, 4)[0] for c in cams]  # a moving camera: where it starts
+    centres = np.array([-w2c[:3, :3].T @ w2c[:3, 3] for w2c in first])
     if len(centres) > 1:
         d = np.linalg.norm(centres[:, None] - centres[None], axis=-1)[np.triu_indices(len(centres), 1)]
         spread, what = float(np.median(d)), "median camera spacing"
@@ -487,10 +663,16 @@ def decide_units(cams: list[CameraCalibration], units: str = "auto") -> tuple[fl
 
 
 def scaled(cam: CameraCalibration, scale: float) -> CameraCalibration:
-    """``cam`` with its translation multiplied by ``scale`` (units to metres)."""
+    """``cam`` with its translations (and near/far) multiplied by ``scale`` (units to metres)."""
     w2c = cam.w2c.copy()
-    w2c[:3, 3] *= scale
-    return replace(cam, w2c=w2c)
+    w2c[..., :3, 3] *= scale
+    near_far = None if cam.near_far is None else (cam.near_far[0] * scale, cam.near_far[1] * scale)
+    return replace(cam, w2c=w2c, near_far=near_far)
+
+
+def natural_key(name: str) -> list[Any]:
+    """Sort key of names in natural order: cam2 before cam10."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
 
 
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")

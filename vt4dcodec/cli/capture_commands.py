@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from typing import Any, Callable
 
 import numpy as np
 
 from ..capture.contact_sheet import read_sheet_frames, write_contact_sheet
 from ..capture.calibration import CALIBRATION_FORMATS
-from ..capture.importer import IMPORT_MEDIA, import_capture
+from ..capture.importer import IMPORT_MEDIA, CalibrationSizeWarning, import_capture
 from ..capture.io import read_manifest
 from ..capture.probe import check_capture
+from ..errors import CaptureError
 from . import add_command, add_overwrite_option, check_output_file, emit, note_replacing, plural, positive_int
 from .synth_commands import add_synth_parser
 
@@ -92,16 +94,42 @@ def _run_capture_info(args: argparse.Namespace) -> int:
     return 1 if problems else 0
 
 
+def camera_map_entry(text: str) -> tuple[str, str]:
+    """An argparse type: ``--map NAME=FILE`` (a calibration camera and its video or image folder)."""
+    name, sep, file = text.partition("=")
+    if not sep or not name or not file:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=FILE (a calibration camera = its video or image folder)")
+    return name, file
+
+
 def _run_import(args: argparse.Namespace) -> int:
-    m = import_capture(args.calibration, args.media_dir, args.output, format=args.format, units=args.units,
-                       media=args.media, frames=args.frames, fps=args.fps, capture_id=args.capture_id,
-                       scale_intrinsics=args.scale_intrinsics, overwrite=args.overwrite)
-    calib = m.metadata["calibration"]
+    camera_map: dict[str, str] = {}
+    for name, file in args.camera_map or []:
+        if name in camera_map:
+            raise CaptureError(f"--map gives camera {name!r} twice ({camera_map[name]}, {file}); one medium a camera")
+        camera_map[name] = file
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationSizeWarning)
+        m = import_capture(args.calibration, args.media_dir, args.output, format=args.format, units=args.units,
+                           media=args.media, frames=args.frames, fps=args.fps, capture_id=args.capture_id,
+                           scale_intrinsics=args.scale_intrinsics, camera_map=camera_map, focal_mm=args.focal_mm,
+                           overwrite=args.overwrite)
+    notes = [str(w.message) for w in caught if issubclass(w.category, CalibrationSizeWarning)]
+    for w in caught:  # any other warning goes on as it came
+        if not issubclass(w.category, CalibrationSizeWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    calib, media = m.metadata["calibration"], m.metadata["media"]
     result = {"directory": str(m.directory), "capture_id": m.capture_id, "num_cameras": len(m.cameras),
               "num_frames": m.num_frames, "fps": m.fps, "cameras": [e.name for e in m.cameras],
-              "calibration": calib}
-    emit(args, result, [f"imported {plural(len(m.cameras), 'camera')} x {plural(m.num_frames, 'frame')} at {m.fps:.3f} fps into "
-                        f"{m.directory}", f"  calibration: {calib['format']}, {calib['units']}"])
+              "calibration": calib, "warnings": notes}
+    lines = [f"imported {plural(len(m.cameras), 'camera')} x {plural(m.num_frames, 'frame')} at {m.fps:.3f} fps into "
+             f"{m.directory}", f"  calibration: {calib['format']}, {calib['units']}"]
+    lines += [f"  {name} <- {info['source']} (by camera number)" for name, info in media.items()
+              if info.get("matched_by") == "number"]
+    emit(args, result, lines)
+    if not args.quiet:
+        for note in notes:
+            print(f"vt4d import: warning: {note}", file=sys.stderr)
     return 0
 
 
@@ -134,15 +162,26 @@ def _register_import(sub: Any) -> None:
     p = add_command(sub, "import", help="make a capture directory from videos and a calibration file",
                     description="Import a calibrated multi-camera recording: MEDIA_DIR holds one video "
                                 "(CAM.mp4, .mov, .mkv, .webm, .avi) or image folder (CAM/) per camera, named "
-                                "after the cameras of CALIBRATION.  Calibration formats: OpenCV FileStorage "
+                                "after the cameras of CALIBRATION or carrying their camera number (cam01.mp4 "
+                                "for int_cam01_img), or given with --map.  Calibration formats: OpenCV FileStorage "
                                 "YAML/JSON, Pose2Sim/Anipose/caliscope TOML, COLMAP text (cameras.txt + "
-                                "images.txt, static rigs), NeRF transforms.json.  Sizes and frame counts are "
-                                "checked against the media before anything is written.",
+                                "images.txt, static rigs), NeRF transforms.json, N3DV/DyNeRF poses_bounds.npy "
+                                "(rows pair with the videos in name order; near/far kept as metadata) and "
+                                "MultiCamVideo cameras/camera_extrinsics.json (moving cameras).  Sizes and frame "
+                                "counts are checked against the media before anything is written; media up to "
+                                "16 pixels smaller than the calibration on the right/bottom (encoder padding) "
+                                "import with K unchanged and a warning.",
                     examples=["vt4d import calib.toml videos/ -o capture/",
                               "vt4d import sparse/0 images/ -o capture/ --format colmap --fps 30",
-                              "vt4d import intri_extri/ videos/ -o capture/ --units mm --frames 100 --media png"])
-    p.add_argument("calibration", help="calibration file (or a COLMAP / NeRF / intri.yml+extri.yml directory)")
-    p.add_argument("media_dir", help="folder with one video or image folder per camera, named after it")
+                              "vt4d import intri_extri/ videos/ -o capture/ --units mm --frames 100 --media png",
+                              "vt4d import n3dv/coffee_martini -o capture/ --frames 30 --media png",
+                              "vt4d import MultiCamVideo/train/f18_aperture10/scene1 -o capture/",
+                              "vt4d import Calib_scene.toml videos/ -o capture/ --map int_cam01_img=left.mp4"])
+    p.add_argument("calibration", help="calibration file (or a COLMAP / NeRF / intri.yml+extri.yml / N3DV / "
+                                       "MultiCamVideo scene directory)")
+    p.add_argument("media_dir", nargs="?", default=None,
+                   help="folder with one video or image folder per camera, named after it (default for N3DV: the "
+                        "folder of poses_bounds.npy; for MultiCamVideo: the scene's videos/)")
     p.add_argument("-o", "--output", required=True, help="capture directory to write")
     p.add_argument("--format", choices=("auto", *CALIBRATION_FORMATS), default="auto",
                    help="calibration format (default: detected from the file)")
@@ -155,6 +194,11 @@ def _register_import(sub: Any) -> None:
     p.add_argument("--capture-id", default=None, help="capture id (default: the output directory's name)")
     p.add_argument("--scale-intrinsics", action="store_true",
                    help="media at a uniform rescale of the calibrated size: rescale K to them")
+    p.add_argument("--map", dest="camera_map", action="append", type=camera_map_entry, metavar="NAME=FILE",
+                   help="give calibration camera NAME the video or image folder FILE (in MEDIA_DIR, or a path); "
+                        "repeatable")
+    p.add_argument("--focal-mm", type=float, default=None, metavar="MM",
+                   help="MultiCamVideo's focal length in mm (default: from the folder name f<mm>_aperture<N>)")
     add_overwrite_option(p, "replace a capture already in the output directory")
     p.set_defaults(func=_run_import)
 
