@@ -294,6 +294,7 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
 
     t0 = time.perf_counter()
     T = net.config.frames
+    pixels = T * net.config.image_size ** 2  # of one stored camera's clip: bits per pixel of the source video
     names = list(capture.camera_names)
     truth = {n: np.ascontiguousarray(capture.frames[n][start:start + T]) for n in names}
     trajs = {n: capture.cameras[n][start:start + T] for n in names}
@@ -334,7 +335,8 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
         for enc in encodings:
             pq = [rendered[set_name][enc][v] for v in views]
             r["vt4d"][enc] = {"bytes": file_bytes[set_name][enc], "psnr": float(np.mean([p for p, _ in pq])),
-                              "ssim": float(np.mean([s for _, s in pq]))}
+                              "ssim": float(np.mean([s for _, s in pq])),
+                              "bpp": 8.0 * file_bytes[set_name][enc] / (len(stored) * pixels)}
         for name, by_q in decoded.items():
             pts = []
             for (q, f), clips in by_q.items():
@@ -387,6 +389,32 @@ def _mean(rows: list[dict[str, float]]) -> dict[str, float]:
     return {k: float(np.mean([r[k] for r in rows])) for k in ("bytes", "psnr", "ssim")}
 
 
+def _se(values: Sequence[float]) -> float | None:
+    """Standard error of the mean (None for fewer than 2 values)."""
+    return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else None
+
+
+def per_clip_ratios(rs: list[dict[str, Any]], name: str) -> dict[str, dict[str, Any]]:
+    """Per vt4d encoding: each clip's vt4d bytes over the bytes the codec needs for that clip's vt4d PSNR
+    (its own curve, every size), as mean and standard error over the clips where the codec's curve brackets
+    the PSNR, with the counts of clips where its cheapest point is already better ("at_most": the ratio there
+    is at least vt4d bytes / cheapest bytes) or which it never reaches."""
+    out: dict[str, dict[str, Any]] = {}
+    for enc in rs[0]["vt4d"]:
+        ratios, at_most, never = [], 0, 0
+        for r in rs:
+            need, bound = bytes_at_psnr([(p["bytes"], p["psnr"]) for p in r["codecs"][name]], r["vt4d"][enc]["psnr"])
+            if bound == "interpolated":
+                ratios.append(r["vt4d"][enc]["bytes"] / need)
+            elif bound == "at_most":
+                at_most += 1
+            else:
+                never += 1
+        out[enc] = {"mean": float(np.mean(ratios)) if ratios else None, "se": _se(ratios), "clips": len(ratios),
+                    "at_most": at_most, "unreachable": never}
+    return out
+
+
 def equal_quality(points: list[tuple[float, float]], ref: dict[str, float]) -> dict[str, Any]:
     need, bound = bytes_at_psnr(points, ref["psnr"])
     return {"target_psnr": ref["psnr"], "codec_bytes": need, "bound": bound,
@@ -401,13 +429,17 @@ def summarize_clips(clips: list[dict[str, Any]], reference: str) -> dict[str, An
         rs = [c["settings"][row] for c in clips if row in c["settings"]]
         if not rs:
             continue
-        vt4d = {enc: _mean([r["vt4d"][enc] for r in rs]) for enc in rs[0]["vt4d"]}
+        vt4d = {enc: {**_mean([r["vt4d"][enc] for r in rs]),
+                      "bpp": float(np.mean([r["vt4d"][enc].get("bpp", np.nan) for r in rs]))} for enc in rs[0]["vt4d"]}
         ref = vt4d[reference]
         entry: dict[str, Any] = {"clips": len(rs), "stored_cameras": len(rs[0]["stored"]),
                                  "views": len(rs[0]["views"]), "angle_deg_mean": float(np.mean([r["angle_deg"] for r in rs])),
                                  "novel_served_by_nearest_stored_camera": row.endswith("novel"),
                                  "flat_mean_colour": _mean([r["flat_mean_colour"] for r in rs]),
-                                 "vt4d": vt4d, "reference_encoding": reference, "codecs": {}}
+                                 "vt4d": vt4d, "reference_encoding": reference, "codecs": {},
+                                 "vt4d_se": {enc: {"psnr": _se([r["vt4d"][enc]["psnr"] for r in rs]),
+                                                   "bytes": _se([r["vt4d"][enc]["bytes"] for r in rs])}
+                                             for enc in rs[0]["vt4d"]}}
         vt4d_curve = [(v["bytes"], v["psnr"]) for v in vt4d.values()]
         for name in rs[0]["codecs"]:
             keys = [(p["q"], p["scale"]) for p in rs[0]["codecs"][name]]
@@ -420,6 +452,7 @@ def summarize_clips(clips: list[dict[str, Any]], reference: str) -> dict[str, An
                 "equal_quality_any_size": equal_quality([(c["bytes"], c["psnr"]) for c in points], ref),
                 "bd_rate_percent": bd_rate(vt4d_curve, pts),
                 "best_psnr": max(p for _, p in pts), "cheapest": min(pts)[0],
+                "rate_ratio_per_clip": per_clip_ratios(rs, name),
             }
         out[row] = entry
     return out
@@ -596,21 +629,9 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
 
     real = None if args.real_clips == 0 else (args.capture or _find_caliscope())
     if real is not None:
-        from vt4dcodec.capture.caliscope import import_caliscope
-
-        cap = import_caliscope(real, height=cfg.image_size, width=cfg.image_size)
-        starts = list(range(0, cap.num_frames - cfg.frames + 1, cfg.frames))[:args.real_clips if args.real_clips > 0
-                                                                              else None]
-        clips = []
-        for start in starts:
-            t0 = time.perf_counter()
-            clips.append(evaluate_clip(cap, start, net, codecs, encodings, args.quick))
-            print(f"caliscope clip {start}: {time.perf_counter() - t0:.1f} s", flush=True)
-        datasets["caliscope"] = {"title": f"Real caliscope_4cam recording ({cap.num_frames} frames at "
-                                          f"{cap.fps:.1f} fps, consecutive clips)", "short": "caliscope",
-                                 "clips": len(clips), "cameras": len(cap.camera_names),
-                                 "summary": summarize_clips(clips, reference),
-                                 "per_clip": [compact_clip(c) for c in clips]}
+        key, title, cameras, clips = real_footage_clips(Path(real), net, codecs, encodings, args)
+        datasets[key] = {"title": title, "short": key, "clips": len(clips), "cameras": cameras,
+                         "summary": summarize_clips(clips, reference), "per_clip": [compact_clip(c) for c in clips]}
     elif args.real_clips != 0:
         print("caliscope_4cam not found (--capture or $VT4D_CALISCOPE): real footage skipped", file=sys.stderr)
 
@@ -634,6 +655,46 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
     return result
 
 
+def real_footage_clips(path: Path, net: Any, codecs: dict[str, tuple], encodings: Sequence[str],
+                       args: argparse.Namespace) -> tuple[str, str, int, list[dict[str, Any]]]:
+    """(dataset key, title, cameras, evaluated clips) of consecutive model-length clips of ``path``: a capture
+    directory (``vt4d import`` / ``vt4d synth`` output; each clip read and centre-cropped to the model's
+    square) or a caliscope recording (imported at the model's size)."""
+    from vt4dcodec import codec
+    from vt4dcodec.capture.io import MANIFEST_NAME, read_manifest
+    from vt4dcodec.capture.resample import fit_capture
+
+    cfg = net.config
+    if (path / MANIFEST_NAME).is_file():
+        manifest = read_manifest(path)
+        names = [c.name for c in manifest.cameras]
+        starts = list(range(0, manifest.num_frames - cfg.frames + 1, cfg.frames))
+        key, title = "capture", f"Capture {manifest.capture_id or path.name} ({manifest.num_frames} frames, consecutive clips)"
+
+        def clip_of(start: int) -> tuple[Any, int]:
+            clip = codec.read_clip(manifest, names, start, cfg.frames)
+            return fit_capture(clip, height=cfg.image_size, width=cfg.image_size), 0
+        cameras = len(names)
+    else:
+        from vt4dcodec.capture.caliscope import import_caliscope
+
+        cap = import_caliscope(path, height=cfg.image_size, width=cfg.image_size)
+        starts = list(range(0, cap.num_frames - cfg.frames + 1, cfg.frames))
+        key, title = "caliscope", f"Real caliscope_4cam recording ({cap.num_frames} frames at {cap.fps:.1f} fps, consecutive clips)"
+
+        def clip_of(start: int) -> tuple[Any, int]:
+            return cap, start
+        cameras = len(cap.camera_names)
+    if not starts:
+        raise SystemExit(f"--capture {path}: fewer frames than the model's {cfg.frames}-frame clip")
+    clips = []
+    for start in starts[:args.real_clips if args.real_clips > 0 else None]:
+        t0 = time.perf_counter()
+        clips.append(evaluate_clip(*clip_of(start), net, codecs, encodings, args.quick))
+        print(f"{key} clip {start}: {time.perf_counter() - t0:.1f} s", flush=True)
+    return key, title, cameras, clips
+
+
 def _find_caliscope() -> Path | None:
     from vt4dcodec.capture.caliscope import find_sample_capture
 
@@ -651,8 +712,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--scenes", type=int, default=20, help="held-out synthetic captures (seeds first..first+N-1)")
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--cameras", type=int, default=10, help="cameras per synthetic capture")
-    p.add_argument("--capture", default=None, help="caliscope recording (default: shared/data/caliscope_4cam)")
-    p.add_argument("--real-clips", type=int, default=-1, help="caliscope clips (-1: all, 0: skip real footage)")
+    p.add_argument("--capture", default=None, help="real footage: a capture directory (vt4d import / vt4d synth) or a "
+                   "caliscope recording (default: shared/data/caliscope_4cam)")
+    p.add_argument("--real-clips", type=int, default=-1, help="clips of --capture (-1: all, 0: skip real footage)")
     p.add_argument("--encodings", default="all",
                    help="token encodings and quality levels (q1, q2, ... of a model with an entropy model: learned-rans "
                         "at that level), comma-separated; 'levels' (every quality level) or 'all' (every encoding and level)")

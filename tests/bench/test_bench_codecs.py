@@ -118,3 +118,42 @@ def test_decoded_frames_are_what_is_scored(bench):
     from vt4dcodec.media import psnr
 
     assert psnr(decoded, frames) > psnr(decoded2, frames)
+
+
+def test_per_clip_ratios_mean_se_and_bounds(bench):
+    def clip(vt4d_bytes, vt4d_psnr):
+        return {"vt4d": {"q1": {"bytes": vt4d_bytes, "psnr": vt4d_psnr}},
+                "codecs": {"h265": [{"bytes": 100.0, "psnr": 20.0}, {"bytes": 1000.0, "psnr": 30.0}]}}
+    # 25 dB needs sqrt(1e5) B of the codec: ratios 1x and 2x; one clip below its cheapest point, one above its best
+    rs = [clip(math.sqrt(1e5), 25.0), clip(2 * math.sqrt(1e5), 25.0), clip(300.0, 15.0), clip(300.0, 35.0)]
+    got = bench.per_clip_ratios(rs, "h265")["q1"]
+    assert got["mean"] == pytest.approx(1.5) and got["se"] == pytest.approx(0.5)
+    assert (got["clips"], got["at_most"], got["unreachable"]) == (2, 1, 1)
+    assert bench._se([1.0]) is None
+
+
+def test_a_capture_directory_is_measured_clip_by_clip(bench, tmp_path):
+    """--capture takes a capture directory (as `vt4d synth` / `vt4d import` write them): consecutive clips,
+    cropped to the model's square, reported with bits per pixel and standard errors."""
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+    from vt4dcodec.synth import SynthConfig, write_dataset
+
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    cfg = get_config("tiny", width=64, heads=2, renderer_layers=1, spatial_layers=1, static_query_layers=1,
+                     track_layers=1, dynamic_spatial_layers=1, n_tracks=16)
+    model = save_pretrained(VideoTok4D(cfg), tmp_path / "m", model_id="test-codecs", model_version="0.0")
+    captures = write_dataset(tmp_path / "caps", num_scenes=1, split="test", seed=7, workers=1,
+                             config=SynthConfig(num_cameras=2, num_frames=16, height=80, width=96))
+    out = tmp_path / "capture.json"
+    assert bench.main(["--model", str(model), "--quick", "--scenes", "0", "--capture", str(captures[0]),
+                       "--codecs", "h265", "--encodings", "int8", "--out", str(out), "--figure", "none",
+                       "--doc", "none"]) == 0
+    r = json.loads(out.read_text())
+    data = r["datasets"]["capture"]
+    assert data["clips"] == 2 and data["cameras"] == 2
+    row = data["summary"]["all/captured"]
+    assert row["vt4d"]["int8"]["bpp"] == pytest.approx(8 * row["vt4d"]["int8"]["bytes"] / (2 * 8 * 64 * 64), abs=1e-4)
+    assert row["vt4d_se"]["int8"]["psnr"] is not None
+    assert set(row["codecs"]["h265"]["rate_ratio_per_clip"]["int8"]) == {"mean", "se", "clips", "at_most",
+                                                                            "unreachable"}
