@@ -35,6 +35,7 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene, dumps, open_scene,  # noqa: E402
                               set_tables_resolver)
 from vt4dcodec.format import learned as _learned  # noqa: E402
+from vt4dcodec.format.compact_cameras import pack_compact_cameras  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
@@ -312,11 +313,34 @@ def learned_scene(**kw: Any) -> Scene:
     return Scene(zs, zd, cameras(2), fingerprint((3, 2), (1, 2)), encoding="learned-rans", **kw)
 
 
+def gliding(frames: int) -> Trajectory:
+    """A camera turning smoothly about y (quaternion (16, 0, i, 0), the rotation by FORMAT.md I.5.2's formula)
+    while its centre glides with constant acceleration, timestamps i / 8 s: the writer stores it with camera
+    centres, cubic prediction and fixed-point timestamps (FORMAT.md I.5.4, layout flags 0x3d)."""
+    from vt4dcodec.format.compact_cameras import centre_translation, quaternion_to_rotation
+
+    i = np.arange(frames, dtype=np.float64)
+    R = quaternion_to_rotation(np.stack([np.full(frames, 16.0), 0 * i, i, 0 * i], axis=1))
+    centre = np.stack([0.25 * i + 0.03125 * i * i, 0 * i, -2.0 - 0.125 * i], axis=1)
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, :3, :3], w2c[:, :3, 3] = R, centre_translation(R, centre)
+    K = np.array([[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]])
+    return Trajectory(K=np.tile(K, (frames, 1, 1)), w2c=w2c, width=64, height=48, timestamps=i / 8.0)
+
+
 def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
     tables = learned_tables()
     two = learned_scene(provenance=PROVENANCE)
     two.extra_cameras = (shifted(cameras(2), 0.5),)
+    gliding_scene = learned_scene(quality=2)
+    gliding_scene.cameras = gliding(8)
+    moving = dumps(gliding_scene, tables=tables, compression_level=None)
+    cams = open_scene(moving).raw_section("CAMS")
+    assert cams[:2] == bytes([0, 0x3d]), "constant K, quaternion poses, centres, cubic, fixed-point timestamps"
     return {
+        "learned_rans_moving_camera": (
+            moving, "1.6: fixed-point cameras (I.5.4) of a turning, accelerating camera: camera centres (t = -R c), "
+                    "cubic prediction and fixed-point timestamps (layout flags 0x3d), every section raw"),
         "learned_rans_one_camera": (
             dumps(learned_scene(quality=1), tables=tables, compression_level=None),
             "1.6: learned-rans at quality level index 0 of the test model (spec/vectors/tables/vt4d-test-learned.json); "
@@ -383,6 +407,35 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     with_cams("exponent_53", cams[:2] + bytes([53]) + cams[3:], "e_K = 53, above 52")
     with_cams("varint_past_end", cams[:-1], "the section lost its last byte: the last varint runs past its end")
     with_cams("trailing_byte", cams + b"\x00", "one byte after the timestamps")
+    assert cams[1] & 8, "the test trajectory is stored with camera centres"
+    for bit in (6, 7):
+        with_cams(f"undefined_flag_bit_{bit}", cams[:1] + bytes([cams[1] | 1 << bit]) + cams[2:],
+                  f"layout flag bit {bit} in a fixed-point record (bits 6 and 7 are undefined)")
+    with_cams("timestamps_flag_without_timestamps", cams[:1] + bytes([cams[1] | 32]) + cams[2:],
+              "layout flag bit 5 (fixed-point timestamps) in a record of a trajectory without timestamps")
+    # bits 3..5 are defined for fixed-point records only: in a float32 record (valid in a bit-6 file) they stay
+    # reserved, so the float32 payload the writer makes without bit 6 repairs these
+    f32 = pack_compact_cameras(learned_scene().cameras, quaternions=True)
+    assert f32[0] == 4 and f32[1] < 8
+    for bit, name in ((3, "centre"), (4, "cubic"), (5, "timestamps")):
+        with_cams(f"{name}_flag_in_float_record", f32[:1] + bytes([f32[1] | 1 << bit]) + f32[2:],
+                  f"layout flag bit {bit} in a float32 (P = 4) record: bits 3..7 stay reserved there")
+        repaired = [list(x) for x in sections]
+        find(repaired, "CAMS")[2:5] = [0, f32, len(f32)]
+        REPAIRED[f"fixed_cameras_{name}_flag_in_float_record"] = rebuild(header, repaired)
+    # fixed-point timestamps (bit 5): the moving camera's CAMS ends in e_s = 3 and 8 varints (0, 1, then 0s)
+    moving_scene = learned_scene(quality=2)
+    moving_scene.cameras = gliding(8)
+    moving = dumps(moving_scene, tables=tables, compression_level=None)
+    m_header, m_sections = split(moving)
+    m_cams = bytes(find(m_sections, "CAMS")[3])
+    assert m_cams[1] & 32 and m_cams[-9:] == bytes([3, 0, 2, 0, 0, 0, 0, 0, 0])
+    bad = [list(x) for x in m_sections]
+    payload = m_cams[:-9] + bytes([53]) + m_cams[-8:]
+    find(bad, "CAMS")[2:5] = [0, payload, len(payload)]
+    out["fixed_cameras_timestamp_exponent_53"] = (rebuild(m_header, bad), "MalformedSectionError",
+                                                  "fixed-point timestamps with e_s = 53, above 52")
+    REPAIRED["fixed_cameras_timestamp_exponent_53"] = moving
     out["fixed_cameras_flag_without_compact_container"] = (
         patch_preamble(dumps_1_2(learned_scene(quality=2), tables=tables, compression_level=None), 16, "<Q",
                        FLAG_COMPACT_CAMERAS | FLAG_LEARNED_TOKENS | (1 << 6)),

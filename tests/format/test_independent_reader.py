@@ -143,24 +143,48 @@ def read_cameras(scene: dict, raw: bytes | None = None, *, extra: bool = False) 
     elif raw[0] == 0:  # I.5.4 (1.6, required flag bit 6): fixed point, predicted, zigzag varint residuals
         assert scene["required"] & 64
         flags, exps = raw[1], list(raw[2:5])
-        assert flags & 4 and flags < 8 and max(exps) <= 52
+        # bit 2 must be set; bit 3 centres, bit 4 cubic prediction, bit 5 fixed-point timestamps; 6, 7 undefined
+        assert flags & 4 and flags < 64 and max(exps) <= 52 and (has_ts or not flags & 32)
         n_k, n_w = (1 if flags & 1 else t), (1 if flags & 2 else t)
-        pos, blocks = 5, []
-        for records, scale in ((n_k, [exps[0]] * 5), (n_w, [exps[1]] * 4 + [exps[2]] * 3)):
+
+        def block(pos: int, records: int, scale: list[int]) -> tuple[list[list[float]], int]:
             k: list[list[int]] = []
             for r in range(records):
                 row: list[int] = []
                 for j in range(len(scale)):
                     z, pos = read_varint(raw, pos, limit=70)
-                    pred = 0 if r == 0 else k[r - 1][j] if r == 1 else 2 * k[r - 1][j] - k[r - 2][j]
+                    if r == 0:
+                        pred = 0
+                    elif r == 1:
+                        pred = k[0][j]
+                    elif r == 2 or not flags & 16:
+                        pred = 2 * k[r - 1][j] - k[r - 2][j]
+                    else:  # bit 4: cubic
+                        pred = 3 * k[r - 1][j] - 3 * k[r - 2][j] + k[r - 3][j]
                     row.append(pred + (z >> 1 if z % 2 == 0 else -(z >> 1) - 1))
+                    assert abs(row[-1]) <= 2 ** 53
                 k.append(row)
-            blocks.append([[v * 2.0 ** -e for v, e in zip(row, scale)] for row in k])
-        kv, pv = blocks[0], [quaternion_pose(p) for p in blocks[1]]
-        assert len(raw) - pos == 8 * (n + (t if has_ts else 0))
+            return [[v * 2.0 ** -e for v, e in zip(row, scale)] for row in k], pos
+
+        kv, pos = block(5, n_k, [exps[0]] * 5)
+        poses, pos = block(pos, n_w, [exps[1]] * 4 + [exps[2]] * 3)
+        pv = [quaternion_pose(p) for p in poses]
+        if flags & 8:  # centre poses: t[i] = 0 - ((R[i][0]*c[0] + R[i][1]*c[1]) + R[i][2]*c[2])
+            for p, (c0, c1, c2) in zip(pv, (q[4:] for q in poses)):
+                for i in range(3):
+                    p[4 * i + 3] = 0.0 - ((p[4 * i] * c0 + p[4 * i + 1] * c1) + p[4 * i + 2] * c2)
+        distortion = struct.unpack(f"<{n}d", raw[pos:pos + 8 * n])
+        pos += 8 * n
+        if flags & 32:  # u8 e_s, then T varints predicted like the records
+            assert raw[pos] <= 52
+            stamps, end = block(pos + 1, t, [raw[pos]])
+            assert end == len(raw)
+            tail = distortion + tuple(v for (v,) in stamps)
+        else:
+            assert len(raw) - pos == 8 * (t if has_ts else 0)
+            tail = distortion + struct.unpack(f"<{(len(raw) - pos) // 8}d", raw[pos:])
         K = [[[k[0], k[1], k[2]], [0.0, k[3], k[4]], [0.0, 0.0, 1.0]] for k in (kv[f % n_k] for f in range(t))]
         w2c = [[p[0:4], p[4:8], p[8:12], [0.0, 0.0, 0.0, 1.0]] for p in (pv[f % n_w] for f in range(t))]
-        tail = struct.unpack(f"<{(len(raw) - pos) // 8}d", raw[pos:])
     else:
         width, flags = raw[0], raw[1]
         assert width in (4, 8) and flags < (8 if scene["required"] & 4 else 4)  # bit 2: I.5.2, 1.3 only
@@ -621,3 +645,47 @@ def test_format_md_alone_reads_what_the_writer_makes_in_learned_rans(quality, se
     ours = loads(data, tables=tables)
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()
+
+
+def _smooth_camera(rng: np.random.Generator, frames: int, f: float, size: int,
+                   timestamps: np.ndarray | None = None) -> object:
+    """A camera turning and accelerating smoothly (as the synthetic rigs' do): quaternion and position each a
+    quadratic in the frame index plus a little noise."""
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.format.compact_cameras import quaternion_to_rotation
+
+    i = np.arange(frames)[:, None]
+    q = rng.normal(size=4) + i * rng.normal(scale=0.03, size=4) + i * i * rng.normal(scale=0.002, size=4)
+    w2c = np.tile(np.eye(4), (frames, 1, 1))
+    w2c[:, :3, :3] = quaternion_to_rotation(q + rng.normal(scale=1e-4, size=q.shape))
+    w2c[:, :3, 3] = rng.uniform(-6, 6, 3) + i * rng.normal(scale=0.05, size=3) + i * i * rng.normal(scale=0.004, size=3)
+    K = np.tile(np.array([[f, 0, size / 2 - 0.5], [0, f, size / 2 - 0.5], [0, 0, 1]]), (frames, 1, 1))
+    return Trajectory(K=K, w2c=w2c, width=size, height=size, timestamps=timestamps)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 12), st.integers(0, 2**32 - 1), st.sampled_from([None, 8.0, 30.0]), st.integers(0, 2),
+       st.sampled_from([(40.0, 32), (60.0, 64), (900.0, 640)]))
+def test_format_md_alone_reads_the_fixed_point_cameras_the_writer_makes(frames, seed, fps, extras, camera):
+    """I.5.4 as the library writes a learned-rans file's cameras (camera centres, cubic prediction, fixed-point
+    timestamps where the writer chooses them, in CAMS and XCAM records): the spec-only reader above gets the
+    library's own trajectories bit for bit, t = -R c included."""
+    from format_strategies import load_vector_tool
+    from vt4dcodec.format import dumps, loads
+
+    mv = load_vector_tool()
+    rng = np.random.default_rng(seed)
+    scene = mv.learned_scene(quality=2)
+    scene.cameras = _smooth_camera(rng, frames, *camera, timestamps=None if fps is None else np.arange(frames) / fps)
+    scene.extra_cameras = tuple(_smooth_camera(rng, frames, *camera) for _ in range(extras))
+    tables = mv.learned_tables()
+    data = dumps(scene, tables=tables)
+    mine, ours = read_scene(data), loads(data, tables=tables)
+    assert mine["sections"]["CAMS"][0] == 0  # fixed point: these cameras keep the 0.01 px bound
+    if fps == 8.0:  # camera centres and (i / 8 s being k * 2^-3) fixed-point timestamps; cubic when shorter
+        assert mine["sections"]["CAMS"][1] & 0x28 == 0x28
+    for got, want in zip([read_cameras(mine), *read_extra_cameras(mine)], [ours.cameras, *ours.extra_cameras]):
+        assert np.array_equal(np.array(got["K"]), want.K) and np.array_equal(np.array(got["w2c"]), want.w2c)
+        assert not np.signbit(np.array(got["w2c"])[:, :3, 3][np.array(got["w2c"])[:, :3, 3] == 0]).any()
+    if fps is not None:
+        assert read_cameras(mine)["timestamps"] == ours.cameras.timestamps.tolist() == scene.cameras.timestamps.tolist()

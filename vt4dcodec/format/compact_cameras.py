@@ -21,6 +21,13 @@ byte k of every e (row-major order) for k = 0, then k = 1, ... (byte planes).  T
 Quaternion poses (FORMAT.md I.5.2): R is rebuilt from (qw, qx, qy, qz) widened to float64 by one fixed
 formula (:func:`quaternion_to_rotation`), so every reader computes the same bits; a rotation costs 4 values
 instead of 9, which is what brings a default 8-frame scene's non-token bytes under 512.
+
+Fixed-point records (FORMAT.md I.5.4, format 1.6, required flag bit 6): P = 0, integers k * 2^-e predicted
+from the records before them, zigzag varint residuals.  Their layout flags may also set bit 3 (the pose
+stores the camera centre c, and t = -R c by :func:`centre_translation`: the rotation's rounding error is then
+not multiplied by the distance from the world origin, so coarser steps keep the 0.01 px bound), bit 4
+(cubic prediction 3 k[r-1] - 3 k[r-2] + k[r-3], which smooth trajectories leave near zero) and bit 5 (the
+timestamps as one exponent and predicted varints, for timestamps that are all exactly k * 2^-e).
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ from .layout import BytesLike
 
 __all__ = ["CAMERA_MODES", "COMPACT_PRECISIONS", "REPROJECTION_TOLERANCE_PX", "pack_compact_cameras",
            "unpack_compact_cameras", "compact_camera_bytes", "reprojection_change", "quaternion_to_rotation",
-           "rotation_to_quaternion", "canonical_float32_quaternions"]
+           "rotation_to_quaternion", "canonical_float32_quaternions", "centre_translation", "fixed_exponents"]
 
 CAMERA_MODES = ("compact", "exact", "legacy")  # what save() offers: see writer.dumps
 COMPACT_PRECISIONS = (4, 8)
@@ -46,6 +53,10 @@ FIXED_POINT = 0  # P = 0 (format 1.6, required flag bit 6): fixed-point values, 
 MAX_EXPONENT = 52  # a fixed-point value is k * 2^-e, |k| <= 2^53 (exact in binary64)
 CONSTANT_INTRINSICS, STATIC_POSE, QUATERNION_POSES = 1 << 0, 1 << 1, 1 << 2
 KNOWN_LAYOUT_FLAGS = CONSTANT_INTRINSICS | STATIC_POSE  # and QUATERNION_POSES in compact containers (1.3)
+# fixed-point records only (format 1.6, FORMAT.md I.5.4); in P = 4 / 8 records bits 3..7 stay reserved
+CENTRE_POSES, CUBIC_PREDICTION, FIXED_TIMESTAMPS = 1 << 3, 1 << 4, 1 << 5
+FIXED_LAYOUT_FLAGS = (KNOWN_LAYOUT_FLAGS | QUATERNION_POSES | CENTRE_POSES | CUBIC_PREDICTION
+                      | FIXED_TIMESTAMPS)
 INTRINSIC_VALUES, POSE_VALUES, QUATERNION_POSE_VALUES = 5, 12, 7
 REPROJECTION_TOLERANCE_PX = 0.01  # float32 is used only when no probe point moves more than this
 PROBE_DEPTHS_M = (0.1, 1.0, 10.0, 100.0)  # the reference writer's probe points (FORMAT.md I.5.1)
@@ -221,18 +232,27 @@ def _varint(v: int) -> bytes:
     return bytes(out)
 
 
-def _predicted(k: list[list[int]], r: int, j: int) -> int:
-    """The prediction of value j of record r from the records before it: 0, the previous value, or the
-    linear extrapolation 2 k[r-1] - k[r-2] (FORMAT.md I.5.4)."""
-    return 0 if r == 0 else k[r - 1][j] if r == 1 else 2 * k[r - 1][j] - k[r - 2][j]
+def _predicted(k: list[list[int]], r: int, j: int, cubic: bool = False) -> int:
+    """The prediction of value j of record r from the records before it: 0, the previous value, the linear
+    extrapolation 2 k[r-1] - k[r-2], or with ``cubic`` (layout flag bit 4) from r = 3 on the quadratic one
+    3 k[r-1] - 3 k[r-2] + k[r-3] (FORMAT.md I.5.4)."""
+    if r == 0:
+        return 0
+    if r == 1:
+        return k[0][j]
+    if r == 2 or not cubic:
+        return 2 * k[r - 1][j] - k[r - 2][j]
+    return 3 * (k[r - 1][j] - k[r - 2][j]) + k[r - 3][j]
 
 
-def _fixed_block(k: list[list[int]]) -> bytes:
+def _fixed_block(k: list[list[int]], cubic: bool = False) -> bytes:
     """Fixed-point integers, each predicted from the records before it, residuals zigzag LEB128, row-major."""
-    return b"".join(_varint(_zigzag(v - _predicted(k, r, j))) for r, row in enumerate(k) for j, v in enumerate(row))
+    return b"".join(_varint(_zigzag(v - _predicted(k, r, j, cubic)))
+                    for r, row in enumerate(k) for j, v in enumerate(row))
 
 
-def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int]) -> tuple[np.ndarray, int]:
+def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int],
+                      cubic: bool = False) -> tuple[np.ndarray, int]:
     """Inverse of :func:`_fixed_block` and the scaling k * 2^-e; MalformedSectionError for a varint that runs
     past the payload, is longer than 10 bytes or ends in a zero group, or a value beyond 2^53."""
     k: list[list[int]] = []
@@ -253,7 +273,7 @@ def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int]) 
                     raise MalformedSectionError("compact cameras: a fixed-point varint is longer than 10 bytes")
             if byte == 0 and shift > 7:
                 raise MalformedSectionError("compact cameras: a fixed-point varint ends in a zero group")
-            row.append(_predicted(k + [row], r, j) + (value >> 1 if not value & 1 else -(value >> 1) - 1))
+            row.append(_predicted(k + [row], r, j, cubic) + (value >> 1 if not value & 1 else -(value >> 1) - 1))
             if abs(row[-1]) > 1 << 53:
                 raise MalformedSectionError("compact cameras: a fixed-point value exceeds 2^53")
         k.append(row)
@@ -261,17 +281,35 @@ def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int]) 
     return values.reshape(records, len(exponents)), pos
 
 
-def fixed_exponents(traj: Trajectory) -> tuple[int, int, int]:
+def centre_translation(R: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations and (n, 3) camera centres -> (n, 3) translations t = -R c, by FORMAT.md I.5.4's
+    formula, operation for operation: t_i = 0 - ((R_i0 c_0 + R_i1 c_1) + R_i2 c_2), every product, sum and
+    difference one binary64 operation (numpy's elementwise operations never fuse), so every reader gets the
+    same bits (0 - x is -x, except that a zero translation comes out +0, never -0)."""
+    R, c = np.asarray(R, dtype=np.float64), np.asarray(c, dtype=np.float64)
+    with np.errstate(all="ignore"):  # a NaN rotation (zero quaternion) is rejected by the caller's checks
+        out: np.ndarray = 0.0 - ((R[:, :, 0] * c[:, 0:1] + R[:, :, 1] * c[:, 1:2]) + R[:, :, 2] * c[:, 2:3])
+    return out
+
+
+def fixed_exponents(traj: Trajectory, *, centre: bool = False) -> tuple[int, int, int]:
     """The reference writer's exponents (e_K, e_R, e_t) for a trajectory: steps small enough that rounding
-    moves no probe point (depths down to 0.1 m) by more than a few thousandths of a pixel, from the image size and the
-    largest focal length (in powers of two, so a decoded trajectory gives the same exponents)."""
+    moves no probe point (depths down to 0.1 m) by more than a few thousandths of a pixel, from the image size
+    and the largest focal length (in powers of two, so a decoded trajectory gives the same exponents).
+    ``centre``: the poses store camera centres (layout flag bit 3), whose rotation error is not multiplied by
+    the camera's distance from the world origin, so the quaternion and position steps are 8 and 4 times
+    coarser."""
     side = max(traj.width, traj.height)
     f = float(np.abs(traj.K[:, :2, :2]).max())
     log_f = max(0, int(np.floor(np.log2(max(f, 1.0)))) + 1)  # f < 2^log_f
     log_side = int(np.ceil(np.log2(side)))
     e_k = log_side + 9   # K: centre and focal steps 2^-(e_K + 1) move an edge pixel < 0.004 px
-    e_r = log_f + 13     # quaternion: the rotation error, times f < 2^log_f px, stays near 0.002 px
-    e_t = log_f + 13     # translation: step / 2 at 0.1 m, times f
+    if centre:
+        e_r = log_f + 10  # quaternion: the rotation error, times f < 2^log_f px, about 0.001-0.002 px
+        e_t = log_f + 11  # centre: step / 2 at 0.1 m, times f: < 0.0025 px
+    else:
+        e_r = log_f + 13  # quaternion: the rotation error, times f and |c| / 0.1 m, stays near 0.002 px
+        e_t = log_f + 13  # translation: step / 2 at 0.1 m, times f
     return min(e_k, MAX_EXPONENT), min(e_r, MAX_EXPONENT), min(e_t, MAX_EXPONENT)
 
 
@@ -291,35 +329,61 @@ def _grid_quaternions(q: np.ndarray, e: int) -> list[list[int]]:
     return out
 
 
-def _encode_fixed(traj: Trajectory) -> bytes | None:
-    """The P = 0 payload (FORMAT.md I.5.4): quaternion poses, exponents from :func:`fixed_exponents`."""
-    flags = _flags(traj) | QUATERNION_POSES
+def _dyadic(values: np.ndarray) -> tuple[int, list[int]] | None:
+    """(e, k) with every value exactly k * 2^-e, e the smallest such exponent (at most 52) and |k| <= 2^53; None
+    when the values are not all of that form (timestamps of a 30 fps clock, say)."""
+    if np.any(np.signbit(values) & (values == 0)):
+        return None  # -0.0 would read back as +0.0
+    ratios = [float(v).as_integer_ratio() for v in values]  # finite floats: the denominator is a power of two
+    e = max((den.bit_length() - 1 for _, den in ratios), default=0)
+    if e > MAX_EXPONENT:
+        return None
+    k = [num << (e - (den.bit_length() - 1)) for num, den in ratios]
+    return (e, k) if all(abs(v) <= 1 << 53 for v in k) else None
+
+
+def _encode_fixed(traj: Trajectory, *, centre: bool = False, cubic: bool | None = None,
+                  fixed_timestamps: bool = True) -> bytes | None:
+    """The P = 0 payload (FORMAT.md I.5.4): quaternion poses, with ``centre`` camera centres in place of
+    translations (layout flag bit 3), exponents from :func:`fixed_exponents`; cubic prediction (bit 4) when it
+    makes the payload shorter, and the timestamps in fixed point (bit 5) when they are all exactly k * 2^-e and
+    that is shorter.  Both choices depend on the stored integers only, so a decoded trajectory makes them
+    again.  None when a value is beyond 2^53 steps.  (``cubic`` True / False and ``fixed_timestamps=False``
+    force those choices, for measurements.)"""
+    flags = _flags(traj) | QUATERNION_POSES | (CENTRE_POSES if centre else 0)
     K = traj.K[:1] if flags & CONSTANT_INTRINSICS else traj.K
     w2c = traj.w2c[:1] if flags & STATIC_POSE else traj.w2c
-    e_k, e_r, e_t = fixed_exponents(traj)
+    e_k, e_r, e_t = fixed_exponents(traj, centre=centre)
     q = _grid_quaternions(rotation_to_quaternion(w2c[:, :3, :3]), e_r)
+    position = w2c[:, :3, 3]
+    if centre:  # c = -R^-1 t (the exact inverse, as the probe points are lifted)
+        with np.errstate(all="ignore"):
+            position = -np.linalg.solve(w2c[:, :3, :3], position[:, :, None])[:, :, 0]
+        if not np.isfinite(position).all():
+            return None
     k_int = [[int(round(float(v) * 2.0 ** e_k)) for v in row] for row in _intrinsic_records(K)]
-    poses = [qr + [int(round(float(v) * 2.0 ** e_t)) for v in t] for qr, t in zip(q, w2c[:, :3, 3])]
+    poses = [qr + [int(round(float(v) * 2.0 ** e_t)) for v in p] for qr, p in zip(q, position)]
     if max(abs(v) for row in k_int + poses for v in row) > 1 << 53:
         return None
-    parts = [bytes([FIXED_POINT, flags, e_k, e_r, e_t]), _fixed_block(k_int), _fixed_block(poses)]
-    for extra in (traj.distortion, traj.timestamps):
-        if extra is not None:
-            parts.append(np.ascontiguousarray(extra, dtype="<f8").tobytes())
-    return b"".join(parts)
-
-
-def _fixed_candidate(traj: Trajectory) -> tuple[bytes, Trajectory] | None:
-    raw = _encode_fixed(traj)
-    if raw is None:
-        return None
-    try:
-        back = _decode(raw, traj.num_frames, traj.width, traj.height,
-                       0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
-                       quaternions=True, fixed=True)
-    except MalformedSectionError:
-        return None
-    return (raw, back) if reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX else None
+    stamps = _dyadic(traj.timestamps) if traj.timestamps is not None and fixed_timestamps else None
+    best = None
+    for cubic in (False, True) if cubic is None else (cubic,):
+        parts = [_fixed_block(k_int, cubic), _fixed_block(poses, cubic)]
+        if traj.distortion is not None:
+            parts.append(np.ascontiguousarray(traj.distortion, dtype="<f8").tobytes())
+        bits = flags | (CUBIC_PREDICTION if cubic else 0)
+        if traj.timestamps is not None:
+            as_floats = np.ascontiguousarray(traj.timestamps, dtype="<f8").tobytes()
+            as_fixed = None if stamps is None else bytes([stamps[0]]) + _fixed_block([[v] for v in stamps[1]], cubic)
+            if as_fixed is not None and len(as_fixed) < len(as_floats):
+                parts.append(as_fixed)
+                bits |= FIXED_TIMESTAMPS
+            else:
+                parts.append(as_floats)
+        raw = b"".join([bytes([FIXED_POINT, bits, e_k, e_r, e_t]), *parts])
+        if best is None or len(raw) < len(best):  # a tie keeps the linear prediction
+            best = raw
+    return best
 
 
 def reprojection_change(a: Trajectory, b: Trajectory) -> float:
@@ -349,27 +413,38 @@ def reprojection_change(a: Trajectory, b: Trajectory) -> float:
 def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False,
                          fixed: bool = False) -> bytes:
     """The compact cameras payload of ``traj``.  ``mode`` "exact": float64 matrices (the trajectory reads
-    back bit for bit); "compact": the first of float32 quaternion poses (only with ``quaternions``, which a
-    compact container allows), float32 matrices and float64 matrices whose decoded trajectory is valid and
-    moves no probe point more than 0.01 px (:func:`reprojection_change`), and for which this same choice made
-    on the decoded trajectory gives the same payload again -- so loading a file and saving it again writes
-    the same bytes; float64 matrices when no float32 candidate qualifies."""
+    back bit for bit); "compact": the first of fixed-point records with camera centres, fixed-point records with
+    translations (both only with ``fixed``, format 1.6, and ``quaternions``), float32 quaternion poses (only
+    with ``quaternions``, which a compact container allows), float32 matrices and float64 matrices whose
+    decoded trajectory is valid and moves no probe point more than 0.01 px (:func:`reprojection_change`), and
+    for which this same choice made on the decoded trajectory gives the same payload again -- so loading a
+    file and saving it again writes the same bytes; float64 matrices when no other candidate qualifies."""
     if mode not in ("compact", "exact"):
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
-        if fixed and quaternions:  # format 1.6 (I.5.4): fixed point, when it reads back to the same payload
-            found = _fixed_candidate(traj)
-            if found is not None and _encode_fixed(found[1]) == found[0]:
-                return found[0]
-        for raw, back in _within_tolerance(traj, quaternions):
-            if next(_within_tolerance(back, quaternions), (None, None))[0] == raw:
+        for raw, back in _within_tolerance(traj, quaternions, fixed):
+            if next(_within_tolerance(back, quaternions, fixed), (None, None))[0] == raw:
                 return raw
     return _encode(traj, 8)
 
 
-def _within_tolerance(traj: Trajectory, quaternions: bool) -> Iterator[tuple[bytes, Trajectory]]:
-    """(payload, decoded trajectory) of each float32 candidate, in the writer's order (quaternion poses when
-    ``quaternions``, then matrices), whose decoded trajectory is valid and within the probe tolerance."""
+def _within_tolerance(traj: Trajectory, quaternions: bool, fixed: bool = False) -> Iterator[tuple[bytes, Trajectory]]:
+    """(payload, decoded trajectory) of each lossy candidate, in the writer's order (with ``fixed`` and
+    ``quaternions`` fixed point, camera centres then translations; float32 quaternion poses when
+    ``quaternions``; float32 matrices), whose decoded trajectory is valid and within the probe tolerance."""
+    layout = (traj.num_frames, traj.width, traj.height, 0 if traj.distortion is None else len(traj.distortion),
+              traj.timestamps is not None)
+    if fixed and quaternions:  # format 1.6 (I.5.4)
+        for centre in (True, False):
+            raw = _encode_fixed(traj, centre=centre)
+            if raw is None:
+                continue
+            try:
+                back = _decode(raw, *layout, quaternions=True, fixed=True)
+            except MalformedSectionError:
+                continue
+            if reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
+                yield raw, back
     candidates: list[np.ndarray | None] = [None]
     if quaternions:
         w2c = traj.w2c[:1] if _flags(traj) & STATIC_POSE else traj.w2c
@@ -378,9 +453,7 @@ def _within_tolerance(traj: Trajectory, quaternions: bool) -> Iterator[tuple[byt
     for quat in candidates:
         raw = _encode(traj, 4, quat)
         try:
-            back = _decode(raw, traj.num_frames, traj.width, traj.height,
-                           0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None,
-                           quaternions=quat is not None)
+            back = _decode(raw, *layout, quaternions=quat is not None)
         except MalformedSectionError:
             continue  # float32 breaks a convention (a value beyond its range, a rotation at the tolerance)
         if reprojection_change(traj, back) <= REPROJECTION_TOLERANCE_PX:
@@ -420,9 +493,12 @@ def _decode_fixed(raw: bytes, T: int, width: int, height: int, distortion_terms:
                   has_timestamps: bool) -> Trajectory:
     """A P = 0 payload (format 1.6, required flag bit 6, FORMAT.md I.5.4)."""
     flags = raw[1]
-    if flags & ~KNOWN_LAYOUT_FLAGS != QUATERNION_POSES:
+    if not flags & QUATERNION_POSES or flags & ~FIXED_LAYOUT_FLAGS:
         raise MalformedSectionError(f"compact cameras: fixed-point layout flags 0x{flags:02x} must set bit 2 "
-                                    f"(quaternion poses) and no undefined bit")
+                                    f"(quaternion poses) and no undefined bit (6, 7)")
+    if flags & FIXED_TIMESTAMPS and not has_timestamps:
+        raise MalformedSectionError("compact cameras: layout flag bit 5 (fixed-point timestamps) in a record "
+                                    "without timestamps")
     if len(raw) < 5:
         raise MalformedSectionError("compact cameras: a fixed-point section is shorter than its 3 exponents")
     e_k, e_r, e_t = raw[2], raw[3], raw[4]
@@ -430,19 +506,33 @@ def _decode_fixed(raw: bytes, T: int, width: int, height: int, distortion_terms:
         raise MalformedSectionError(f"compact cameras: a fixed-point exponent is above {MAX_EXPONENT}")
     n_k = 1 if flags & CONSTANT_INTRINSICS else T
     n_p = 1 if flags & STATIC_POSE else T
-    kv, pos = _read_fixed_block(raw, 5, n_k, [e_k] * 5)
-    pv, pos = _read_fixed_block(raw, pos, n_p, [e_r] * 4 + [e_t] * 3)
-    tail_len = 8 * (distortion_terms + (T if has_timestamps else 0))
-    if len(raw) - pos != tail_len:
-        raise MalformedSectionError(f"compact cameras: {len(raw) - pos} bytes follow the fixed-point records; "
-                                    f"the distortion and timestamps need {tail_len}")
-    tail = np.frombuffer(raw[pos:], dtype="<f8").astype(np.float64)
+    cubic = bool(flags & CUBIC_PREDICTION)
+    kv, pos = _read_fixed_block(raw, 5, n_k, [e_k] * 5, cubic)
+    pv, pos = _read_fixed_block(raw, pos, n_p, [e_r] * 4 + [e_t] * 3, cubic)
+    if flags & FIXED_TIMESTAMPS:
+        at = pos + 8 * distortion_terms  # u8 e_s after the distortion, then T varints
+        if len(raw) <= at:
+            raise MalformedSectionError("compact cameras: the section ends before the timestamp exponent")
+        if raw[at] > MAX_EXPONENT:
+            raise MalformedSectionError(f"compact cameras: the timestamp exponent is above {MAX_EXPONENT}")
+        stamps, end = _read_fixed_block(raw, at + 1, T, [raw[at]], cubic)
+        if end != len(raw):
+            raise MalformedSectionError(f"compact cameras: {len(raw) - end} bytes follow the fixed-point "
+                                        f"timestamps")
+        tail = np.concatenate([np.frombuffer(raw[pos:at], dtype="<f8").astype(np.float64), stamps[:, 0]])
+    else:
+        tail_len = 8 * (distortion_terms + (T if has_timestamps else 0))
+        if len(raw) - pos != tail_len:
+            raise MalformedSectionError(f"compact cameras: {len(raw) - pos} bytes follow the fixed-point records; "
+                                        f"the distortion and timestamps need {tail_len}")
+        tail = np.frombuffer(raw[pos:], dtype="<f8").astype(np.float64)
     return _assemble(kv, pv, flags, T, width, height, tail, distortion_terms, has_timestamps)
 
 
 def _assemble(kv: np.ndarray, pv: np.ndarray, flags: int, T: int, width: int, height: int, tail: np.ndarray,
               distortion_terms: int, has_timestamps: bool) -> Trajectory:
-    """The trajectory of decoded intrinsics and pose records (one each, or one per frame)."""
+    """The trajectory of decoded intrinsics and pose records (one each, or one per frame); with layout flag
+    bit 3 (fixed-point records only) the last three pose values are the camera centre."""
     n_k, n_p = len(kv), len(pv)
     K = np.zeros((n_k, 3, 3))
     K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2] = kv.T
@@ -450,7 +540,7 @@ def _assemble(kv: np.ndarray, pv: np.ndarray, flags: int, T: int, width: int, he
     w2c = np.zeros((n_p, 4, 4))
     if flags & QUATERNION_POSES:
         w2c[:, :3, :3] = quaternion_to_rotation(pv[:, :4])
-        w2c[:, :3, 3] = pv[:, 4:]
+        w2c[:, :3, 3] = centre_translation(w2c[:, :3, :3], pv[:, 4:]) if flags & CENTRE_POSES else pv[:, 4:]
     else:
         w2c[:, :3, :] = pv.reshape(n_p, 3, 4)
     w2c[:, 3, 3] = 1.0
