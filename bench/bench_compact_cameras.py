@@ -6,6 +6,8 @@ reprojection change of the lossy modes.
 
     python bench/bench_compact_cameras.py                   # 20 held-out captures x 10 cameras, ~1 minute
     python bench/bench_compact_cameras.py --captures 5
+    python bench/bench_compact_cameras.py --fixed           # only the fixed-point records of learned-rans
+                                                            # files (I.5.4), 5 captures x 10 cameras, seconds
 
 The whole-file part encodes camera 0 of the first capture with the shipped model (``--model``, default
 vt4d-tiny) at the codec's default token encoding, then writes that one scene in each header and cameras
@@ -13,6 +15,13 @@ mode: file bytes, token bytes, and every non-token byte by where it goes (preamb
 table, padding, cameras, quantization sections), the header by its top-level keys, and the header
 encodings measured before format 1.3 chose one (``header_variants``).
 Results: bench/results/compact_cameras.json.
+
+``--fixed`` measures the fixed-point records (format 1.6, FORMAT.md I.5.4) that ``learned-rans`` files store,
+on held-out 10-camera rigs (``--first-seed``, default 3000; ``--captures``, default 5 there): bytes of one
+record without timestamps in each form (float32 quaternions; fixed point with translations or camera centres,
+linear or cubic prediction), the largest reprojection change of each, and a rig file's ``CAMS`` + ``XCAM``
+stored bytes (camera 0 with its timestamps in ``CAMS``, the other nine in ``XCAM``, each zstd-compressed when
+that is smaller, as the writer stores them).  Results: bench/results/compact_cameras_fixed.json.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ from vt4dcodec.format.sections import compress_payload, pack_cameras, unpack_cam
 from vt4dcodec.format.writer import DEFAULT_COMPRESSION_LEVEL  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "compact_cameras.json"
+FIXED_RESULTS = Path(__file__).resolve().parent / "results" / "compact_cameras_fixed.json"
 
 
 def section_bytes(traj, mode: str) -> tuple[int, object]:
@@ -156,12 +166,88 @@ def default_over_trajectories(scene, trajectories: list) -> dict:
             "over_512": int(np.sum(np.array(sizes) > 512))}
 
 
+def fixed_point_records(first_seed: int, captures: int) -> dict:
+    """FORMAT.md I.5.4 on held-out rigs: record bytes (no timestamps) and worst reprojection change of each
+    form, and the CAMS + XCAM bytes of a rig file as each writer stores them."""
+    from dataclasses import replace
+
+    from vt4dcodec.format import compact_cameras as cc
+    from vt4dcodec.synth.generator import SynthConfig, scene_setup
+
+    def first_16(traj):  # the fixed-point record of the first 1.6 writer: translations, linear prediction
+        return cc._encode_fixed(traj, centre=False, cubic=False, fixed_timestamps=False)
+
+    forms = {
+        "float32 quaternions (I.5.2)": lambda t: cc.pack_compact_cameras(t, quaternions=True),
+        "fixed, translations, linear prediction (1.6 before F bits 3-5)": first_16,
+        "fixed, translations, cubic prediction where shorter": lambda t: cc._encode_fixed(t, centre=False),
+        "fixed, centres, linear prediction": lambda t: cc._encode_fixed(t, centre=True, cubic=False),
+        "fixed, centres, cubic prediction where shorter (the writer)":
+            lambda t: cc.pack_compact_cameras(t, quaternions=True, fixed=True),
+    }
+    files = {  # CAMS record (with timestamps), then the record of each extra camera (without)
+        "fixed, translations, linear, float64 timestamps (1.6 before F bits 3-5)": (first_16, first_16),
+        "fixed, centres, cubic where shorter, float64 timestamps":
+            (lambda t: cc._encode_fixed(t, centre=True, fixed_timestamps=False),
+             lambda t: cc.pack_compact_cameras(t, quaternions=True, fixed=True)),
+        "fixed, centres, cubic where shorter, fixed-point timestamps (the writer)":
+            (lambda t: cc.pack_compact_cameras(t, quaternions=True, fixed=True),) * 2,
+    }
+    record = {name: [] for name in forms}
+    worst = {name: 0.0 for name in forms}
+    stored = {name: {"CAMS": [], "XCAM": [], "CAMS+XCAM": []} for name in files}
+    flags: dict[str, int] = {}
+    for seed in range(first_seed, first_seed + captures):
+        rig = list(scene_setup(seed, split="test", config=SynthConfig(num_cameras=10)).cameras.values())
+        for traj in rig:
+            bare = replace(traj, timestamps=None)
+            for name, encode in forms.items():
+                raw = encode(bare)
+                back = cc._decode(raw, bare.num_frames, bare.width, bare.height, 0, False, quaternions=True,
+                                  fixed=True)
+                record[name].append(len(raw))
+                worst[name] = max(worst[name], cc.reprojection_change(bare, back))
+            key = f"P={raw[0]} F=0x{raw[1]:02x}"
+            flags[key] = flags.get(key, 0) + 1
+        for name, (cams_form, extra_form) in files.items():
+            extras = [extra_form(replace(t, timestamps=None)) for t in rig[1:]]
+            xcam = bytes([len(extras)]) + b"".join(len(r).to_bytes(4, "little") for r in extras) + b"".join(extras)
+            sizes = [len(compress_payload(raw, DEFAULT_COMPRESSION_LEVEL)[1]) for raw in (cams_form(rig[0]), xcam)]
+            for part, n in zip(("CAMS", "XCAM", "CAMS+XCAM"), (*sizes, sum(sizes))):
+                stored[name][part].append(n)
+    mean = lambda v: round(float(np.mean(v)), 1)  # noqa: E731
+    return {
+        "records": len(record[next(iter(forms))]),
+        "captures": f"test split, seeds {first_seed}..{first_seed + captures - 1}",
+        "cameras_per_capture": 10, "frames": 8, "size": "64x64", "timestamps": "i / 8 s (CAMS only)",
+        "record_bytes_without_timestamps": {name: {"mean": mean(v), "max": int(np.max(v))}
+                                            for name, v in record.items()},
+        "max_reprojection_change_px": {name: round(v, 5) for name, v in worst.items()},
+        "writer_layout_flags": flags,
+        "rig_file_cameras_stored_bytes": {name: {part: mean(v) for part, v in parts.items()}
+                                          for name, parts in stored.items()},
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--captures", type=int, default=20)
+    ap.add_argument("--captures", type=int, default=None, help="held-out captures (default 20; 5 with --fixed)")
     ap.add_argument("--model", default="vt4d-tiny")
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--fixed", action="store_true", help="only the fixed-point records of learned-rans files")
+    ap.add_argument("--first-seed", type=int, default=3000, help="with --fixed: the first held-out capture")
     args = ap.parse_args()
+    if args.fixed:
+        result = fixed_point_records(args.first_seed, args.captures or 5)
+        result["command"] = "python bench/bench_compact_cameras.py " + " ".join(sys.argv[1:])
+        result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
+        out = args.out or FIXED_RESULTS
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps(result, indent=1))
+        return 0
+    args.captures = args.captures or 20
+    args.out = args.out or RESULTS
     from vt4dcodec.synth import SynthConfig, generate_scene
 
     modes = ("compact", "compact-1.2", "exact", "legacy")
