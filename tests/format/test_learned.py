@@ -451,3 +451,10 @@ def test_learned_files_store_cameras_in_fixed_point_and_fewer_bytes():
 
     for a, b in zip((scene.cameras, *scene.extra_cameras), (back.cameras, *back.extra_cameras)):
         assert reprojection_change(a, b) <= 0.01
+
+
+def test_a_fixed_point_cameras_section_is_named_as_such():
+    """Regression: `vt4d info` called the fixed-point cameras of learned-rans files "compact-invalid-quaternion"."""
+    scene = make_scene(quality=1)
+    assert open_scene(dumps(scene, tables=TABLES)).camera_encoding() == "compact-fixed-point-quaternion"
+    assert open_scene(dumps(scene, encoding="int4")).camera_encoding() == "compact-float32-quaternion"

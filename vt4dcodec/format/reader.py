@@ -507,12 +507,14 @@ class SceneFile:
         }
 
     def camera_encoding(self) -> str:
-        """"float64" (the 1.0 cameras section) or "compact-float32" / "compact-float64" (I.5.1, read from
-        the checksum-verified section's first byte), with "-quaternion" when the poses are quaternions (I.5.2)."""
+        """"float64" (the 1.0 cameras section) or "compact-float32" / "compact-float64" (I.5.1) /
+        "compact-fixed-point" (I.5.4, files with required flag bit 6), read from the checksum-verified section's
+        first byte, with "-quaternion" when the poses are quaternions (I.5.2)."""
         if not self.compact_cameras:
             return "float64"
         payload = self.raw_section(SECTION_CAMERAS)
-        name = {4: "compact-float32", 8: "compact-float64"}.get(payload[0] if len(payload) else -1, "compact-invalid")
+        widths = {4: "compact-float32", 8: "compact-float64", **({0: "compact-fixed-point"} if self.fixed_cameras else {})}
+        name = widths.get(payload[0] if len(payload) else -1, "compact-invalid")
         return name + ("-quaternion" if len(payload) > 1 and payload[1] & 4 and self.compact_container else "")
 
     def __repr__(self) -> str:
