@@ -47,12 +47,15 @@ MAX_DECODE_STEPS = 1000
 class VideoTok4D(ModelIdentity, nn.Module):
     """The whole model for one :class:`ModelConfig`.
 
-    Identity (:class:`~.identity.ModelIdentity`: ``model_id``, ``model_version``, ``training_step``) and
-    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default, are
-    set by ``weights_io.from_pretrained`` from the model directory; none is part of the config hash.
+    Identity (:class:`~.identity.ModelIdentity`: ``model_id``, ``model_version``, ``training_step``),
+    ``decode_steps``, the sampler steps that give this model's best fidelity, the codec's default, and
+    ``default_quality``, the quality level the codec stores tokens at when none is asked for (None: no
+    default level; models without an entropy model have none), are set by ``weights_io.from_pretrained``
+    from the model directory; none is part of the config hash.
     """
 
     decode_steps: int = DEFAULT_DECODE_STEPS
+    default_quality: int | None = None
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()

@@ -10,8 +10,10 @@ or prior records); else ModelNotFoundError.
 A tokenizer directory holds
 
 * ``config.json``: ``{"format": "vt4d-model/1", "model_id", "model_version", "config": {...},
-  "config_sha256", "weights_sha256", "decode_steps"}`` (``decode_steps``: the sampler steps the codec
-  uses by default for this model, chosen by measurement; optional, 8 when absent; not hashed);
+  "config_sha256", "weights_sha256", "decode_steps", "default_quality"}`` (``decode_steps``: the sampler
+  steps the codec uses by default for this model, chosen by measurement; optional, 8 when absent; not
+  hashed; ``default_quality``: for a model with quality levels, the level the codec stores tokens at when
+  none is asked for, chosen by measurement, or null; absent for other models; not hashed);
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
@@ -88,10 +90,13 @@ def widen_stored(state: dict[str, torch.Tensor], expected: dict[str, torch.Tenso
 
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
-                    card: str | None = None, storage_dtype: str = "float32", decode_steps: int | None = None) -> Path:
+                    card: str | None = None, storage_dtype: str = "float32", decode_steps: int | None = None,
+                    default_quality: int | None = None) -> Path:
     """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it.
 
-    ``decode_steps`` (default: ``model.decode_steps``) is recorded as the codec's default sampler steps.
+    ``decode_steps`` (default: ``model.decode_steps``) is recorded as the codec's default sampler steps;
+    ``default_quality`` (default: ``model.default_quality``) as the quality level the codec stores tokens at
+    when none is asked for (recorded only for a model with an entropy model; None: no default level).
 
     ``storage_dtype="float16"`` rounds ``model``'s floating weights to float16 values in place (they stay
     float32 tensors) and stores them as float16, so the saved file, the loaded model and the
@@ -105,7 +110,21 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     meta = {"format": MODEL_FORMAT, "model_id": str(model_id), "model_version": str(model_version),
             "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest,
             "decode_steps": steps}
+    if model.config.entropy_levels:
+        meta["default_quality"] = checked_default_quality(
+            model.default_quality if default_quality is None else default_quality, model.config.entropy_levels, out)
+    elif default_quality is not None:
+        raise ModelError(f"{out}: default_quality needs a model with quality levels (config entropy_levels > 0)")
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
+
+
+def checked_default_quality(value: Any, levels: int, where: Path) -> int | None:
+    """``value`` when it is None or a quality level 1 .. ``levels``; else ModelError naming ``where``."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= levels:
+        raise ModelError(f"{where}: default_quality must be a quality level 1 .. {levels} or null, got {value!r}")
+    return value
 
 
 def _checked_decode_steps(value: Any, where: Path) -> int:
@@ -153,6 +172,8 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     model.freeze_autoencoder()
     model.set_identity(meta["model_id"], meta["model_version"])
     model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
+    model.default_quality = checked_default_quality(meta.get("default_quality"), model.config.entropy_levels,
+                                                    directory / CONFIG_FILE)
     return model.to(device).eval()
 
 

@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
-    "RUNTIMES", "quality_levels", "model_tables",
+    "RUNTIMES", "quality_levels", "default_quality", "model_tables",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
@@ -205,7 +205,7 @@ def read_clip(capture: "Capture | CaptureManifest | str | os.PathLike", names: S
 def encode(
     capture: "Capture | CaptureManifest | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL,
-    encoding: str = DEFAULT_ENCODING,
+    encoding: str | None = None,
     *,
     camera: str | None = None,
     cameras: "Sequence[str] | str | None" = None,
@@ -228,8 +228,9 @@ def encode(
         capture: a :class:`Capture`, or a capture directory (or its manifest): then only the clip's
             frames of the encoded cameras are read.
         model: shipped model id, model directory, or a loaded model (or :class:`OnnxEncoder`).
-        encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``;
-            default :data:`DEFAULT_ENCODING`).
+        encoding: token encoding used when the scene is saved (one of ``vt4dcodec.format.ENCODINGS``).
+            Default (None, and no ``quality``): the model's default quality level (:func:`default_quality`)
+            where it has one, else :data:`DEFAULT_ENCODING`.
         camera: the source camera (default: the capture's first camera).
         cameras: several source cameras instead: ``"all"``, or names (a list or ``"cam00,cam02"``).
             The first is the reference camera: its trajectory is the scene's stored cameras
@@ -255,7 +256,7 @@ def encode(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
-    encoding = _quality_encoding(net, encoding, quality, model)
+    encoding, quality = _quality_encoding(net, encoding, quality, model)
     clip = read_clip(source, names, start, net.config.frames)
     return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
 
@@ -267,6 +268,18 @@ def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAU
     config = model.config if not isinstance(model, (str, os.PathLike)) else \
         read_model_meta(model_directory(model))["config"]
     return tuple(range(1, config.entropy_levels + 1))
+
+
+def default_quality(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL) -> int | None:
+    """The quality level a model's scenes are stored at when neither a level nor an encoding is asked for
+    (recorded in its directory when it ships, chosen by the rate-distortion rule of docs/training.md); None for
+    a model without one (then :data:`DEFAULT_ENCODING`)."""
+    if not isinstance(model, (str, os.PathLike)):
+        return getattr(model, "default_quality", None)
+    from .model.directories import model_directory, read_model_meta  # torch-free
+
+    value = read_model_meta(model_directory(model)).get("default_quality")
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def model_tables(model: "VideoTok4D") -> EntropyTables | None:
@@ -284,12 +297,17 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: int | None,
-                      source: "str | os.PathLike | VideoTok4D | OnnxEncoder") -> str:
-    """The encoding a scene of ``net`` (loaded from ``source``) is stored with: learned-rans when a quality level
-    is asked for, its model's tables then registered so that the scene saves wherever the model lives."""
+def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str | None, quality: int | None,
+                      source: "str | os.PathLike | VideoTok4D | OnnxEncoder") -> tuple[str, int | None]:
+    """(encoding, quality level) a scene of ``net`` (loaded from ``source``) is stored with: learned-rans when a
+    quality level is asked for -- or when nothing is asked for and the model has a default level -- its model's
+    tables then registered so that the scene saves wherever the model lives; else ``encoding`` (default
+    :data:`DEFAULT_ENCODING`)."""
+    if quality is None and encoding is None:  # an exported encoder (OnnxEncoder) reads it from its directory
+        quality = net.default_quality if hasattr(net, "default_quality") else \
+            default_quality(source) if isinstance(source, (str, os.PathLike)) else None
     if quality is None:
-        return encoding
+        return encoding or DEFAULT_ENCODING, None
     from .errors import ModelError
 
     levels = quality_levels(net)
@@ -312,13 +330,13 @@ def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str, quality: i
                              "or pass the model directory")
         tables = found
     register_tables(tables)
-    return "learned-rans"
+    return "learned-rans", quality
 
 
 def encode_clips(
     capture: "Capture | CaptureManifest | str | os.PathLike",
     model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL,
-    encoding: str = DEFAULT_ENCODING,
+    encoding: str | None = None,
     *,
     camera: str | None = None,
     cameras: "Sequence[str] | str | None" = None,
@@ -337,7 +355,7 @@ def encode_clips(
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names))
-    encoding = _quality_encoding(net, encoding, quality, model)
+    encoding, quality = _quality_encoding(net, encoding, quality, model)
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")

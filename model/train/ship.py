@@ -204,6 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--notes", type=Path, help="markdown appended to the generated model card")
     parser.add_argument("--decode-steps", type=int, default=None,
                         help="the codec's default sampler steps for this model (measure: the best-fidelity setting)")
+    parser.add_argument("--default-quality", type=int, default=None, metavar="N",
+                        help="a model with quality levels: the level the codec stores tokens at when none is asked "
+                             "for (chosen by docs/training.md's rate-distortion rule; default: none, then int4)")
     parser.add_argument("--decoder-from", type=Path, default=None,
                         help="stage-1 run of a `--decoder-only` fine-tune: its decoder replaces the model's; its "
                              "encoder and latent statistics must be the model's (the tokens stay valid)")
@@ -221,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
     (args.dest / args.id / ONNX_FILE).unlink(missing_ok=True)  # an encoder of the old weights never stays
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
-                          storage_dtype="float16", decode_steps=args.decode_steps)
+                          storage_dtype="float16", decode_steps=args.decode_steps, default_quality=args.default_quality)
     export_encoder(model, out)  # encoder.onnx (save_pretrained rounded model to the stored float16 values)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,

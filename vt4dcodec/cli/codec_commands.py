@@ -261,10 +261,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
             writer.close(commit=False)
     elapsed = time.perf_counter() - started
     fp = codec.model_fingerprint(model)
+    quality = args.quality if args.quality is not None or args.encoding is not None else codec.default_quality(model)
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
-               "model": fp.to_dict(), "encoding": "learned-rans" if args.quality else args.encoding,
-               "quality": args.quality, "rank": rank, "world_size": world,
+               "model": fp.to_dict(), "encoding": "learned-rans" if quality else args.encoding or DEFAULT_ENCODING,
+               "quality": quality, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
     if skipped:
@@ -393,9 +394,10 @@ def register(subparsers: Any) -> None:
                    help="frames that are not square: 'crop' (default: resize the shorter side, centre-crop; a "
                         "portrait 9:16 frame loses 44 %% of its picture) or 'pad' (resize the longer side, black "
                         "bars: the whole picture is kept)")
-    p.add_argument("--encoding", choices=ENCODINGS, default=DEFAULT_ENCODING,
-                   help=f"token encoding (default {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 "
-                        "tokens on held-out views, see docs/BENCHMARKS.md)")
+    p.add_argument("--encoding", choices=ENCODINGS, default=None,
+                   help=f"token encoding (default: the model's default quality level where it has quality levels, "
+                        f"else {DEFAULT_ENCODING}: the smallest within 0.1 dB of float32 tokens on held-out views, see "
+                        "docs/BENCHMARKS.md)")
     p.add_argument("--quality", type=int, default=None, metavar="Q",
                    help="a quality level of the model's entropy model, 1 (fewest bytes) up to its number of "
                         "levels (models trained with a rate term; codec.quality_levels): stores the tokens as "
