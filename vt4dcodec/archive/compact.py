@@ -18,7 +18,7 @@ from .layout import MAX_GENERATION, VERSION_MINOR
 from .lock import WriterLock
 from .reader import open_archive
 from .verify import UncommittedTailError
-from .writer import ArchiveWriter, _check_magic, _check_version, _fsync_dir
+from .writer import _check_magic, _check_version, replace_with_new_archive
 
 __all__ = ["CompactReport", "compact_archive"]
 
@@ -45,7 +45,6 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
         raise ArchiveError(f"{path}: no such archive")
     _check_magic(path)  # before the lock: a file that is no archive gets no .lock beside it
     lock = WriterLock(path).acquire()
-    tmp = f"{path}.compact-{os.getpid()}"
     try:
         before = os.path.getsize(path)
         with open_archive(path) as reader:
@@ -54,30 +53,11 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
                                            "run `vt4d repair` first")
             old_generation = reader.generation
             entries = sorted(reader.entries(), key=lambda e: e.offset)
-            w = ArchiveWriter(tmp, "x", durable=durable, version=version)
-            try:
-                for e in entries:
-                    w._append_raw(e.key, reader.read_entry(e), e.summary_bytes)  # CRC-checked copy
-                w._next_generation = old_generation + 1 if old_generation < MAX_GENERATION else 1
-                w._write_commit()
-                generation = w.generation
-            except BaseException:
-                w.close(commit=False)
-                raise
-            w._close_fd()
-            w._lock.release_and_remove()
-        os.chmod(tmp, os.stat(path).st_mode & 0o7777)  # the compacted archive keeps the old file's permissions
-        os.replace(tmp, path)
-        if durable:
-            _fsync_dir(path)
-        return CompactReport(path, len(entries), before, os.path.getsize(path), generation,
+            records = ((e.key, reader.read_entry(e), e.summary_bytes) for e in entries)  # CRC-checked copies
+            commit = replace_with_new_archive(
+                path, records, generation=old_generation + 1 if old_generation < MAX_GENERATION else 1,
+                version=version, durable=durable, suffix="compact")
+        return CompactReport(path, len(entries), before, os.path.getsize(path), commit.generation,
                              (version[0], version[1]))
-    except BaseException:
-        for leftover in (tmp, tmp + ".lock"):
-            try:
-                os.unlink(leftover)
-            except FileNotFoundError:
-                pass
-        raise
     finally:
         lock.release()

@@ -8,14 +8,22 @@ next frame or index magic and carries on, so one flipped bit never hides the rec
 :func:`plan_repair` decides what a repair keeps, before anything is written (``vt4d repair
 --dry-run`` prints the plan).  Its rules (FORMAT.md Part II section 9):
 
-* the base is the newest commit whose index verifies (highest generation among the tail footer, the
-  header slots and, in a full scan, every commit found in the file);
-* every base entry whose payload verifies is kept where it is; one whose frame header is damaged but
-  whose payload verifies is copied into a fresh frame; one whose payload fails is *unrecoverable*
-  and is reported by key, never silently replaced by an older version of the same key;
+* what was committed is judged against every commit the file claims (:func:`find_claims`: the valid
+  header slots and every intact footer, wherever it is);
+* a default repair keeps the last commit only when every record it names verifies and no claimed
+  commit is newer; otherwise it becomes a full scan;
+* the base is the newest commit whose index verifies where it says it is; every base entry whose
+  payload verifies is kept where it is; one whose frame header is damaged but whose payload verifies
+  is copied into a fresh frame; one whose offset is wrong but whose record verifies elsewhere (same
+  key, length and CRC) is re-indexed; one whose payload fails is *lost* and is reported by key, never
+  silently replaced by an older version of the same key;
 * every complete record after the base commit is added, a later frame of a key winning;
+* the newest claimed commit whose index can still be read (also one moved by inserted or deleted
+  bytes) names the keys and versions that must survive: each is kept, found among the records, or
+  reported lost; a newer commit whose index is gone counts its lost scenes without their keys;
 * only bytes after the last valid structure are cut; damaged bytes between valid ones stay in place;
-* the new commit's generation is one more than any generation seen, so no stale slot outranks it.
+* the new commit's generation is one more than any generation seen, so no stale slot outranks it; if
+  that would pass 2^64 - 1 the repaired archive is written as a new file from generation 1.
 """
 
 from __future__ import annotations
@@ -25,17 +33,17 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..errors import ArchiveError, FormatError, LimitExceededError
-from .index import IndexEntry, decode_summary
-from .layout import (FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
+from ..errors import ArchiveError, FormatError
+from .index import ArchiveIndex, IndexEntry, decode_summary
+from .layout import (FOOTER_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
                      INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
                      MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
-                     check_key, frame_meta_crc, parse_footer, parse_frame_header, parse_preamble,
+                     check_key, crc32, frame_meta_crc, is_footer, parse_footer, parse_frame_header, parse_preamble,
                      parse_slot)
-from .segments import IndexView, load_index
+from .segments import IndexView, load_index, manifest_length, parse_manifest
 from .source import ByteSource
 
-__all__ = ["ScanResult", "scan_records", "RepairPlan", "plan_repair", "RepairReport",
+__all__ = ["ScanResult", "scan_records", "Claim", "find_claims", "RepairPlan", "plan_repair", "RepairReport",
            "ArchiveNotFoundError"]
 
 _SCAN_CHUNK = 1 << 20  # frames are read whole; only the 32-byte heads are read speculatively
@@ -184,31 +192,140 @@ def scan_records(source: ByteSource, start: int, *, resync: bool = False) -> Sca
     return result
 
 
+# --- what the file claims was committed ------------------------------------------------------------
+@dataclass(frozen=True)
+class Claim:
+    """A commit the file says was made: a header slot, or an intact footer found anywhere in the file.
+
+    ``at`` is where its footer is in the file (for a slot, where the slot says); bytes inserted into or
+    deleted from the file before it move a footer away from the offset it names (``at !=
+    commit.footer_offset``)."""
+
+    commit: Commit
+    at: int
+
+
+def _find_footers(source: ByteSource, size: int) -> list[Claim]:
+    """Every intact footer in the file (both magics and its CRC hold, a version this reader knows)."""
+    found = []
+    pos = HEADER_SIZE
+    while pos + FOOTER_SIZE <= size:
+        block = source.read(pos, min(_SCAN_CHUNK + len(FOOTER_MAGIC) - 1, size - pos))  # a magic across chunks
+        i = block.find(FOOTER_MAGIC)
+        while i >= 0 and pos + i + FOOTER_SIZE <= size:
+            raw = block[i: i + FOOTER_SIZE]
+            if len(raw) < FOOTER_SIZE:
+                raw = source.read(pos + i, FOOTER_SIZE)
+            if is_footer(raw):
+                try:
+                    found.append(Claim(parse_footer(raw), pos + i))
+                except FormatError:  # a footer of a version or with fields this reader does not know
+                    pass
+            i = block.find(FOOTER_MAGIC, i + 1)
+        pos += _SCAN_CHUNK
+    return found
+
+
+def find_claims(source: ByteSource, header: bytes) -> list[Claim]:
+    """Every commit the file claims (valid header slots and intact footers), newest first, each once."""
+    size = source.size()
+    claims: dict[Commit, int] = {}
+    for cl in _find_footers(source, size):  # a footer where its commit says it is wins over a moved copy
+        if claims.get(cl.commit) != cl.commit.footer_offset:
+            claims[cl.commit] = cl.at
+    for off in SLOT_OFFSETS:
+        c = parse_slot(header[off: off + SLOT_SIZE])
+        if c is not None:
+            claims.setdefault(c, c.footer_offset)
+    return sorted((Claim(c, at) for c, at in claims.items()), key=lambda cl: -cl.commit.generation)
+
+
+@dataclass
+class ClaimedKeys:
+    """What a claimed commit's index still tells: the entry of each key it names, as far as it can be read.
+
+    A segmented index is read newest segment first and only up to its first damaged segment, so every
+    entry read is the commit's own (a damaged segment could hold a newer entry for a key an older one
+    names).  ``complete``: every one of the commit's scenes was read."""
+
+    claim: Claim
+    entries: list[IndexEntry]
+    complete: bool
+    segments: list[tuple[int, int]] = field(default_factory=list)  # [start, end) of its older index segments
+
+
+def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
+    """What the index of a claimed commit names, read where it is: at the offsets the commit names, or moved
+    as far as its footer moved (bytes inserted or deleted before it).  A moved index is read in the
+    commit's own coordinates (its entries' offsets may be stale): it names the keys the commit held and
+    each one's payload length and CRC, which is what a repair needs to know what was lost.  None when not
+    even the commit's own index block verifies."""
+    c, size = claim.commit, source.size()
+    best: ClaimedKeys | None = None
+    for delta in dict.fromkeys((0, claim.at - c.footer_offset)):
+        start = c.index_offset + delta
+        if start < HEADER_SIZE or start + c.index_length > size:
+            continue
+        block = source.read(start, c.index_length)
+        if crc32(block) != c.index_crc32:
+            continue
+        try:
+            if not c.segmented:
+                view = IndexView([ArchiveIndex.parse(block, c)])
+            else:
+                refs = parse_manifest(block, c)
+                segments = [ArchiveIndex.parse_unchecked(block[manifest_length(len(refs)):], refs[0].offset,
+                                                         refs[0].count, prefix=True)]
+                where = [(r.offset + d, r.end + d) for r in refs[1:] for d in dict.fromkeys((0, delta))]
+                for r in refs[1:]:  # an older segment may lie before or after the shift
+                    raw = next((b for d in dict.fromkeys((0, delta)) if r.offset + d >= HEADER_SIZE
+                                and r.offset + d + r.length <= size
+                                and crc32(b := source.read(r.offset + d, r.length)) == r.crc32), None)
+                    if raw is None:
+                        break
+                    segments.append(ArchiveIndex.parse_unchecked(raw, r.offset, r.count, prefix=True))
+                view = IndexView(segments)
+        except FormatError:
+            continue
+        found = ClaimedKeys(claim, list(view.entries()), len(view) == c.scene_count, where if c.segmented else [])
+        if best is None or len(found.entries) > len(best.entries):
+            best = found
+        if found.complete:
+            break
+    return best
+
+
 # --- planning ---------------------------------------------------------------------------------------
 @dataclass
 class RepairPlan:
     """What a repair will do; nothing has been written when this exists."""
 
     size: int
-    base: Commit | None  # the newest commit whose index verifies (None: none does)
+    base: Commit | None  # the newest commit whose index verifies where it names it (None: none does)
     entries: dict[str, IndexEntry]  # records kept in place (base entries that verify + later records)
     copies: dict[str, IndexEntry]  # base entries whose payload verifies but whose frame is damaged
     recovered: list[str]  # keys taken from records after the base commit
-    unrecoverable: list[str]  # base keys whose payload fails its CRC (and no later record replaces)
+    lost: list[str]  # committed keys the repaired archive will not hold (record damaged or missing)
     cut: int  # the file is truncated to this length before the new commit is appended
     damaged_bytes: int  # damaged bytes skipped between valid structures (left in place)
-    new_generation: int
+    new_generation: int  # 1 when ``rewrite``
     preamble_ok: bool
-    full_scan: bool
-    lost: Commit | None = None  # a commit named by a header slot but cut off the end of the file
+    full_scan: bool  # the whole file was walked (asked for, or because of ``scan_reason``)
+    lost_commit: Commit | None = None  # the newest claimed commit, when it is newer than the base
     base_footer_ok: bool = True  # the base commit's own footer is intact and ends the file
     segmented: bool = False  # the preamble says commits may use segmented indexes (version 1.1)
     view: IndexView | None = None  # the base commit's index
+    lost_unnamed: int = 0  # committed scenes lost whose keys no readable index names
+    uncertain: bool = False  # a newer commit's index is gone and some of its records are damaged or cut off
+    reindexed: list[str] = field(default_factory=list)  # base entries pointing at the wrong bytes, found elsewhere
+    scan_reason: str | None = None  # why a repair not asked for a full scan made one
+    rewrite: bool = False  # the generation counter is spent: the repaired archive is written as a new file
 
     @property
     def needs_commit(self) -> bool:
-        return bool(self.base is None or self.recovered or self.copies or self.unrecoverable
-                    or self.cut != self.size or not self.preamble_ok or not self.base_footer_ok)
+        return bool(self.base is None or self.recovered or self.copies or self.lost or self.reindexed
+                    or self.lost_commit is not None or self.cut != self.size or not self.preamble_ok
+                    or not self.base_footer_ok)
 
 
 def _frame_intact(source: ByteSource, e: IndexEntry) -> bool:
@@ -236,13 +353,57 @@ def _load_index(source: ByteSource, c: Commit, size: int) -> IndexView | None:
         return None
 
 
+def _payload_at(source: ByteSource, e: IndexEntry, claim: Claim) -> IndexEntry | None:
+    """``e``'s payload where the claim's index says it is, or moved as far as its footer was, when its CRC
+    holds there (its frame may be damaged: then the scan found no record for it)."""
+    size = source.size()
+    for delta in dict.fromkeys((0, claim.at - claim.commit.footer_offset)):
+        offset = e.offset + delta
+        if offset >= HEADER_SIZE + FRAME_HEADER_SIZE and offset + e.length <= size and \
+                _payload_crc(source, offset, e.length) == e.crc32:
+            return IndexEntry(e.key, offset, e.length, e.crc32, e.summary_bytes)
+    return None
+
+
+def _records_damaged(scan: ScanResult, start: int, end: int, index_bytes: list[tuple[int, int]]) -> bool:
+    """Whether bytes in [start, end) that are not the index or footer of a claimed commit (``index_bytes``)
+    are damaged or missing, so they may have held a record."""
+    gaps = [(max(a, start), min(b, end)) for a, b in scan.damaged if a < end and b > start]
+    if scan.end < end:
+        gaps.append((max(scan.end, start), end))
+    for lo, hi in index_bytes:
+        gaps = [g for a, b in gaps for g in ((a, min(b, lo)), (max(a, hi), b)) if g[0] < g[1]]
+    return bool(gaps)
+
+
+def _committed_damage(source: ByteSource, base: Commit, index: IndexView, claims: list[Claim]) -> str | None:
+    """Why the last commit cannot simply be kept (a default repair then scans the whole file), or None."""
+    bad = [e.key for e in index.entries()
+           if _payload_crc(source, e.offset, e.length) != e.crc32 or not _frame_intact(source, e)]
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        return (f"{len(bad)} record{'s' if len(bad) != 1 else ''} of the last commit (generation "
+                f"{base.generation}) fail{'' if len(bad) != 1 else 's'} {'their' if len(bad) != 1 else 'its'} "
+                f"checksum or frame check: {shown}")
+    newer = [cl.commit for cl in claims if cl.commit.generation > base.generation]
+    if newer:
+        return (f"the file holds a newer commit (generation {newer[0].generation}, {newer[0].scene_count} "
+                f"scenes) than the last one it ends with (generation {base.generation})")
+    return None
+
+
 def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = None,
-                lost: Commit | None = None) -> RepairPlan:
+                verify_committed: bool = False, scan_reason: str | None = None) -> RepairPlan:
     """Plan a repair (see the module docstring).
 
-    Without ``full_scan`` the given ``base`` (the last commit) is trusted and only the bytes after it
-    are walked; with it the whole file is walked, every record of the chosen base is checked, and
-    the newest commit whose index verifies becomes the base.
+    Without ``full_scan`` the given ``base`` (the last commit) is kept and only the bytes after it are
+    walked.  With ``verify_committed`` (what ``vt4d repair`` does) every record of that commit is checked
+    first, and every commit the file claims (header slots, intact footers anywhere): if a record fails,
+    or a claimed commit is newer than the base, the repair becomes a full scan (``scan_reason`` says why).
+    With ``full_scan`` the whole file is walked, the newest commit whose index verifies becomes the base
+    and every record it names is checked; what the newest claimed commit whose index can still be read
+    names is kept in its version or reported ``lost``, and the scenes of a newer commit whose index is
+    gone count as ``lost_unnamed`` (``uncertain`` when records written for it are damaged too).
     """
     size = source.size()
     header = source.read(0, min(size, HEADER_SIZE))
@@ -251,41 +412,65 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
         preamble_ok = len(header) == HEADER_SIZE
     except FormatError:
         preamble_ok = segmented = False
-    slots = [c for off in SLOT_OFFSETS if (c := parse_slot(header[off: off + SLOT_SIZE])) is not None]
-    generations = [c.generation for c in slots]
+    claims = find_claims(source, header) if verify_committed or full_scan or base is None else []
     if not full_scan and base is not None:
-        scan = scan_records(source, base.end, resync=True)
-        index = None
-    else:
-        scan = scan_records(source, HEADER_SIZE, resync=True)
-        base, index = None, None
-        candidates = sorted({*scan.commits, *slots}, key=lambda c: c.generation, reverse=True)
-        for c in candidates:
-            index = _load_index(source, c, size)
-            if index is not None:
-                base = c
-                break
-    if not preamble_ok and base is None and not scan.records:
+        index = _load_index(source, base, size)
+        why = None
+        if index is None:
+            if not verify_committed:
+                raise ArchiveError(f"{source.name}: the last commit's index does not verify; use a full scan")
+            why = f"the last commit's index (generation {base.generation}) does not verify"
+        elif verify_committed:
+            why = _committed_damage(source, base, index, claims)
+        if why is not None:
+            return plan_repair(source, full_scan=True, verify_committed=True, scan_reason=why)
+        assert index is not None
+        return _plan(source, size, base, index, {e.key: e for e in index.entries()}, {}, [], [],
+                     scan_records(source, base.end, resync=True), claims, preamble_ok, segmented, full_scan=False,
+                     scan_reason=None, known=[ClaimedKeys(Claim(base, base.footer_offset), [], True)])
+    scan = scan_records(source, HEADER_SIZE, resync=True)
+    base, index = None, None
+    known: list[ClaimedKeys] = []  # newest first, down to the newest commit whose index is read whole
+    budget = source.bytes_read + 2 * size + _SCAN_CHUNK  # a file claiming more than it holds is not read forever
+    for cl in claims:
+        if source.bytes_read > budget:
+            break  # the older claims count as unreadable: what they held is reported, never assumed kept
+        view = _load_index(source, cl.commit, size)
+        told = ClaimedKeys(cl, [], True) if view is not None else read_claim(source, cl)
+        if told is not None and (not known or not known[-1].complete):
+            known.append(told)
+        if view is not None:  # the base: the newest commit whose index verifies where it names it
+            base, index = cl.commit, view
+            break
+    if not preamble_ok and base is None and not scan.records and not claims:
         raise ArchiveError(f"{source.name}: no archive preamble, commit or record frame found; "
                            "not an archive (nothing was changed)")
-    generations += [c.generation for c in scan.commits]
+    frames = {(r.key, r.length, r.crc32): r for r in scan.records}  # records that verify, wherever they are
     entries: dict[str, IndexEntry] = {}
     copies: dict[str, IndexEntry] = {}
-    unrecoverable: list[str] = []
-    checked = index is not None  # the full path: every record the base names is checked
-    if index is not None:
-        for e in index.entries():
-            if _payload_crc(source, e.offset, e.length) != e.crc32:
-                unrecoverable.append(e.key)
-            elif _frame_intact(source, e):
-                entries[e.key] = e
-            else:
-                copies[e.key] = e
-    elif base is not None:
-        index = _load_index(source, base, size)
-        if index is None:
-            raise ArchiveError(f"{source.name}: the last commit's index does not verify; use a full scan")
-        entries = {e.key: e for e in index.entries()}
+    lost: list[str] = []
+    reindexed: list[str] = []
+    for e in index.entries() if index is not None else ():  # every record the base names is checked
+        if _payload_crc(source, e.offset, e.length) == e.crc32:
+            (entries if _frame_intact(source, e) else copies)[e.key] = e
+        elif (moved_record := frames.get((e.key, e.length, e.crc32))) is not None:
+            entries[e.key] = moved_record  # the entry's offset is wrong; its record verifies elsewhere
+            reindexed.append(e.key)
+        else:
+            lost.append(e.key)
+    return _plan(source, size, base, index, entries, copies, lost, reindexed, scan, claims, preamble_ok, segmented,
+                 full_scan=True, scan_reason=scan_reason, known=known, frames=frames)
+
+
+def _plan(source: ByteSource, size: int, base: Commit | None, index: IndexView | None,
+          entries: dict[str, IndexEntry], copies: dict[str, IndexEntry], lost: list[str], reindexed: list[str],
+          scan: ScanResult, claims: list[Claim], preamble_ok: bool, segmented: bool, *, full_scan: bool,
+          scan_reason: str | None, known: list[ClaimedKeys],
+          frames: dict[tuple[str, int, int], IndexEntry] | None = None) -> RepairPlan:
+    """The rest of a plan once its base is chosen: records after the base; what the claimed commits whose
+    index can be read (``known``, newest first, ending at the newest one read whole, whose entries a
+    caller may leave out when it is the base: its records were checked) say must survive; what was
+    lost; the cut; the generation."""
     recovered: dict[str, None] = {}
     after = base.end if base is not None else HEADER_SIZE
     for r in scan.records:
@@ -294,16 +479,46 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
             copies.pop(r.key, None)
             recovered.pop(r.key, None)
             recovered[r.key] = None
-    unrecoverable = [k for k in unrecoverable if k not in entries]
-    if base is not None:
-        generations.append(base.generation)
-    if lost is not None:
-        generations.append(lost.generation)
-    new_generation = max(generations, default=-1) + 1
-    if new_generation > MAX_GENERATION:
-        raise LimitExceededError(
-            f"{source.name}: generation counter exhausted ({max(generations)}); copy the scenes to a new "
-            "archive with `vt4d compact`")
+    lost = [k for k in lost if k not in entries]
+    named: set[str] = set(entries) | set(copies) | set(lost) if index is not None else set()
+    seen: set[str] = set()
+    for told in known:  # each key in the version its newest readable commit names
+        end = told.claim.at + FOOTER_SIZE
+        for w in told.entries:
+            if w.key in seen:
+                continue
+            seen.add(w.key)
+            have = entries.get(w.key) or copies.get(w.key)
+            if have is not None and ((have.length, have.crc32) == (w.length, w.crc32) or have.offset > end):
+                continue  # that version, or one written after that commit
+            found = (frames or {}).get((w.key, w.length, w.crc32)) or _payload_at(source, w, told.claim)
+            if found is not None:
+                keep, drop = (entries, copies) if _frame_intact(source, found) else (copies, entries)
+                keep[w.key] = found
+                drop.pop(w.key, None)
+                lost = [k for k in lost if k != w.key]
+                continue
+            for d in (entries, copies):  # never an older version instead of the committed one
+                d.pop(w.key, None)
+            recovered.pop(w.key, None)
+            lost += [w.key] if w.key not in lost else []
+    whole = known[-1] if known and known[-1].complete else None  # the newest commit whose keys are all known
+    whole_end = HEADER_SIZE if whole is None else whole.claim.at + FOOTER_SIZE
+    keys = seen | (named if whole is not None and whole.claim.commit == base else set())
+    keys |= {r.key for r in scan.records if r.offset > whole_end}
+    floor = -1 if whole is None else whole.claim.commit.generation
+    unread = [cl for cl in claims if cl.commit.generation > floor]  # newer, their index gone or part of it
+    lost_unnamed = max([cl.commit.scene_count - len(keys) for cl in unread] + [0])
+    uncertain = False
+    if unread:  # their records lie between that commit and the newest one's index: are any damaged?
+        index_bytes = [(cl.at - cl.commit.index_length, cl.at + FOOTER_SIZE) for cl in claims]
+        index_bytes += [r for told in known for r in told.segments]
+        uncertain = _records_damaged(scan, whole_end, unread[0].at - unread[0].commit.index_length, index_bytes)
+    base_generation = -1 if base is None else base.generation
+    lost_commit = next((cl.commit for cl in claims if cl.commit.generation > base_generation), None)
+    generations = [cl.commit.generation for cl in claims] + [c.generation for c in scan.commits] + [base_generation]
+    new_generation = max(generations) + 1
+    rewrite = new_generation > MAX_GENERATION
     ends = [scan.end, HEADER_SIZE] + ([base.end] if base is not None else [])
     ends += [e.offset + e.length for e in entries.values()]
     cut = max(ends)
@@ -314,14 +529,20 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
             footer_ok = parse_footer(source.read(base.footer_offset, FOOTER_SIZE)) == base
         except FormatError:
             pass
-    return RepairPlan(size, base, entries, copies, list(recovered), unrecoverable, cut, damaged,
-                      new_generation, preamble_ok, full_scan or checked or base is None, lost, footer_ok,
-                      segmented, index)
+    return RepairPlan(size, base, entries, copies, list(recovered), sorted(lost), cut, damaged,
+                      1 if rewrite else new_generation, preamble_ok, full_scan, lost_commit, footer_ok, segmented,
+                      index, lost_unnamed, uncertain, reindexed, scan_reason, rewrite)
 
 
 @dataclass
 class RepairReport:
-    """What :func:`repair_archive` found and did (or, in a dry run, would do)."""
+    """What :func:`repair_archive` found and did (or, in a dry run, would do).
+
+    ``complete`` is True only when nothing committed was lost: every scene of the newest commit the file
+    claims (an intact footer or header slot) is in the repaired archive, in its committed version or a
+    later one.  Otherwise ``lost`` names every lost key, ``lost_unnamed`` counts the lost scenes whose
+    keys no readable index names, and ``uncertain`` says that records of a commit whose index is gone are
+    damaged (what it held cannot all be checked)."""
 
     path: str
     last_generation: int | None  # the commit repair started from (None: no commit verified)
@@ -329,19 +550,31 @@ class RepairReport:
     recovered: list[str]  # keys recovered from records after it
     discarded_bytes: int  # torn bytes cut off the end (they held no verifiable record)
     new_generation: int | None  # None when nothing needed doing (or dry run)
-    full_scan: bool = False
-    unrecoverable: list[str] = field(default_factory=list)  # committed keys whose record fails its CRC
+    full_scan: bool = False  # the whole file was walked
+    lost: list[str] = field(default_factory=list)  # committed keys not in the repaired archive
     copied: list[str] = field(default_factory=list)  # records re-framed because their frame was damaged
     damaged_bytes: int = 0  # damaged bytes between valid structures, left in place
-    lost_generation: int | None = None  # a commit cut off the end of a truncated file
+    lost_generation: int | None = None  # the newest claimed commit, when it could not be the base
     lost_scenes: int | None = None  # how many scenes that commit held
     scenes: int = 0  # scenes in the repaired archive
     dry_run: bool = False
+    lost_unnamed: int = 0  # committed scenes lost whose keys are unknown (no readable index names them)
+    #: the newest commit's index is gone and some of the records written for it are damaged or cut off: a
+    #: scene it held may be lost, or recovered in an older version, without a way to tell which
+    uncertain: bool = False
+    reindexed: list[str] = field(default_factory=list)  # index entries that pointed elsewhere, mended
+    scan_reason: str | None = None  # why a repair not asked for a full scan made one
+    rewritten: bool = False  # the generation counter was spent: written as a new file from generation 1
+
+    @property
+    def unrecoverable(self) -> list[str]:
+        """The lost keys (the name of ``lost`` before it also covered records missing from the file)."""
+        return self.lost
 
     @property
     def complete(self) -> bool:
-        """True when every committed scene the file still held is in the repaired archive."""
-        return not self.unrecoverable and (self.lost_scenes is None or self.scenes >= self.lost_scenes)
+        """True when nothing committed was lost."""
+        return not self.lost and not self.lost_unnamed and not self.uncertain
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.__dict__, "complete": self.complete}

@@ -20,7 +20,7 @@ adds the complete ones to a new commit, or a writer opened with ``on_uncommitted
 from __future__ import annotations
 
 import os
-from typing import Any, Literal
+from typing import Any, Iterable, Iterator, Literal
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
 from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary, shared_first
@@ -28,14 +28,14 @@ from .layout import (ARCHIVE_MAGIC, FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION,
                      VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
                      parse_preamble, parse_slot)
 from .lock import WriterLock
-from .reader import best_slot, find_commit
+from .reader import ArchiveTruncatedError, NoCommitError, best_slot, find_commit
 from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
 from ..format.sections import DEFAULT_MAX_DECODED_BYTES
 from .segments import IndexView, SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
 from .source import LocalSource
 
-__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive"]
+__all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive", "replace_with_new_archive"]
 
 Policy = Literal["error", "recover", "discard"]
 
@@ -173,10 +173,10 @@ class ArchiveWriter:
         try:
             size = source.size()
             if full_scan:
-                plan = plan_repair(source, full_scan=True)
+                plan = plan_repair(source, full_scan=True, verify_committed=repairing)
             else:
                 try:
-                    commit = self._find_commit(source, allow_truncated)
+                    commit = self._find_commit(source, allow_truncated, mend=not dry_run)
                     if size > commit.end and policy == "error":
                         raise UncommittedDataError(
                             f"{self.path}: {size - commit.end} bytes after the last commit "
@@ -184,8 +184,9 @@ class ArchiveWriter:
                             "`vt4d repair` to keep its complete records, or open with "
                             "on_uncommitted='discard' to drop them"
                         )
-                    if size > commit.end and policy == "recover":
-                        plan = plan_repair(source, full_scan=False, base=commit)
+                    if repairing or (size > commit.end and policy == "recover"):
+                        # a repair checks every committed record and every commit the file claims first
+                        plan = plan_repair(source, full_scan=False, base=commit, verify_committed=repairing)
                     else:
                         view = load_index(source.read, commit)
                         self._entries = {e.key: e for e in view.entries()}
@@ -198,15 +199,15 @@ class ArchiveWriter:
                 except FormatError as exc:  # no usable last commit: a repair walks the whole file
                     if not repairing:
                         raise
-                    plan = plan_repair(source, full_scan=True, lost=getattr(exc, "lost", None))
+                    plan = plan_repair(source, full_scan=True, verify_committed=True, scan_reason=_scan_reason(exc))
             if plan is not None:
                 copy_payloads = {k: source.read(e.offset, e.length) for k, e in plan.copies.items()}
         finally:
             source.close()
         if plan is None:  # the last commit stands (``commit``, read above)
             self._check_generation()
-            self.repair_report = RepairReport(self.path, commit.generation, len(self._entries), [],
-                                              discarded, None, False, scenes=len(self._entries), dry_run=dry_run)
+            self.repair_report = RepairReport(self.path, commit.generation, len(self._entries), [], discarded,
+                                              None, scenes=len(self._entries), dry_run=dry_run)
             if dry_run:
                 self._dry_run = True
                 return
@@ -217,13 +218,15 @@ class ArchiveWriter:
         self._apply_plan(plan, copy_payloads, dry_run)
 
     def _apply_plan(self, plan: RepairPlan, copy_payloads: dict[str, bytes], dry_run: bool) -> None:
-        base = plan.base
-        final = len(plan.entries) + len(plan.copies)
+        base, newest = plan.base, plan.lost_commit
         self.repair_report = RepairReport(
             self.path, None if base is None else base.generation, 0 if base is None else base.scene_count,
-            plan.recovered, plan.size - plan.cut, None, plan.full_scan, list(plan.unrecoverable),
-            sorted(plan.copies), plan.damaged_bytes, None if plan.lost is None else plan.lost.generation,
-            None if plan.lost is None else plan.lost.scene_count, final, dry_run)
+            plan.recovered, plan.size - plan.cut, None, full_scan=plan.full_scan, lost=list(plan.lost),
+            copied=sorted(plan.copies), damaged_bytes=plan.damaged_bytes,
+            lost_generation=None if newest is None else newest.generation,
+            lost_scenes=None if newest is None else newest.scene_count, scenes=len(plan.entries) + len(plan.copies),
+            dry_run=dry_run, lost_unnamed=plan.lost_unnamed, uncertain=plan.uncertain, reindexed=list(plan.reindexed),
+            scan_reason=plan.scan_reason, rewritten=plan.rewrite and plan.needs_commit)
         self._commit, self._entries, self._pending, self._end = base, {}, {}, plan.cut
         self._segmented = plan.segmented or not plan.preamble_ok
         self._segments = []  # the repaired commit is one new segment (or one whole index)
@@ -235,6 +238,9 @@ class ArchiveWriter:
             self._segments = self._segments_of(base, plan.view)
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
+            return
+        if plan.rewrite:  # the generation counter is spent: the repaired archive becomes a new file
+            self.repair_report.new_generation = self._rewrite(plan, copy_payloads)
             return
         if not plan.preamble_ok:  # a damaged preamble is mended (magic, version, flags)
             os.pwrite(self._handle, pack_preamble(), 0)
@@ -251,6 +257,29 @@ class ArchiveWriter:
         self._next_generation = plan.new_generation
         self.repair_report.new_generation = self._write_commit()
 
+    def _rewrite(self, plan: RepairPlan, copy_payloads: dict[str, bytes]) -> int:
+        """Write the plan's records into a new file of generation 1 renamed over the archive (as
+        `vt4d compact` does), then continue as a writer of that file."""
+        def records() -> Iterator[tuple[str, bytes, bytes]]:
+            for e in sorted(plan.entries.values(), key=lambda e: e.offset):
+                payload = os.pread(self._handle, e.length, e.offset)
+                if crc32(payload) != e.crc32:  # the plan checked it; the file changed under the lock
+                    raise ArchiveError(f"{self.path}: record {e.key!r} changed during the repair; nothing was written")
+                yield e.key, payload, e.summary_bytes
+            for key, entry in plan.copies.items():
+                yield key, copy_payloads[key], entry.summary_bytes
+
+        commit = replace_with_new_archive(self.path, records(), generation=1,
+                                          version=(1, 1 if self._segmented else 0), durable=self.durable,
+                                          suffix="repair")
+        self._close_fd()
+        self._fd = os.open(self.path, os.O_RDWR)
+        view = load_index(lambda off, n: os.pread(self._handle, n, off), commit)
+        self._entries = {e.key: e for e in view.entries()}
+        self._commit, self._end, self._pending = commit, commit.end, {}
+        self._segments = self._segments_of(commit, view)
+        return commit.generation
+
     def _segments_of(self, commit: Commit, view: IndexView) -> list[tuple[SegmentRef, list[str]]]:
         """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment)."""
         if commit.segmented:
@@ -260,9 +289,9 @@ class ArchiveWriter:
             return [(SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32), seg.keys())]
         return []
 
-    def _find_commit(self, source: LocalSource, allow_truncated: bool) -> Commit:
+    def _find_commit(self, source: LocalSource, allow_truncated: bool, *, mend: bool = True) -> Commit:
         commit, at_tail = find_commit(source, allow_truncated=allow_truncated)
-        if not at_tail and source.size() == commit.end:  # damaged last footer, intact slot: mend it
+        if mend and not at_tail and source.size() == commit.end:  # damaged last footer, intact slot: mend it
             os.pwrite(self._handle, pack_footer(commit), commit.footer_offset)
             self._sync()
         return commit
@@ -457,6 +486,50 @@ class ArchiveWriter:
 
     def __repr__(self) -> str:
         return f"ArchiveWriter({self.path!r}, committed={len(self._entries)}, pending={len(self._pending)})"
+
+
+def replace_with_new_archive(path: str, records: Iterable[tuple[str, bytes, bytes]], *, generation: int,
+                             version: tuple[int, int], durable: bool, suffix: str) -> Commit:
+    """Write ``records`` (key, payload, summary bytes) into a new archive ``<path>.<suffix>-<pid>`` with one
+    commit of ``generation``, and rename it over ``path``, keeping its permission bits: readers see the old
+    file or the new one, never a mix, and a failure leaves ``path`` untouched.  Returns the new commit."""
+    tmp = f"{path}.{suffix}-{os.getpid()}"
+    try:
+        w = ArchiveWriter(tmp, "x", durable=durable, version=version)
+        try:
+            for key, payload, summary in records:
+                w._append_raw(key, payload, summary)
+            w._next_generation = generation
+            w._write_commit()
+            commit = w._commit
+        except BaseException:
+            w.close(commit=False)
+            raise
+        w._close_fd()
+        w._lock.release_and_remove()
+        assert commit is not None
+        os.chmod(tmp, os.stat(path).st_mode & 0o7777)  # the new file keeps the old one's permissions
+        os.replace(tmp, path)
+        if durable:
+            _fsync_dir(path)
+        return commit
+    except BaseException:
+        for leftover in (tmp, tmp + ".lock"):
+            try:
+                os.unlink(leftover)
+            except FileNotFoundError:
+                pass
+        raise
+
+
+def _scan_reason(exc: FormatError) -> str:
+    """Why a default repair walks the whole file, from the error opening the last commit gave."""
+    if isinstance(exc, ArchiveTruncatedError) and exc.lost is not None:
+        return (f"the file was truncated: commit generation {exc.lost.generation} ({exc.lost.scene_count} "
+                "scenes) is cut off its end")
+    if isinstance(exc, NoCommitError):
+        return "no usable commit (the footer and both header slots are damaged)"
+    return "the last commit's footer or index does not verify"
 
 
 def _check_repairable(path: str, full_scan: bool) -> None:

@@ -182,7 +182,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
 def cmd_repair(args: argparse.Namespace) -> int:
     with working(args, f"repairing {args.archive}"):  # no steps to count: a running clock on a terminal
         report = repair_archive(args.archive, full_scan=args.full_scan, dry_run=args.dry_run)
-    status = 0 if report.complete else 1  # never report success when committed scenes were lost
+    status = 0 if report.complete else 1  # 0 only when nothing committed was lost
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
         print()
@@ -193,22 +193,27 @@ def cmd_repair(args: argparse.Namespace) -> int:
     if report.last_generation is None:
         start = "no commit verifies; a full scan of the record frames"
     else:
-        start = f"generation {report.last_generation} ({plural(report.committed, 'scene')})"
-        if report.full_scan:
-            start += ", every record checked"
+        start = f"generation {report.last_generation} ({plural(report.committed, 'scene')}), every record checked"
     recover, cut, copy = ("would recover", "would cut", "would copy") if args.dry_run else ("recovered", "cut", "copied")
-    lines = [f"{args.archive}: from {start}: {recover} {len(report.recovered)} scenes written after it"
-             f"{' (' + ', '.join(report.recovered) + ')' if report.recovered else ''}, {cut} "
-             f"{report.discarded_bytes} torn bytes after the last valid record"]
+    lines = [f"{args.archive}: full scan: {report.scan_reason}"] if report.scan_reason else []
+    lines.append(f"{args.archive}: from {start}: {recover} {len(report.recovered)} scenes written after it"
+                 f"{' (' + ', '.join(report.recovered) + ')' if report.recovered else ''}, {cut} "
+                 f"{report.discarded_bytes} torn bytes after the last valid record")
     if report.damaged_bytes:
         lines.append(f"skipped {report.damaged_bytes} damaged bytes between valid records (left in place)")
     if report.copied:
         lines.append(f"{copy} {plural(len(report.copied), 'record')} whose frame header is damaged but whose "
                      f"payload verifies into fresh frames: {', '.join(report.copied)}")
+    if report.reindexed:
+        lines.append(f"{'would re-index' if args.dry_run else 're-indexed'} {plural(len(report.reindexed), 'record')} "
+                     f"whose index entry pointed at other bytes: {', '.join(report.reindexed)}")
     if report.lost_generation is not None:
-        lines.append(f"the file was truncated: commit generation {report.lost_generation} "
-                     f"({plural(report.lost_scenes, 'scene')}) was cut off its end; its records still in the file "
-                     "are kept")
+        lines.append(f"the newest commit, generation {report.lost_generation} "
+                     f"({plural(report.lost_scenes or 0, 'scene')}), was cut off the end of the file or damaged; its "
+                     "records still in the file are kept")
+    if report.rewritten:
+        lines.append(f"the generation counter is spent: the repaired archive {'would be' if args.dry_run else 'was'} "
+                     "written as a new file, from generation 1")
     if report.new_generation is not None:
         lines.append(f"committed generation {report.new_generation} ({plural(report.scenes, 'scene')})")
     elif args.dry_run:
@@ -221,12 +226,22 @@ def cmd_repair(args: argparse.Namespace) -> int:
 
 
 def _repair_errors(args: argparse.Namespace, report: Any) -> None:
-    if report.unrecoverable:
-        print(f"{args.archive}: error: {plural(len(report.unrecoverable), 'committed scene')} could not be recovered "
-              f"(their records fail their checksum): {', '.join(report.unrecoverable)}", file=sys.stderr)
-    elif not report.complete:
-        print(f"{args.archive}: error: the truncated commit held {plural(report.lost_scenes, 'scene')}, "
-              f"{report.scenes} could be recovered", file=sys.stderr)
+    verb = "would lose" if args.dry_run else "lost"
+    if report.lost:
+        print(f"{args.archive}: error: {plural(len(report.lost), 'committed scene')} could not be recovered (record "
+              f"damaged or missing; the repair {verb} {'it' if len(report.lost) == 1 else 'them'}): "
+              f"{', '.join(report.lost)}", file=sys.stderr)
+    if report.lost_unnamed:
+        more = "more " if report.lost else ""
+        print(f"{args.archive}: error: {plural(report.lost_unnamed, more + 'committed scene')} could not be recovered "
+              "and cannot be named (the index that listed them is damaged or cut off)", file=sys.stderr)
+    if report.uncertain and report.scenes:
+        print(f"{args.archive}: error: commit generation {report.lost_generation} lost its index and records written "
+              "for it are damaged or cut off: a scene kept may be in an older version than the one it committed",
+              file=sys.stderr)
+    elif report.uncertain and not report.lost_unnamed:
+        print(f"{args.archive}: error: commit generation {report.lost_generation} lost its index and the records "
+              "written for it", file=sys.stderr)
 
 
 def cmd_compact(args: argparse.Namespace) -> int:
@@ -296,17 +311,18 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_extract)
 
     p = add_command(subparsers, "repair", help="recover an archive after a crashed writer or damage",
-                    description="Keep the last commit, add complete checksum-valid records written "
-                    "after it (skipping damaged bytes), cut off torn bytes after the last valid record, "
-                    "and commit.  A truncated archive, or one without a usable commit, gets a full "
-                    "scan.  Never drops a record that verifies; exits 1 if committed scenes could not "
-                    "be recovered (they are listed).",
+                    description="Check every record of the last commit, add complete checksum-valid records "
+                    "written after it (skipping damaged bytes), cut off torn bytes after the last valid record, "
+                    "and commit.  A truncated archive, one without a usable commit, or one whose committed "
+                    "records fail their checks gets a full scan.  Never drops a record that verifies; exits 0 "
+                    "only when nothing committed was lost, 1 otherwise, naming every lost scene.",
                     examples=["vt4d repair scenes.vt4da --dry-run     print the plan, write nothing",
-                              "vt4d repair scenes.vt4da --full-scan   also check every record of the last commit"])
+                              "vt4d repair scenes.vt4da --full-scan   walk the whole file whatever the last commit",
+                              "vt4d repair scenes.vt4da --json        the lost keys under \"lost\""])
     p.add_argument("archive", help="local archive path")
     p.add_argument("--full-scan", action="store_true",
-                   help="also check every record of the newest commit whose index verifies, and walk the whole "
-                   "file for records written after it")
+                   help="walk the whole file even when the last commit and its records verify: the newest commit "
+                   "whose index verifies is the base, and records anywhere after it are recovered")
     p.add_argument("--dry-run", action="store_true", help="print the plan; change nothing")
     p.set_defaults(func=cmd_repair)
 
