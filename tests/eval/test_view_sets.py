@@ -234,6 +234,7 @@ def test_quality_stores_the_main_model_at_that_level_and_the_ablation_as_int8(mo
         assert result["settings"]["quality"] == int(quality)
         assert result["models"]["main"]["encoding"] == f"learned-rans q{quality}"
         assert result["models"]["unified"]["encoding"] == "int8"
+        assert f"learned-rans q{quality} .vt4d bytes" in format_tables(result)  # the tables say how it was stored
         sizes[quality] = {r["method"]: r["bytes"] for r in result["rows"]}
     assert sizes["1"]["ours"] < sizes["3"]["ours"] and sizes["1"]["unified"] == sizes["3"]["unified"]
     with pytest.raises(EvaluationError):

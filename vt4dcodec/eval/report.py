@@ -147,18 +147,19 @@ def format_tables(results: dict[str, Any]) -> str:
     mean-colour reference next to ours and token masking (Table 4); then token health, if measured.
     Files written before target sets existed hold only the far set."""
     by_set = results.get("summary_by_set") or {"far": results["summary"]}
+    stored = results.get("models", {}).get("main", {}).get("encoding", "int8")  # learned-rans qN with --quality
     parts = []
     for view_set in [v for v in VIEW_SETS if v in by_set]:
         s = by_set[view_set]
         views = max((e["views"] for e in s.values()), default=0)
-        parts.append(f"### {SET_TITLES[view_set]}: {views} target videos\n\n" + _set_tables(s, view_set))
+        parts.append(f"### {SET_TITLES[view_set]}: {views} target videos\n\n" + _set_tables(s, view_set, stored))
     if results.get("token_health"):
-        parts.append(format_health(results["token_health"]))
+        parts.append(format_health(results["token_health"], stored))
     return "\n".join(parts)
 
 
-def _set_tables(s: dict[str, Any], view_set: str) -> str:
-    lines = ["| method | floats | int8 .vt4d bytes | PSNR (dB) | SSIM | dynamic PSNR (dB) | static PSNR (dB) | "
+def _set_tables(s: dict[str, Any], view_set: str, stored: str = "int8") -> str:
+    lines = [f"| method | floats | {stored} .vt4d bytes | PSNR (dB) | SSIM | dynamic PSNR (dB) | static PSNR (dB) | "
              "ours − this, PSNR (ours wins) | ours − this, dyn. PSNR (ours wins) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
 
@@ -214,7 +215,7 @@ def _set_tables(s: dict[str, Any], view_set: str) -> str:
 HEALTH_LABELS = {"main": "ours", "unified": "unified", "no_motion": "w/o motion isolation", "fixed_grid": "fixed grid"}
 
 
-def format_health(health: dict[str, Any]) -> str:
+def format_health(health: dict[str, Any], stored: str = "int8") -> str:
     """The token-health table: one column per token model, PASS/FAIL next to issue 12's thresholds."""
     keys = list(health["models"])
     th = health.get("thresholds", HEALTH_THRESHOLDS)
@@ -247,7 +248,7 @@ def format_health(health: dict[str, Any]) -> str:
         ("source-view PSNR, next scene's tokens (dB)", lambda e: num(e.get("psnr_swapped_db"), 2)),
         (f"token-swap drop (dB, ≥ {th['swap_drop_min_db']})", swap),
     ]
-    out = [f"### Token health ({n} held-out scenes of the {health['set']} set; int8 tokens as stored)\n",
+    out = [f"### Token health ({n} held-out scenes of the {health['set']} set; {stored} tokens as stored)\n",
            "| | " + " | ".join(HEALTH_LABELS.get(k, k) for k in keys) + " |",
            "|---|" + "---:|" * len(keys)]
     out += [f"| {label} | " + " | ".join(f(health["models"][k]) for k in keys) + " |" for label, f in rows]
