@@ -77,16 +77,18 @@ def draw_tau(batch_size: int, tau_one: float) -> torch.Tensor:
 def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0, x0_weight: float = 0.0,
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
               cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
-              track_weight: float = 0.0, patch_weight: float = 0.0, rate_lambdas: tuple[float, ...] = ()
-              ) -> tuple[torch.Tensor, dict[str, float]]:
+              track_weight: float = 0.0, patch_weight: float = 0.0, rate_lambdas: tuple[float, ...] = (),
+              level_weights: tuple[float, ...] = ()) -> tuple[torch.Tensor, dict[str, float]]:
     """One training loss. With ``rate_lambdas`` (one per quality level of the entropy model) each batch
-    draws a level uniformly and trains D + lambda_level R at that level's quantization."""
+    draws a level -- uniformly, or in proportion to ``level_weights`` -- and trains D + lambda_level R at
+    that level's quantization."""
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
     rate = {}
     if rate_lambdas:
-        level = int(torch.randint(len(rate_lambdas), ()))
+        level = int(torch.multinomial(torch.tensor(level_weights, dtype=torch.float64), 1)) if level_weights \
+            else int(torch.randint(len(rate_lambdas), ()))
         rate = {"rate_level": level, "rate_lambda": rate_lambdas[level]}
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
@@ -341,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="rate-distortion training (config entropy_levels = the number of values): lambda of each "
                              "quality level, coarsest first; each batch draws a level and adds lambda x bits per "
                              "source pixel to the loss")
+    recipe.add_argument("--level-weights", default="", metavar="W,W,...",
+                        help="with --rate-lambdas: how often each quality level is drawn, one weight >= 0 per level "
+                             "(coarsest first; default: uniform), e.g. to train the finest levels back to fidelity")
     recipe.add_argument("--calibrate-batches", type=int, default=16, metavar="N",
                         help="with --rate-lambdas, a run that starts without a checkpoint first fits the entropy "
                              "model's densities to the tokens of N batches")
@@ -377,6 +382,13 @@ def main(argv: list[str] | None = None) -> int:
     if rate_lambdas and (len(rate_lambdas) != cfg.entropy_levels or not all(v >= 0 for v in rate_lambdas)):
         parser.error(f"--rate-lambdas needs one lambda >= 0 per quality level: the config has entropy_levels="
                      f"{cfg.entropy_levels} (--set entropy_levels=N)")
+    try:
+        level_weights = tuple(float(v) for v in args.level_weights.split(",")) if args.level_weights else ()
+    except ValueError:
+        parser.error(f"--level-weights takes comma-separated numbers, got {args.level_weights!r}")
+    if level_weights and (len(level_weights) != len(rate_lambdas) or min(level_weights) < 0
+                          or sum(level_weights) <= 0):
+        parser.error("--level-weights needs one weight >= 0 per --rate-lambdas value, not all zero")
     args.out.mkdir(parents=True, exist_ok=True)
 
     starts = [flag for flag, value in (("--init", args.init), ("--autoencoder", args.autoencoder),
@@ -419,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
                              track_weight=args.track_weight, patch_weight=args.patch_weight,
-                             rate_lambdas=rate_lambdas)
+                             rate_lambdas=rate_lambdas, level_weights=level_weights)
     if rate_lambdas and args.calibrate_batches > 0 and not (args.out / "checkpoint" / "state.json").is_file():
         fit = calibrate_entropy(model, batches, args.calibrate_batches)
         if info.is_main:
