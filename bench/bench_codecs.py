@@ -430,7 +430,7 @@ def summarize_clips(clips: list[dict[str, Any]], reference: str) -> dict[str, An
         if not rs:
             continue
         vt4d = {enc: {**_mean([r["vt4d"][enc] for r in rs]),
-                      "bpp": float(np.mean([r["vt4d"][enc].get("bpp", np.nan) for r in rs]))} for enc in rs[0]["vt4d"]}
+                      "bpp": float(np.mean([r["vt4d"][enc]["bpp"] for r in rs]))} for enc in rs[0]["vt4d"]}
         ref = vt4d[reference]
         entry: dict[str, Any] = {"clips": len(rs), "stored_cameras": len(rs[0]["stored"]),
                                  "views": len(rs[0]["views"]), "angle_deg_mean": float(np.mean([r["angle_deg"] for r in rs])),
@@ -661,30 +661,27 @@ def real_footage_clips(path: Path, net: Any, codecs: dict[str, tuple], encodings
     directory (``vt4d import`` / ``vt4d synth`` output; each clip read and centre-cropped to the model's
     square) or a caliscope recording (imported at the model's size)."""
     from vt4dcodec import codec
-    from vt4dcodec.capture.io import MANIFEST_NAME, read_manifest
+    from vt4dcodec.capture.capture import Capture
     from vt4dcodec.capture.resample import fit_capture
+    from vt4dcodec.eval.real_footage import open_capture
 
     cfg = net.config
-    if (path / MANIFEST_NAME).is_file():
-        manifest = read_manifest(path)
-        names = [c.name for c in manifest.cameras]
-        starts = list(range(0, manifest.num_frames - cfg.frames + 1, cfg.frames))
-        key, title = "capture", f"Capture {manifest.capture_id or path.name} ({manifest.num_frames} frames, consecutive clips)"
+    source = open_capture(path, size=cfg.image_size)  # a directory's manifest, or caliscope imported at that size
+    starts = list(range(0, source.num_frames - cfg.frames + 1, cfg.frames))
+    if isinstance(source, Capture):
+        key, title = "caliscope", f"Real caliscope_4cam recording ({source.num_frames} frames at {source.fps:.1f} fps, consecutive clips)"
+        cameras = len(source.camera_names)
 
         def clip_of(start: int) -> tuple[Any, int]:
-            clip = codec.read_clip(manifest, names, start, cfg.frames)
-            return fit_capture(clip, height=cfg.image_size, width=cfg.image_size), 0
-        cameras = len(names)
+            return source, start
     else:
-        from vt4dcodec.capture.caliscope import import_caliscope
-
-        cap = import_caliscope(path, height=cfg.image_size, width=cfg.image_size)
-        starts = list(range(0, cap.num_frames - cfg.frames + 1, cfg.frames))
-        key, title = "caliscope", f"Real caliscope_4cam recording ({cap.num_frames} frames at {cap.fps:.1f} fps, consecutive clips)"
+        names = [c.name for c in source.cameras]
+        key, title = "capture", f"Capture {source.capture_id or path.name} ({source.num_frames} frames, consecutive clips)"
+        cameras = len(names)
 
         def clip_of(start: int) -> tuple[Any, int]:
-            return cap, start
-        cameras = len(cap.camera_names)
+            clip = codec.read_clip(source, names, start, cfg.frames)
+            return fit_capture(clip, height=cfg.image_size, width=cfg.image_size), 0
     if not starts:
         raise SystemExit(f"--capture {path}: fewer frames than the model's {cfg.frames}-frame clip")
     clips = []

@@ -17,6 +17,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_codecs import bytes_at_psnr  # noqa: E402  (the study's own interpolation)
+
 TARGETS = {"whole": 1.0, "single": 4.0, "caliscope": 2.0, "five_psnr": 22.6, "five_bytes": 3700.0, "span": 2.0}
 
 
@@ -36,9 +39,6 @@ def _ratio_cells(row: dict[str, Any], enc: str) -> tuple[str, str]:
 
 
 def _equal(points: list[dict[str, Any]], v: dict[str, Any]) -> str:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_codecs import bytes_at_psnr  # noqa: E402  (the study's own interpolation)
-
     need, bound = bytes_at_psnr([(p["bytes"], p["psnr"]) for p in points], v["psnr"])
     if need is None:
         return "H.265 never reaches it"

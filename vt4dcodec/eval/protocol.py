@@ -217,10 +217,17 @@ def set_targets(sc: SynthScene, settings: EvalSettings, view_set: str = "far") -
 
 
 # --- predictions ------------------------------------------------------------------------------------
+def stored_quality(net: VideoTok4D, quality: int | None) -> int | None:
+    """The quality level the protocol stores a model's tokens at: ``quality`` for a model with quality levels,
+    None (int8, :data:`ENCODING`) otherwise -- the ablations have no entropy model."""
+    return quality if quality is not None and codec.quality_levels(net) else None
+
+
 def stored_encoding(net: VideoTok4D, quality: int | None) -> str:
-    """How the protocol stores a model's tokens: ``learned-rans qN`` for a model with quality levels when
-    ``quality`` = N is asked for, else :data:`ENCODING` (int8; the ablations have no entropy model)."""
-    return f"learned-rans q{quality}" if quality is not None and codec.quality_levels(net) else ENCODING
+    """How the protocol stores a model's tokens (:func:`stored_quality`), as a label: ``learned-rans qN`` or
+    :data:`ENCODING`."""
+    level = stored_quality(net, quality)
+    return ENCODING if level is None else f"learned-rans q{level}"
 
 
 def _render_tokens(net: VideoTok4D, sc: SynthScene, sources: Sequence[str], targets: Sequence[str],
@@ -232,9 +239,9 @@ def _render_tokens(net: VideoTok4D, sc: SynthScene, sources: Sequence[str], targ
     Returns (variant -> videos, file bytes, seconds spent, the decoder of the stored bytes).
     """
     t0 = time.perf_counter()
-    quality = settings.quality if codec.quality_levels(net) else None
-    scene = codec.encode(sc.capture, net, ENCODING, cameras=list(sources), seed=settings.seed, quality=quality)
-    blob = dumps(scene, tables=codec.model_tables(net) if quality is not None else None)
+    scene = codec.encode(sc.capture, net, ENCODING, cameras=list(sources), seed=settings.seed,
+                         quality=stored_quality(net, settings.quality))
+    blob = dumps(scene)  # a learned-rans scene's tables: registered by codec.encode
     decoder = codec.SceneDecoder.open(blob, model=net)
     trajectories = [sc.capture.cameras[k] for k in targets]
     videos = {name: decoder.render_many(trajectories, steps=settings.steps, seed=settings.seed,

@@ -65,7 +65,7 @@ from vt4dcodec.model.inputs.motion import DEFAULT_DEPTH_RANGE
 from . import baselines
 from .command import resolve_model, run_command
 from .metrics import video_metrics
-from .protocol import ENCODING, SKIPPED_ON_SOURCE, axis_angles_deg
+from .protocol import ENCODING, SKIPPED_ON_SOURCE, axis_angles_deg, stored_encoding
 from .report import save_png_small, write_json
 
 __all__ = ["DEFAULT_CAPTURE", "open_capture", "best_overlap_pair", "evaluate_cameras", "evaluate_real",
@@ -137,7 +137,7 @@ def evaluate_cameras(capture: "Capture | CaptureManifest", net: Any, sources: Se
     for start in starts:
         t0 = time.perf_counter()
         scene = codec.encode(capture, net, ENCODING, cameras=sources, start=start, seed=seed, fit=fit, quality=quality)
-        blob = dumps(scene, tables=codec.model_tables(net) if quality is not None else None)
+        blob = dumps(scene)  # a learned-rans scene's tables: registered by codec.encode
         decoder = codec.SceneDecoder.open(blob, model=net)
         clip = fit_capture(codec.read_clip(capture, names, start, T), height=size, width=size, fit=fit)
         renders = decoder.render_many([clip.cameras[t] for t in targets], steps=steps, seed=seed)
@@ -323,7 +323,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "frames": capture.num_frames, "fps": capture.fps, "fit": args.fit,
         "image_size": size, "clip_frames": net.config.frames, "clips": len(clips), "steps": steps,
         "decode_steps": int(net.decode_steps), "seed": args.seed,
-        "encoding": ENCODING if args.quality is None else f"learned-rans q{args.quality}",
+        "encoding": stored_encoding(net, args.quality),
         "model": codec.model_fingerprint(net).short(), "training_step": net.training_step,
         "wall_s": round(wall, 1), "summary": summarize_real(rows), "summary_by_camera": summarize_by_camera(rows),
         "rows": rows,
