@@ -35,11 +35,13 @@ from vt4dcodec.cameras import Trajectory  # noqa: E402
 from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene, dumps, open_scene,  # noqa: E402
                               set_tables_resolver)
 from vt4dcodec.format import learned as _learned  # noqa: E402
+from vt4dcodec.format import compact_cameras as _cc  # noqa: E402
+from vt4dcodec.format.compact_cameras import fixed_exponents as _fixed_exponents  # noqa: E402
 from vt4dcodec.format.compact_cameras import pack_compact_cameras  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
 from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
-                                     FLAG_LEARNED_TOKENS,
+                                     FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS,
                                      FLAG_RANS_LANES, PREAMBLE_SIZE,
                                      crc32, entry_size, parse_preamble, parse_table)
 from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode, rans_encode_ctx  # noqa: E402
@@ -64,6 +66,22 @@ def dumps_1_1(*args: Any, **kw: Any) -> bytes:
 def dumps_1_2(*args: Any, **kw: Any) -> bytes:
     """The writer with the 1.0 to 1.2 header and table: the vectors made for format 1.2 keep their bytes."""
     return dumps(*args, header="legacy", **kw)
+
+
+def _fixed_exponents_1_6(traj: Trajectory, *, centre: bool = False) -> tuple[int, int, int]:
+    """The 1.6 writer's fixed-point camera exponents (FORMAT.md I.5.4: finer centre-pose steps than the writer uses now)."""
+    e_k, e_r, e_t = _fixed_exponents(traj, centre=centre)
+    return (e_k + 7, e_r + 1, e_t) if centre else (e_k, e_r, e_t)
+
+
+def dumps_1_6(*args: Any, **kw: Any) -> bytes:
+    """The 1.6 writer: header dictionary 1 and its fixed-point camera steps, so the vectors made for format 1.6
+    keep their bytes."""
+    _cc.fixed_exponents = _fixed_exponents_1_6
+    try:
+        return dumps(*args, header_dictionary=1, **kw)
+    finally:
+        _cc.fixed_exponents = _fixed_exponents
 
 
 def tokens(rows: int, cols: int, salt: int) -> np.ndarray:
@@ -102,7 +120,8 @@ def split(data: bytes) -> tuple[dict, list[list]]:
     pre = parse_preamble(data)
     compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
     stored = data[PREAMBLE_SIZE:PREAMBLE_SIZE + pre.header_length]
-    header = msgpack.unpackb(decompress_header(stored) if compact else stored, raw=False)
+    dictionary = 2 if pre.required_flags & FLAG_HEADER_DICTIONARY_2 else 1  # required flag bit 7 (I.3.2)
+    header = msgpack.unpackb(decompress_header(stored, dictionary) if compact else stored, raw=False)
     if compact:  # the digests are 32-byte bin values there (I.3.1): give the map of the 1.2 header
         header["fingerprint"] = dict(header["fingerprint"], **{k: header["fingerprint"][k].hex() for k in DIGESTS})
     start = PREAMBLE_SIZE + pre.header_length
@@ -334,7 +353,7 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
     two.extra_cameras = (shifted(cameras(2), 0.5),)
     gliding_scene = learned_scene(quality=2)
     gliding_scene.cameras = gliding(8)
-    moving = dumps(gliding_scene, tables=tables, compression_level=None)
+    moving = dumps_1_6(gliding_scene, tables=tables, compression_level=None)
     cams = open_scene(moving).raw_section("CAMS")
     assert cams[:2] == bytes([0, 0x3d]), "constant K, quaternion poses, centres, cubic, fixed-point timestamps"
     return {
@@ -342,21 +361,35 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
             moving, "1.6: fixed-point cameras (I.5.4) of a turning, accelerating camera: camera centres (t = -R c), "
                     "cubic prediction and fixed-point timestamps (layout flags 0x3d), every section raw"),
         "learned_rans_one_camera": (
-            dumps(learned_scene(quality=1), tables=tables, compression_level=None),
+            dumps_1_6(learned_scene(quality=1), tables=tables, compression_level=None),
             "1.6: learned-rans at quality level index 0 of the test model (spec/vectors/tables/vt4d-test-learned.json); "
             "static token 2 is a frame copy of token 0 (class CHANGE)"),
         "learned_rans_fine_level": (
-            dumps(learned_scene(quality=2), tables=tables),
+            dumps_1_6(learned_scene(quality=2), tables=tables),
             "1.6: learned-rans at level index 1 (steps 1/8, Z_d 1/4 and 1/8), zstd on the other sections"),
         "learned_rans_two_cameras": (
-            dumps(two, quality=2, tables=tables),
+            dumps_1_6(two, quality=2, tables=tables),
             "1.6 with an extra camera (V = 2): the origins row of two cameras, every static token MEAN"),
+        "learned_rans_header_dictionary_2": (
+            dictionary_2_vector(tables),
+            "1.6 with required flag bit 7: the compact header compressed with header dictionary 2 (I.3.2); the "
+            "turning camera of learned_rans_moving_camera in the writer's coarser centre-pose steps, every "
+            "section raw"),
     }
+
+
+def dictionary_2_vector(tables: EntropyTables) -> bytes:
+    """The moving-camera learned scene as the writer makes it now, with header dictionary 2 (I.3.2)."""
+    gliding_scene = learned_scene(quality=2)
+    gliding_scene.cameras = gliding(8)
+    data = dumps(gliding_scene, tables=tables, compression_level=None, header_dictionary=2)
+    assert parse_preamble(data).required_flags & FLAG_HEADER_DICTIONARY_2
+    return data
 
 
 def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     tables = learned_tables()
-    good = dumps(learned_scene(quality=2), tables=tables, compression_level=None)
+    good = dumps_1_6(learned_scene(quality=2), tables=tables, compression_level=None)
     header, sections = split(good)
     payload = bytes(find(sections, "ZSTA")[3])
     out: dict[str, tuple[bytes, str, str]] = {}
@@ -426,7 +459,7 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     # fixed-point timestamps (bit 5): the moving camera's CAMS ends in e_s = 3 and 8 varints (0, 1, then 0s)
     moving_scene = learned_scene(quality=2)
     moving_scene.cameras = gliding(8)
-    moving = dumps(moving_scene, tables=tables, compression_level=None)
+    moving = dumps_1_6(moving_scene, tables=tables, compression_level=None)
     m_header, m_sections = split(moving)
     m_cams = bytes(find(m_sections, "CAMS")[3])
     assert m_cams[1] & 32 and m_cams[-9:] == bytes([3, 0, 2, 0, 0, 0, 0, 0, 0])
@@ -442,6 +475,25 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         "MalformedHeaderError", "required flag bit 6 (fixed-point cameras) without bit 2 (compact container)")
     REPAIRED["fixed_cameras_flag_without_compact_container"] = dumps_1_2(learned_scene(quality=2), tables=tables,
                                                                          compression_level=None)
+    # header dictionary 2 (required flag bit 7, I.3.2)
+    legacy = dumps_1_2(learned_scene(quality=2), tables=tables, compression_level=None)
+    out["header_dictionary_2_without_compact_container"] = (
+        patch_preamble(legacy, 16, "<Q", FLAG_COMPACT_CAMERAS | FLAG_LEARNED_TOKENS | FLAG_HEADER_DICTIONARY_2),
+        "MalformedHeaderError", "required flag bit 7 (header dictionary 2) without bit 2 (compact container)")
+    REPAIRED["header_dictionary_2_without_compact_container"] = legacy
+    with_2 = dictionary_2_vector(tables)
+    flags_2 = parse_preamble(with_2).required_flags
+    out["header_dictionary_2_flag_clear"] = (
+        patch_preamble(with_2, 16, "<Q", flags_2 & ~FLAG_HEADER_DICTIONARY_2), "MalformedHeaderError",
+        "a header compressed with dictionary 2 in a file without required flag bit 7: read with dictionary 1, "
+        "its frame does not decode to a header")
+    REPAIRED["header_dictionary_2_flag_clear"] = with_2
+    with_1 = dumps(learned_scene(quality=2), tables=tables, compression_level=None, header_dictionary=1)
+    out["header_dictionary_2_flag_on_dictionary_1_header"] = (
+        patch_preamble(with_1, 16, "<Q", parse_preamble(with_1).required_flags | FLAG_HEADER_DICTIONARY_2),
+        "MalformedHeaderError", "required flag bit 7 on a header compressed with dictionary 1: read with "
+        "dictionary 2, its frame does not decode to a header")
+    REPAIRED["header_dictionary_2_flag_on_dictionary_1_header"] = with_1
     return out
 
 

@@ -43,13 +43,27 @@ HEADER_DICTIONARY = msgpack.packb(
      "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8,
                            "depth_source": "capture"}}})
 assert len(HEADER_DICTIONARY) == 638 and zlib.crc32(HEADER_DICTIONARY) == 0xC95A6BEA  # as FORMAT.md says
+# FORMAT.md I.3.2: header dictionary 2 is dictionary 1 followed by the shortest-form msgpack of this JSON value
+HEADER_DICTIONARY_2 = HEADER_DICTIONARY + msgpack.packb(
+    {"static_shape": [320, 32], "dynamic_shape": [32, 32], "encoding": "learned-rans",
+     "cameras": {"num_frames": 8, "width": 64, "height": 64, "distortion_terms": 0, "has_timestamps": True},
+     "fingerprint": {"model_id": "vt4d-tiny", "model_version": "2.0.0", "config_sha256": "", "weights_sha256": "",
+                     "static_shape": [320, 32], "dynamic_shape": [32, 32], "token_dtype": "float32"},
+     "provenance": {"library_version": "0.1.0", "created_utc": "2026-12-01T00:00:00Z",
+                    "source_capture_id": "synth-test-000000", "kind": "encoded"},
+     "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture",
+                           "source_cameras": ["cam00", "cam01", "cam02", "cam03", "cam04", "cam05", "cam06",
+                                              "cam07", "cam08", "cam09"]}}})
+assert len(HEADER_DICTIONARY_2) == 1178 and zlib.crc32(HEADER_DICTIONARY_2) == 0xF52C3009  # as FORMAT.md says
 
 
-def compact_header(stored: bytes) -> bytes:
-    """FORMAT.md I.3.1: one zstd frame, content size declared (<= 1 MiB), raw-content dictionary."""
+def compact_header(stored: bytes, dictionary_2: bool = False) -> bytes:
+    """FORMAT.md I.3.1: one zstd frame, content size declared (<= 1 MiB), raw-content dictionary (I.3.2's
+    dictionary 2 with required flag bit 7)."""
     declared = zstandard.frame_content_size(stored)
     assert 0 <= declared <= 1 << 20
-    dictionary = zstandard.ZstdCompressionDict(HEADER_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+    dictionary = zstandard.ZstdCompressionDict(HEADER_DICTIONARY_2 if dictionary_2 else HEADER_DICTIONARY,
+                                               dict_type=zstandard.DICT_TYPE_RAWCONTENT)
     frame = zstandard.ZstdDecompressor(dict_data=dictionary).decompressobj()
     out = frame.decompress(stored)
     assert frame.eof and len(out) == declared and not frame.unused_data
@@ -62,7 +76,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 128 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 256 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
@@ -72,9 +86,12 @@ def read_scene(data: bytes) -> dict:
     assert not (required & 32 and required & 1)
     assert minor >= 6 or not required & 64  # I.5.4: fixed-point cameras since 1.6, in compact containers
     assert not required & 64 or (required & 6) == 6
+    assert minor >= 6 or not required & 128  # I.3.2: header dictionary 2 since 1.6, in compact containers
+    assert not required & 128 or required & 4
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
-    header = msgpack.unpackb(compact_header(header_bytes) if compact else header_bytes, raw=False)
+    header = msgpack.unpackb(compact_header(header_bytes, bool(required & 128)) if compact else header_bytes,
+                             raw=False)
     if compact:  # I.3.1: the two digests are 32-byte bin values; as hex they read as in I.8
         fp = header["fingerprint"]
         assert all(isinstance(fp[k], bytes) and len(fp[k]) == 32 for k in ("config_sha256", "weights_sha256"))

@@ -311,10 +311,10 @@ def rig_cameras(seeds=range(3000, 3005)) -> list[Trajectory]:
             .cameras.values()]
 
 
-def test_rig_cameras_take_centres_and_cubic_prediction_and_cost_a_fifth_less():
+def test_rig_cameras_take_centres_and_cubic_prediction_and_cost_a_quarter_less():
     """FORMAT.md I.5.4's writer note: held-out rig cameras store camera centres at the coarser exponents,
-    mostly with cubic prediction, in ~104 B a record against ~132 B with translations and linear prediction
-    (measured: 103.6 and 132.1), within 0.01 px."""
+    mostly with cubic prediction, in ~99 B a record against ~132 B with translations and linear prediction
+    (measured: 98.5 and 132.1), within the 0.01 px bound (largest change measured 0.0070 px)."""
     from dataclasses import replace
 
     from vt4dcodec.format import compact_cameras as cc
@@ -326,12 +326,12 @@ def test_rig_cameras_take_centres_and_cubic_prediction_and_cost_a_fifth_less():
         assert raw[0] == 0 and raw[1] & cc.CENTRE_POSES
         cubic += bool(raw[1] & cc.CUBIC_PREDICTION)
         back = cc._decode(raw, 8, 64, 64, 0, False, quaternions=True, fixed=True)
-        assert cc.reprojection_change(bare, back) <= 0.005
+        assert cc.reprojection_change(bare, back) <= cc.REPROJECTION_TOLERANCE_PX
         linear_t = cc._encode_fixed(bare, centre=False, cubic=False)  # the 1.6 form before bits 3 and 4
         new.append(len(raw))
         old.append(len(linear_t))
     assert cubic >= 0.8 * len(new)
-    assert np.mean(new) < 0.82 * np.mean(old), (np.mean(new), np.mean(old))
+    assert np.mean(new) < 0.78 * np.mean(old), (np.mean(new), np.mean(old))
 
 
 def test_the_writer_falls_back_to_translations_when_centres_miss_the_bound(monkeypatch):

@@ -297,17 +297,20 @@ def fixed_exponents(traj: Trajectory, *, centre: bool = False) -> tuple[int, int
     moves no probe point (depths down to 0.1 m) by more than a few thousandths of a pixel, from the image size
     and the largest focal length (in powers of two, so a decoded trajectory gives the same exponents).
     ``centre``: the poses store camera centres (layout flag bit 3), whose rotation error is not multiplied by
-    the camera's distance from the world origin, so the quaternion and position steps are 8 and 4 times
+    the camera's distance from the world origin, so the quaternion and position steps are 16 and 4 times
     coarser."""
     side = max(traj.width, traj.height)
     f = float(np.abs(traj.K[:, :2, :2]).max())
     log_f = max(0, int(np.floor(np.log2(max(f, 1.0)))) + 1)  # f < 2^log_f
     log_side = int(np.ceil(np.log2(side)))
-    e_k = log_side + 9   # K: centre and focal steps 2^-(e_K + 1) move an edge pixel < 0.004 px
     if centre:
-        e_r = log_f + 10  # quaternion: the rotation error, times f < 2^log_f px, about 0.001-0.002 px
+        # K: a half step 2^-(e_K + 1) moves the principal point by 2^-(log_side + 3) px (0.002 px at 64 px) and an
+        # edge pixel by (W / 2) / f times that through the focal length
+        e_k = log_side + 2
+        e_r = log_f + 9   # quaternion: the rotation error, times f < 2^log_f px, about 0.002-0.004 px
         e_t = log_f + 11  # centre: step / 2 at 0.1 m, times f: < 0.0025 px
-    else:
+    else:  # the fallback keeps its finer steps: its rotation error is already near the bound
+        e_k = log_side + 9
         e_r = log_f + 13  # quaternion: the rotation error, times f and |c| / 0.1 m, stays near 0.002 px
         e_t = log_f + 13  # translation: step / 2 at 0.1 m, times f
     return min(e_k, MAX_EXPONENT), min(e_r, MAX_EXPONENT), min(e_t, MAX_EXPONENT)

@@ -18,7 +18,9 @@ In a compact container (format 1.3, required flag bit 2) the stored header is on
 bytes, compressed with the spec-fixed raw-content dictionary :data:`HEADER_DICTIONARY` (FORMAT.md I.3.1): the
 key names and the usual values cost a few bytes of match codes instead of their text.  There the two
 fingerprint digests are 32-byte msgpack bin values instead of 64 hex digits (the only bin values allowed);
-the reader turns them back into hex, so the parsed header is the 1.2 header.
+the reader turns them back into hex, so the parsed header is the 1.2 header.  A 1.6 file with required flag
+bit 7 uses :data:`HEADER_DICTIONARY_2` instead (I.3.2): dictionary 1 followed by a header of today's
+multi-camera learned-rans files, about 60 bytes less for a 10-camera header.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from .limits import (MAX_CONTAINER_ITEMS, MAX_FRAMES, MAX_HEADER_BYTES, MAX_HEAD
 from .metadata import normalize_metadata
 
 __all__ = ["HeaderInfo", "CameraLayout", "pack_header", "unpack_header", "parse_header", "HEADER_DICTIONARY",
-           "compress_header", "decompress_header"]
+           "HEADER_DICTIONARY_2", "compress_header", "decompress_header"]
 
 HEADER_KEYS = {"static_shape", "dynamic_shape", "encoding", "cameras", "fingerprint", "provenance", "metadata"}
 CAMERA_KEYS = {"num_frames", "width", "height", "distortion_terms", "has_timestamps"}
@@ -63,8 +65,23 @@ HEADER_DICTIONARY_TEMPLATE: dict[str, Any] = {
     "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture"}},
 }
 HEADER_DICTIONARY: bytes = msgpack.packb(HEADER_DICTIONARY_TEMPLATE, use_bin_type=True)
+# FORMAT.md I.3.2 (format 1.6, required flag bit 7): header dictionary 2 is dictionary 1 followed by the msgpack
+# encoding of this template, a header of a learned-rans multi-camera encode (its digests empty strings: they are
+# random bytes no dictionary predicts).  Spec-fixed like dictionary 1 (tests pin its length and CRC-32).
+HEADER_DICTIONARY_2_TEMPLATE: dict[str, Any] = {
+    "static_shape": [320, 32], "dynamic_shape": [32, 32], "encoding": "learned-rans",
+    "cameras": {"num_frames": 8, "width": 64, "height": 64, "distortion_terms": 0, "has_timestamps": True},
+    "fingerprint": {"model_id": "vt4d-tiny", "model_version": "2.0.0", "config_sha256": "", "weights_sha256": "",
+                    "static_shape": [320, 32], "dynamic_shape": [32, 32], "token_dtype": "float32"},
+    "provenance": {"library_version": "0.1.0", "created_utc": "2026-12-01T00:00:00Z",
+                   "source_capture_id": "synth-test-000000", "kind": "encoded"},
+    "metadata": {"vt4d": {"source_camera": "cam00", "clip_start": 0, "clip_frames": 8, "depth_source": "capture",
+                          "source_cameras": [f"cam{i:02d}" for i in range(10)]}},
+}
+HEADER_DICTIONARY_2: bytes = HEADER_DICTIONARY + msgpack.packb(HEADER_DICTIONARY_2_TEMPLATE, use_bin_type=True)
 _HEADER_ZSTD_LEVEL = 19  # the header is a few hundred bytes: the strongest level costs nothing
-_HEADER_DICT = zstandard.ZstdCompressionDict(HEADER_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+_HEADER_DICTS = {number: zstandard.ZstdCompressionDict(data, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+                 for number, data in ((1, HEADER_DICTIONARY), (2, HEADER_DICTIONARY_2))}
 
 
 @dataclass(frozen=True)
@@ -127,17 +144,19 @@ def pack_header(info: HeaderInfo, *, binary_digests: bool = False) -> bytes:
     return data
 
 
-def compress_header(raw: bytes) -> bytes:
-    """The stored form of a compact header (FORMAT.md I.3.1): one zstd frame with the spec-fixed raw-content
-    dictionary, its content size declared, no dictionary id and no checksum (the header CRC covers it)."""
-    cctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICT, write_content_size=True,
-                                    write_checksum=False, write_dict_id=False)
+def compress_header(raw: bytes, dictionary: int = 1) -> bytes:
+    """The stored form of a compact header (FORMAT.md I.3.1): one zstd frame with a spec-fixed raw-content
+    dictionary (``dictionary`` 1, or 2 in a file with required flag bit 7, I.3.2), its content size declared, no
+    dictionary id and no checksum (the header CRC covers it)."""
+    cctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICTS[dictionary],
+                                    write_content_size=True, write_checksum=False, write_dict_id=False)
     return cctx.compress(raw)
 
 
-def decompress_header(stored: BytesLike) -> bytes:
+def decompress_header(stored: BytesLike, dictionary: int = 1) -> bytes:
     """The msgpack bytes of a compact header, bounded: the frame MUST declare its content size, at most
-    1 MiB, and hold exactly that many bytes; nothing may follow the frame."""
+    1 MiB, and hold exactly that many bytes; nothing may follow the frame.  ``dictionary``: the header
+    dictionary the file names (2 with required flag bit 7, I.3.2; else 1)."""
     try:
         declared = zstandard.frame_content_size(stored)
     except zstandard.ZstdError as exc:
@@ -149,7 +168,7 @@ def decompress_header(stored: BytesLike) -> bytes:
     if stored[4] & 0x03:  # Frame_Header_Descriptor's Dictionary_ID_Flag (RFC 8878 3.1.1.1.1)
         raise MalformedHeaderError("the compact header's zstd frame carries a dictionary id; I.3.1 forbids one "
                                    "(its dictionary is fixed by the format and has none)")
-    frame = zstandard.ZstdDecompressor(dict_data=_HEADER_DICT).decompressobj(read_across_frames=False)
+    frame = zstandard.ZstdDecompressor(dict_data=_HEADER_DICTS[dictionary]).decompressobj(read_across_frames=False)
     try:
         out = frame.decompress(bytes(stored))  # libzstd refuses output beyond the declared content size
     except zstandard.ZstdError as exc:
@@ -237,11 +256,14 @@ def _check_depth(value: Any) -> None:
             stack.extend((c, depth + 1) for c in children)
 
 
-def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool = False) -> HeaderInfo:
+def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool = False,
+                 dictionary: int = 1) -> HeaderInfo:
     """Decode and validate a header.  ``newer_minor``: the file's minor version is newer than this
     reader's, so unknown keys are tolerated (known keys are still checked exactly).  ``compressed``: the
-    stored header of a compact container (format 1.3), decompressed first."""
-    h = unpack_header(decompress_header(raw), binary_digests=True) if compressed else unpack_header(raw)
+    stored header of a compact container (format 1.3), decompressed first with header dictionary
+    ``dictionary`` (1, or 2 with required flag bit 7)."""
+    h = (unpack_header(decompress_header(raw, dictionary), binary_digests=True) if compressed
+         else unpack_header(raw))
     exact_keys(h, HEADER_KEYS, "header", allow_extra=newer_minor)
     static_shape = require_shape(h["static_shape"], "static_shape", MAX_TOKENS, MAX_TOKEN_DIM, MAX_TOKEN_VALUES,
                                  LimitExceededError)

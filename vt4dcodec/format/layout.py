@@ -62,7 +62,7 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
            "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
-           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_LEARNED_TOKENS", "FLAG_FIXED_CAMERAS", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
+           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_LEARNED_TOKENS", "FLAG_FIXED_CAMERAS", "FLAG_HEADER_DICTIONARY_2", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
            "BytesLike"]
 
 # What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
@@ -73,7 +73,8 @@ FORMAT_MAJOR = 1
 # 1.1 adds the entropy-coded token encodings (required flag bit 0), 1.2 compact cameras (bit 1), 1.3 the compact
 # container (bit 2): zstd header with a spec-fixed dictionary, 18-byte table entries, unaligned payloads; 1.4 the
 # extra cameras section (bit 3): the trajectories of the further cameras of a multi-camera encode; 1.5 interleaved
-# rANS lanes in the entropy-coded token sections (bit 4, only beside bit 0)
+# rANS lanes in the entropy-coded token sections (bit 4, only beside bit 0); 1.6 learned-rans tokens (bit 5),
+# fixed-point cameras (bit 6) and, added within 1.6, header dictionary 2 for the compact header (bit 7, beside bit 2)
 FORMAT_MINOR = 6
 FLAG_ENTROPY_CODED_TOKENS = 1 << 0  # required flag: token sections use an int<b>-rans encoding (1.1)
 FLAG_COMPACT_CAMERAS = 1 << 1  # required flag: the cameras section uses the compact encoding (1.2, I.5.1)
@@ -82,14 +83,15 @@ FLAG_EXTRA_CAMERAS = 1 << 3  # required flag: the file holds the extra cameras s
 FLAG_RANS_LANES = 1 << 4  # required flag: entropy-coded token payloads hold K interleaved rANS lanes (1.5, I.6.1)
 FLAG_FIXED_CAMERAS = 1 << 6  # required flag: compact cameras may hold fixed-point records, P = 0 (1.6, I.5.4)
 FLAG_LEARNED_TOKENS = 1 << 5  # required flag: tokens coded with the model's entropy tables, learned-rans (1.6, I.6.2)
+FLAG_HEADER_DICTIONARY_2 = 1 << 7  # required flag: the compact header uses header dictionary 2 (1.6, I.3.2)
 KNOWN_REQUIRED_FLAGS = (FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS | FLAG_COMPACT_CONTAINER
                         | FLAG_EXTRA_CAMERAS | FLAG_RANS_LANES | FLAG_LEARNED_TOKENS
-                        | FLAG_FIXED_CAMERAS)
+                        | FLAG_FIXED_CAMERAS | FLAG_HEADER_DICTIONARY_2)
 # The version that introduced each required flag: in a file that says an older minor version the flag is
 # unknown, and the file is refused as a reader of that version would (UnsupportedFeatureError).  Bit 1 keeps its
 # 1.2 rule (MalformedHeaderError in files below 1.2, checked by the reader), which its golden vectors pin.
 FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3, FLAG_EXTRA_CAMERAS: 4, FLAG_RANS_LANES: 5, FLAG_LEARNED_TOKENS: 6,
-                    FLAG_FIXED_CAMERAS: 6}
+                    FLAG_FIXED_CAMERAS: 6, FLAG_HEADER_DICTIONARY_2: 6}
 FLAG_CRITICAL = 0x0001
 FLAG_ALIGNED = 0x0002  # compact table entries only: the payload starts at a multiple of 64
 COMPACT_ENTRY_SIZE = 18

@@ -20,7 +20,7 @@ from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_FIXED_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -143,7 +143,12 @@ class SceneFile:
             raise ChecksumError("the section table checksum does not match: the table is damaged")
         self.preamble: Preamble = pre
         compact = bool(pre.required_flags & FLAG_COMPACT_CONTAINER)
-        self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR, compressed=compact)
+        dictionary_2 = bool(pre.required_flags & FLAG_HEADER_DICTIONARY_2)
+        if dictionary_2 and not compact:
+            raise MalformedHeaderError("required flag bit 7 (header dictionary 2) is set without bit 2 (compact "
+                                       "container): only a compact header is compressed with a dictionary")
+        self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR, compressed=compact,
+                                              dictionary=2 if dictionary_2 else 1)
         self._check_encoding_version()
         self._table_end = table_end
         self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length,

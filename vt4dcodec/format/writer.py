@@ -17,6 +17,7 @@ from .learned import EntropyTables, encode_learned_tokens, find_tables
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
 from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
+                     FLAG_HEADER_DICTIONARY_2,
                      FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
                      entry_size, pack_preamble, pack_table)
 from .rans_tokens import check_lanes, policy_lanes
@@ -75,7 +76,8 @@ def build_container(header: bytes, sections: Sequence[SectionParts], *,
 def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
           cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None,
-          quality: int | None = None, tables: EntropyTables | None = None) -> bytes:
+          quality: int | None = None, tables: EntropyTables | None = None,
+          header_dictionary: int | None = None) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
     The file says the lowest format version that describes it: 1.5 with required flag bit 4 when its
@@ -113,6 +115,11 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         quality, tables: ``learned-rans`` only (format 1.6, required flag bit 5, FORMAT.md I.6.2): the quality
             level (1 = the coarsest; default ``scene.quality``) and the entropy tables of the scene's model
             (default: the installed model's, found by fingerprint; EntropyTablesError without them).
+        header_dictionary: the dictionary of a compact header.  ``None``, the writer's policy: header dictionary
+            2 (format 1.6, required flag bit 7, FORMAT.md I.3.2) for ``learned-rans`` files when it makes the
+            header shorter (about 60 bytes for a 10-camera encode), else dictionary 1 (I.3.1), so files of the
+            other encodings keep their version.  ``1``: always dictionary 1 (files that readers of the first 1.6
+            text read); ``2``: always dictionary 2 (then the file says 1.6).  Only with ``header="compact"``.
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -124,6 +131,10 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     if header not in HEADER_MODES:
         raise FormatError(f"unknown header mode {header!r}; choose one of {HEADER_MODES}")
     check_lanes(rans_lanes)
+    if header_dictionary not in (None, 1, 2) or isinstance(header_dictionary, bool):
+        raise FormatError(f"header_dictionary must be None, 1 or 2, got {header_dictionary!r}")
+    if header_dictionary == 2 and header != "compact":
+        raise FormatError("header_dictionary=2 needs header='compact' (only a compact header has a dictionary)")
     learned = is_learned(encoding)
     if learned:
         tables = find_tables(scene.fingerprint, tables)
@@ -150,8 +161,16 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact, fixed=fixed)
     head = pack_header(HeaderInfo(scene.static_shape, scene.dynamic_shape, encoding, layout, scene.fingerprint,
                                   scene.provenance, scene.metadata, {}), binary_digests=compact)
+    dictionary_2 = False
     if compact:
-        head = compress_header(head)
+        # by default learned-rans files (1.6 already) take header dictionary 2 (bit 7, I.3.2) when it makes the header
+        # shorter; files of the other encodings keep dictionary 1 and the lowest version that describes them
+        stored = compress_header(head)
+        if header_dictionary == 2 or (header_dictionary is None and learned):
+            stored_2 = compress_header(head, dictionary=2)
+            dictionary_2 = header_dictionary == 2 or len(stored_2) < len(stored)
+            stored = stored_2 if dictionary_2 else stored
+        head = stored
     parts = [(SECTION_CAMERAS, cams)]
     # re-checked here: a scene is mutable, and an extra camera must still fit the cameras it is stored beside
     extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
@@ -184,8 +203,8 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
              | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0)
              | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
-             | (FLAG_FIXED_CAMERAS if fixed else 0))
-    minor = (6 if learned else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
+             | (FLAG_FIXED_CAMERAS if fixed else 0) | (FLAG_HEADER_DICTIONARY_2 if dictionary_2 else 0))
+    minor = (6 if learned or dictionary_2 else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
              else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
 
@@ -193,13 +212,14 @@ def dumps(scene: Scene, *, encoding: str | None = None,
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
          header: str = "compact", rans_lanes: int | None = None, quality: int | None = None,
-         tables: EntropyTables | None = None) -> int:
+         tables: EntropyTables | None = None, header_dictionary: int | None = None) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
     data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
-                 header=header, rans_lanes=rans_lanes, quality=quality, tables=tables)
+                 header=header, rans_lanes=rans_lanes, quality=quality, tables=tables,
+                 header_dictionary=header_dictionary)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)
