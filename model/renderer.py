@@ -71,6 +71,27 @@ MIN_ANCHOR_DEPTH = 0.1  # metres; the reference depth (of the world origin) is c
 FAR_LOGIT = -1.0e4  # bias of an anchor behind the target camera, and the floor of every Gaussian logit
 DYNAMIC_GATE_SCALE = 100.0  # dynamic splat: opacity gate = this x a parameter starting at 0 (Adam moves it ~lr a step)
 SPLAT_FLOOR = 0.1  # token splat: weight of "nothing" in each patch's normalisation (a lone token on its cell: 0.91)
+EXP_MIN = -87.0  # below this float32 exp is denormal or 0, and torch's CPU exp falls back to a ~15x slower path
+
+
+def _exp(x: torch.Tensor) -> torch.Tensor:
+    """exp(x) for Gaussian weights and gates: 0 where x < EXP_MIN (exp would give at most 1.7e-38 there), so
+    the far tails (distances of many sigma, FAR_LOGIT) stay on the vectorised path; a render changes by
+    less than 1e-30 and batched renders run several times faster on CPU."""
+    return torch.where(x < EXP_MIN, 0.0, torch.exp(x.clamp_min(EXP_MIN)))
+
+
+def _splat_sum(rows: torch.Tensor, values: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+    """The separable splat's sum (B, T, K, h, w) = sum over n of rows[b, t, n, y] values[b, t, n, k] cols[b, t, n, x]
+    (rows (B, T, N, h), values (B, T or 1, N, K), cols (B, T, N, w)). One batch item at a time: its (T, N, h K)
+    products are a few MB, where a batch's in one piece are tens of MB that the allocator maps afresh and the
+    CPU faults in on every call (a batch of views rendered slower per view than views alone)."""
+    out = []
+    for r, v, c in zip(rows, values, cols):  # (T, N, h), (T | 1, N, K), (T, N, w)
+        T, N, h = r.shape
+        products = (r[..., None] * v[:, :, None]).reshape(T, N, h * v.shape[-1])
+        out.append((products.transpose(1, 2) @ c).view(T, h, v.shape[-1], -1).transpose(1, 2))
+    return torch.stack(out)
 
 
 class Renderer(nn.Module):
@@ -179,8 +200,8 @@ class Renderer(nn.Module):
         at = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / ds
         centres = torch.arange(cfg.latent_size, dtype=at.dtype, device=at.device) + 0.5
         scale = 2.0 * cfg.locality_sigma ** 2
-        ex = torch.exp(-(centres - at[..., 0:1]) ** 2 / scale)
-        ey = torch.exp(-(centres - at[..., 1:2]) ** 2 / scale)
+        ex = _exp(-(centres - at[..., 0:1]) ** 2 / scale)
+        ey = _exp(-(centres - at[..., 1:2]) ** 2 / scale)
         f = (z > 1e-3).to(ex.dtype)
         point = x_world.mean(3)  # (B, N_d, T, 3) the patch centre
         origin = -torch.einsum("bnji,bnj->bni", R, t)  # (B, N_d, 3) encoded camera centres
@@ -190,7 +211,7 @@ class Renderer(nn.Module):
         off_axis = 1.0 - (from_source * from_target).sum(-1)  # (B, T, N_d)
         if cfg.view_gate_deg > 0:
             term = off_axis / math.radians(cfg.view_gate_deg) ** 2
-            f = f * torch.exp(-(term - term.amin(-1, keepdim=True)))[..., None]
+            f = f * _exp(-(term - term.amin(-1, keepdim=True)))[..., None]
         if keep is not None:
             f = f * keep[:, None, keep.shape[1] - n_d:, None].to(f.dtype)
         return ey, ex, f, off_axis
@@ -227,11 +248,9 @@ class Renderer(nn.Module):
             alpha = alpha * (1.0 - gate)[..., None]
         frames = alpha.shape[1]
         values = torch.cat([colour * alpha[..., None], alpha[..., None], torch.ones_like(alpha[..., None])],
-                           dim=-1).reshape(B, frames, n_d * q, 1, C + 2)
-        rows = (f[..., None] * ey).reshape(B, T, n_d * q, h, 1)
-        cols = ex.reshape(B, T, n_d * q, w)
-        acc = ((rows * values).reshape(B, T, n_d * q, h * (C + 2)).transpose(2, 3) @ cols)  # (B, T, h (C+2), w)
-        acc = acc.view(B, T, h, C + 2, w).transpose(2, 3)  # (B, T, C + 2, h, w)
+                           dim=-1).reshape(B, frames, n_d * q, C + 2)
+        rows = (f[..., None] * ey).reshape(B, T, n_d * q, h)
+        acc = _splat_sum(rows, values, ex.reshape(B, T, n_d * q, w))  # (B, T, C + 2, h, w)
         norm = acc[:, :, C + 1:] + SPLAT_FLOOR
         static = unpatchify(splat.float(), p, C, h, w)
         out = static * (1.0 - acc[:, :, C:C + 1] / norm) + acc[:, :, :C] / norm
@@ -392,11 +411,11 @@ class Renderer(nn.Module):
         at = (proj[..., :2] / z.clamp_min(1e-3)[..., None] + 0.5) / cfg.ae_downsample  # latent px (x, y)
         centres = torch.arange(cfg.latent_size, dtype=at.dtype, device=at.device) + 0.5
         scale = 2.0 * cfg.locality_sigma ** 2
-        ex = torch.exp(-(centres - at[..., 0:1]) ** 2 / scale)
-        ey = torch.exp(-(centres - at[..., 1:2]) ** 2 / scale)
+        ex = _exp(-(centres - at[..., 0:1]) ** 2 / scale)
+        ey = _exp(-(centres - at[..., 1:2]) ** 2 / scale)
         f = (z > 1e-3).to(ex.dtype)
         if view_term is not None:
-            f = f * torch.exp(-view_term.float())[..., None]
+            f = f * _exp(-view_term.float())[..., None]
         return ey, ex, f
 
     def splat_pixels(self, z_s: torch.Tensor, z_d: torch.Tensor,
@@ -420,8 +439,7 @@ class Renderer(nn.Module):
 
         def splat(linear: nn.Linear, x: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:  # (B, T, C, h, w)
             content = linear(x).float().reshape(B, Na, C, q).transpose(2, 3).reshape(B, 1, Na * q, C)
-            weighted = (rows[..., None] * content[:, :, :, None]).reshape(B, T, Na * q, h * C)
-            return (weighted.transpose(2, 3) @ cols).reshape(B, T, h, C, -1).transpose(2, 3)
+            return _splat_sum(rows, content, cols)
 
         def total(rows: torch.Tensor) -> torch.Tensor:  # (B, T, 1, h, w): sum of weights + floor
             return (rows.transpose(2, 3) @ cols)[:, :, None] + SPLAT_FLOOR
@@ -455,7 +473,7 @@ class Renderer(nn.Module):
     def _gate_from(off_axis: torch.Tensor, degrees: float) -> torch.Tensor:
         """exp(-a^2 / 2 s^2) from :meth:`_off_axis` (1 - cos a = a^2 / 2), s ``degrees``: :meth:`frame_gate`
         with ``config.frame_gate_deg``, the patch splat's share with ``config.patch_gate_deg``."""
-        return torch.exp(-off_axis / math.radians(degrees) ** 2)
+        return _exp(-off_axis / math.radians(degrees) ** 2)
 
     @staticmethod
     def _off_axis(x_world: torch.Tensor, centre: torch.Tensor, w2c_tgt: torch.Tensor) -> torch.Tensor:
@@ -524,7 +542,7 @@ class Renderer(nn.Module):
         token's normalised weight (``config.patch_gate_deg``)."""
         assert self.splat is not None
         tokens = torch.cat([z_s, z_d], dim=1)[:, :self.n_anchored].to(self.splat.weight.dtype)
-        g = torch.exp(logit.float())  # (B, T, P, Na)
+        g = _exp(logit.float())  # (B, T, P, Na)
         if keep is not None:
             g = g * keep[:, None, None, :self.n_anchored].to(g.dtype)
         weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
