@@ -65,7 +65,7 @@ def test_repair_command(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["recovered"] == ["recovered"] and report["discarded_bytes"] == 9
     assert main(["repair", str(out)]) == 0
-    assert "recovered 1 scenes" in capsys.readouterr().out
+    assert "recovered 1 scene written after it (recovered), cut 9 torn bytes" in capsys.readouterr().out
     assert main(["verify", str(out)]) == 0
     with open_archive(out) as ar:
         assert ar.read_bytes("recovered") == scene_record(2)

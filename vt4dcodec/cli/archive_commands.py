@@ -196,11 +196,11 @@ def cmd_repair(args: argparse.Namespace) -> int:
         start = f"generation {report.last_generation} ({plural(report.committed, 'scene')}), every record checked"
     recover, cut, copy = ("would recover", "would cut", "would copy") if args.dry_run else ("recovered", "cut", "copied")
     lines = [f"{args.archive}: full scan: {report.scan_reason}"] if report.scan_reason else []
-    lines.append(f"{args.archive}: from {start}: {recover} {len(report.recovered)} scenes written after it"
+    lines.append(f"{args.archive}: from {start}: {recover} {plural(len(report.recovered), 'scene')} written after it"
                  f"{' (' + ', '.join(report.recovered) + ')' if report.recovered else ''}, {cut} "
-                 f"{report.discarded_bytes} torn bytes after the last valid record")
+                 f"{plural(report.discarded_bytes, 'torn byte')} after the last valid record")
     if report.damaged_bytes:
-        lines.append(f"skipped {report.damaged_bytes} damaged bytes between valid records (left in place)")
+        lines.append(f"skipped {plural(report.damaged_bytes, 'damaged byte')} between valid records (left in place)")
     if report.copied:
         lines.append(f"{copy} {plural(len(report.copied), 'record')} whose frame header is damaged but whose "
                      f"payload verifies into fresh frames: {', '.join(report.copied)}")
