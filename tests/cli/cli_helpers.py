@@ -84,7 +84,7 @@ class StandInDecoder:
     def __init__(self, monkeypatch, frames: int = 3):
         import vt4dcodec.cli.codec_commands as commands
 
-        self.frames, self.opened = frames, []
+        self.frames, self.opened, self.batches = frames, [], []  # batches: the size of each render_many call
         self.model = SimpleNamespace(decode_steps=1)
         fp = make_scene().fingerprint
         monkeypatch.setattr(commands.SceneDecoder, "open", self.open)
@@ -99,6 +99,10 @@ class StandInDecoder:
 
     def render(self, trajectory, **options):
         return np.full((self.frames, 16, 16, 3), 128, np.uint8)
+
+    def render_many(self, trajectories, **options):
+        self.batches.append(len(trajectories))
+        return [self.render(t, **options) for t in trajectories]
 
 
 SMALL = dict(width=64, heads=2, renderer_layers=1, spatial_layers=1, static_query_layers=1, track_layers=1,

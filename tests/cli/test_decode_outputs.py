@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from fractions import Fraction
+from pathlib import Path
 from types import SimpleNamespace
 
 import av
@@ -68,3 +69,19 @@ def test_frame_rate_from_timestamps_without_a_recorded_one():
     assert scene_fps(scene) == 8.0  # nothing recorded: the default
     timed = SimpleNamespace(metadata={}, cameras=dataclasses.replace(scene.cameras, timestamps=np.array([0, 0.04, 0.08])))
     assert scene_fps(timed) == pytest.approx(25.0)
+
+
+def test_several_trajectories_render_as_batches(scene_file, tmp_path, monkeypatch, capsys):
+    """`vt4d decode` renders its trajectories RENDER_BATCH at a time, not one forward pass each (issue 51.2);
+    every output is still written, in order."""
+    from vt4dcodec import codec
+
+    decoder = StandInDecoder(monkeypatch)
+    monkeypatch.setattr(codec, "RENDER_BATCH", 4)
+    specs = ["source", "pan", "orbit", "dolly_in", "pan:degrees=5", "orbit:degrees=5"]
+    argv = ["decode", str(scene_file), "-o", str(tmp_path / "v"), "--format", "npz", "--json"]
+    assert cli.main([*argv, *[a for s in specs for a in ("-t", s)]]) == 0
+    assert decoder.batches == [4, 2]
+    outputs = json.loads(capsys.readouterr().out)["outputs"]
+    assert [o["trajectory"] for o in outputs] == specs and all((tmp_path / "v" / o["path"]).exists() or
+                                                             Path(o["path"]).exists() for o in outputs)

@@ -7,7 +7,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator, Sequence
 
 from .. import codec
 from ..archive import ArchiveWriter, is_archive, open_archive
@@ -319,6 +319,14 @@ def _decode_target(args: argparse.Namespace, count: int) -> Path | None:
     return out
 
 
+def render_in_batches(decoder: SceneDecoder, trajectories: Sequence[Any], **options: Any) -> Iterator[Any]:
+    """The views of ``trajectories`` in order, rendered ``codec.RENDER_BATCH`` at a time (one forward pass each:
+    ``SceneDecoder.render_many``), so several trajectories render as batches while a progress bar still moves
+    and each output is written as its batch is done."""
+    for start in range(0, len(trajectories), codec.RENDER_BATCH):
+        yield from decoder.render_many(list(trajectories[start:start + codec.RENDER_BATCH]), **options)
+
+
 def cmd_decode(args: argparse.Namespace) -> int:
     specs = args.trajectory or ["source"]
     target = _decode_target(args, len(specs))
@@ -339,10 +347,10 @@ def cmd_decode(args: argparse.Namespace) -> int:
     fps = scene_fps(scene)  # the capture's frame rate, as the file records it
     started = time.perf_counter()
     outputs = []
-    for i, (spec, traj) in enumerate(progress(args, list(zip(specs, trajectories)), len(specs), "decode",
-                                              "trajectory")):
-        frames = decoder.render(traj, steps=args.steps, seed=args.seed, drop_static=args.drop == "static",
-                                drop_dynamic=args.drop == "dynamic")
+    views = render_in_batches(decoder, trajectories, steps=args.steps, seed=args.seed,
+                              drop_static=args.drop == "static", drop_dynamic=args.drop == "dynamic")
+    for i, (spec, traj, frames) in enumerate(progress(args, zip(specs, trajectories, views), len(specs), "decode",
+                                                      "trajectory")):
         path = write_frames(names[i], frames, args.format, fps=fps, extra={"K": traj.K, "w2c": traj.w2c},
                             scale=args.upscale)
         outputs.append({"trajectory": spec, "path": str(path), "frames": int(frames.shape[0])})

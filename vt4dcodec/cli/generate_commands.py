@@ -17,6 +17,7 @@ from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, g
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
 from . import (add_command, add_overwrite_option, add_upscale_option, check_output_folder, check_upscale, emit,
                nonneg_int, note_replacing, plural, positive_int, progress, trajectory_label, working)
+from .codec_commands import render_in_batches
 
 __all__ = ["register", "split_view_specs"]
 
@@ -96,8 +97,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
     decoder = SceneDecoder(scene=scene, model=tokenizer)
     trajectories = [decoder.trajectory(v) for v in views]
     outputs = []
-    for i, (spec, traj) in enumerate(progress(args, list(zip(views, trajectories)), len(views), "render", "view")):
-        frames = decoder.render(traj, steps=args.render_steps, seed=args.seed)
+    rendered = render_in_batches(decoder, trajectories, steps=args.render_steps, seed=args.seed)
+    for i, (spec, traj, frames) in enumerate(progress(args, zip(views, trajectories, rendered), len(views), "render",
+                                                      "view")):
         path = write_frames(out_dir / f"view_{trajectory_label(spec, i)}", frames, args.format, fps=cap.fps,
                             extra={"K": traj.K, "w2c": traj.w2c}, scale=args.upscale)
         outputs.append({"view": spec, "path": str(path), "frames": int(frames.shape[0])})
