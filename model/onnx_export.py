@@ -1,155 +1,453 @@
-"""Export a model directory's encoder to ``encoder.onnx`` (read by ``model.onnx_encoder``).
+"""Export a model directory's networks to ONNX, for onnxruntime (``model.onnx_encoder``, ``model.onnx_renderer``).
 
-    python -m vt4dcodec.model.onnx_export MODEL   # a shipped id or a model directory
+    python -m vt4dcodec.model.onnx_export MODEL   # a shipped id or a model directory: every graph below
 
-The graph is ``VideoTok4D.encode`` for one source camera, traced with torch's TorchScript-based ONNX
-exporter (opset 17) on example inputs of the model's shapes; every shape in it is static (the Temporal
-Branch's masked spatial attention runs on the whole latent grid with keys restricted to the mask instead
-of gathering the masked pixels, the same attention).  Float32 initializers whose values are exactly
-float16 (all weights of a model stored in float16) are stored as float16 with a Cast, halving the file
-without changing a value.  The export is checked before it is written: onnxruntime's tokens on the
-example inputs must match torch's within 1e-4.  Needs the ``onnx`` package (the ``test`` extra has it).
+What it writes beside ``model.safetensors`` (:func:`export_model`; run when a model ships):
+
+* ``encoder.onnx``: ``VideoTok4D.encode`` for one source camera, and ``encoder-v{V}.onnx`` for scenes of V
+  synchronized cameras, V = 2 .. :data:`EXPORT_VIEWS` (the encoder's fusion of several cameras depends on V
+  in Python: one graph per camera count, each a few hundred kilobytes);
+* ``renderer.onnx``: one Euler step of the rectified-flow sampler plus the autoencoder's decoder, for any
+  number of target views, frames and encoded cameras (``model.onnx_renderer`` runs the sampler loop).
+
+Graphs are traced with torch's TorchScript-based exporter (opset 17) without constant folding, so their
+weights are the model's own parameters, and every float32 weight whose values are exactly float16 (all
+weights of a model stored in float16) is not copied into the graph: it is an ONNX external tensor that
+points at its bytes in ``model.safetensors`` (float16) followed by a Cast. A graph thus holds structure and a
+few small constants only, and computes with the very weights ``from_pretrained`` loads.  Tensors that are
+not in the weights file stay in the graph (float16 where exact).
+
+Three things of the torch networks have no ONNX form and are traced through equivalents here, each
+checked by the parity test before a graph is written: ``torch.linalg.solve`` / ``inv`` of the 3 x 3
+intrinsics (adjugate over determinant), the renderer's in-place key-mask and bias assignments (the same
+values built by concatenation), and the renderer's per-camera-count index tables (token cameras, frame
+copies, copy origins and resolutions, stored for 1 .. MAX_VIEWS cameras and gathered by the graph at the
+count its source cameras have).  Before a graph replaces an old one, onnxruntime's output on example
+inputs must match torch's within :data:`PARITY_TOLERANCE`.  Needs the ``onnx`` package (``train`` and
+``test`` extras).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import hashlib
 import io
+import json
 import os
+import struct
 import sys
-import tempfile
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from vt4dcodec.errors import ModelError
 
-from .directories import model_directory, read_model_meta
+from . import renderer as renderer_module
+from .directories import WEIGHTS_FILE, model_directory, read_model_meta
+from .entropy import MAX_VIEWS
 from .inputs.source_inputs import SourceBatch
-from .onnx_encoder import INPUT_NAMES, ONNX_FILE, ONNX_FORMAT, OUTPUT_NAMES, OnnxEncoder
+from .layers import dynamic_token_cameras, locality_heads
+from .onnx_encoder import INPUT_NAMES, ONNX_FORMAT, OUTPUT_NAMES, OnnxEncoder, encoder_file
+from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, RENDERER_OUTPUTS, OnnxRenderer)
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
 
-__all__ = ["export_encoder", "example_inputs", "PARITY_TOLERANCE"]
+__all__ = ["export_encoder", "export_renderer", "export_model", "example_inputs", "example_render_inputs",
+           "PARITY_TOLERANCE", "EXPORT_VIEWS"]
 
-PARITY_TOLERANCE = 1e-4  # max |token difference| between onnxruntime and torch on the example inputs
+PARITY_TOLERANCE = 1e-4  # max |difference| of tokens (or frames in [0, 1]) between onnxruntime and torch
 OPSET = 17
+EXPORT_VIEWS = 10  # encoder graphs for scenes of 1 .. EXPORT_VIEWS cameras (a 10-camera rig; more: the torch runtime)
 
 
-class _Encode(nn.Module):
-    """``VideoTok4D.encode`` of one camera per scene, taking the :class:`SourceBatch` fields as tensors."""
+# --- example inputs --------------------------------------------------------------------------------
+def _orbit(n: int, T: int, size: int, offset: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(K (n, T, 3, 3), w2c (n, T, 4, 4)): n cameras 3 m from the origin, each turning 0.3 rad over T frames."""
+    K = torch.tensor([[size, 0.0, size / 2], [0.0, size, size / 2], [0.0, 0.0, 1.0]]).expand(n, T, 3, 3).contiguous()
+    w2c = torch.eye(4).repeat(n, T, 1, 1)
+    angle = torch.linspace(0.0, 0.3, T)[None] + offset + 0.4 * torch.arange(n)[:, None]
+    w2c[..., 0, 0], w2c[..., 0, 2] = torch.cos(angle), torch.sin(angle)
+    w2c[..., 2, 0], w2c[..., 2, 2] = -torch.sin(angle), torch.cos(angle)
+    w2c[..., 2, 3] = 3.0
+    return K, w2c
 
-    def __init__(self, net: VideoTok4D) -> None:
-        super().__init__()
-        self.net = net
 
-    def forward(self, frames: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor, motion_mask: torch.Tensor,
-                track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.encode(SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask,
-                                           track_xy=track_xy, track_valid=track_valid))
-
-
-def example_inputs(net: VideoTok4D, seed: int = 0) -> tuple[torch.Tensor, ...]:
-    """Inputs of one clip of the model's shapes: random frames, an orbiting camera 3 m from the origin, a
-    random motion mask (20 % of the cells) and random tracks (70 % valid)."""
+def example_inputs(net: VideoTok4D, seed: int = 0, views: int = 1) -> tuple[torch.Tensor, ...]:
+    """Inputs of one scene of ``views`` clips of the model's shapes: random frames, orbiting cameras 3 m from
+    the origin, a random motion mask (20 % of the cells) and random tracks (70 % valid)."""
     cfg = net.config
     g = torch.Generator().manual_seed(seed)
     T, H, h, N = cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks
-    K = torch.tensor([[H, 0.0, H / 2], [0.0, H, H / 2], [0.0, 0.0, 1.0]]).expand(1, T, 3, 3).contiguous()
-    w2c = torch.eye(4).repeat(1, T, 1, 1)
-    angle = torch.linspace(0.0, 0.3, T)
-    w2c[0, :, 0, 0], w2c[0, :, 0, 2] = torch.cos(angle), torch.sin(angle)
-    w2c[0, :, 2, 0], w2c[0, :, 2, 2] = -torch.sin(angle), torch.cos(angle)
-    w2c[0, :, 2, 3] = 3.0
-    return (torch.rand(1, T, 3, H, H, generator=g), K, w2c,
-            (torch.rand(1, T, h, h, generator=g) < 0.2).float(),
-            torch.rand(1, N, T, 2, generator=g) * (h - 1),
-            torch.rand(1, N, T, generator=g) < 0.7)
+    K, w2c = _orbit(views, T, H, 0.0)
+    return (torch.rand(views, T, 3, H, H, generator=g), K, w2c,
+            (torch.rand(views, T, h, h, generator=g) < 0.2).float(),
+            torch.rand(views, N, T, 2, generator=g) * (h - 1),
+            torch.rand(views, N, T, generator=g) < 0.7)
 
 
-def _store_exact_float16(model: Any) -> int:
-    """Rewrite the float32 initializers of an ``onnx.ModelProto`` whose values are all exactly float16 as
-    float16 + Cast; returns the number rewritten."""
+def example_render_inputs(net: VideoTok4D, *, views: int = 2, frames: int | None = None, cameras: int = 3,
+                          seed: int = 0) -> dict[str, torch.Tensor]:
+    """Renderer inputs: random tokens in (-1, 1) for ``views`` target views of ``frames`` frames (default the
+    clip) along orbits, ``cameras`` encoded cameras (their middle frames), one step from tau = 1."""
+    cfg = net.config
+    g = torch.Generator().manual_seed(seed)
+    T = cfg.frames if frames is None else frames
+    K_tgt, w2c_tgt = _orbit(views, T, cfg.image_size, 0.05)
+    K_src, w2c_src = (t[:, 0][None].expand(views, *t.shape[:1], *t.shape[2:]).contiguous()
+                      for t in _orbit(cameras, 1, cfg.image_size, -0.1))
+    noise = torch.randn(1, T, cfg.latent_channels, cfg.latent_size, cfg.latent_size, generator=g)
+    return {"y": noise.expand(views, -1, -1, -1, -1).contiguous(), "tau": torch.ones(views), "steps": torch.tensor(1.0),
+            "z_s": torch.rand(views, cfg.n_static, cfg.token_dim, generator=g) * 2 - 1,
+            "z_d": torch.rand(views, cfg.n_dynamic, cfg.token_dim, generator=g) * 2 - 1,
+            "K_tgt": K_tgt, "w2c_tgt": w2c_tgt, "K_src": K_src, "w2c_src": w2c_src,
+            "drop_static": torch.zeros(views, dtype=torch.bool), "drop_dynamic": torch.zeros(views, dtype=torch.bool)}
+
+
+# --- traceable equivalents ---------------------------------------------------------------------------
+def _inverse3(K: torch.Tensor) -> torch.Tensor:
+    """Inverse of (..., 3, 3) matrices by adjugate over determinant (ONNX has no matrix inverse)."""
+    a, b, c = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    d, e, f = K[..., 1, 0], K[..., 1, 1], K[..., 1, 2]
+    g, h, i = K[..., 2, 0], K[..., 2, 1], K[..., 2, 2]
+    co = [e * i - f * h, f * g - d * i, d * h - e * g]  # cofactors of the first row
+    adj = torch.stack([torch.stack([co[0], c * h - b * i, b * f - c * e], -1),
+                       torch.stack([co[1], a * i - c * g, c * d - a * f], -1),
+                       torch.stack([co[2], b * g - a * h, a * e - b * d], -1)], -2)
+    det = a * co[0] + b * co[1] + c * co[2]
+    return adj / det[..., None, None]
+
+
+@contextlib.contextmanager
+def _traceable_linalg() -> Iterator[None]:
+    """torch.linalg.solve / inv of 3 x 3 systems as :func:`_inverse3` while a graph is traced."""
+    solve, inv = torch.linalg.solve, torch.linalg.inv
+    torch.linalg.solve = lambda A, B: _inverse3(A) @ B  # type: ignore[assignment]
+    torch.linalg.inv = _inverse3  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        torch.linalg.solve, torch.linalg.inv = solve, inv  # type: ignore[assignment]
+
+
+# --- weights: external tensors into model.safetensors -------------------------------------------------
+def _safetensors_index(path: Path) -> dict[tuple[tuple[int, ...], bytes], tuple[int, int]]:
+    """(shape, SHA-256 of the bytes) -> (offset, length) in the file of every float16 tensor of a safetensors
+    file (read without the safetensors package: an 8-byte header length, a JSON header, the data)."""
+    data = path.read_bytes()
+    (length,) = struct.unpack("<Q", data[:8])
+    header = json.loads(data[8:8 + length])
+    base, index = 8 + length, {}
+    for name, entry in header.items():
+        if name == "__metadata__" or entry.get("dtype") != "F16":
+            continue
+        start, stop = (base + int(x) for x in entry["data_offsets"])
+        index[(tuple(entry["shape"]), hashlib.sha256(data[start:stop]).digest())] = (start, stop - start)
+    return index
+
+
+def _link_weights(model: Any, weights: Path) -> int:
+    """Rewrite the float32 initializers of an ``onnx.ModelProto`` whose values are exactly float16 as float16 +
+    Cast: an external tensor into ``weights`` (a safetensors file beside the graph) where that file holds the
+    same values, else stored in the graph. Returns the number linked to the file."""
     import onnx
     from onnx import helper, numpy_helper
 
-    graph, casts, kept, count = model.graph, [], [], 0
+    index = _safetensors_index(weights)
+    graph, casts, kept, linked = model.graph, [], [], 0
     for init in graph.initializer:
         value = numpy_helper.to_array(init)
-        if value.dtype == np.float32 and value.size >= 16 and np.array_equal(value.astype(np.float16).astype(np.float32), value):
-            half = numpy_helper.from_array(value.astype(np.float16), init.name + "__f16")
-            kept.append(half)
-            casts.append(helper.make_node("Cast", [half.name], [init.name], to=onnx.TensorProto.FLOAT,
-                                          name=init.name + "__cast"))
-            count += 1
-        else:
+        if value.dtype != np.float32 or value.size < 16 or \
+                not np.array_equal(value.astype(np.float16).astype(np.float32), value):
             kept.append(init)
+            continue
+        half = value.astype(np.float16)
+        found = index.get((tuple(half.shape), hashlib.sha256(half.tobytes()).digest()))
+        if found is None:
+            tensor = numpy_helper.from_array(half, init.name + "__f16")
+        else:
+            tensor = onnx.TensorProto(name=init.name + "__f16", data_type=onnx.TensorProto.FLOAT16,
+                                      dims=list(half.shape), data_location=onnx.TensorProto.EXTERNAL)
+            for key, text in (("location", weights.name), ("offset", str(found[0])), ("length", str(found[1]))):
+                entry = tensor.external_data.add()
+                entry.key, entry.value = key, text
+            linked += 1
+        kept.append(tensor)
+        casts.append(helper.make_node("Cast", [tensor.name], [init.name], to=onnx.TensorProto.FLOAT,
+                                      name=init.name + "__cast"))
     del graph.initializer[:]
     graph.initializer.extend(kept)
     nodes = casts + list(graph.node)
     del graph.node[:]
     graph.node.extend(nodes)
-    return count
+    return linked
 
 
-def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str]) -> Path:
-    """Write ``encoder.onnx`` for ``net`` into its model ``directory`` (whose config.json describes ``net``'s
-    weights) and return its path; ModelError when the directory does not describe ``net`` or when
-    onnxruntime's tokens differ from torch's by more than :data:`PARITY_TOLERANCE`."""
+def _compact_names(model: Any) -> None:
+    """Short names for every node and every value but the graph's inputs and outputs (the tracer's names spell
+    module paths and take half of a graph's bytes); what the graph computes is unchanged."""
+    graph = model.graph
+    keep = {v.name for v in graph.input} | {v.name for v in graph.output} | {""}
+    names: dict[str, str] = {}
+
+    def short(name: str) -> str:
+        if name in keep:
+            return name
+        if name not in names:
+            names[name] = format(len(names), "x")
+        return names[name]
+
+    for init in graph.initializer:
+        init.name = short(init.name)
+    for node in graph.node:
+        node.name = ""
+        node.input[:] = [short(n) for n in node.input]
+        node.output[:] = [short(n) for n in node.output]
+
+
+def _trace(module: nn.Module, inputs: tuple[torch.Tensor, ...], input_names: list[str], output_names: list[str],
+           dynamic_axes: dict[str, dict[int, str]] | None = None) -> Any:
     import onnx
 
-    directory = Path(directory)
+    buffer = io.BytesIO()
+    with torch.no_grad(), warnings.catch_warnings(), _traceable_linalg():
+        warnings.simplefilter("ignore")  # the tracer's notes on shape constants: checked by the parity test
+        torch.onnx.export(module, inputs, buffer, dynamo=False, opset_version=OPSET, input_names=input_names,
+                          output_names=output_names, dynamic_axes=dynamic_axes, do_constant_folding=False)
+    model = onnx.load_from_string(buffer.getvalue())
+    del model.graph.value_info[:]  # traced shapes: onnxruntime would bake the example's sizes into reshapes
+    return model
+
+
+def _finish(model: Any, directory: Path, meta: dict[str, Any], fmt: str, name: str, extra: dict[str, str],
+            check: Any) -> Path:
+    """Link the weights, stamp the metadata, check with ``check(path)`` and move into place as ``name``."""
+    import onnx
+
+    _link_weights(model, directory / WEIGHTS_FILE)
+    _compact_names(model)
+    for key, value in (("vt4d_format", fmt), ("vt4d_weights_sha256", meta["weights_sha256"]),
+                       ("vt4d_config_sha256", meta["config_sha256"]),
+                       ("vt4d_model", f"{meta['model_id']} {meta['model_version']}"), *extra.items()):
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    target = directory / name
+    candidate = directory / f".{name}.tmp-{os.getpid()}"  # beside the weights its external tensors point into
+    try:
+        candidate.write_bytes(model.SerializeToString())
+        onnx.checker.check_model(str(candidate))  # by path: the external tensors are read beside it
+        check(candidate)
+        os.replace(candidate, target)
+    finally:
+        candidate.unlink(missing_ok=True)
+    return target
+
+
+def _checked_meta(net: VideoTok4D, directory: Path) -> dict[str, Any]:
     meta = read_model_meta(directory)
     fingerprint = net.fingerprint(meta["model_id"], meta["model_version"])
     if (fingerprint.weights_sha256, fingerprint.config_sha256) != (meta["weights_sha256"], meta["config_sha256"]):
         raise ModelError(f"{directory} describes other weights than the model given")
-    net = net.eval()
-    wrapper = _Encode(net).eval()
-    inputs = example_inputs(net)
-    buffer = io.BytesIO()
+    return meta
+
+
+def _parity(got: list[np.ndarray], want: list[np.ndarray], what: str) -> None:
+    error = max(float(np.abs(a - b).max()) for a, b in zip(got, want))
+    if error > PARITY_TOLERANCE:
+        raise ModelError(f"exported {what} differs from torch by {error:.2e} (> {PARITY_TOLERANCE})")
+
+
+# --- the encoder -------------------------------------------------------------------------------------
+class _Encode(nn.Module):
+    """``VideoTok4D.encode`` of one scene of ``views`` cameras, taking the :class:`SourceBatch` fields as tensors."""
+
+    def __init__(self, net: VideoTok4D, views: int) -> None:
+        super().__init__()
+        self.net, self.views = net, views
+
+    def forward(self, frames: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor, motion_mask: torch.Tensor,
+                track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.net.encode(SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask,
+                                           track_xy=track_xy, track_valid=track_valid, views=self.views))
+
+
+def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
+    """Write the encoder graph for scenes of ``views`` cameras (``encoder.onnx`` for one) into ``net``'s model
+    ``directory`` (whose config.json describes ``net``'s weights) and return its path; ModelError when the
+    directory does not describe ``net`` or when onnxruntime's tokens differ from torch's by more than
+    :data:`PARITY_TOLERANCE`."""
+    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
+        raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
+    directory = Path(directory)
+    meta = _checked_meta(net, directory)
+    wrapper = _Encode(net.eval(), views).eval()
+    inputs = example_inputs(net, views=views)
     with torch.no_grad():
         reference = [t.numpy() for t in wrapper(*inputs)]
-        with warnings.catch_warnings():  # the tracer's notes on shape constants: every shape here is static
-            warnings.simplefilter("ignore")
-            torch.onnx.export(wrapper, inputs, buffer, dynamo=False, opset_version=OPSET,
-                              input_names=list(INPUT_NAMES), output_names=list(OUTPUT_NAMES))
-    model = onnx.load_from_string(buffer.getvalue())
-    _store_exact_float16(model)
-    for key, value in (("vt4d_format", ONNX_FORMAT), ("vt4d_weights_sha256", meta["weights_sha256"]),
-                       ("vt4d_config_sha256", meta["config_sha256"]), ("vt4d_views", "1"),
-                       ("vt4d_model", f"{meta['model_id']} {meta['model_version']}")):
-        entry = model.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.checker.check_model(model)
-    target = directory / ONNX_FILE
-    with tempfile.TemporaryDirectory(dir=directory) as tmp:  # check the file before it replaces any old one
-        candidate = Path(tmp) / ONNX_FILE
-        onnx.save(model, str(candidate))
-        encoder = OnnxEncoder.from_file(candidate, meta)
-        feed = {name: t.numpy() for name, t in zip(INPUT_NAMES, inputs)}
-        got = encoder.session.run(list(OUTPUT_NAMES), feed)
-        error = max(float(np.abs(a - b).max()) for a, b in zip(got, reference))
-        if error > PARITY_TOLERANCE:
-            raise ModelError(f"exported encoder differs from torch by {error:.2e} (> {PARITY_TOLERANCE})")
-        os.replace(candidate, target)
-    return target
+    model = _trace(wrapper, inputs, list(INPUT_NAMES), list(OUTPUT_NAMES))
+
+    def check(path: Path) -> None:
+        encoder = OnnxEncoder.from_file(path, meta, views=views)
+        _parity(encoder.session.run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)}),
+                reference, f"encoder ({views} camera(s))")
+
+    return _finish(model, directory, meta, ONNX_FORMAT, encoder_file(views), {"vt4d_views": str(views)}, check)
+
+
+# --- the renderer ------------------------------------------------------------------------------------
+def _splat_sum_batched(rows: torch.Tensor, values: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+    """``renderer._splat_sum`` for the whole batch at once (its per-item loop would trace the example's batch size):
+    (B, T, K, h, w) = sum over n of rows[b, t, n, y] values[b, t, n, k] cols[b, t, n, x]."""
+    B, T, N, h = rows.shape
+    K = values.shape[-1]
+    products = (rows[..., None] * values[:, :, :, None]).reshape(B, T, N, h * K)
+    return (products.transpose(2, 3) @ cols).reshape(B, T, h, K, -1).transpose(2, 3)
+
+
+class _RenderStep(nn.Module):
+    """One Euler step of ``VideoTok4D.render_latents`` and the decoded frames of its result: inputs
+    :data:`RENDERER_INPUTS`, outputs (y_next = y - v / steps, frames = decode(y_next) clamped to [0, 1]).
+
+    The renderer's per-camera-count index tables (token cameras, frame copies, copy origins, copy resolution,
+    dynamic token cameras) are buffers for 1 .. MAX_VIEWS encoded cameras, gathered at the count the source
+    cameras input has; its in-place key mask and locality bias are built by concatenation (same values)."""
+
+    def __init__(self, net: VideoTok4D) -> None:
+        super().__init__()
+        self.net = net
+        r, cfg = net.renderer, net.config
+        counts = range(1, MAX_VIEWS + 1)
+        with torch.no_grad():
+            anchored = r.n_anchored > 0 and cfg.project_anchors
+            tables = {
+                "token_cameras": [r.token_cameras(v) if anchored else torch.zeros(0, dtype=torch.long) for v in counts],
+                "copy_frames": [r.copy_frames(v) if anchored else torch.zeros(0, cfg.frames) for v in counts],
+                "copy_origin": [r.copy_origin(v) if anchored else torch.zeros(0, dtype=torch.long) for v in counts],
+                "copy_resolution": [F.pad(r.copy_resolution(v), (0, MAX_VIEWS - v)) if anchored
+                                    else torch.zeros(MAX_VIEWS) for v in counts],
+                "dynamic_cameras": [dynamic_token_cameras(cfg.n_dynamic, v) for v in counts],
+            }
+        self.register_buffer("token_cameras", torch.stack(tables["token_cameras"]).to(torch.int16))
+        self.register_buffer("copy_frames", torch.stack(tables["copy_frames"]).to(torch.uint8))
+        self.register_buffer("copy_origin", torch.stack(tables["copy_origin"]).to(torch.int16))
+        self.register_buffer("copy_resolution", torch.stack(tables["copy_resolution"]).float())
+        self.register_buffer("dynamic_cameras", torch.stack(tables["dynamic_cameras"]).to(torch.int16))
+
+    @contextlib.contextmanager
+    def _tables(self, K_src: torch.Tensor) -> Iterator[None]:
+        r = self.net.renderer
+        at = (torch.ones_like(K_src[0, :, 0, 0]).sum() - 1).long()  # the camera count - 1, as a graph value
+        token_cameras, copy_frames = self.token_cameras[at].long(), self.copy_frames[at].float()
+        copy_origin, copy_resolution = self.copy_origin[at].long(), self.copy_resolution[at]
+        dynamic = self.dynamic_cameras[at].long()
+        cfg = r.cfg
+
+        def embed_tokens(z_s: torch.Tensor, z_d: torch.Tensor, drop_static: torch.Tensor, drop_dynamic: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+            n_s, n_d = z_s.shape[1], z_d.shape[1]
+            tokens = r.token_in(torch.cat([z_s, z_d], dim=1).to(r.token_in.weight.dtype)) + r.token_slot[None]
+            types = torch.cat([torch.zeros(n_s, dtype=torch.long),
+                               torch.full((n_d,), 0 if cfg.unified_tokens else 1, dtype=torch.long)])
+            keep = torch.cat([(~drop_static)[:, None].expand(-1, n_s), (~drop_dynamic)[:, None].expand(-1, n_d)], 1)
+            return tokens + r.token_type[types][None], keep
+
+        def bias_from_logit(logit: torch.Tensor) -> torch.Tensor:
+            B, T, P, na = logit.shape
+            heads, near = cfg.heads, locality_heads(cfg.heads)
+            top = logit.reshape(B, 1, T * P, na).expand(-1, near, -1, -1)
+            top = torch.cat([top, torch.zeros_like(top[..., :1]).expand(-1, -1, -1, cfg.n_static + cfg.n_dynamic - na)],
+                            dim=-1)
+            return torch.cat([top, torch.zeros_like(top[:, :1]).expand(-1, heads - near, -1, -1)], dim=1)
+
+        patches = {"token_cameras": lambda views: token_cameras, "copy_frames": lambda views: copy_frames,
+                   "copy_origin": lambda views: copy_origin, "copy_resolution": lambda views: copy_resolution,
+                   "embed_tokens": embed_tokens, "_bias_from_logit": bias_from_logit}
+        functions = {"dynamic_token_cameras": lambda n, views, device=None: dynamic}
+        if hasattr(renderer_module, "_splat_sum"):  # a loop over the batch in torch (memory): one product here
+            functions["_splat_sum"] = _splat_sum_batched
+        saved = {name: getattr(renderer_module, name) for name in functions}
+        for name, value in patches.items():
+            setattr(r, name, value)
+        for name, value in functions.items():
+            setattr(renderer_module, name, value)
+        try:
+            yield
+        finally:
+            for name in patches:
+                delattr(r, name)
+            for name, value in saved.items():
+                setattr(renderer_module, name, value)
+
+    def forward(self, y: torch.Tensor, tau: torch.Tensor, steps: torch.Tensor, z_s: torch.Tensor, z_d: torch.Tensor,
+                K_tgt: torch.Tensor, w2c_tgt: torch.Tensor, K_src: torch.Tensor, w2c_src: torch.Tensor,
+                drop_static: torch.Tensor, drop_dynamic: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        net = self.net
+        with self._tables(K_src):
+            cameras = (K_tgt, w2c_tgt, K_src, w2c_src) if net.needs_source else None
+            v = net.velocity(y, z_s, z_d, net.rays(K_tgt, w2c_tgt), tau, cameras=cameras, drop_static=drop_static,
+                             drop_dynamic=drop_dynamic)
+        y_next = y - v / steps
+        return y_next, net.autoencoder.decode(y_next).float().clamp(0.0, 1.0)
+
+
+def _torch_render(net: VideoTok4D, inputs: dict[str, torch.Tensor], steps: int, seed: int) -> np.ndarray:
+    """``VideoTok4D.render`` of :func:`example_render_inputs` (cameras given as the encoded cameras' middle frames)."""
+    source = (inputs["K_src"][:, :, None], inputs["w2c_src"][:, :, None])
+    with torch.no_grad():
+        return net.render(inputs["z_s"], inputs["z_d"], inputs["K_tgt"], inputs["w2c_tgt"], steps=steps, seed=seed,
+                          source=source).numpy()
+
+
+def export_renderer(net: VideoTok4D, directory: str | os.PathLike[str]) -> Path:
+    """Write ``renderer.onnx`` for ``net`` into its model ``directory`` and return its path; ModelError when the
+    directory does not describe ``net`` or when onnxruntime's frames (``OnnxRenderer.render``, seeded noise and
+    the Euler loop included) differ from ``VideoTok4D.render``'s by more than :data:`PARITY_TOLERANCE`."""
+    directory = Path(directory)
+    meta = _checked_meta(net, directory)
+    wrapper = _RenderStep(net.eval()).eval()
+    inputs = example_render_inputs(net)
+    dynamic = {"y": {0: "B", 1: "T"}, "tau": {0: "B"}, "z_s": {0: "B"}, "z_d": {0: "B"}, "K_tgt": {0: "B", 1: "T"},
+               "w2c_tgt": {0: "B", 1: "T"}, "K_src": {0: "B", 1: "V"}, "w2c_src": {0: "B", 1: "V"},
+               "drop_static": {0: "B"}, "drop_dynamic": {0: "B"}, "y_next": {0: "B", 1: "T"}, "frames": {0: "B", 1: "T"}}
+    model = _trace(wrapper, tuple(inputs[n] for n in RENDERER_INPUTS), list(RENDERER_INPUTS), list(RENDERER_OUTPUTS),
+                   dynamic)
+
+    def check(path: Path) -> None:
+        renderer = OnnxRenderer.from_file(path, meta)
+        for views, frames, cameras, steps, seed in ((2, None, 3, 1, 0), (1, 3, 1, 2, 5)):
+            case = example_render_inputs(net, views=views, frames=frames, cameras=cameras, seed=seed + 1)
+            got = renderer.render(*(case[n].numpy() for n in ("z_s", "z_d", "K_tgt", "w2c_tgt", "K_src", "w2c_src")),
+                                  steps=steps, seed=seed)
+            _parity([got], [_torch_render(net, case, steps, seed)], "renderer")
+
+    return _finish(model, directory, meta, RENDERER_FORMAT, RENDERER_FILE, {}, check)
+
+
+def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: int = EXPORT_VIEWS) -> list[Path]:
+    """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras and
+    the renderer; returns their paths."""
+    return [export_encoder(net, directory, v) for v in range(1, views + 1)] + [export_renderer(net, directory)]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.onnx_export", description=__doc__.split("\n\n")[0])
     parser.add_argument("model", help="a shipped model id or a model directory")
+    parser.add_argument("--views", type=int, default=EXPORT_VIEWS,
+                        help=f"encoder graphs for scenes of 1 .. VIEWS cameras (default {EXPORT_VIEWS})")
     args = parser.parse_args(argv)
     try:
         directory = model_directory(args.model)
-        path = export_encoder(from_pretrained(directory), directory)
+        paths = export_model(from_pretrained(directory), directory, views=args.views)
     except ModelError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    for path in paths:
+        print(f"wrote {path} ({path.stat().st_size / 1e3:.0f} kB)")
     return 0
 
 

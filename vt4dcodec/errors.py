@@ -34,6 +34,7 @@ __all__ = [
     "ModelError",
     "ModelNotFoundError",
     "ModelMismatchError", "EntropyTablesError",
+    "DeviceError", "MissingExtraError",
 ]
 
 
@@ -127,3 +128,13 @@ class ModelNotFoundError(ModelError, LookupError):
 
 class ModelMismatchError(ModelError):
     """The tokens were made by a different model than the one asked to decode them."""
+
+
+# --- where the codec runs --------------------------------------------------------------------------
+class DeviceError(Vt4dError, RuntimeError):
+    """The device asked for (``device="cuda"``, ``--device cuda``) is not there, or is not a known device."""
+
+
+class MissingExtraError(Vt4dError, ImportError):
+    """What was asked needs a package of an optional extra that is not installed (the message names the extra,
+    e.g. ``pip install -e ".[train]"`` for anything that runs the torch networks)."""
