@@ -138,7 +138,7 @@ class ModelConfig(_Config):
         of its distance to that projection. At the source camera it equals the grid prior, so a
         model warm-started without it renders its source view unchanged; elsewhere tokens move with
         the target pose (vt4d-tiny 0.5.0's fixed grid bias made renders at other cameras a blurred
-        copy of the source view: bench/probe_pose_dependence.py). Rendering then needs the source
+        copy of the source view: bench/probes/probe_pose_dependence.py). Rendering then needs the source
         trajectory.
         anchor_views: with project_anchors and V > 1 encoded cameras, anchored token i belongs to
         encoded camera i mod V: its query reads that camera's cell i (the locality bias and the grid
@@ -170,7 +170,7 @@ class ModelConfig(_Config):
         start from a model without it copies the cell and splat maps into the two new ones). Equal copies get equal
         gradients and stay equal (vt4d-tiny 0.9.0's 5 copies per cell, 0.005 apart against 2.26
         between cells); a time-averaged latent caps the source view at 26.0 dB / SSIM 0.76 where 4
-        frame-group averages give 29.4 / 0.86 (bench/probe_static_oracle.py).
+        frame-group averages give 29.4 / 0.86 (bench/probes/probe_static_oracle.py).
         frame_gate_deg: with frame_copies, > 0 weighs each copy's frame splat in target frame t by
         exp(-a^2 / 2 s^2), a the angle at the token between the rays from its encoded camera and from
         the target camera, s this many degrees: a frame copy holds what its cell did as seen along the

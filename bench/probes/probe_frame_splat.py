@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """What the frame copies' splat adds to the source view and takes from the near views.
 
-    python bench/probe_frame_splat.py RUN_OR_MODEL [--scenes 8] [--gate-deg 5,10,20] [--threads 1] [--out FILE.json]
+    python bench/probes/probe_frame_splat.py RUN_OR_MODEL [--scenes 8] [--gate-deg 5,10,20] [--threads 1] [--out FILE.json]
 
 For a model with ``frame_copies`` (a training run directory, its latest checkpoint, or a shipped id /
 model directory): held-out 10-camera synthetic scenes, camera 0 encoded (float32 tokens), its own

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """How well does the renderer place the anchored static tokens in depth? Token depth vs true cell depth.
 
-    python bench/probe_anchor_depth.py [MODEL] [--scenes 8] [--near] [--out FILE.json]
+    python bench/probes/probe_anchor_depth.py [MODEL] [--scenes 8] [--near] [--out FILE.json]
 
 MODEL: a shipped id or model directory (default ``vt4d-tiny``), or a training run directory (its latest
 checkpoint). With ``project_anchors`` each anchored static token sits on its cell's ray of the encoded

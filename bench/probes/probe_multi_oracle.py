@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """What could the five-camera encode give the five held-out cameras? RGB-D oracles beside the model.
 
-    python bench/probe_multi_oracle.py [--scenes 50] [--out FILE.json]
+    python bench/probes/probe_multi_oracle.py [--scenes 50] [--out FILE.json]
 
 On the evaluation's multi-camera held-out set (held-out 10-camera test scenes, cameras 0, 2, 4, 6, 8
 encoded, 1, 3, 5, 7, 9 rendered), PSNR over all pixels and over the moving objects' pixels of:

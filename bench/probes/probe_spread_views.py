@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Encoding 2, 4 or 8 cameras: each camera's tokens on the same few cells, or spread over distinct cells.
 
-    python bench/probe_spread_views.py RUN_OR_MODEL [--scenes 8] [--views 2,4,8] [--threads 1] [--out FILE.json]
+    python bench/probes/probe_spread_views.py RUN_OR_MODEL [--scenes 8] [--views 2,4,8] [--threads 1] [--out FILE.json]
 
 With V encoded cameras anchored token i belongs to camera i mod V and cell i mod P; when V shares a factor
 with the P = 64 cells each camera's tokens land on only 64 / gcd(V, 64) cells (4 cameras: 16 cells, each

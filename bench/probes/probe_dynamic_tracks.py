@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """How well a ``dynamic_splat`` model's dynamic tokens say where their track goes.
 
-    python bench/probe_dynamic_tracks.py RUN [RUN ...] [--scenes 8] [--first-seed 400] [--items 4]
+    python bench/probes/probe_dynamic_tracks.py RUN [RUN ...] [--scenes 8] [--first-seed 400] [--items 4]
         [--threads 1] [--out FILE.json]
 
 For each training run (its latest ``checkpoint/``) and for one- and five-camera batches of ``--items``

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Where does a tokenizer lose a scene's detail: in the tokens, or in the renderer?
 
-    python bench/probe_cells.py RUN_DIR [--train-scenes 64] [--test-scenes 16] [--cache runs/scene_cache]
+    python bench/probes/probe_cells.py RUN_DIR [--train-scenes 64] [--test-scenes 16] [--cache runs/scene_cache]
 
 For a training checkpoint (``RUN_DIR/checkpoint``) of a model with anchored static tokens
 (``locality_sigma > 0``: static token i belongs to encoder grid cell i mod P), camera 0 of each scene

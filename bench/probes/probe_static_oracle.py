@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """How far could one static token per encoder cell take the source view? Oracles beside a checkpoint.
 
-    python bench/probe_static_oracle.py RUN_DIR [--scenes 16] [--cache runs/scene_cache] [--out FILE.json]
+    python bench/probes/probe_static_oracle.py RUN_DIR [--scenes 16] [--cache runs/scene_cache] [--out FILE.json]
 
 On held-out synthetic scenes (camera 0, its own trajectory), PSNR of the source clip against:
 

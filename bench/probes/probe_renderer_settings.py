@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """The same trained weights under renderer settings that add no weights, on the evaluation's target sets.
 
-    python bench/probe_renderer_settings.py RUN_OR_MODEL --set view_gate_deg=20,40,70 [--scenes 8]
+    python bench/probes/probe_renderer_settings.py RUN_OR_MODEL --set view_gate_deg=20,40,70 [--scenes 8]
         [--first-seed 0] [--sets source,near,far,multi-enc,multi-held] [--threads 1] [--out FILE.json]
 
 For each value of the field given by ``--set`` (``view_gate_deg``, ``frame_gate_deg``, ``spread_views``,

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """How much does a render depend on the target camera?
 
-    python bench/probe_pose_dependence.py [--model vt4d-tiny] [--scenes 6]
+    python bench/probes/probe_pose_dependence.py [--model vt4d-tiny] [--scenes 6]
 
 Camera 0 of each held-out 10-camera scene is encoded through the public codec (default encoding); the
 scene is rendered at its source trajectory and at every other camera. Prints, averaged over the other

@@ -1,6 +1,6 @@
 """Held-out probe of a stage-2 training checkpoint, cheap enough to run while training goes on.
 
-    python bench/probe_checkpoint.py RUN_DIR [--scenes 16] [--figure PNG] [--cache runs/scene_cache] [--split train]
+    python bench/probes/probe_checkpoint.py RUN_DIR [--scenes 16] [--figure PNG] [--cache runs/scene_cache] [--split train]
 
 Loads ``RUN_DIR/checkpoint`` (float32 weights, no codec, no quantization), encodes camera 0 of the
 first ``--scenes`` held-out 10-camera scenes (split "test", cached with the training pool's settings)
