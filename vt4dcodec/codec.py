@@ -18,18 +18,25 @@ Given a capture directory, encoding reads only the clip: the encoded cameras' fr
 start + config.frames)`` (videos seeked, not decoded whole; :mod:`vt4dcodec.capture.io`), so time and
 memory follow the clip, not the capture, and ``encode_clips`` reads one clip at a time.
 
-Encoder runtimes (``runtime=``): ``"torch"`` runs the networks; ``"onnx"`` runs the model directory's
-exported encoder (``encoder.onnx``, ``vt4dcodec.model.onnx_encoder``) on onnxruntime, one camera per scene,
-without importing torch (~120 MB resident instead of ~530 MB for torch alone); ``"auto"`` (default) takes
-onnx for one camera when the model has an exported encoder and onnxruntime is installed, torch otherwise.
-Both give the same fingerprint and tokens equal to float rounding.
+Runtimes (``runtime=``): ``"torch"`` runs the networks (the ``train`` extra installs torch); ``"onnx"`` runs
+the graphs exported beside the model's weights on onnxruntime without importing torch (~120 MB resident
+instead of ~530 MB for torch alone): the encoder for 1 .. 10 cameras (``encoder.onnx``,
+``encoder-v{V}.onnx``; ``vt4dcodec.model.onnx_encoder``) and the renderer (``renderer.onnx``;
+``vt4dcodec.model.onnx_renderer``).  ``"auto"`` (default): where torch is installed, onnx for encoding one
+camera and torch otherwise; where it is not (``pip install ".[codec]"``), onnx for everything.  Both give the
+same fingerprint, tokens equal to float rounding (<= 2e-6) and the same frames to float rounding.
+
+Devices (``device=``, :data:`DEVICES`): ``"cpu"`` (default); ``"cuda"``, a GPU through torch (torch runtime) or
+onnxruntime's CUDA execution provider (onnx runtime, the ``onnxruntime-gpu`` package), a
+:class:`~vt4dcodec.errors.DeviceError` naming the option where none is seen; ``"auto"``, a GPU where one is
+seen, else the CPU.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
@@ -42,7 +49,8 @@ from .capture.io import MANIFEST_NAME, CaptureManifest, read_capture, read_manif
 from .capture.resample import check_fit, fit_capture, fit_trajectory, plan_fit
 from .capture.targets import camera_target, check_camera_spec, cut_to_clip, is_camera_spec
 from .capture.trajectories import load_trajectory, make_trajectory, parse_trajectory_spec
-from .errors import CaptureError, EntropyTablesError, ModelMismatchError, ModelNotFoundError, TrajectoryError
+from .errors import (CaptureError, DeviceError, EntropyTablesError, MissingExtraError, ModelError, ModelMismatchError,
+                     ModelNotFoundError, TrajectoryError)
 from .format import EntropyTables, ModelFingerprint, Provenance, Scene, load, open_scene
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -50,15 +58,19 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from .model import VideoTok4D
     from .model.onnx_encoder import OnnxEncoder
+    from .model.onnx_renderer import OnnxRenderer
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
     "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
-    "RUNTIMES", "quality_levels", "default_quality", "model_tables",
+    "RUNTIMES", "DEVICES", "quality_levels", "default_quality", "model_tables", "torch_available", "load_renderer",
+    "torch_device", "TRAIN_EXTRA_HINT",
 ]
 
 DEFAULT_MODEL = "vt4d-tiny"
-RUNTIMES = ("auto", "torch", "onnx")  # encoder runtimes (module docstring)
+TRAIN_EXTRA_HINT = 'pip install "vt4dcodec[train]" (from a clone: pip install -e ".[train]")'
+RUNTIMES = ("auto", "torch", "onnx")  # encoder and renderer runtimes (module docstring)
+DEVICES = ("auto", "cpu", "cuda")  # where they run (module docstring)
 DEFAULT_STEPS = None  # None: the model's recorded decode_steps (its best-fidelity setting)
 # The smallest encoding that keeps every held-out novel view within 0.1 dB of float32 tokens, re-chosen
 # for each shipped model (docs/benchmarks/rate_distortion.md). vt4d-tiny 1.0.0: int4, worst view +0.074 dB,
@@ -73,61 +85,149 @@ DEFAULT_ENCODING = "int4"
 RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
+# --- runtimes and devices ---------------------------------------------------------------------------
+def torch_available() -> bool:
+    """Whether torch is installed (the ``train`` extra): the torch runtime, training, evaluation, generation."""
+    from .model.onnx_session import module_available  # torch-free
+
+    return module_available("torch")
+
+
+def _require_torch(what: str) -> None:
+    if not torch_available():
+        raise MissingExtraError(f"{what} runs the torch networks, and torch is not installed: {TRAIN_EXTRA_HINT}")
+
+
+def _require_a_runtime() -> None:
+    """MissingExtraError naming the codec extra where neither onnxruntime nor torch is installed (a core install)."""
+    from .model.onnx_session import onnx_available
+
+    if not onnx_available() and not torch_available():
+        raise MissingExtraError('the codec runs its networks on onnxruntime, which the core install leaves out: pip '
+                                'install "vt4dcodec[codec]" (from a clone: pip install -e ".[codec]")')
+
+
+def _check_runtime(runtime: str) -> None:
+    if runtime not in RUNTIMES:
+        raise ModelError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
+
+
+def _check_device(device: str) -> None:
+    if device not in DEVICES:
+        raise DeviceError(f"device must be one of {DEVICES}, got {device!r}")
+
+
+def torch_device(device: str = "cpu") -> str:
+    """``device`` (:data:`DEVICES`) as the torch device the networks run on: ``"cuda"`` where torch sees a GPU
+    (DeviceError for ``"cuda"`` where it sees none), else ``"cpu"``."""
+    _check_device(device)
+    if device == "cpu":
+        return "cpu"
+    import torch
+
+    if torch.cuda.is_available():
+        return "cuda"
+    if device == "cuda":
+        raise DeviceError("device='cuda' but no GPU is seen: torch finds no CUDA device (no NVIDIA GPU or driver, or "
+                          "a CPU-only torch); run on the CPU with device='cpu' (or device='auto', which takes a GPU "
+                          "where there is one)")
+    return "cpu"
+
+
 # --- models -----------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=4)
-def _load_model_cached(directory: str) -> "VideoTok4D":
+def _load_model_cached(directory: str, device: str = "cpu") -> "VideoTok4D":
     from .model import from_pretrained  # lazy: torch loads on first use, not with `import vt4dcodec` / `vt4d`
 
-    return from_pretrained(directory)
+    return from_pretrained(directory, device=device)
 
 
-def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL) -> "VideoTok4D":
+def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL, *, device: str = "cpu") -> "VideoTok4D":
     """A model by shipped id, by directory path, by the name of a directory under $VT4D_MODEL_PATH
-    (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is).  Each
-    directory is loaded once per process."""
+    (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is), on ``device``
+    (:data:`DEVICES`).  Each directory is loaded once per process and device.  Needs torch (the ``train``
+    extra): MissingExtraError without it."""
+    _require_torch("loading the model's networks")
     from .model import VideoTok4D  # lazy: keeps torch out of `import vt4dcodec` / `vt4d` (as above)
     from .model.weights_io import model_directory
 
+    where = torch_device(device)
     if isinstance(model, VideoTok4D):
-        return model
-    return _load_model_cached(str(model_directory(model).resolve()))
+        return model if device == "cpu" else model.to(where)
+    return _load_model_cached(str(model_directory(model).resolve()), where)
+
+
+@functools.lru_cache(maxsize=8)
+def _open_onnx_cached(directory: str, views: int = 1, device: str = "cpu") -> "OnnxEncoder":
+    from .model.onnx_encoder import OnnxEncoder
+
+    return OnnxEncoder.open(directory, views=views, device=device)
 
 
 @functools.lru_cache(maxsize=4)
-def _open_onnx_cached(directory: str) -> "OnnxEncoder":
-    from .model.onnx_encoder import OnnxEncoder
+def _open_renderer_cached(directory: str, device: str = "cpu") -> "OnnxRenderer":
+    from .model.onnx_renderer import OnnxRenderer
 
-    return OnnxEncoder.open(directory)
+    return OnnxRenderer.open(directory, device=device)
 
 
 def load_encoder(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL, runtime: str = "auto", *,
-                 cameras: int = 1) -> "VideoTok4D | OnnxEncoder":
+                 cameras: int = 1, device: str = "cpu") -> "VideoTok4D | OnnxEncoder":
     """The encoder of ``model`` for scenes of ``cameras`` source cameras on ``runtime`` (one of
-    :data:`RUNTIMES`; module docstring).  A loaded model or encoder is returned as is (``runtime="onnx"``
-    then needs an :class:`OnnxEncoder`).  ModelError for an unknown runtime, for ``"onnx"`` with several
-    cameras, without onnxruntime or without an exported encoder."""
-    from .errors import ModelError
+    :data:`RUNTIMES`) and ``device`` (one of :data:`DEVICES`; module docstring).  A loaded model or encoder is
+    returned as is (``runtime="onnx"`` then needs an :class:`OnnxEncoder`).  ModelError for an unknown runtime,
+    or for ``"onnx"`` without onnxruntime; ModelNotFoundError for ``"onnx"`` where the model has no exported
+    encoder for that many cameras; MissingExtraError where the torch runtime is needed and torch is not
+    installed; DeviceError where ``device="cuda"`` finds no GPU."""
     from .model.directories import model_directory  # torch-free, as the ONNX encoder
     from .model.onnx_encoder import OnnxEncoder, has_onnx_encoder, onnx_available
 
-    if runtime not in RUNTIMES:
-        raise ModelError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
+    _check_runtime(runtime)
+    _check_device(device)
+    _require_a_runtime()
     if not isinstance(model, (str, os.PathLike)):  # a loaded VideoTok4D or OnnxEncoder
         if runtime == "onnx" and not isinstance(model, OnnxEncoder):
             raise ModelError("runtime='onnx' takes a model id or directory (or an OnnxEncoder), not a loaded torch model")
-        return model
+        return model if isinstance(model, OnnxEncoder) else load_model(model, device=device)
     if runtime == "torch":
-        return load_model(model)
+        return load_model(model, device=device)
     directory = model_directory(model)
-    if runtime == "onnx" and cameras != 1:
-        raise ModelError(f"runtime='onnx' encodes one camera per scene, not {cameras}; use runtime='torch' "
-                         "(or 'auto') to encode several cameras")
-    if runtime == "onnx" or (cameras == 1 and onnx_available() and has_onnx_encoder(directory)):
-        return _open_onnx_cached(str(directory.resolve()))
-    return load_model(directory)
+    exported = onnx_available() and has_onnx_encoder(directory, cameras)
+    if runtime == "onnx" or (exported and (cameras == 1 or not torch_available())):
+        return _open_onnx_cached(str(directory.resolve()), cameras, device)
+    if not torch_available():
+        raise MissingExtraError(f"{directory} has no exported encoder for {cameras} camera(s)"
+                                f"{'' if onnx_available() else ' usable here (onnxruntime is not installed)'}, and the "
+                                f"torch runtime is not installed: {TRAIN_EXTRA_HINT}")
+    return load_model(directory, device=device)
 
 
-def model_fingerprint(model: "VideoTok4D | OnnxEncoder") -> ModelFingerprint:
+def load_renderer(model: "str | os.PathLike | VideoTok4D | OnnxRenderer" = DEFAULT_MODEL, runtime: str = "auto", *,
+                  device: str = "cpu") -> "VideoTok4D | OnnxRenderer":
+    """The renderer of ``model`` on ``runtime`` and ``device`` (module docstring): the torch model, or the exported
+    ``renderer.onnx`` on onnxruntime (``"auto"``: torch where it is installed, else onnx). A loaded model is returned
+    as is. Errors as :func:`load_encoder`'s."""
+    from .model.directories import model_directory
+    from .model.onnx_renderer import OnnxRenderer, has_onnx_renderer
+    from .model.onnx_session import onnx_available
+
+    _check_runtime(runtime)
+    _check_device(device)
+    _require_a_runtime()
+    if not isinstance(model, (str, os.PathLike)):
+        if runtime == "onnx" and not isinstance(model, OnnxRenderer):
+            raise ModelError("runtime='onnx' takes a model id or directory (or an OnnxRenderer), not a loaded torch model")
+        return model if isinstance(model, OnnxRenderer) else load_model(model, device=device)
+    if runtime == "torch" or (runtime == "auto" and torch_available()):
+        return load_model(model, device=device)
+    directory = model_directory(model)
+    if runtime == "auto" and not (onnx_available() and has_onnx_renderer(directory)):
+        raise MissingExtraError(f"{directory} has no exported renderer (renderer.onnx) usable here, and the torch "
+                                f"runtime is not installed: {TRAIN_EXTRA_HINT}")
+    return _open_renderer_cached(str(directory.resolve()), device)
+
+
+def model_fingerprint(model: "VideoTok4D | OnnxEncoder | OnnxRenderer") -> ModelFingerprint:
     """The fingerprint a container stores for ``model`` (``VideoTok4D.stored_fingerprint``)."""
     return model.stored_fingerprint()
 
@@ -215,6 +315,7 @@ def encode(
     fit: str = "crop",
     runtime: str = "auto",
     quality: int | None = None,
+    device: str = "cpu",
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -245,6 +346,7 @@ def encode(
             (resize the longer side, letterbox on black bars: the whole picture is kept, at fewer
             pixels; recorded as ``metadata["vt4d"]["fit"]``).
         runtime: ``"auto"``, ``"torch"`` or ``"onnx"``: which runtime runs the encoder (module docstring).
+        device: ``"cpu"``, ``"cuda"`` or ``"auto"``: where the encoder runs (module docstring).
         quality: a quality level of the model's entropy model (:func:`quality_levels`; 1 = the fewest bytes):
             the scene is stored as ``learned-rans`` at that level (``encoding`` is then ignored). ModelError for
             a model without quality levels.
@@ -255,7 +357,7 @@ def encode(
     source = _open_source(capture)
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
-    net = load_encoder(model, runtime, cameras=len(names))
+    net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
     clip = read_clip(source, names, start, net.config.frames)
     return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
@@ -345,6 +447,7 @@ def encode_clips(
     fit: str = "crop",
     runtime: str = "auto",
     quality: int | None = None,
+    device: str = "cpu",
 ) -> list[Scene]:
     """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
     (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
@@ -354,7 +457,7 @@ def encode_clips(
     source = _open_source(capture)
     check_fit(fit)
     names = _pick_cameras(source, camera, cameras)
-    net = load_encoder(model, runtime, cameras=len(names))
+    net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
     T = net.config.frames
     if source.num_frames < T:
@@ -385,9 +488,10 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
 
         from .model.inputs.source_inputs import SourceBatch
 
+        device = next(net.parameters()).device
         with torch.no_grad():
-            t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)))
-        z_s, z_d = t_s.numpy(), t_d.numpy()
+            t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)).to(device))
+        z_s, z_d = t_s.cpu().numpy(), t_d.cpu().numpy()
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
     if len(names) > 1:
@@ -462,21 +566,25 @@ def resolve_trajectory(spec: "Trajectory | str | os.PathLike", reference: Trajec
 class SceneDecoder:
     """A loaded scene bound to its model: render as many trajectories as you like, no re-encoding.
 
-    Create with :meth:`open`.  ``render`` returns (T, H, W, 3) uint8 frames.
+    Create with :meth:`open`.  ``render`` returns (T, H, W, 3) uint8 frames.  ``model`` is the torch model or
+    the exported renderer on onnxruntime (:class:`~vt4dcodec.model.onnx_renderer.OnnxRenderer`; module
+    docstring, "Runtimes").
     """
 
     scene: Scene
-    model: "VideoTok4D"
+    model: "VideoTok4D | OnnxRenderer"
 
     @classmethod
     def open(cls, scene_or_path: "Scene | str | os.PathLike | bytes", *,
-             model: "str | os.PathLike | VideoTok4D | None" = None, force: bool = False) -> "SceneDecoder":
+             model: "str | os.PathLike | VideoTok4D | OnnxRenderer | None" = None, force: bool = False,
+             runtime: str = "auto", device: str = "cpu") -> "SceneDecoder":
         """Load the scene and the model that made it (found from the stored fingerprint unless ``model``
-        is given).  A different model is refused with both fingerprints named unless ``force``."""
+        is given), its renderer on ``runtime`` and ``device`` (:func:`load_renderer`).  A different model is
+        refused with both fingerprints named unless ``force``."""
         scene = scene_or_path if isinstance(scene_or_path, Scene) else _load_scene(scene_or_path, model)
         stored = scene.fingerprint
         try:
-            net = load_model(stored.model_id if model is None else model)
+            net = load_renderer(stored.model_id if model is None else model, runtime, device=device)
         except ModelNotFoundError as exc:
             raise ModelNotFoundError(f"the scene was made by {stored.short()}: {exc}") from None
         have = model_fingerprint(net)
@@ -513,14 +621,18 @@ class SceneDecoder:
             return {}
         return dict(zip(names, stored))
 
-    def source_cameras(self) -> tuple["torch.Tensor", "torch.Tensor"]:
+    def source_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """The encoded cameras that place the tokens (the scene's cameras, then its extra cameras), fitted to
-        the model's image: (K (1, V, T, 3, 3), w2c (1, V, T, 4, 4)) float32."""
+        the model's image: (K (V, T, 3, 3), w2c (V, T, 4, 4)) float32."""
+        encoded = [self.trajectory("source")] + [self.trajectory(t) for t in self.scene.extra_cameras]
+        return (np.stack([t.K for t in encoded]).astype(np.float32),
+                np.stack([t.w2c for t in encoded]).astype(np.float32))
+
+    def source_cameras(self) -> tuple["torch.Tensor", "torch.Tensor"]:
+        """:meth:`source_arrays` as torch tensors with a batch axis: (K (1, V, T, 3, 3), w2c (1, V, T, 4, 4))."""
         import torch  # lazy: keeps torch out of `import vt4dcodec` / `vt4d`
 
-        encoded = [self.trajectory("source")] + [self.trajectory(t) for t in self.scene.extra_cameras]
-        K = np.stack([t.K for t in encoded]).astype(np.float32)
-        w2c = np.stack([t.w2c for t in encoded]).astype(np.float32)
+        K, w2c = self.source_arrays()
         return torch.from_numpy(K)[None], torch.from_numpy(w2c)[None]
 
     def render(self, trajectory: "Trajectory | str | os.PathLike" = "source", *, steps: int | None = DEFAULT_STEPS,
@@ -537,34 +649,68 @@ class SceneDecoder:
 
         ``"camera:NAME"`` takes capture camera NAME over the scene's clip from ``capture`` (a Capture or
         a capture directory: the one the scene was encoded from)."""
+        from .model.onnx_renderer import OnnxRenderer  # torch-free
+
+        resolved = [self.trajectory(spec, capture=capture) for spec in trajectories]
+        if isinstance(self.model, OnnxRenderer):
+            return self._render_onnx(self.model, resolved, steps=steps, seed=seed, drop_static=drop_static,
+                                     drop_dynamic=drop_dynamic)
         import torch  # lazy: keeps torch out of `import vt4dcodec` / `vt4d`
 
-        z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None]
-        z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None]
+        device = next(self.model.parameters()).device
+        z_s = torch.from_numpy(np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32))[None].to(device)
+        z_d = torch.from_numpy(np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32))[None].to(device)
         source = self.source_cameras() if self.model.needs_source else None
-        resolved = [self.trajectory(spec, capture=capture) for spec in trajectories]
         out: list[np.ndarray | None] = [None] * len(resolved)
-        # views of one frame count are rendered together, RENDER_BATCH at a time (the renderer gives each
-        # item the same seeded noise, so a view is the same as rendered alone)
-        by_length: dict[int, list[int]] = {}
-        for i, traj in enumerate(resolved):
-            by_length.setdefault(traj.num_frames, []).append(i)
-        for indices in by_length.values():
-            for start in range(0, len(indices), RENDER_BATCH):
-                chunk = indices[start:start + RENDER_BATCH]
-                n = len(chunk)
-                K = torch.from_numpy(np.stack([resolved[i].K for i in chunk]).astype(np.float32))
-                w2c = torch.from_numpy(np.stack([resolved[i].w2c for i in chunk]).astype(np.float32))
-                src = None if source is None else tuple(t.expand(n, *t.shape[1:]) for t in source)
-                frames = self.model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=steps,
-                                           seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic, source=src)
-                videos = (frames.permute(0, 1, 3, 4, 2).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
-                for i, video in zip(chunk, videos):
-                    out[i] = video
+        for chunk in _render_batches(resolved):
+            n = len(chunk)
+            K = torch.from_numpy(np.stack([resolved[i].K for i in chunk]).astype(np.float32))
+            w2c = torch.from_numpy(np.stack([resolved[i].w2c for i in chunk]).astype(np.float32))
+            src = None if source is None else tuple(t.expand(n, *t.shape[1:]) for t in source)
+            frames = self.model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=steps,
+                                       seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic, source=src)
+            videos = (frames.permute(0, 1, 3, 4, 2).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+            for i, video in zip(chunk, videos):
+                out[i] = video
+        return [v for v in out if v is not None]
+
+    def _render_onnx(self, renderer: "OnnxRenderer", resolved: list[Trajectory], *, steps: int | None, seed: int,
+                     drop_static: bool, drop_dynamic: bool) -> list[np.ndarray]:
+        """:meth:`render_many` on the exported renderer: views of one frame count together, RENDER_BATCH at a time."""
+        z_s = np.ascontiguousarray(self.scene.static_tokens, dtype=np.float32)[None]
+        z_d = np.ascontiguousarray(self.scene.dynamic_tokens, dtype=np.float32)[None]
+        K_src = w2c_src = None
+        if renderer.needs_source:  # the encoded cameras at their middle frame, as VideoTok4D.render_cameras
+            K_all, w2c_all = self.source_arrays()
+            mid = K_all.shape[1] // 2
+            K_src, w2c_src = K_all[None, :, mid], w2c_all[None, :, mid]
+        out: list[np.ndarray | None] = [None] * len(resolved)
+        for chunk in _render_batches(resolved):
+            n = len(chunk)
+            K = np.stack([resolved[i].K for i in chunk]).astype(np.float32)
+            w2c = np.stack([resolved[i].w2c for i in chunk]).astype(np.float32)
+            src = (None, None) if K_src is None else (np.repeat(K_src, n, 0), np.repeat(w2c_src, n, 0))
+            frames = renderer.render(np.repeat(z_s, n, 0), np.repeat(z_d, n, 0), K, w2c, *src, steps=steps,
+                                     seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic)
+            videos = (frames.transpose(0, 1, 3, 4, 2) * np.float32(255.0)).round().clip(0, 255).astype(np.uint8)
+            for i, video in zip(chunk, videos):
+                out[i] = video
         return [v for v in out if v is not None]
 
 
-def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike | VideoTok4D | None") -> Scene:
+def _render_batches(resolved: Sequence[Trajectory]) -> list[list[int]]:
+    """Indices of ``resolved`` in the batches :meth:`SceneDecoder.render_many` renders: views of one frame count
+    together, RENDER_BATCH at a time (the renderer gives each item the same seeded noise, so a view is the same
+    as rendered alone)."""
+    by_length: dict[int, list[int]] = {}
+    for i, traj in enumerate(resolved):
+        by_length.setdefault(traj.num_frames, []).append(i)
+    return [indices[start:start + RENDER_BATCH] for indices in by_length.values()
+            for start in range(0, len(indices), RENDER_BATCH)]
+
+
+def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike | VideoTok4D | OnnxRenderer | None"
+                ) -> Scene:
     """``load(source)``; a learned-rans file whose model is not installed reads with the tables of ``model``
     (a model directory or a loaded model given to the decoder), when that is the file's model."""
     try:
@@ -573,6 +719,11 @@ def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike |
         if model is None:
             raise
         if not isinstance(model, (str, os.PathLike)):  # a loaded model: its own tables, if it made the file
+            if not hasattr(model, "entropy"):  # an exported renderer: its directory's tables
+                model = model.directory
+                from .model.tables import tables_from_directory
+
+                return load(source, tables=tables_from_directory(model, open_scene(source).fingerprint))
             tables = model_tables(model)
             if tables is None or tables.fingerprint != open_scene(source).fingerprint:
                 raise
@@ -586,12 +737,14 @@ def _load_scene(source: "str | os.PathLike | bytes", model: "str | os.PathLike |
 
 def decode(scene_or_path: "Scene | str | os.PathLike | bytes", trajectory: "Trajectory | str | os.PathLike" = "source",
            *, steps: int | None = DEFAULT_STEPS, seed: int = 0, model: "str | os.PathLike | VideoTok4D | None" = None,
-           force: bool = False) -> np.ndarray:
-    """Render a stored scene along ``trajectory``: (T, H, W, 3) uint8 frames.
+           force: bool = False, runtime: str = "auto", device: str = "cpu") -> np.ndarray:
+    """Render a stored scene along ``trajectory``: (T, H, W, 3) uint8 frames, on ``runtime`` and ``device``
+    (module docstring).
 
     For several trajectories of one scene use :class:`SceneDecoder` (loads the model once).
     """
-    return SceneDecoder.open(scene_or_path, model=model, force=force).render(trajectory, steps=steps, seed=seed)
+    return SceneDecoder.open(scene_or_path, model=model, force=force, runtime=runtime,
+                             device=device).render(trajectory, steps=steps, seed=seed)
 
 
 def iter_capture_dirs(root: str | os.PathLike) -> Iterable[Path]:

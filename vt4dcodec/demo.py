@@ -44,7 +44,7 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    net = codec.load_model(model)
+    net = codec.load_encoder(model)  # the exported encoder on onnxruntime where the model has one (no torch)
     cfg = net.config
     synth = generate_scene(seed, split="test", config=SynthConfig(num_frames=cfg.frames, height=cfg.image_size,
                                                                    width=cfg.image_size))

@@ -7,7 +7,10 @@
 The prior samples the token state of the anchor camera a, Z^a = [Z_s^a; Z_d^a], conditioned on the
 video V_c with its cameras P_c and on P_a.  The scene stores those tokens, the anchor trajectory as its
 cameras and the fingerprint of the tokenizer the prior was trained on, so the ordinary decoder renders
-any number of views from it without sampling again.  Torch is imported lazily.
+any number of views from it without sampling again.  Torch is imported lazily: the prior runs on torch only
+(its sampler is not exported to ONNX), so generation needs the ``train`` extra; without it :func:`generate`
+raises :class:`~vt4dcodec.errors.MissingExtraError` naming it.  ``device=`` runs the prior on the CPU or a
+CUDA GPU (``vt4dcodec.codec.torch_device``).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numpy as np
 from .cameras import Trajectory
 from .capture.capture import Capture
 from .capture.resample import fit_capture
-from .errors import CaptureError, ModelError, TrajectoryError
+from .errors import CaptureError, MissingExtraError, ModelError, TrajectoryError
 from .format import Provenance, Scene
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -39,24 +42,36 @@ GENERATED_ENCODING = "int4"
 
 
 @functools.lru_cache(maxsize=4)
-def _load_prior_cached(directory: str) -> "Co4DGen":
+def _load_prior_cached(directory: str, device: str = "cpu") -> "Co4DGen":
     from .model.weights_io import load_prior
 
-    return load_prior(directory)
+    return load_prior(directory).to(device)
 
 
-def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR) -> "Co4DGen":
+def _require_torch() -> None:
+    from .codec import TRAIN_EXTRA_HINT, torch_available
+
+    if not torch_available():
+        raise MissingExtraError("generation samples the Co4DGen prior, which runs on torch only (it is not exported "
+                                f"to ONNX), and torch is not installed: {TRAIN_EXTRA_HINT}")
+
+
+def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR, *, device: str = "cpu") -> "Co4DGen":
     """A prior by shipped id, by directory, by the name of a directory under $VT4D_MODEL_PATH (the
     lookup of ``vt4dcodec.model.weights_io.model_directory``, as for tokenizers), or an already loaded
-    :class:`Co4DGen` (returned as is).  Each directory is loaded once per process."""
+    :class:`Co4DGen` (returned as is), on ``device`` (``codec.DEVICES``).  Each directory is loaded once per
+    process and device.  MissingExtraError without torch (the ``train`` extra)."""
+    _require_torch()
+    from .codec import torch_device
     from .model.prior import Co4DGen
     from .model.weights_io import PRIOR_META_FILE, model_directory
 
+    where = torch_device(device)
     if isinstance(model, Co4DGen):
         if model.tokenizer_fingerprint is None:
             raise ModelError("this prior records no tokenizer fingerprint: load it with load_prior")
-        return model
-    return _load_prior_cached(str(model_directory(model, PRIOR_META_FILE).resolve()))
+        return model if device == "cpu" else model.to(where)
+    return _load_prior_cached(str(model_directory(model, PRIOR_META_FILE).resolve()), where)
 
 
 def fit_conditioning(video: np.ndarray, cameras: Trajectory, *, size: int, frames: int, start: int = 0
@@ -90,6 +105,7 @@ def generate(
     encoding: str = GENERATED_ENCODING,
     metadata: dict[str, Any] | None = None,
     source_capture_id: str | None = None,
+    device: str = "cpu",
 ) -> Scene:
     """Sample one joint token state Z^a ~ p(Z^a | V_c, P_c, P_a) and return it as a Scene.
 
@@ -107,16 +123,19 @@ def generate(
             see GENERATED_ENCODING for the measurement on generated tokens).
         metadata: user key/values stored in the file.
         source_capture_id: the capture the video came from, recorded in the provenance (``vt4d info``).
+        device: ``"cpu"``, ``"cuda"`` or ``"auto"``: where the prior runs (DeviceError for ``"cuda"`` without a GPU).
     Returns:
         A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
         was trained on, and provenance kind "generated".
     """
+    _require_torch()
     import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
 
     from .codec import resolve_trajectory  # (the package root loads the codec on first use too)
     from .model.prior import PriorCondition
 
-    prior = load_prior_model(model)
+    prior = load_prior_model(model, device=device)
+    where = next(prior.parameters()).device
     cfg = prior.config
     frames, cond_traj = fit_conditioning(video, cameras, size=cfg.image_size, frames=cfg.frames, start=start)
     anchor = resolve_trajectory(anchor_trajectory, cond_traj, size=cfg.image_size, max_frames=cfg.frames)
@@ -125,9 +144,9 @@ def generate(
                               f"{cfg.frames} frames")
 
     def tensor(a: np.ndarray) -> "torch.Tensor":
-        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
+        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None].to(where)
 
-    cond = PriorCondition(frames=torch.from_numpy(frames).permute(0, 3, 1, 2).float().div(255.0)[None],
+    cond = PriorCondition(frames=torch.from_numpy(frames).permute(0, 3, 1, 2).float().div(255.0)[None].to(where),
                           K_c=tensor(cond_traj.K), w2c_c=tensor(cond_traj.w2c), K_a=tensor(anchor.K),
                           w2c_a=tensor(anchor.w2c))
     with torch.no_grad():
@@ -136,8 +155,8 @@ def generate(
             "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
             "clip_start": int(start), "clip_frames": int(cfg.frames)}
     return Scene(
-        static_tokens=z_s[0].numpy().astype(np.float32),
-        dynamic_tokens=z_d[0].numpy().astype(np.float32),
+        static_tokens=z_s[0].cpu().numpy().astype(np.float32),
+        dynamic_tokens=z_d[0].cpu().numpy().astype(np.float32),
         cameras=anchor,
         fingerprint=prior.tokenizer_fingerprint,
         metadata={**(metadata or {}), "co4dgen": info},

@@ -148,7 +148,7 @@ def test_runtime_choice_and_its_errors(small):
     assert codec.load_encoder(net) is net
     with pytest.raises(ModelError, match="runtime must be one of"):
         codec.load_encoder(directory, "tensorrt")
-    with pytest.raises(ModelError, match="runtime='torch'"):
+    with pytest.raises(ModelNotFoundError, match="runtime='torch'"):  # exported for one camera only
         codec.load_encoder(directory, "onnx", cameras=2)
     with pytest.raises(ModelError, match="not a loaded torch model"):
         codec.load_encoder(net, "onnx")
@@ -193,13 +193,22 @@ def test_real_footage_encodes_without_torch(tmp_path):
     assert np.abs(onnx_scene.static_tokens - torch_scene.static_tokens).max() <= TOKEN_TOLERANCE
 
 
-def test_cli_names_the_flag_for_onnx_with_several_cameras(tmp_path):
-    cap = generate_scene(2, split="test", config=SynthConfig(num_cameras=2)).capture
+def test_cli_encodes_several_cameras_on_onnx_and_names_the_flag_past_the_exported_counts(tmp_path):
+    """Scenes of 1 .. EXPORT_VIEWS cameras have a graph each (issue 51); more cameras need --runtime torch."""
+    from vt4dcodec.model.onnx_export import EXPORT_VIEWS
+
+    cap = generate_scene(2, split="test", config=SynthConfig(num_cameras=EXPORT_VIEWS + 1)).capture
     write_capture(cap, tmp_path / "cap")
-    run = subprocess.run([sys.executable, "-m", "vt4dcodec", "encode", str(tmp_path / "cap"), "--cameras", "all",
-                          "--runtime", "onnx", "-o", str(tmp_path / "s.vt4d")], capture_output=True, text=True,
-                         timeout=300)
-    assert run.returncode != 0 and "--runtime" in run.stderr and "Traceback" not in run.stderr
+
+    def encode(cameras: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "vt4dcodec", "encode", str(tmp_path / "cap"), "--cameras", cameras,
+                               "--runtime", "onnx", "-o", str(tmp_path / "s.vt4d"), "-y"], capture_output=True,
+                              text=True, timeout=300)
+
+    run = encode(",".join(cap.camera_names[:2]))
+    assert run.returncode == 0, run.stderr
+    run = encode("all")
+    assert run.returncode != 0 and "--runtime torch" in run.stderr and "Traceback" not in run.stderr
 
 
 @settings(max_examples=20)

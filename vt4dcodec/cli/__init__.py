@@ -60,8 +60,9 @@ COMMAND_MODULES = (
 
 
 # Packages of the optional extras (pyproject.toml), for the message a core install gets from codec commands.
-EXTRA_OF_MODULE = {name: "codec" for name in ("torch", "kornia", "cv2", "safetensors", "skimage", "matplotlib",
-                                               "tqdm")} | {"fsspec": "remote", "aiohttp": "remote"}
+EXTRA_OF_MODULE = {name: "codec" for name in ("cv2", "skimage", "tqdm", "onnxruntime", "av")} \
+    | {name: "train" for name in ("torch", "kornia", "safetensors", "onnx", "matplotlib")} \
+    | {"fsspec": "remote", "aiohttp": "remote"}
 
 
 def trajectory_label(spec: str, index: int) -> str:
@@ -262,6 +263,17 @@ def working(args: argparse.Namespace, desc: str, interval: float = 0.5) -> Itera
         print(f"\r{desc} ... done in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
 
 
+# --- where the networks run ----------------------------------------------------------------------------
+DEVICE_CHOICES = ("auto", "cpu", "cuda")  # codec.DEVICES (the codec module loads on first use, not here)
+
+
+def add_device_option(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--device cpu|cuda|auto`` for a command that runs ``what``."""
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default="cpu",
+                        help=f"where {what} runs: cpu (default), cuda (an NVIDIA GPU, through torch or onnxruntime's "
+                             "CUDA provider; an error where none is seen) or auto (a GPU where one is seen, else the CPU)")
+
+
 # --- sources: local paths and fsspec URLs --------------------------------------------------------------
 def add_storage_option(parser: argparse.ArgumentParser) -> None:
     """``--storage-option KEY=VALUE`` (repeatable), read back with :func:`storage_options`."""
@@ -304,6 +316,9 @@ KEYWORD_FLAGS: dict[str, str] = {
     "on_uncommitted='discard'": "--discard-uncommitted",
     "runtime='torch'": "--runtime torch",
     "runtime='onnx'": "--runtime onnx",
+    "device='cpu'": "--device cpu",
+    "device='cuda'": "--device cuda",
+    "device='auto'": "--device auto",
 }
 _HINT = re.compile("|".join(re.escape(k) for k in sorted(KEYWORD_FLAGS, key=len, reverse=True)))
 _ALREADY = re.compile(r" \((?:CLI: )?--[a-z][a-z-]*\)")  # "force=True (--force)": the flag is named already

@@ -20,7 +20,8 @@ from ..demo import run_demo
 from ..errors import ArchiveError, CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
-from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
+from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_device_option, add_overwrite_option,
+               add_storage_option,
                add_upscale_option, check_output_file, check_output_folder, check_upscale, emit, nonneg_int,
                note_replacing, plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
 
@@ -198,7 +199,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
             _check_keys_free(args, mine, set(reader.keys()), 0, reader.name)
     loading = time.perf_counter()
     with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
-        model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, args.runtime, cameras=views)
+        model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, args.runtime, cameras=views, device=args.device)
     started = time.perf_counter()
     results: list[dict[str, Any]] = []
     writer = None
@@ -340,7 +341,8 @@ def cmd_decode(args: argparse.Namespace) -> int:
     note_replacing(args, names)
     loading = time.perf_counter()
     with working(args, "loading the model"):
-        decoder = SceneDecoder.open(scene, model=args.model, force=args.force)
+        decoder = SceneDecoder.open(scene, model=args.model, force=args.force, runtime=args.runtime,
+                                    device=args.device)
     trajectories = [decoder.trajectory(s, capture=args.capture) for s in specs]  # fail on a bad spec before any rendering
     out_dir = Path(args.output) if target is None else target.parent
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -413,8 +415,10 @@ def register(subparsers: Any) -> None:
                         "bits per pixel)")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
-                        "(one camera per scene, ~4x less memory), 'torch' the networks; 'auto' (default) takes "
-                        "onnx where the model has an exported encoder and one camera is encoded")
+                        "(1 .. 10 cameras per scene, ~4x less memory), 'torch' the networks (the train extra); 'auto' "
+                        "(default) takes onnx for one camera, or for any count it has a graph for where torch is not "
+                        "installed, else torch")
+    add_device_option(p, "the encoder")
     p.set_defaults(func=cmd_encode)
 
     p = add_command(
@@ -439,6 +443,11 @@ def register(subparsers: Any) -> None:
                         "setting, decode_steps in its config.json)")
     p.add_argument("--drop", choices=("static", "dynamic"), help="token masking: render without Z_s or Z_d")
     p.add_argument("--force", action="store_true", help="decode even if the model's fingerprint differs")
+    p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
+                   help="renderer runtime: 'onnx' runs the model's exported renderer on onnxruntime without torch, "
+                        "'torch' the networks (the train extra); 'auto' (default) takes torch where it is installed, "
+                        "else onnx")
+    add_device_option(p, "the renderer")
     add_overwrite_option(p, "replace outputs that exist (without it they are replaced with a note)")
     add_upscale_option(p)
     p.set_defaults(func=cmd_decode)

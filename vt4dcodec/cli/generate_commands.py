@@ -10,12 +10,13 @@ from typing import Any
 
 from ..capture.io import read_capture, read_manifest
 from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
-from ..codec import DEFAULT_STEPS, SceneDecoder, load_model, model_fingerprint
+from ..codec import DEFAULT_STEPS, SceneDecoder, load_renderer, model_fingerprint
 from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
-from . import (add_command, add_overwrite_option, add_upscale_option, check_output_folder, check_upscale, emit,
+from . import (add_command, add_device_option, add_overwrite_option, add_upscale_option, check_output_folder,
+               check_upscale, emit,
                nonneg_int, note_replacing, plural, positive_int, progress, trajectory_label, working)
 from .codec_commands import render_in_batches
 
@@ -78,10 +79,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
     loading = time.perf_counter()
     with working(args, "loading the prior and its tokenizer"):
         try:
-            prior = load_prior_model(args.prior or DEFAULT_PRIOR)
+            prior = load_prior_model(args.prior or DEFAULT_PRIOR, device=args.device)
         except ModelNotFoundError as exc:
             raise ModelNotFoundError(f"{exc}; pass --prior PATH (a prior directory)") from None
-        tokenizer = load_model(args.model or prior.tokenizer_fingerprint.model_id)
+        tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, device=args.device)
         check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
     with working(args, f"sampling the prior ({args.steps} {args.sampler} steps)"):
@@ -89,7 +90,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
                          steps=args.steps, method=args.sampler, start=args.start, encoding=args.encoding,
                          metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera},
                                    CAPTURE_KEY: {"fps": float(cap.fps)}},
-                         source_capture_id=cap.capture_id)
+                         source_capture_id=cap.capture_id, device=args.device)
     sampled = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_path = out_dir / "scene.vt4d"
@@ -140,6 +141,7 @@ def register(subparsers: Any) -> None:
                    help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
                         "0.07 dB of float32 tokens on generated scenes, half the bytes of int8)")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
+    add_device_option(p, "the prior and the renderer")
     add_overwrite_option(p, "replace outputs that exist (without it they are replaced with a note)")
     add_upscale_option(p)
     p.set_defaults(func=cmd_generate)
