@@ -233,6 +233,10 @@ class ModelConfig(_Config):
         entropy_levels: > 0 gives the model a learned entropy model (``model.entropy``) with that many
         quality levels: per-level quantizer steps, per-channel token densities trained with a rate term,
         frozen into integer rANS tables at ship time. 0: no entropy model (the fixed-point encodings only).
+        entropy_context: with entropy_levels, each MEAN static token after the first is coded given the sign
+        of the previous MEAN token's code in its channel (two more density classes, MEAN_AFTER_NEGATIVE and
+        MEAN_AFTER_POSITIVE; FORMAT.md I.6.2, tables of 5 classes): neighbouring cells' tokens agree, which
+        the factorized densities cannot use. False: one MEAN density per channel.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -285,6 +289,7 @@ class ModelConfig(_Config):
     dynamic_gate_copies: bool = False
     dynamic_from_patch: bool = False
     entropy_levels: int = 0
+    entropy_context: bool = False
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -295,7 +300,8 @@ class ModelConfig(_Config):
                                                "view_gate_deg": 0.0, "pixel_splat": False,
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
-                                               "dynamic_from_patch": False, "entropy_levels": 0}
+                                               "dynamic_from_patch": False, "entropy_levels": 0,
+                                               "entropy_context": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -364,6 +370,9 @@ class ModelConfig(_Config):
         if isinstance(self.entropy_levels, bool) or not isinstance(self.entropy_levels, int) \
                 or not 0 <= self.entropy_levels <= 16:
             raise ModelError(f"config entropy_levels must be an integer from 0 to 16, got {self.entropy_levels!r}")
+        if not isinstance(self.entropy_context, bool) or (self.entropy_context and not self.entropy_levels):
+            raise ModelError(f"config entropy_context must be a boolean, and true only with entropy_levels > 0, "
+                             f"got {self.entropy_context!r}")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

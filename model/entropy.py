@@ -10,7 +10,10 @@ and Z_d have their own steps). The integers are entropy-coded with one frequency
 - ``CHANGE`` (1): a later frame copy of an anchor (``Renderer.copy_origin``): it is coded as the
   difference ``q - q_origin`` to its anchor's time-average token, symbol ``q - q_origin + 2Q``. Copies of
   a cell that did not change cost next to nothing;
-- ``DYNAMIC`` (2): a dynamic token; symbol ``q + Q``.
+- ``DYNAMIC`` (2): a dynamic token; symbol ``q + Q``;
+- with ``config.entropy_context``, ``MEAN_AFTER_NEGATIVE`` (3) and ``MEAN_AFTER_POSITIVE`` (4): a MEAN token
+  after the first whose previous MEAN token (the one with the largest smaller index) has a negative or
+  positive code in the same channel (neighbouring cells' tokens agree); symbol ``q + Q`` as for MEAN.
 
 Each context has a density over its value range (``HALF_RANGE``: (-1, 1), the change class (-2, 2)): a
 piecewise-constant density of ``BINS`` bins (softmax of learned logits), so its CDF F is piecewise
@@ -34,15 +37,15 @@ import torch
 from torch import nn
 
 __all__ = ["TokenEntropyModel", "BINS", "Q_MAX", "ALPHABET", "MIN_STEP", "MAX_STEP", "MAX_VIEWS", "MEAN", "CHANGE",
-           "DYNAMIC", "HALF_RANGE", "PROB_BITS", "bin_probabilities", "frequencies", "symbol_count"]
+           "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE", "HALF_RANGE", "PROB_BITS", "bin_probabilities", "frequencies", "symbol_count"]
 
 BINS = 256                 # density bins over a class's value range
 Q_MAX = 32                 # |q| <= 32: steps >= 1/32 (finer than int5)
 MIN_STEP, MAX_STEP = 1.0 / 32.0, 1.0
 ALPHABET = 4 * Q_MAX + 1   # the widest table: a change symbol in 0 .. 4Q
 MAX_VIEWS = 64             # encoded cameras of one token set (format: 1 + 63 extra cameras)
-MEAN, CHANGE, DYNAMIC = 0, 1, 2
-HALF_RANGE = (1.0, 2.0, 1.0)
+MEAN, CHANGE, DYNAMIC, MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE = 0, 1, 2, 3, 4
+HALF_RANGE = (1.0, 2.0, 1.0, 1.0, 1.0)
 PROB_BITS = 14             # the rANS coder's precision (vt4dcodec.format.rans)
 MIN_PROB = 2.0 ** -PROB_BITS
 
@@ -90,23 +93,25 @@ def frequencies(prob: np.ndarray) -> np.ndarray:
 
 
 class TokenEntropyModel(nn.Module):
-    """Densities (3 classes x ``token_dim`` channels) and per-level quantizer steps of one tokenizer.
+    """Densities (3 or 5 classes x ``token_dim`` channels) and per-level quantizer steps of one tokenizer.
 
-    Parameters: ``logits`` (3, d, BINS) and ``log_step`` (levels, 2, d) (index 0: Z_s, 1: Z_d).
+    Parameters: ``logits`` (classes, d, BINS) and ``log_step`` (levels, 2, d) (index 0: Z_s, 1: Z_d).
     Buffers filled by :meth:`update` (zero until then): ``steps`` float32 (levels, 2, d),
-    ``freqs`` int16 (levels, 3, d, ALPHABET) and ``origins`` int16 (MAX_VIEWS, N_s).
+    ``freqs`` int16 (levels, classes, d, ALPHABET) and ``origins`` int16 (MAX_VIEWS, N_s).
     """
 
-    def __init__(self, levels: int, n_static: int, token_dim: int) -> None:
+    def __init__(self, levels: int, n_static: int, token_dim: int, classes: int = 3) -> None:
         super().__init__()
-        self.levels, self.n_static, self.token_dim = levels, n_static, token_dim
-        self.logits = nn.Parameter(torch.zeros(3, token_dim, BINS))
+        if classes not in (3, 5):
+            raise ValueError(f"an entropy model has 3 or 5 density classes, not {classes}")
+        self.levels, self.n_static, self.token_dim, self.classes = levels, n_static, token_dim, classes
+        self.logits = nn.Parameter(torch.zeros(classes, token_dim, BINS))
         # level 0 the coarsest (1/3 of the range a step), the last the finest (1/32)
         init = torch.linspace(math.log(1.0 / 3.0), math.log(MIN_STEP * 1.01), levels) if levels > 1 \
             else torch.full((1,), math.log(1.0 / 8.0))
         self.log_step = nn.Parameter(init.view(levels, 1, 1).repeat(1, 2, token_dim).contiguous())
         self.register_buffer("steps", torch.zeros(levels, 2, token_dim))
-        self.register_buffer("freqs", torch.zeros(levels, 3, token_dim, ALPHABET, dtype=torch.int16))
+        self.register_buffer("freqs", torch.zeros(levels, classes, token_dim, ALPHABET, dtype=torch.int16))
         self.register_buffer("origins", torch.zeros(MAX_VIEWS, n_static, dtype=torch.int16))
 
     # training ------------------------------------------------------------------------------------
@@ -116,8 +121,8 @@ class TokenEntropyModel(nn.Module):
 
     def _cdf(self, x: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
         """F(x) of the contexts ``table`` (x's shape, index cls * d + c) under the densities."""
-        p = torch.softmax(self.logits.float(), dim=-1).reshape(-1, BINS)   # (3 d, BINS)
-        cum = torch.cat([p.new_zeros(p.shape[0], 1), p.cumsum(-1)], dim=-1)  # (3 d, BINS + 1)
+        p = torch.softmax(self.logits.float(), dim=-1).reshape(-1, BINS)   # (classes d, BINS)
+        cum = torch.cat([p.new_zeros(p.shape[0], 1), p.cumsum(-1)], dim=-1)  # (classes d, BINS + 1)
         r = torch.tensor(HALF_RANGE, device=x.device)[table // self.token_dim]
         u = ((x + r) / (2 * r) * BINS).clamp(0.0, float(BINS))
         j = u.detach().floor().clamp(max=BINS - 1).long()
@@ -135,6 +140,32 @@ class TokenEntropyModel(nn.Module):
         cls = torch.where(origin == torch.arange(len(origin), device=origin.device), MEAN, CHANGE)
         return cls[:, None] * self.token_dim + torch.arange(self.token_dim, device=origin.device)[None, :]
 
+    @staticmethod
+    def previous_mean(origin: torch.Tensor) -> torch.Tensor:
+        """(N_s,) long: for each MEAN token after the first, the index of the previous MEAN token; -1 for the
+        first MEAN token and for CHANGE tokens (``vt4dcodec.format.learned.EntropyTables.mean_dependency``)."""
+        index = torch.arange(len(origin), device=origin.device)
+        mean = origin == index
+        last = torch.cummax(torch.where(mean, index, torch.full_like(index, -1)), dim=0).values
+        prev = torch.cat([last.new_full((1,), -1), last[:-1]])
+        return torch.where(mean, prev, torch.full_like(prev, -1))
+
+    def context_tables(self, z_s: torch.Tensor, origin: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+        """(S, N_s, d) context index of every static value: :meth:`static_tables`, and with 5 classes a MEAN
+        token after the first moved to MEAN_AFTER_NEGATIVE / _POSITIVE by the sign of the previous MEAN token's
+        code ``round(z / step)`` at this level (the code a file stores; no gradient flows through it)."""
+        tab = self.static_tables(origin).expand(z_s.shape[0], -1, -1)
+        if self.classes == 3:
+            return tab
+        prev = self.previous_mean(origin)
+        has = prev >= 0
+        code = torch.round(z_s.detach()[:, prev.clamp(min=0)] / step)  # (S, N_s, d)
+        channel = torch.arange(self.token_dim, device=z_s.device)
+        after = torch.where(code < 0, MEAN_AFTER_NEGATIVE * self.token_dim + channel,
+                            MEAN_AFTER_POSITIVE * self.token_dim + channel)
+        moved = has[None, :, None] & (code != 0)
+        return torch.where(moved, after, tab)
+
     def noisy(self, z_s: torch.Tensor, z_d: torch.Tensor, level: int, origin: torch.Tensor
               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Training proxy of quantization at ``level``: z (S, N, d) + step x U(-1/2, 1/2), and the bits
@@ -143,10 +174,10 @@ class TokenEntropyModel(nn.Module):
         step = self.step(level)
         zs = z_s + (torch.rand_like(z_s) - 0.5) * step[0]
         zd = z_d + (torch.rand_like(z_d) - 0.5) * step[1]
-        tab_s = self.static_tables(origin)
-        x_s = zs - torch.where((tab_s // self.token_dim == CHANGE)[None], zs[:, origin], torch.zeros_like(zs))
+        tab_s = self.context_tables(z_s, origin, step[0])
+        x_s = zs - torch.where(tab_s // self.token_dim == CHANGE, zs[:, origin], torch.zeros_like(zs))
         tab_d = (DYNAMIC * self.token_dim + torch.arange(self.token_dim, device=z_d.device)).expand(z_d.shape[1], -1)
-        bits = self.bits(x_s, tab_s.expand_as(x_s), step[0].expand_as(x_s)).sum(dim=(1, 2)) \
+        bits = self.bits(x_s, tab_s, step[0].expand_as(x_s)).sum(dim=(1, 2)) \
             + self.bits(zd, tab_d.expand_as(zd), step[1].expand_as(zd)).sum(dim=(1, 2))
         return zs, zd, bits
 
@@ -167,9 +198,9 @@ class TokenEntropyModel(nn.Module):
         token for 1 .. MAX_VIEWS encoded cameras."""
         steps = self.step_values()
         logits = self.logits.detach().double().cpu().numpy()
-        freqs = np.zeros((self.levels, 3, self.token_dim, ALPHABET), np.int64)
+        freqs = np.zeros((self.levels, self.classes, self.token_dim, ALPHABET), np.int64)
         for level in range(self.levels):
-            for cls in (MEAN, CHANGE, DYNAMIC):
+            for cls in range(self.classes):
                 for c in range(self.token_dim):
                     step = float(steps[level, 1 if cls == DYNAMIC else 0, c])
                     f = frequencies(bin_probabilities(logits[cls, c], step, cls))

@@ -277,6 +277,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
 
 # --- format 1.6: learned-rans tokens with a model's tables (FORMAT.md I.6.2) -----------------------------------
 LEARNED_TABLES_FILE = "tables/vt4d-test-learned.json"
+CONTEXT_TABLES_FILE = "tables/vt4d-test-learned-context.json"
 
 
 def _laplace_row(q: int, width: float, change: bool) -> list[int]:
@@ -304,16 +305,48 @@ def learned_tables() -> EntropyTables:
     return EntropyTables(steps, freqs, origins, fingerprint((3, 2), (1, 2)))
 
 
+def _tilted_row(q: int, width: float, lean: int) -> list[int]:
+    """A positive run of 2q+1 frequencies summing to 2^14, peaked at symbol q + lean (a MEAN_AFTER_* row)."""
+    n = 2 * q + 1
+    p = np.exp(-np.abs(np.arange(n) - (q + lean)) / width)
+    f = np.floor(p / p.sum() * (16384 - n)).astype(np.int64) + 1
+    f[q + lean] += 16384 - int(f.sum())
+    return [int(v) for v in f]
+
+
+def context_tables() -> EntropyTables:
+    """The context test model's tables (FORMAT.md I.6.2, 5 classes): 1 level, d = 2, N_s = 4 (one camera:
+    token 2 is a frame copy of token 0, so token 3's previous MEAN token is 1), N_d = 1; steps 1/4 (Z_s) and
+    1/2 (Z_d); MEAN_AFTER_NEGATIVE rows peak at code -1, MEAN_AFTER_POSITIVE rows at +1."""
+    steps = np.array([[[0.25, 0.25], [0.5, 0.5]]], np.float32)
+    freqs = np.zeros((1, 5, 2, 17), np.int64)
+    for c in range(2):
+        for cls, row in enumerate((_laplace_row(4, 0.8 + c, False), _laplace_row(4, 0.8 + c, True),
+                                   _laplace_row(2, 0.8 + c, False), _tilted_row(4, 0.8, -1), _tilted_row(4, 0.8, 1))):
+            freqs[0, cls, c, :len(row)] = row
+    origins = np.tile(np.arange(4), (64, 1))
+    origins[0, 2] = 0
+    fp = ModelFingerprint("vt4d-test-context", "1.0", hashlib.sha256(b"config-context").hexdigest(),
+                          hashlib.sha256(b"weights-context").hexdigest(), (4, 2), (1, 2))
+    return EntropyTables(steps, freqs, origins, fp)
+
+
+def context_scene(**kw: Any) -> Scene:
+    zs = np.array([[0.5, -0.3], [0.75, -0.5], [0.45, -0.2], [0.2, 0.05]], np.float32)  # token 2 a copy of token 0
+    zd = np.array([[0.4, -0.6]], np.float32)
+    return Scene(zs, zd, cameras(2), context_tables().fingerprint, encoding="learned-rans", **kw)
+
+
 def install_spec_tables() -> None:
     """Let readers find the test model's tables by its fingerprint, as an installed model's are found (the
     vectors' expected content, tests/format). Other fingerprints go to the resolver installed before."""
     previous = _learned._resolver
     if getattr(previous, "spec_tables", False):
         return
-    tables = learned_tables()
+    known = {t.fingerprint: t for t in (learned_tables(), context_tables())}
 
     def resolve(fp: ModelFingerprint) -> EntropyTables | None:
-        return tables if fp == tables.fingerprint else previous(fp) if previous is not None else None
+        return known[fp] if fp in known else previous(fp) if previous is not None else None
 
     resolve.spec_tables = True  # type: ignore[attr-defined]
     set_tables_resolver(resolve)
@@ -357,6 +390,11 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
     cams = open_scene(moving).raw_section("CAMS")
     assert cams[:2] == bytes([0, 0x3d]), "constant K, quaternion poses, centres, cubic, fixed-point timestamps"
     return {
+        "learned_rans_mean_context": (
+            dumps(context_scene(quality=1), tables=context_tables(), compression_level=None, header_dictionary=1),
+            "1.6: learned-rans with tables of 5 classes (spec/vectors/tables/vt4d-test-learned-context.json): MEAN "
+            "tokens 1 and 3 coded given the previous MEAN token's code (token 2, a frame copy of token 0, is "
+            "skipped), every section raw"),
         "learned_rans_moving_camera": (
             moving, "1.6: fixed-point cameras (I.5.4) of a turning, accelerating camera: camera centres (t = -R c), "
                     "cubic prediction and fixed-point timestamps (layout flags 0x3d), every section raw"),
@@ -1271,7 +1309,8 @@ def generate() -> dict[str, bytes]:
     """Every vector file (relative path -> bytes), including expected JSON, the manifest and the test model's
     entropy tables (format 1.6)."""
     install_spec_tables()
-    files: dict[str, bytes] = {LEARNED_TABLES_FILE: _json(learned_tables_json(learned_tables()))}
+    files: dict[str, bytes] = {LEARNED_TABLES_FILE: _json(learned_tables_json(learned_tables())),
+                               CONTEXT_TABLES_FILE: _json(learned_tables_json(context_tables()))}
     manifest: dict[str, Any] = {"zstd_version": ".".join(map(str, zstandard.ZSTD_VERSION)),
                                 "valid": {}, "invalid": {}}
     for name, (data, why) in valid_vectors().items():

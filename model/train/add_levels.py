@@ -1,7 +1,14 @@
-"""Give a trained rate-distortion tokenizer coarser quality levels, as the warm start of a fine-tune.
+"""Give a trained rate-distortion tokenizer coarser quality levels or context-coded MEAN tokens, as the warm
+start of a fine-tune.
 
     python -m vt4dcodec.model.train.add_levels --run checkpoints/vt4d-tiny-2.0-rd --out runs/rd-init \
         --ratios 2.0,1.4
+    python -m vt4dcodec.model.train.add_levels --run checkpoints/vt4d-tiny-2.0-rd8g --out runs/ctx-init \
+        --mean-context
+
+``--mean-context`` turns on ``config.entropy_context``: the two new density classes (MEAN after a negative and
+after a positive code) start as copies of the MEAN densities, so the model codes exactly as before until its
+densities are fitted again (``train.tokenizer --calibrate-batches N``).
 
 Reads the run's latest checkpoint (or ``--model DIR``, a saved model), and writes a saved model
 (``config.json`` + ``model.safetensors``) whose entropy model has ``len(ratios)`` more levels in front of
@@ -26,6 +33,7 @@ import torch
 from vt4dcodec.errors import ModelError
 
 from ..entropy import MAX_STEP
+from ..configs import ModelConfig
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import model_from_run
@@ -37,20 +45,45 @@ def add_levels(model: VideoTok4D, ratios: list[float]) -> VideoTok4D:
         raise ModelError("the model has no entropy model (config entropy_levels = 0)")
     if not ratios or any(not (r > 1.0) or not math.isfinite(r) for r in ratios):
         raise ModelError(f"ratios must be finite numbers above 1, got {ratios}")
-    cfg = dataclasses.replace(model.config, entropy_levels=model.config.entropy_levels + len(ratios))
-    out = VideoTok4D(cfg)
-    state = {k: v for k, v in model.state_dict().items() if k not in ("entropy.steps", "entropy.freqs",
-                                                                      "entropy.origins")}
+    state = _trained_state(model)
     old = state["entropy.log_step"]
     coarsest = old[:1].clamp(max=math.log(MAX_STEP))
     state["entropy.log_step"] = torch.cat([coarsest + math.log(r) for r in sorted(ratios, reverse=True)] + [old])
+    return _rebuilt(model, dataclasses.replace(model.config, entropy_levels=model.config.entropy_levels + len(ratios)),
+                    state)
+
+
+_FROZEN = ("entropy.steps", "entropy.freqs", "entropy.origins")
+
+
+def _trained_state(model: VideoTok4D) -> dict[str, torch.Tensor]:
+    """The model's weights without the frozen tables (rebuilt by update_entropy for the new config)."""
+    return {k: v for k, v in model.state_dict().items() if k not in _FROZEN}
+
+
+def _rebuilt(model: VideoTok4D, cfg: ModelConfig, state: dict[str, torch.Tensor]) -> VideoTok4D:
+    """A model of ``cfg`` with ``state`` (every weight but the frozen tables), its tables frozen again."""
+    out = VideoTok4D(cfg)
     missing, unexpected = out.load_state_dict(state, strict=False)
-    if unexpected or set(missing) != {"entropy.steps", "entropy.freqs", "entropy.origins"}:
+    if unexpected or set(missing) != set(_FROZEN):
         raise ModelError(f"the model does not fit its own config: missing {missing}, unexpected {unexpected}")
     out.decode_steps = model.decode_steps
     out.eval()
     out.update_entropy()
     return out
+
+
+def add_mean_context(model: VideoTok4D) -> VideoTok4D:
+    """A copy of ``model`` whose entropy model codes MEAN tokens given the previous MEAN token's sign
+    (``config.entropy_context``), its two new density classes copies of the MEAN densities."""
+    if model.entropy is None:
+        raise ModelError("the model has no entropy model (config entropy_levels = 0)")
+    if model.config.entropy_context:
+        raise ModelError("the model already codes MEAN tokens in context (config entropy_context = true)")
+    state = _trained_state(model)
+    logits = state["entropy.logits"]
+    state["entropy.logits"] = torch.cat([logits, logits[:1], logits[:1]])  # MEAN_AFTER_NEGATIVE, _POSITIVE
+    return _rebuilt(model, dataclasses.replace(model.config, entropy_context=True), state)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,17 +92,24 @@ def main(argv: list[str] | None = None) -> int:
     src.add_argument("--run", type=Path, help="a training run directory (its latest checkpoint)")
     src.add_argument("--model", type=Path, help="a saved model directory")
     p.add_argument("--out", type=Path, required=True, help="directory of the model to write")
-    p.add_argument("--ratios", required=True, help="comma-separated step ratios (> 1) of the new levels")
+    p.add_argument("--ratios", default=None, help="comma-separated step ratios (> 1) of the new levels")
+    p.add_argument("--mean-context", action="store_true",
+                   help="code MEAN tokens given the previous MEAN token's sign (config entropy_context)")
     p.add_argument("--id", default="vt4d-tiny", help="model id recorded in the written model")
     p.add_argument("--version", default="0.0.0-init", help="model version recorded in the written model")
     args = p.parse_args(argv)
+    if args.ratios is None and not args.mean_context:
+        p.error("nothing to add: give --ratios, --mean-context or both")
     try:
-        ratios = [float(v) for v in args.ratios.split(",")]
+        ratios = [] if args.ratios is None else [float(v) for v in args.ratios.split(",")]
     except ValueError:
         p.error(f"--ratios takes comma-separated numbers, got {args.ratios!r}")
     try:
-        model = model_from_run(args.run)[0] if args.run else from_pretrained(args.model)
-        out = add_levels(model, ratios)
+        out = model_from_run(args.run)[0] if args.run else from_pretrained(args.model)
+        if ratios:
+            out = add_levels(out, ratios)
+        if args.mean_context:
+            out = add_mean_context(out)
     except ModelError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -349,6 +349,8 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--calibrate-batches", type=int, default=16, metavar="N",
                         help="with --rate-lambdas, a run that starts without a checkpoint first fits the entropy "
                              "model's densities to the tokens of N batches")
+    recipe.add_argument("--calibrate-iterations", type=int, default=300, metavar="N",
+                        help="Adam steps of the density calibration (one batch at one level each)")
     recipe.add_argument("--patch-weight", type=float, default=0.0, metavar="W",
                         help="weight of the patch loss (config dynamic_splat): each dynamic token's splat patch must "
                              "hold the source latent around its track")
@@ -433,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
                              track_weight=args.track_weight, patch_weight=args.patch_weight,
                              rate_lambdas=rate_lambdas, level_weights=level_weights)
     if rate_lambdas and args.calibrate_batches > 0 and not (args.out / "checkpoint" / "state.json").is_file():
-        fit = calibrate_entropy(model, batches, args.calibrate_batches)
+        fit = calibrate_entropy(model, batches, args.calibrate_batches, iterations=args.calibrate_iterations)
         if info.is_main:
             print(f"entropy model calibrated on {args.calibrate_batches} batches: {fit['bits_per_value_before']:.3f} -> "
                   f"{fit['bits_per_value_after']:.3f} bits per token value (mean over levels)")

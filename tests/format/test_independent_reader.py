@@ -314,13 +314,21 @@ def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, vie
     freqs = tables["freqs"][level]  # [class][channel] -> the positive run of the row
     half = [[(len(freqs[k][c]) - 1) // 2 for c in range(cols)] for k in (0, 2)]  # Q_s, Q_d per channel
     assert all(len(freqs[1][c]) == 4 * half[0][c] + 1 for c in range(cols))
+    assert len(freqs) in (3, 5) and all(len(freqs[k][c]) == len(freqs[0][c]) for k in range(3, len(freqs))
+                                        for c in range(cols))
     static = tok == "ZSTA"
     origin = tables["origins"][V - 1] if static else None
     x, pos, codes = struct.unpack_from("<I", raw, 2)[0], 6, []
     assert x >= L
+    previous = None  # the previous MEAN token (C = 5: context-coded MEAN tokens)
     for k in range(rows * cols):
         i, c = divmod(k, cols)
         cls = (0 if origin[i] == i else 1) if static else 2
+        if cls == 0 and len(freqs) == 5 and previous is not None:
+            before = codes[previous * cols + c]
+            cls = 3 if before < 0 else 4 if before > 0 else 0
+        if static and c == cols - 1 and origin[i] == i:
+            previous = i
         f = freqs[cls][c]
         cum = [sum(f[:s]) for s in range(len(f))]
         slot = x % M
@@ -338,15 +346,18 @@ def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, vie
 
 
 LEARNED_TABLES = json.loads((VECTORS / "tables" / "vt4d-test-learned.json").read_text())
+# every test model's tables (I.6.2 "Test model", "Context test model"), found by the file's fingerprint
+TEST_TABLES = [json.loads(path.read_text()) for path in sorted((VECTORS / "tables").glob("*.json"))]
 
 
 def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[list[float]]:
     enc, (rows, cols) = scene["header"]["encoding"], shape
     n, raw = rows * cols, scene["sections"][tok]
     if enc == "learned-rans":  # the tables of the model the fingerprint names: here the test model's file
-        assert scene["header"]["fingerprint"] == LEARNED_TABLES["fingerprint"]
+        tables = [t for t in TEST_TABLES if t["fingerprint"] == scene["header"]["fingerprint"]]
+        assert len(tables) == 1
         views = 1 + (struct.unpack_from("<B", scene["sections"]["XCAM"], 0)[0] if "XCAM" in scene["sections"] else 0)
-        values = learned_values(raw, LEARNED_TABLES, tok, rows, cols, views)
+        values = learned_values(raw, tables[0], tok, rows, cols, views)
     elif enc == "float32":
         values = list(struct.unpack(f"<{n}f", raw))
     elif enc == "float16":
@@ -657,6 +668,30 @@ def test_format_md_alone_reads_what_the_writer_makes_in_learned_rans(quality, se
     if two_cameras:
         scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
     tables = mv.learned_tables()
+    data = dumps(scene, tables=tables)
+    mine = read_scene(data)
+    ours = loads(data, tables=tables)
+    for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
+        assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_format_md_alone_reads_context_coded_mean_tokens(seed, two_cameras):
+    """Tables of 5 classes (I.6.2, context-coded MEAN tokens) as the library writes them, with one camera (a
+    frame copy between two MEAN tokens, which the previous-MEAN rule skips) or two: the spec-only decoder
+    gives the library's own values."""
+    from format_strategies import load_vector_tool
+    from vt4dcodec.format import dumps, loads
+
+    mv = load_vector_tool()
+    scene = mv.context_scene(quality=1)
+    rng = np.random.default_rng(seed)
+    scene.static_tokens = rng.uniform(-1.2, 1.2, (4, 2)).astype(np.float32)
+    scene.dynamic_tokens = rng.uniform(-1, 1, (1, 2)).astype(np.float32)
+    if two_cameras:
+        scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
+    tables = mv.context_tables()
     data = dumps(scene, tables=tables)
     mine = read_scene(data)
     ours = loads(data, tables=tables)

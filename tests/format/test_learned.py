@@ -82,6 +82,80 @@ def test_context_coder_c_and_python_agree(seed, n):
     assert np.array_equal(rans._decode_ctx_py(stream, x, ctx.astype(np.uint16), tables), symbols)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 400))
+def test_dependent_contexts_c_and_python_agree(seed, n):
+    """A symbol whose row is chosen by an earlier decoded symbol (context-coded MEAN tokens, FORMAT.md I.6.2):
+    the C decoder, the Python reference and the encoder's own row choice agree."""
+    rng = np.random.default_rng(seed)
+    tables = np.stack([np.pad(laplace_table(3, w), (0, 6)) for w in (0.3, 1.0, 4.0, 0.5, 2.0)])
+    ctx = rng.integers(0, 3, n)
+    dep = np.where(rng.random(n) < 0.6, np.arange(n) - rng.integers(1, 6, n), -1).clip(min=-1)
+    dependency = (dep, np.full(n, 3), np.full(n, 3), np.full(n, 4))
+    symbols = rng.integers(0, 7, n)
+    rows = rans.dependent_contexts(symbols, ctx, dependency)
+    assert ((rows != ctx) <= (dep >= 0)).all()
+    stream = rans.rans_encode_ctx(symbols, rows, tables)
+    assert np.array_equal(rans.rans_decode_ctx(stream, ctx, tables, dependency), symbols)
+    x = int.from_bytes(stream[:4], "little")
+    checked = rans._dependency_args(dependency, n)
+    assert np.array_equal(rans._decode_ctx_py(stream, x, ctx.astype(np.uint16), tables, checked), symbols)
+
+
+def test_a_dependency_on_a_later_symbol_is_refused():
+    tables = np.stack([laplace_table(2, 1.0)] * 3)
+    with pytest.raises(ValueError, match="earlier"):
+        rans.rans_decode_ctx(b"\x00\x00\x80\x00", np.zeros(2), tables, (np.array([1, -1]), np.full(2, 2),
+                                                                          np.ones(2), np.full(2, 2)))
+
+
+def make_context_tables(tag: str = "ctx") -> EntropyTables:
+    """make_tables with 5 classes: MEAN_AFTER_NEGATIVE / _POSITIVE rows peaked at codes -1 / +1."""
+    base = make_tables(tag)
+    freqs = np.zeros(base.freqs.shape[:1] + (5,) + base.freqs.shape[2:], np.int64)
+    freqs[:, :3] = base.freqs
+    for level in range(base.levels):
+        for c in range(D):
+            n = int((base.freqs[level, 0, c] > 0).sum())
+            for cls, lean in ((3, -1), (4, 1)):
+                p = np.exp(-np.abs(np.arange(n) - (n // 2 + lean)) / 0.7)
+                f = np.floor(p / p.sum() * (16384 - n)).astype(np.int64) + 1
+                f[n // 2 + lean] += 16384 - f.sum()
+                freqs[level, cls, c, :n] = f
+    return EntropyTables(base.steps, freqs, base.origins, base.fingerprint)
+
+
+@pytest.mark.parametrize("views", [1, 2])
+def test_context_coded_mean_tokens_round_trip_and_cost_less_when_signs_agree(views):
+    tables = make_context_tables()
+    plain = EntropyTables(tables.steps, tables.freqs[:, :3], tables.origins, tables.fingerprint)
+    scene = make_scene(quality=1, tag="ctx")
+    sign = np.where(np.arange(D) % 2, 1.0, -1.0).astype(np.float32)
+    scene.static_tokens = (sign * np.float32(0.6))[None].repeat(NS, 0)  # every token: -0.6, 0.6, ... (codes -1, 1)
+    if views == 2:
+        scene.extra_cameras = (trajectory(),)
+    with_ctx, without = dumps(scene, tables=tables), dumps(scene, tables=plain)
+    assert np.array_equal(loads(with_ctx, tables=tables).static_tokens, loads(without, tables=plain).static_tokens)
+    assert len(with_ctx) < len(without)
+
+
+def test_mean_dependency_skips_frame_copies():
+    tables = make_context_tables()
+    prev = tables.mean_dependency(1)  # one camera: tokens 4.. are copies of tokens 0..3
+    assert prev[:4].tolist() == [-1, 0, 1, 2] and (prev[4:] == -1).all()
+    assert tables.mean_dependency(2).tolist() == [-1] + list(range(NS - 1))
+
+
+def test_context_tables_need_mean_sized_rows():
+    tables = make_context_tables()
+    freqs = tables.freqs.copy()
+    freqs[0, 3, 0] = np.pad(laplace_table(1, 1.0), (0, freqs.shape[3] - 3))  # 3 symbols, MEAN has 5
+    with pytest.raises(errors.EntropyTablesError, match="MEAN_AFTER"):
+        EntropyTables(tables.steps, freqs, tables.origins, tables.fingerprint)
+    with pytest.raises(errors.EntropyTablesError, match="3 or 5"):
+        EntropyTables(tables.steps, tables.freqs[:, :4], tables.origins, tables.fingerprint)
+
+
 def test_context_coder_rejects_damaged_streams():
     tables = np.stack([laplace_table(2, 1.0)])
     ctx = np.zeros(300, np.int64)

@@ -42,3 +42,18 @@ def test_command_writes_a_loadable_model(tmp_path):
     src = save_pretrained(_levels_model(2), tmp_path / "src", model_id="t", model_version="0")
     assert main(["--model", str(src), "--out", str(tmp_path / "out"), "--ratios", "2", "--id", "t"]) == 0
     assert from_pretrained(tmp_path / "out").config.entropy_levels == 3
+
+
+def test_mean_context_starts_as_the_model_it_came_from():
+    """add_mean_context: the two new density classes copy MEAN's, so the model codes every scene exactly as
+    before (same bytes) until its densities are fitted again; a second call is refused."""
+    from vt4dcodec.model.train.add_levels import add_mean_context
+
+    model = _levels_model(2)
+    model.update_entropy()
+    out = add_mean_context(model)
+    assert out.config.entropy_context and out.entropy.freqs.shape[1] == 5
+    assert torch.equal(out.entropy.freqs[:, :3], model.entropy.freqs)
+    assert torch.equal(out.entropy.freqs[:, 3], model.entropy.freqs[:, 0])
+    with pytest.raises(ModelError, match="already"):
+        add_mean_context(out)

@@ -717,7 +717,11 @@ done:
  * to PROB_SCALE (checked here again); a symbol of frequency 0 cannot be encoded.
  *   encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> bytes, or None if a symbol has frequency 0 or lies
  *       outside its table
- *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16) -> (symbols_decoded, stream_pos, final_state) */
+ *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, below_u16, above_u16])
+ *       -> (symbols_decoded, stream_pos, final_state); with the four dependency buffers (one value per
+ *       symbol) symbol i with dep[i] >= 0 (an earlier symbol, dep[i] < i) is coded with table below[i] when
+ *       out[dep[i]] < centre[i], above[i] when it is greater, and ctx[i] when equal (learned-rans tables with
+ *       context-coded MEAN tokens, FORMAT.md I.6.2) */
 static uint32_t *ctx_cums(Py_buffer *fb, Py_ssize_t alphabet, Py_ssize_t *tables) {
     if (alphabet < 1 || alphabet > MAX_ALPHABET || fb->len % (4 * alphabet) || fb->len == 0) {
         PyErr_SetString(PyExc_ValueError, "freqs must be T x A uint32 values");
@@ -804,12 +808,20 @@ done:
 
 static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     Py_buffer sb, xb, fb, ob;
+    Py_buffer db = {0}, cb = {0}, lb = {0}, hb = {0};
     Py_ssize_t alphabet, tables;
-    if (!PyArg_ParseTuple(args, "y*y*y*nw*", &sb, &xb, &fb, &alphabet, &ob)) return NULL;
+    if (!PyArg_ParseTuple(args, "y*y*y*nw*|y*y*y*y*", &sb, &xb, &fb, &alphabet, &ob, &db, &cb, &lb, &hb))
+        return NULL;
     PyObject *result = NULL;
     uint32_t *cum = NULL;
+    const int dependent = db.buf != NULL;
     if (ob.len % 2 || ob.len != xb.len || sb.len < 4) {
         PyErr_SetString(PyExc_ValueError, "out and ctx must be uint16 buffers of one length, the stream >= 4 bytes");
+        goto done;
+    }
+    if (dependent && (db.len != 2 * ob.len || cb.buf == NULL || lb.buf == NULL || hb.buf == NULL
+                      || cb.len != ob.len || lb.len != ob.len || hb.len != ob.len)) {
+        PyErr_SetString(PyExc_ValueError, "dep (int32), centre, below and above (uint16) need one value per symbol");
         goto done;
     }
     cum = ctx_cums(&fb, alphabet, &tables);
@@ -818,13 +830,24 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     const uint16_t *ctx = (const uint16_t *)xb.buf;
     const uint32_t *freqs = (const uint32_t *)fb.buf;
     uint16_t *out = (uint16_t *)ob.buf;
+    const int32_t *dep = (const int32_t *)db.buf;
+    const uint16_t *centre = (const uint16_t *)cb.buf, *below = (const uint16_t *)lb.buf,
+                   *above = (const uint16_t *)hb.buf;
     const Py_ssize_t n = ob.len / 2, end = sb.len;
     uint32_t x = read_u32(data);
     Py_ssize_t pos = 4, i = 0;
     int bad_ctx = 0;
     Py_BEGIN_ALLOW_THREADS
     for (; i < n; i++) {
-        const Py_ssize_t t = ctx[i];
+        Py_ssize_t t = ctx[i];
+        if (dependent && dep[i] >= 0) {
+            if (dep[i] >= i) {
+                bad_ctx = 1;
+                break;
+            }
+            const uint16_t v = out[dep[i]];
+            t = v < centre[i] ? below[i] : v > centre[i] ? above[i] : t;
+        }
         if (t >= tables) {
             bad_ctx = 1;
             break;
@@ -847,7 +870,7 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
 stop:
     Py_END_ALLOW_THREADS
     if (bad_ctx) {
-        PyErr_SetString(PyExc_ValueError, "a context index lies outside the tables");
+        PyErr_SetString(PyExc_ValueError, "a context index lies outside the tables, or a dependency is not earlier");
         goto done;
     }
     result = Py_BuildValue("(nnk)", i, pos, (unsigned long)x);
@@ -857,6 +880,10 @@ done:
     PyBuffer_Release(&xb);
     PyBuffer_Release(&fb);
     PyBuffer_Release(&ob);
+    if (db.buf) PyBuffer_Release(&db);
+    if (cb.buf) PyBuffer_Release(&cb);
+    if (lb.buf) PyBuffer_Release(&lb);
+    if (hb.buf) PyBuffer_Release(&hb);
     return result;
 }
 
@@ -874,7 +901,8 @@ static PyMethodDef methods[] = {
     {"encode_ctx", rans_encode_ctx, METH_VARARGS,
      "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
     {"decode_ctx", rans_decode_ctx, METH_VARARGS,
-     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16) -> (symbols_decoded, stream_pos, final_state)"},
+     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, below_u16, above_u16]) -> "
+     "(symbols_decoded, stream_pos, final_state)"},
     {NULL, NULL, 0, NULL},
 };
 

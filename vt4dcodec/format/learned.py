@@ -24,14 +24,17 @@ from ..errors import EntropyTablesError, FormatError, LimitExceededError, Malfor
 from .encodings import LEARNED_ENCODING
 from .fingerprint import ModelFingerprint
 from .layout import BytesLike
-from .rans import PROB_SCALE, rans_decode_ctx, rans_encode_ctx
+from .rans import PROB_SCALE, Dependency, dependent_contexts, rans_decode_ctx, rans_encode_ctx
 
 __all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
            "decode_learned_tokens", "parse_learned_payload", "quantize", "set_tables_resolver", "register_tables", "find_tables",
-           "MAX_LEARNED_VALUES"]
+           "MAX_LEARNED_VALUES", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE"]
 
 MAX_VIEWS = 64
 MEAN, CHANGE, DYNAMIC = 0, 1, 2
+# tables of 5 classes code a MEAN token given the sign of the previous MEAN token's code in its channel
+MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE = 3, 4
+CLASS_COUNTS = (3, 5)
 MAX_LEVELS = 16
 MAX_LEARNED_VALUES = 1 << 21  # N * d per matrix, as the other entropy-coded encodings (I.7)
 
@@ -41,9 +44,12 @@ class EntropyTables:
     """The frozen entropy model of one tokenizer (FORMAT.md I.6.2, "Tables").
 
     steps: float32 (L, 2, d), the quantizer step of each level for Z_s (index 0) and Z_d (1), each > 0;
-    freqs: int64 (L, 3, d, A), the rANS frequencies of each level, class (MEAN, CHANGE, DYNAMIC) and
-        channel: each row a run of ``n >= 1`` positive frequencies summing to 2^14 followed by zeros, with
-        ``n = 2Q + 1`` for MEAN and DYNAMIC and ``4Q + 1`` for CHANGE, Q the level's half-range of codes;
+    freqs: int64 (L, C, d, A), the rANS frequencies of each level, class (MEAN, CHANGE, DYNAMIC, and with
+        C = 5 MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE) and channel: each row a run of ``n >= 1`` positive
+        frequencies summing to 2^14 followed by zeros, with ``n = 2Q + 1`` for the MEAN classes and DYNAMIC and
+        ``4Q + 1`` for CHANGE, Q the level's half-range of codes.  With C = 5 a MEAN token after the first is
+        coded with the MEAN_AFTER_* table of its channel when the previous MEAN token's code there is negative
+        or positive (:meth:`mean_dependency`);
     origins: int64 (64, N_s), for 1..64 encoded cameras the anchor origin of each static token (``o <= i``,
         and ``origins[v, o] = o``): a token with ``o = i`` is of class MEAN, else CHANGE;
     fingerprint: the model these tables belong to.
@@ -63,8 +69,9 @@ class EntropyTables:
         if steps.ndim != 3 or steps.shape[1:] != (2, d) or not 1 <= steps.shape[0] <= MAX_LEVELS:
             raise EntropyTablesError(f"entropy tables: steps must be (L, 2, {d}) with 1 <= L <= {MAX_LEVELS}")
         L = steps.shape[0]
-        if freqs.ndim != 4 or freqs.shape[:3] != (L, 3, d) or freqs.shape[3] < 3:
-            raise EntropyTablesError(f"entropy tables: freqs must be ({L}, 3, {d}, A)")
+        if freqs.ndim != 4 or freqs.shape[1] not in CLASS_COUNTS or freqs.shape[0] != L or freqs.shape[2] != d \
+                or freqs.shape[3] < 3:
+            raise EntropyTablesError(f"entropy tables: freqs must be ({L}, 3 or 5, {d}, A)")
         if origins.shape != (MAX_VIEWS, n_s):
             raise EntropyTablesError(f"entropy tables: origins must be ({MAX_VIEWS}, {n_s})")
         if not (np.isfinite(steps).all() and (steps > 0).all()):
@@ -79,6 +86,9 @@ class EntropyTables:
         half = (size[:, [MEAN, DYNAMIC]] - 1) // 2  # (L, 2, d): Q of Z_s and Z_d
         if (size[:, CHANGE] != 4 * half[:, 0] + 1).any():
             raise EntropyTablesError("entropy tables: a CHANGE table must have 4Q + 1 symbols (Q of its MEAN table)")
+        if freqs.shape[1] == 5 and (size[:, [MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE]] != size[:, [MEAN]]).any():
+            raise EntropyTablesError("entropy tables: a MEAN_AFTER_* table must have the symbol count of its MEAN "
+                                     "table")
         index = np.arange(n_s)[None, :]
         if (origins < 0).any() or (origins > index).any() or \
                 (np.take_along_axis(origins, origins, axis=1) != origins).any():
@@ -91,6 +101,21 @@ class EntropyTables:
     @property
     def levels(self) -> int:
         return int(self.steps.shape[0])
+
+    @property
+    def contextual(self) -> bool:
+        """Whether MEAN tokens are coded given the previous MEAN token (tables of 5 classes)."""
+        return int(self.freqs.shape[1]) == 5
+
+    def mean_dependency(self, views: int) -> np.ndarray:
+        """(N_s,) int64: for each MEAN static token after the first, the index of the previous MEAN token (the
+        largest MEAN index below it); -1 for the first MEAN token and for CHANGE tokens."""
+        change = self.copies(views)[1]
+        index = np.where(~change, np.arange(len(change)), -1)
+        last = np.maximum.accumulate(index)  # the latest MEAN index at or before each token
+        prev = np.concatenate([[-1], last[:-1]])
+        out: np.ndarray = np.where(change, -1, prev).astype(np.int64)
+        return out
 
     def half_range(self, level: int) -> np.ndarray:
         """(2, d) int64: Q of Z_s and Z_d at ``level``, codes lie in -Q .. Q."""
@@ -195,8 +220,26 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
         origin, change = tables.copies(views)
         symbols[change] = q[change] - q[origin[change]] + 2 * half
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
-    stream = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), freqs)
+    flat = ctx.reshape(-1)
+    if which == "static" and tables.contextual:
+        flat = dependent_contexts(symbols.reshape(-1), flat, _mean_dependency(tables, level, views))
+    stream = rans_encode_ctx(symbols.reshape(-1), flat, freqs)
     return bytes([level, views]) + stream
+
+
+def _mean_dependency(tables: EntropyTables, level: int, views: int) -> Dependency:
+    """The rANS dependency (dep, centre, below, above), one value per symbol of the static matrix, of tables with
+    context-coded MEAN tokens: value (i, c) of a MEAN token after the first depends on value (j, c) of the
+    previous MEAN token j; centre Q (the symbol of code 0), rows MEAN_AFTER_NEGATIVE / MEAN_AFTER_POSITIVE."""
+    d = tables.steps.shape[2]
+    prev = tables.mean_dependency(views)
+    channel = np.arange(d)[None, :]
+    dep = np.where(prev[:, None] >= 0, prev[:, None] * d + channel, -1)
+    centre = np.broadcast_to(tables.half_range(level)[0][None, :], dep.shape)
+    below = np.broadcast_to(MEAN_AFTER_NEGATIVE * d + channel, dep.shape)
+    above = np.broadcast_to(MEAN_AFTER_POSITIVE * d + channel, dep.shape)
+    flat = [np.ascontiguousarray(a).reshape(-1) for a in (dep, centre, below, above)]
+    return flat[0], flat[1], flat[2], flat[3]
 
 
 def parse_learned_payload(payload: BytesLike) -> tuple[int, int]:
@@ -224,7 +267,9 @@ def decode_learned_tokens(payload: BytesLike, tables: EntropyTables, rows: int, 
         raise MalformedSectionError("token shape differs from the entropy tables' model")
     ctx = tables.contexts(which, stored_views)
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
-    symbols = rans_decode_ctx(memoryview(payload)[2:], ctx.reshape(-1), freqs).astype(np.int64).reshape(rows, cols)
+    dependency = _mean_dependency(tables, level, stored_views) if which == "static" and tables.contextual else None
+    symbols = rans_decode_ctx(memoryview(payload)[2:], ctx.reshape(-1), freqs,
+                              dependency).astype(np.int64).reshape(rows, cols)
     half = tables.half_range(level)[_group(which)][None, :]
     q = symbols - half
     if which == "static":

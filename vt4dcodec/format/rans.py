@@ -390,31 +390,70 @@ def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> b
     return x.to_bytes(4, "little") + bytes(out)
 
 
-def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+Dependency = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _dependency_args(dependency: Dependency, n: int) -> Dependency:
+    """(dep int32, centre, below, above uint16) checked: one value per symbol, each dep earlier than its symbol."""
+    dep = np.ascontiguousarray(dependency[0], dtype=np.int32).reshape(-1)
+    rest = tuple(np.ascontiguousarray(a, dtype=np.uint16).reshape(-1) for a in dependency[1:])
+    if dep.size != n or any(a.size != n for a in rest):
+        raise ValueError("a dependency needs one dep, centre, below and above value per symbol")
+    if n and (dep >= np.arange(n)).any():
+        raise ValueError("a symbol can depend only on an earlier symbol")
+    return dep, rest[0], rest[1], rest[2]
+
+
+def dependent_contexts(symbols: np.ndarray, ctx: np.ndarray, dependency: Dependency) -> np.ndarray:
+    """The row of each symbol under ``dependency`` (see :func:`rans_decode_ctx`), for an encoder that knows every
+    symbol: ``below[k]`` / ``above[k]`` where ``symbols[dep[k]]`` is below / above ``centre[k]``, else ``ctx[k]``."""
+    syms = np.asarray(symbols, dtype=np.int64).reshape(-1)
+    dep, centre, below, above = _dependency_args(dependency, syms.size)
+    out = np.asarray(ctx, dtype=np.int64).reshape(-1).copy()
+    has = dep >= 0
+    v = syms[dep[has]]
+    out[has] = np.where(v < centre[has], below[has], np.where(v > centre[has], above[has], out[has]))
+    return out
+
+
+def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray,
+                    dependency: Dependency | None = None) -> np.ndarray:
     """Decode ``len(ctx)`` symbols (uint16) of a single-chain stream, symbol ``k`` with row ``ctx[k]`` of
-    ``freqs`` (T, A; every row validated to sum to 2^14 by the caller). TruncatedError if the stream ends
-    early, MalformedSectionError if bytes are left over or the final state is not ``L``."""
+    ``freqs`` (T, A; every row validated to sum to 2^14 by the caller). With ``dependency`` = (dep, centre,
+    below, above), one value each per symbol: a symbol with ``dep[k] >= 0`` (an earlier symbol) takes row
+    ``below[k]`` when the symbol decoded at ``dep[k]`` is below ``centre[k]``, ``above[k]`` when above, else
+    ``ctx[k]`` (context-coded MEAN tokens, FORMAT.md I.6.2). TruncatedError if the stream ends early,
+    MalformedSectionError if bytes are left over or the final state is not ``L``."""
     ctx16, table, alphabet = _ctx_args(ctx, freqs)
     data, states = _opened(stream, 1)
     if ctx16.size and int(ctx16.max()) >= table.shape[0]:
         raise ValueError("a context lies outside the tables")
+    dep = None if dependency is None else _dependency_args(dependency, ctx16.size)
+    if dep is not None and ctx16.size and max(int(dep[2].max()), int(dep[3].max())) >= table.shape[0]:
+        raise ValueError("a context lies outside the tables")
     if not NATIVE:
-        return _decode_ctx_py(data, states[0], ctx16, table)
+        return _decode_ctx_py(data, states[0], ctx16, table, dep)
     out = np.empty(ctx16.size, np.uint16)
-    done, pos, final = _rans_native.decode_ctx(data, ctx16, table, alphabet, out)
+    done, pos, final = _rans_native.decode_ctx(data, ctx16, table, alphabet, out, *(() if dep is None else dep))
     if done < ctx16.size:
         raise TruncatedError(f"rANS stream ends after {done} of {ctx16.size} symbols")
     _check_end(data, pos, (final,))
     return out
 
 
-def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray,
+                   dependency: Dependency | None = None) -> np.ndarray:
     """Pure-Python :func:`rans_decode_ctx` after the initial-state check (the reference)."""
     table, cums = _rows_and_cumulative(freqs)
     mask, end, pos = PROB_SCALE - 1, len(data), 4
-    rows = {t: (table[t].tolist(), cums[t].tolist()) for t in set(ctx.tolist())}
+    used = set(ctx.tolist()) | (set() if dependency is None else set(dependency[2].tolist()) | set(dependency[3].tolist()))
+    rows = {t: (table[t].tolist(), cums[t].tolist()) for t in used}
+    dep, centre, below, above = ([], [], [], []) if dependency is None else (a.tolist() for a in dependency)
     syms = [0] * len(ctx)
     for i, t in enumerate(ctx.tolist()):
+        if dependency is not None and dep[i] >= 0:
+            v = syms[dep[i]]
+            t = below[i] if v < centre[i] else above[i] if v > centre[i] else t
         f, cum = rows[t]
         slot = x & mask
         s = int(np.searchsorted(cums[t], slot, side="right")) - 1
