@@ -125,6 +125,9 @@ def make_context_tables(tag: str = "ctx") -> EntropyTables:
     return EntropyTables(base.steps, freqs, base.origins, base.fingerprint)
 
 
+CONTEXT_TABLES = make_context_tables()
+
+
 @pytest.mark.parametrize("views", [1, 2])
 def test_context_coded_mean_tokens_round_trip_and_cost_less_when_signs_agree(views):
     tables = make_context_tables()
@@ -312,15 +315,19 @@ def damaged(data, original: bytes, *, edits: int, cut: int) -> bytearray:
 @settings(max_examples=150, deadline=None)
 @given(st.data())
 def test_fuzzed_learned_files_give_only_library_errors(data):
-    """Random byte flips, cuts and insertions anywhere in a learned-rans file: the reader returns tokens
-    equal to the original's (the change was harmless) or raises a FormatError, never anything else."""
-    original = dumps(make_scene(), quality=2, tables=TABLES)
+    """Random byte flips, cuts and insertions anywhere in a learned-rans file (3-class tables, or 5-class tables
+    with context-coded MEAN tokens; header dictionary 1 or 2): the reader returns tokens equal to the
+    original's (the change was harmless) or raises a FormatError, never anything else."""
+    tag = data.draw(st.sampled_from(["t", "ctx"]))
+    tables = TABLES if tag == "t" else CONTEXT_TABLES
+    original = dumps(make_scene(tag=tag), quality=2, tables=tables,
+                     header_dictionary=data.draw(st.sampled_from([1, 2])))
     buf = damaged(data, original, edits=4, cut=8)
     try:
-        scene = loads(bytes(buf), tables=TABLES)
+        scene = loads(bytes(buf), tables=tables)
     except errors.FormatError:
         return
-    good = loads(original, tables=TABLES)
+    good = loads(original, tables=tables)
     assert np.array_equal(scene.static_tokens, good.static_tokens)
     assert np.array_equal(scene.dynamic_tokens, good.dynamic_tokens)
 
