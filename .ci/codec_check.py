@@ -1,8 +1,8 @@
 """The codec install runs the codec with torch absent (issue 51).
 
 Run by .ci/run in a fresh venv holding `pip install -e ".[codec]"` alone: torch must not be installed, and the
-demo, encoding every camera of a capture, decoding and `vt4d info` must run (on the exported ONNX graphs) without
-importing it. Exits non-zero, with the reason, if anything fails.
+demo, encoding every camera of a capture, decoding, `vt4d info` and generation must run (on the exported ONNX
+graphs) without importing it. Exits non-zero, with the reason, if anything fails.
 """
 
 import importlib.util
@@ -32,10 +32,11 @@ def check() -> None:
         run(["decode", "all.vt4d", "-t", "source", "-t", "camera:cam05", "-o", "views", "-q"])
         run(["info", "all.vt4d"])
         run(["demo", "-o", "demo_out", "-q"])
+        run(["generate", capture, "-o", "gen", "--steps", "2", "-q"])
         assert len(list(Path("views").glob("*.mp4"))) == 2 and Path("demo_out/demo_report.json").is_file()
     loaded = sorted(m for m in sys.modules if m.split(".")[0] in TRAIN_ONLY)
     assert not loaded, f"the codec imported {loaded[:5]}"
-    print("codec install OK: no torch; demo, encode of all cameras, decode and info ran")
+    print("codec install OK: no torch; demo, encode of all cameras, decode, info and generate ran")
 
 
 if __name__ == "__main__":

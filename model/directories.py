@@ -13,12 +13,13 @@ import os
 from pathlib import Path
 from typing import Any
 
-from vt4dcodec.errors import ModelError, ModelNotFoundError
+from vt4dcodec.errors import ModelError, ModelMismatchError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
 
 __all__ = [
+    "check_tokenizer", "read_prior_meta",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -111,6 +112,20 @@ def read_model_meta(directory: Path) -> dict[str, Any]:
                              config_type=ModelConfig)
 
 
+def read_prior_meta(directory: Path) -> dict[str, Any]:
+    """Parse and validate prior.json of a prior directory; ``meta["tokenizer"]`` becomes the ModelFingerprint of
+    the tokenizer it was trained on (ModelError where it is missing or malformed)."""
+    from .configs import PriorConfig
+
+    meta = read_weights_meta(directory, meta_file=PRIOR_META_FILE, weights_file=PRIOR_WEIGHTS_FILE, fmt=PRIOR_FORMAT,
+                             config_type=PriorConfig)
+    try:
+        meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
+    except Exception as exc:  # the format's own validation errors
+        raise ModelError(f"{directory / PRIOR_META_FILE}: bad tokenizer fingerprint: {exc}") from None
+    return meta
+
+
 def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:
     """The fingerprint a container stores for the tokenizer whose parsed ``config.json`` is ``meta`` (as
     :func:`read_model_meta` returns it): the same as the loaded model's ``stored_fingerprint()``."""
@@ -119,3 +134,23 @@ def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:
                             config_sha256=meta["config_sha256"], weights_sha256=meta["weights_sha256"],
                             static_shape=tuple(config.static_shape), dynamic_shape=tuple(config.dynamic_shape),
                             token_dtype="float32")
+
+
+def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = False) -> None:
+    """Refuse (ModelMismatchError) a tokenizer other than the one the prior (a Co4DGen or an OnnxPrior, with its
+    ``tokenizer_fingerprint``) was trained on.
+
+    With ``force`` only the token shapes must agree.
+    """
+    recorded = prior.tokenizer_fingerprint
+    if recorded is None:
+        raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
+    if recorded.matches(tokenizer_fingerprint):
+        return
+    shapes_agree = (recorded.static_shape, recorded.dynamic_shape) == (
+        tokenizer_fingerprint.static_shape, tokenizer_fingerprint.dynamic_shape)
+    if force and shapes_agree:
+        return
+    raise ModelMismatchError(f"the prior was trained on tokens of {recorded.short()}, but the tokenizer given is "
+                             f"{tokenizer_fingerprint.short()}" + ("" if shapes_agree else " (token shapes differ)"))
+

@@ -8,7 +8,9 @@ What it writes beside ``model.safetensors`` (:func:`export_model`; run when a mo
   synchronized cameras, V = 2 .. :data:`EXPORT_VIEWS` (the encoder's fusion of several cameras depends on V
   in Python: one graph per camera count, each a few hundred kilobytes);
 * ``renderer.onnx``: one Euler step of the rectified-flow sampler plus the autoencoder's decoder, for any
-  number of target views, frames and encoded cameras (``model.onnx_renderer`` runs the sampler loop).
+  number of target views, frames and encoded cameras (``model.onnx_renderer`` runs the sampler loop);
+* for a Co4DGen prior directory (:func:`export_prior`), ``prior-condition.onnx`` and ``prior-velocity.onnx``
+  beside ``prior.safetensors`` (``model.onnx_prior`` runs its sampler).
 
 Graphs are traced with torch's TorchScript-based exporter (opset 17) without constant folding, so their
 weights are the model's own parameters, and every float32 weight whose values are exactly float16 (all
@@ -58,7 +60,7 @@ from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, REN
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
 
-__all__ = ["export_encoder", "export_renderer", "export_model", "example_inputs", "example_render_inputs",
+__all__ = ["export_encoder", "export_renderer", "export_model", "export_prior", "example_inputs", "example_render_inputs",
            "PARITY_TOLERANCE", "EXPORT_VIEWS"]
 
 PARITY_TOLERANCE = 1e-4  # max |difference| of tokens (or frames in [0, 1]) between onnxruntime and torch
@@ -225,11 +227,11 @@ def _trace(module: nn.Module, inputs: tuple[torch.Tensor, ...], input_names: lis
 
 
 def _finish(model: Any, directory: Path, meta: dict[str, Any], fmt: str, name: str, extra: dict[str, str],
-            check: Any) -> Path:
+            check: Any, weights: str = WEIGHTS_FILE) -> Path:
     """Link the weights, stamp the metadata, check with ``check(path)`` and move into place as ``name``."""
     import onnx
 
-    _link_weights(model, directory / WEIGHTS_FILE)
+    _link_weights(model, directory / weights)
     _compact_names(model)
     for key, value in (("vt4d_format", fmt), ("vt4d_weights_sha256", meta["weights_sha256"]),
                        ("vt4d_config_sha256", meta["config_sha256"]),
@@ -428,6 +430,81 @@ def export_renderer(net: VideoTok4D, directory: str | os.PathLike[str]) -> Path:
     return _finish(model, directory, meta, RENDERER_FORMAT, RENDERER_FILE, {}, check)
 
 
+# --- the prior ---------------------------------------------------------------------------------------
+class _PriorCondition(nn.Module):
+    """``Co4DGen.encode_condition`` and the token normalisation its sampler undoes (outputs CONDITION_OUTPUTS)."""
+
+    def __init__(self, prior: Any) -> None:
+        super().__init__()
+        self.prior = prior
+
+    def forward(self, frames: torch.Tensor, K_c: torch.Tensor, w2c_c: torch.Tensor, K_a: torch.Tensor,
+                w2c_a: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        p = self.prior
+        h = p.cond_encoder(frames, K_c, w2c_c, K_a, w2c_a)
+        return h, p.static_mean * 1.0, p.static_std * 1.0, p.dynamic_mean * 1.0, p.dynamic_std * 1.0  # as outputs
+
+
+class _PriorVelocity(nn.Module):
+    def __init__(self, prior: Any) -> None:
+        super().__init__()
+        self.prior = prior
+
+    def forward(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.prior.velocity(x_s, x_d, h, tau)
+
+
+def _prior_condition(prior: Any, seed: int) -> tuple[torch.Tensor, ...]:
+    cfg = prior.config
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand(1, cfg.frames, 3, cfg.image_size, cfg.image_size, generator=g),
+            *_orbit(1, cfg.frames, cfg.image_size, 0.1 * seed), *_orbit(1, cfg.frames, cfg.image_size, -0.2))
+
+
+def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
+    """Write ``prior-condition.onnx`` and ``prior-velocity.onnx`` for the Co4DGen ``prior`` into its prior
+    ``directory`` and return their paths; ModelError when the directory does not describe ``prior`` or when
+    ``OnnxPrior.sample``'s tokens differ from ``Co4DGen.sample``'s by more than :data:`PARITY_TOLERANCE`."""
+    from .configs import PriorConfig  # noqa: F401  (the prior's config type, read by read_prior_meta)
+    from .directories import PRIOR_WEIGHTS_FILE, read_prior_meta
+    from .identity import weights_sha256
+    from .onnx_prior import (CONDITION_INPUTS, CONDITION_OUTPUTS, PRIOR_CONDITION_FILE, PRIOR_ONNX_FORMAT,
+                             PRIOR_VELOCITY_FILE, VELOCITY_INPUTS, VELOCITY_OUTPUTS, OnnxPrior)
+    from .prior import TOKEN_LIMIT, PriorCondition
+
+    directory = Path(directory)
+    meta = read_prior_meta(directory)
+    if (weights_sha256(prior.state_dict()), prior.config.sha256()) != (meta["weights_sha256"], meta["config_sha256"]):
+        raise ModelError(f"{directory} describes other weights than the prior given")
+    prior = prior.eval()
+    cfg = prior.config
+    condition = _prior_condition(prior, 0)
+    with torch.no_grad():
+        h = prior.cond_encoder(*condition)
+    velocity_inputs = (torch.randn(1, cfg.n_static, cfg.token_dim), torch.randn(1, cfg.n_dynamic, cfg.token_dim), h,
+                       torch.ones(1))
+    graphs = [(PRIOR_CONDITION_FILE, _PriorCondition(prior), condition, CONDITION_INPUTS, CONDITION_OUTPUTS),
+              (PRIOR_VELOCITY_FILE, _PriorVelocity(prior), velocity_inputs, VELOCITY_INPUTS, VELOCITY_OUTPUTS)]
+    extra = {"vt4d_token_limit": repr(TOKEN_LIMIT)}
+    paths = [_finish(_trace(module.eval(), inputs, list(input_names), list(output_names)), directory, meta,
+                     PRIOR_ONNX_FORMAT, name, extra, lambda path: None, weights=PRIOR_WEIGHTS_FILE)
+             for name, module, inputs, input_names, output_names in graphs]
+    try:  # the whole sampler, once both graphs are in place (OnnxPrior opens them there)
+        exported = OnnxPrior.open(directory)
+        for seed, steps, method in ((1, 2, "heun"), (2, 3, "euler")):
+            case = _prior_condition(prior, seed)
+            with torch.no_grad():
+                want = prior.sample(PriorCondition(*case), steps=steps, seed=seed, method=method)
+            got = exported.sample(*(t.numpy() for t in case), steps=steps, seed=seed, method=method)
+            _parity(list(got), [t.numpy() for t in want], "prior")
+    except BaseException:
+        for path in paths:
+            path.unlink(missing_ok=True)
+        raise
+    return paths
+
+
 def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: int = EXPORT_VIEWS) -> list[Path]:
     """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras and
     the renderer; returns their paths."""
@@ -436,13 +513,21 @@ def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: i
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.onnx_export", description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", help="a shipped model id or a model directory")
+    parser.add_argument("model", help="a shipped model id or a model directory (a tokenizer's, or a prior's)")
     parser.add_argument("--views", type=int, default=EXPORT_VIEWS,
                         help=f"encoder graphs for scenes of 1 .. VIEWS cameras (default {EXPORT_VIEWS})")
     args = parser.parse_args(argv)
     try:
-        directory = model_directory(args.model)
-        paths = export_model(from_pretrained(directory), directory, views=args.views)
+        from .directories import PRIOR_META_FILE, shipped_prior_ids
+
+        if args.model in shipped_prior_ids() or (Path(args.model) / PRIOR_META_FILE).is_file():
+            from .weights_io import load_prior
+
+            directory = model_directory(args.model, PRIOR_META_FILE)
+            paths = export_prior(load_prior(directory), directory)
+        else:
+            directory = model_directory(args.model)
+            paths = export_model(from_pretrained(directory), directory, views=args.views)
     except ModelError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -30,7 +30,7 @@ from .directories import CONFIG_FILE, meta_fingerprint, model_directory, read_mo
 from .onnx_session import open_checked
 
 __all__ = ["OnnxRenderer", "RENDERER_FILE", "RENDERER_FORMAT", "RENDERER_INPUTS", "RENDERER_OUTPUTS",
-           "has_onnx_renderer", "seeded_noise"]
+           "has_onnx_renderer", "seeded_noise", "TorchNormal"]
 
 RENDERER_FILE = "renderer.onnx"
 RENDERER_FORMAT = "vt4d-renderer-onnx/1"
@@ -45,33 +45,42 @@ def has_onnx_renderer(directory: str | os.PathLike[str]) -> bool:
     return (Path(directory) / RENDERER_FILE).is_file()
 
 
-def seeded_noise(shape: tuple[int, ...], seed: int) -> np.ndarray:
-    """``torch.randn(shape, generator=torch.Generator().manual_seed(seed))`` in numpy, float32 (to the last bit
-    of its log, cos and sin: ~1e-7): the generator is MT19937 seeded with the low 32 bits of ``seed``; every
-    value is a 24-bit uniform u = (word & 0xFFFFFF) / 2^24, and each block of 16 becomes normal by Box-Muller,
-    r = sqrt(-2 ln(1 - u_j)), theta = 2 pi u_(j+8); a count not a multiple of 16 redraws 16 fresh uniforms for
-    the last 16 values. For at least 16 values (the renderer's noise always is)."""
-    n = int(np.prod(shape))
-    if n < 16:
-        raise ValueError("seeded_noise reproduces torch.randn for 16 values or more")
-    generator = np.random.MT19937(0)
-    generator._legacy_seeding(int(seed) & 0xFFFFFFFF)  # MT19937's own init_genrand(seed), as torch's CPU generator
+class TorchNormal:
+    """``torch.randn(shape, generator=g)`` for successive shapes of one ``g = torch.Generator().manual_seed(seed)``, in
+    numpy float32 (to the last bit of its log, cos and sin: ~1e-7): the generator is MT19937 seeded with the low
+    32 bits of ``seed``; every value is a 24-bit uniform u = (word & 0xFFFFFF) / 2^24, and each block of 16
+    becomes normal by Box-Muller, r = sqrt(-2 ln(1 - u_j)), theta = 2 pi u_(j+8); a count not a multiple of 16
+    redraws 16 fresh uniforms for the last 16 values. For at least 16 values a draw (the codec's always are)."""
 
-    def uniform(count: int) -> np.ndarray:
-        words = generator.random_raw(count).astype(np.uint32) & np.uint32(0xFFFFFF)
+    def __init__(self, seed: int) -> None:
+        self.generator = np.random.MT19937(0)
+        self.generator._legacy_seeding(int(seed) & 0xFFFFFFFF)  # MT19937's own init_genrand, as torch's CPU generator
+
+    def _uniform(self, count: int) -> np.ndarray:
+        words = self.generator.random_raw(count).astype(np.uint32) & np.uint32(0xFFFFFF)
         return words.astype(np.float32) * np.float32(1.0 / (1 << 24))
 
-    def box_muller(u: np.ndarray) -> np.ndarray:  # (k, 16) -> (k, 16)
+    @staticmethod
+    def _box_muller(u: np.ndarray) -> np.ndarray:  # (k, 16) -> (k, 16)
         radius = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0) - u[:, :8]))
         theta = np.float32(2.0 * np.pi) * u[:, 8:]
         return np.concatenate([radius * np.cos(theta), radius * np.sin(theta)], axis=1)
 
-    data = uniform(n)
-    full = n - n % 16
-    data[:full] = box_muller(data[:full].reshape(-1, 16)).reshape(-1)
-    if n % 16:
-        data[n - 16:] = box_muller(uniform(16)[None])[0]
-    return data.reshape(shape).astype(np.float32)
+    def randn(self, shape: tuple[int, ...]) -> np.ndarray:
+        n = int(np.prod(shape))
+        if n < 16:
+            raise ValueError("TorchNormal reproduces torch.randn for 16 values or more")
+        data = self._uniform(n)
+        full = n - n % 16
+        data[:full] = self._box_muller(data[:full].reshape(-1, 16)).reshape(-1)
+        if n % 16:
+            data[n - 16:] = self._box_muller(self._uniform(16)[None])[0]
+        return data.reshape(shape).astype(np.float32)
+
+
+def seeded_noise(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    """``torch.randn(shape, generator=torch.Generator().manual_seed(seed))`` in numpy (:class:`TorchNormal`)."""
+    return TorchNormal(seed).randn(shape)
 
 
 class OnnxRenderer:

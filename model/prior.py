@@ -22,16 +22,16 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vt4dcodec.errors import ModelError, ModelMismatchError
+from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
+from .directories import check_tokenizer  # noqa: F401  (torch-free, where the ONNX prior needs it; kept importable here)
 from .identity import ModelIdentity
 from .layers import MLP
 from .prior_blocks import CoDenoisingBlock, ConditionEncoder, flow_time_embedding
@@ -229,22 +229,3 @@ class Co4DGen(ModelIdentity, nn.Module):
             x_s, x_d = e_s, e_d
         z_s, z_d = self.denormalize(x_s, x_d)
         return z_s.clamp(-TOKEN_LIMIT, TOKEN_LIMIT), z_d.clamp(-TOKEN_LIMIT, TOKEN_LIMIT)
-
-
-# --- the tokenizer it belongs to -------------------------------------------------------------------
-def check_tokenizer(prior: Co4DGen, tokenizer_fingerprint: Any, *, force: bool = False) -> None:
-    """Refuse (ModelMismatchError) a tokenizer other than the one the prior was trained on.
-
-    With ``force`` only the token shapes must agree.
-    """
-    recorded = prior.tokenizer_fingerprint
-    if recorded is None:
-        raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
-    if recorded.matches(tokenizer_fingerprint):
-        return
-    shapes_agree = (recorded.static_shape, recorded.dynamic_shape) == (
-        tokenizer_fingerprint.static_shape, tokenizer_fingerprint.dynamic_shape)
-    if force and shapes_agree:
-        return
-    raise ModelMismatchError(f"the prior was trained on tokens of {recorded.short()}, but the tokenizer given is "
-                             f"{tokenizer_fingerprint.short()}" + ("" if shapes_agree else " (token shapes differ)"))

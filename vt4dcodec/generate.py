@@ -7,10 +7,12 @@
 The prior samples the token state of the anchor camera a, Z^a = [Z_s^a; Z_d^a], conditioned on the
 video V_c with its cameras P_c and on P_a.  The scene stores those tokens, the anchor trajectory as its
 cameras and the fingerprint of the tokenizer the prior was trained on, so the ordinary decoder renders
-any number of views from it without sampling again.  Torch is imported lazily: the prior runs on torch only
-(its sampler is not exported to ONNX), so generation needs the ``train`` extra; without it :func:`generate`
-raises :class:`~vt4dcodec.errors.MissingExtraError` naming it.  ``device=`` runs the prior on the CPU or a
-CUDA GPU (``vt4dcodec.codec.torch_device``).
+any number of views from it without sampling again.  Torch is imported lazily.  The prior runs on torch or,
+like the codec's networks, as graphs exported beside its weights on onnxruntime (``prior-condition.onnx``,
+``prior-velocity.onnx``; ``vt4dcodec.model.onnx_prior``; tokens equal to float rounding): ``runtime="auto"``
+takes torch where it is installed, else the graphs (a prior without them then raises
+:class:`~vt4dcodec.errors.MissingExtraError` naming the ``train`` extra).  ``device=`` runs it on the CPU or a
+CUDA GPU (``vt4dcodec.codec.DEVICES``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from .errors import CaptureError, MissingExtraError, ModelError, TrajectoryError
 from .format import Provenance, Scene
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .model.onnx_prior import OnnxPrior
     from .model.prior import Co4DGen
 
 __all__ = ["generate", "load_prior_model", "fit_conditioning", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS", "GENERATED_ENCODING"]
@@ -48,30 +51,44 @@ def _load_prior_cached(directory: str, device: str = "cpu") -> "Co4DGen":
     return load_prior(directory).to(device)
 
 
-def _require_torch() -> None:
-    from .codec import TRAIN_EXTRA_HINT, torch_available
+@functools.lru_cache(maxsize=4)
+def _open_onnx_prior_cached(directory: str, device: str = "cpu") -> "OnnxPrior":
+    from .model.onnx_prior import OnnxPrior
 
-    if not torch_available():
-        raise MissingExtraError("generation samples the Co4DGen prior, which runs on torch only (it is not exported "
-                                f"to ONNX), and torch is not installed: {TRAIN_EXTRA_HINT}")
+    return OnnxPrior.open(directory, device=device)
 
 
-def load_prior_model(model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR, *, device: str = "cpu") -> "Co4DGen":
+def load_prior_model(model: "str | os.PathLike | Co4DGen | OnnxPrior" = DEFAULT_PRIOR, *, runtime: str = "auto",
+                     device: str = "cpu") -> "Co4DGen | OnnxPrior":
     """A prior by shipped id, by directory, by the name of a directory under $VT4D_MODEL_PATH (the
-    lookup of ``vt4dcodec.model.weights_io.model_directory``, as for tokenizers), or an already loaded
-    :class:`Co4DGen` (returned as is), on ``device`` (``codec.DEVICES``).  Each directory is loaded once per
-    process and device.  MissingExtraError without torch (the ``train`` extra)."""
-    _require_torch()
-    from .codec import torch_device
-    from .model.prior import Co4DGen
-    from .model.weights_io import PRIOR_META_FILE, model_directory
+    lookup of ``vt4dcodec.model.directories.model_directory``, as for tokenizers), or an already loaded
+    :class:`Co4DGen` or ``OnnxPrior`` (returned as is), on ``runtime`` (``codec.RUNTIMES``: ``"auto"`` takes
+    torch where it is installed, else the exported graphs) and ``device`` (``codec.DEVICES``).  Each directory is
+    loaded once per process, runtime and device.  MissingExtraError where torch is needed and not installed."""
+    from .codec import RUNTIMES, TRAIN_EXTRA_HINT, torch_available, torch_device
+    from .model.directories import PRIOR_META_FILE, model_directory
+    from .model.onnx_prior import OnnxPrior, has_onnx_prior
+    from .model.onnx_session import check_device, onnx_available
 
-    where = torch_device(device)
-    if isinstance(model, Co4DGen):
+    if runtime not in RUNTIMES:
+        raise ModelError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
+    check_device(device)
+    if isinstance(model, OnnxPrior):
+        return model
+    if not isinstance(model, (str, os.PathLike)):  # a loaded Co4DGen (torch is installed)
         if model.tokenizer_fingerprint is None:
             raise ModelError("this prior records no tokenizer fingerprint: load it with load_prior")
-        return model if device == "cpu" else model.to(where)
-    return _load_prior_cached(str(model_directory(model, PRIOR_META_FILE).resolve()), where)
+        return model if device == "cpu" else model.to(torch_device(device))
+    directory = model_directory(model, PRIOR_META_FILE)
+    if runtime == "torch" or (runtime == "auto" and torch_available()):
+        if not torch_available():
+            raise MissingExtraError(f"runtime='torch' samples the prior with torch, which is not installed: "
+                                    f"{TRAIN_EXTRA_HINT}")
+        return _load_prior_cached(str(directory.resolve()), torch_device(device))
+    if runtime == "auto" and not (onnx_available() and has_onnx_prior(directory)):
+        raise MissingExtraError(f"{directory} has no exported prior graphs usable here, and torch, which samples the "
+                                f"prior otherwise, is not installed: {TRAIN_EXTRA_HINT}")
+    return _open_onnx_prior_cached(str(directory.resolve()), device)
 
 
 def fit_conditioning(video: np.ndarray, cameras: Trajectory, *, size: int, frames: int, start: int = 0
@@ -105,6 +122,7 @@ def generate(
     encoding: str = GENERATED_ENCODING,
     metadata: dict[str, Any] | None = None,
     source_capture_id: str | None = None,
+    runtime: str = "auto",
     device: str = "cpu",
 ) -> Scene:
     """Sample one joint token state Z^a ~ p(Z^a | V_c, P_c, P_a) and return it as a Scene.
@@ -123,25 +141,51 @@ def generate(
             see GENERATED_ENCODING for the measurement on generated tokens).
         metadata: user key/values stored in the file.
         source_capture_id: the capture the video came from, recorded in the provenance (``vt4d info``).
+        runtime: ``"auto"``, ``"torch"`` or ``"onnx"``: which runtime samples the prior (module docstring).
         device: ``"cpu"``, ``"cuda"`` or ``"auto"``: where the prior runs (DeviceError for ``"cuda"`` without a GPU).
     Returns:
         A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
         was trained on, and provenance kind "generated".
     """
-    _require_torch()
-    import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
-
     from .codec import resolve_trajectory  # (the package root loads the codec on first use too)
-    from .model.prior import PriorCondition
+    from .model.onnx_prior import OnnxPrior  # torch-free
 
-    prior = load_prior_model(model, device=device)
-    where = next(prior.parameters()).device
+    prior = load_prior_model(model, runtime=runtime, device=device)
     cfg = prior.config
     frames, cond_traj = fit_conditioning(video, cameras, size=cfg.image_size, frames=cfg.frames, start=start)
     anchor = resolve_trajectory(anchor_trajectory, cond_traj, size=cfg.image_size, max_frames=cfg.frames)
     if anchor.num_frames != cfg.frames:
         raise TrajectoryError(f"the anchor trajectory has {anchor.num_frames} frames; the prior samples scenes of "
                               f"{cfg.frames} frames")
+
+    if isinstance(prior, OnnxPrior):
+        pixels = frames.transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255.0)
+        z_s, z_d = prior.sample(pixels[None], *(np.asarray(a, np.float32)[None] for a in (
+            cond_traj.K, cond_traj.w2c, anchor.K, anchor.w2c)), steps=steps, seed=seed, method=method)
+    else:
+        z_s, z_d = (t.cpu().numpy() for t in _sample_torch(prior, frames, cond_traj, anchor, steps, seed, method))
+    info = {"prior_id": prior.model_id or "unnamed", "prior_version": prior.model_version or "0",
+            "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
+            "clip_start": int(start), "clip_frames": int(cfg.frames)}
+    return Scene(
+        static_tokens=z_s[0].astype(np.float32),
+        dynamic_tokens=z_d[0].astype(np.float32),
+        cameras=anchor,
+        fingerprint=prior.tokenizer_fingerprint,
+        metadata={**(metadata or {}), "co4dgen": info},
+        provenance=Provenance.now(source_capture_id, "generated"),
+        encoding=encoding,
+    )
+
+
+def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, anchor: Trajectory, steps: int,
+                  seed: int, method: str) -> tuple[Any, Any]:
+    """``Co4DGen.sample`` of the fitted clip ``frames`` (T, H, W, 3) uint8 and its trajectories, on the prior's device."""
+    import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
+
+    from .model.prior import PriorCondition
+
+    where = next(prior.parameters()).device
 
     def tensor(a: np.ndarray) -> "torch.Tensor":
         return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None].to(where)
@@ -150,16 +194,4 @@ def generate(
                           K_c=tensor(cond_traj.K), w2c_c=tensor(cond_traj.w2c), K_a=tensor(anchor.K),
                           w2c_a=tensor(anchor.w2c))
     with torch.no_grad():
-        z_s, z_d = prior.sample(cond, steps=steps, seed=seed, method=method)
-    info = {"prior_id": prior.model_id or "unnamed", "prior_version": prior.model_version or "0",
-            "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
-            "clip_start": int(start), "clip_frames": int(cfg.frames)}
-    return Scene(
-        static_tokens=z_s[0].cpu().numpy().astype(np.float32),
-        dynamic_tokens=z_d[0].cpu().numpy().astype(np.float32),
-        cameras=anchor,
-        fingerprint=prior.tokenizer_fingerprint,
-        metadata={**(metadata or {}), "co4dgen": info},
-        provenance=Provenance.now(source_capture_id, "generated"),
-        encoding=encoding,
-    )
+        return prior.sample(cond, steps=steps, seed=seed, method=method)

@@ -19,7 +19,7 @@ from vt4dcodec import load
 
 
 def _stand_in_prior(monkeypatch):
-    import vt4dcodec.model.prior as prior_module
+    import vt4dcodec.model.directories as prior_module  # check_tokenizer's (torch-free) home
 
     fp = make_scene().fingerprint
     decoder = StandInDecoder(monkeypatch)

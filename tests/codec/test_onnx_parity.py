@@ -1,7 +1,8 @@
 """The exported graphs against the torch networks on every shipped model (issue 51): the encoder's tokens within
-2e-6 for one camera and several (``encoder.onnx``, ``encoder-v{V}.onnx``), and the renderer's frames
+2e-6 for one camera and several (``encoder.onnx``, ``encoder-v{V}.onnx``), the renderer's frames
 (``renderer.onnx``, seeded noise and the Euler loop in numpy) within 0.01 dB of torch's PSNR against the ground
-truth, for the source view and novel views, one step and several, one encoded camera and several."""
+truth, for the source view and novel views, one step and several, one encoded camera and several, and every
+shipped prior's samples (``prior-condition.onnx``, ``prior-velocity.onnx``) within 2e-6 of torch's."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import torch
 
 from vt4dcodec import codec
 from vt4dcodec.media import psnr
-from vt4dcodec.model.directories import model_directory, shipped_model_ids
+from vt4dcodec.generate import generate, load_prior_model
+from vt4dcodec.model.directories import PRIOR_META_FILE, model_directory, shipped_model_ids, shipped_prior_ids
+from vt4dcodec.model.onnx_prior import OnnxPrior, has_onnx_prior
 from vt4dcodec.model.onnx_encoder import OnnxEncoder, has_onnx_encoder
 from vt4dcodec.model.onnx_export import EXPORT_VIEWS
 from vt4dcodec.model.onnx_renderer import OnnxRenderer, has_onnx_renderer, seeded_noise
@@ -20,6 +23,7 @@ from vt4dcodec.synth import SynthConfig, generate_scene
 TOKEN_TOLERANCE = 2e-6  # |onnx - torch| per token value (issue 51)
 PSNR_TOLERANCE = 0.01  # dB, |PSNR(onnx render) - PSNR(torch render)| against the ground truth (issue 51)
 SHIPPED = shipped_model_ids()
+PRIORS = shipped_prior_ids()
 
 
 def test_every_shipped_model_ships_its_graphs():
@@ -31,6 +35,11 @@ def test_every_shipped_model_ships_its_graphs():
             assert has_onnx_encoder(directory, views), (model, views)
         sizes = sorted(p.stat().st_size for p in directory.glob("*.onnx"))
         assert sum(sizes) < 4_000_000 and sizes[-1] < 1_000_000, sizes  # the weights stay in model.safetensors
+    assert PRIORS
+    for prior in PRIORS:
+        directory = model_directory(prior, PRIOR_META_FILE)
+        assert has_onnx_prior(directory), prior
+        assert sum(p.stat().st_size for p in directory.glob("*.onnx")) < 500_000  # weights in prior.safetensors
 
 
 @pytest.mark.parametrize("shape,seed", [((1, 8, 8, 16, 16), 0), ((1, 5, 8, 16, 16), 7), ((1, 3, 5, 7, 3), 2**40 + 3)])
@@ -78,3 +87,16 @@ def test_renders_match_torch_within_a_hundredth_of_a_db(model, views, steps, cap
     clip = capture.cameras[names[2]][:5]
     a, b = onnx_decoder.render(clip, drop_dynamic=True), torch_decoder.render(clip, drop_dynamic=True)
     assert a.shape[0] == 5 and np.abs(a.astype(int) - b.astype(int)).max() <= 1
+
+
+@pytest.mark.parametrize("prior", PRIORS)
+@pytest.mark.parametrize("steps,method", [(3, "heun"), (2, "euler")])
+def test_prior_samples_match_torch(prior, steps, method, capture):
+    assert isinstance(load_prior_model(prior, runtime="onnx"), OnnxPrior)
+    got = generate(capture.frames["cam00"], capture.cameras["cam00"], "orbit:degrees=10", model=prior, steps=steps,
+                   method=method, seed=4, runtime="onnx")
+    want = generate(capture.frames["cam00"], capture.cameras["cam00"], "orbit:degrees=10", model=prior, steps=steps,
+                    method=method, seed=4, runtime="torch")
+    assert got.fingerprint == want.fingerprint and got.metadata == want.metadata
+    for a, b in ((got.static_tokens, want.static_tokens), (got.dynamic_tokens, want.dynamic_tokens)):
+        assert np.abs(a - b).max() <= TOKEN_TOLERANCE

@@ -1,7 +1,7 @@
 """The codec without torch (issue 51): with torch, kornia, safetensors and onnx unimportable -- as after
 ``pip install ".[codec]"`` -- the demo, encoding every camera of a capture, decoding and ``vt4d info`` run on the
-exported graphs, no torch module is ever loaded, and what needs torch (generation, --runtime torch) says which
-extra to install. The install itself (a fresh venv, its size and time) is checked by .ci/run."""
+exported graphs, generation runs on the prior's exported graphs, no torch module is ever loaded, and what needs
+torch (--runtime torch, a prior without graphs) says which extra to install. The install itself (a fresh venv, its size and time) is checked by .ci/run."""
 
 from __future__ import annotations
 
@@ -48,12 +48,13 @@ def test_demo_encode_all_cameras_decode_and_info_run_without_torch(tmp_path):
         assert main(["decode", "one.vt4d", "-o", "one.mp4"]) == 0
         assert main(["info", "all.vt4d"]) == 0
         assert main(["demo", "-o", "demo_out", "--json"]) == 0
-        assert main(["generate", cap, "-o", "gen"]) == 1  # the prior runs on torch: names the extra
-        assert main(["decode", "one.vt4d", "-o", "t.mp4", "--runtime", "torch"]) == 1
+        assert main(["generate", cap, "-o", "gen", "--steps", "2", "--views", "source,orbit:degrees=10"]) == 0
+        assert main(["decode", "one.vt4d", "-o", "t.mp4", "--runtime", "torch"]) == 1  # names the extra
     """, tmp_path)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "clean" in run.stdout
-    assert run.stderr.count('pip install -e ".[train]"') == 2, run.stderr[-2000:]
+    assert run.stderr.count('pip install -e ".[train]"') == 1, run.stderr[-2000:]
+    assert len(list((tmp_path / "gen").glob("view_*.mp4"))) == 2 and (tmp_path / "gen" / "scene.vt4d").is_file()
     assert "Traceback" not in run.stderr
     report = json.loads((tmp_path / "demo_out" / "demo_report.json").read_text())
     assert report["views"] and all(v["psnr_db"] > v["flat_mean_colour_psnr_db"] for v in report["views"].values()
@@ -62,14 +63,22 @@ def test_demo_encode_all_cameras_decode_and_info_run_without_torch(tmp_path):
 
 
 def test_the_api_without_torch_names_the_train_extra(tmp_path):
+    import shutil
+
+    from vt4dcodec.model.directories import PRIOR_META_FILE, model_directory
+
+    shutil.copytree(model_directory("co4dgen-tiny", PRIOR_META_FILE), tmp_path / "bare-prior",
+                    ignore=shutil.ignore_patterns("*.onnx"))  # a prior exported before its graphs were
     run = run_without_torch("""
         import numpy as np
         from vt4dcodec import codec, generate
         from vt4dcodec.errors import MissingExtraError
+        from vt4dcodec.generate import load_prior_model
         assert not codec.torch_available()
+        print(type(load_prior_model()).__name__)
         for call in (lambda: codec.load_model("vt4d-tiny"), lambda: codec.load_encoder("vt4d-tiny", "torch"),
-                     lambda: codec.load_encoder("vt4d-tiny", cameras=11),
-                     lambda: generate(np.zeros((8, 64, 64, 3), np.uint8), None)):
+                     lambda: codec.load_encoder("vt4d-tiny", cameras=11), lambda: load_prior_model("bare-prior"),
+                     lambda: load_prior_model(runtime="torch")):
             try:
                 call()
             except MissingExtraError as exc:
@@ -79,7 +88,7 @@ def test_the_api_without_torch_names_the_train_extra(tmp_path):
         print(type(codec.load_renderer("vt4d-tiny")).__name__)
     """, tmp_path)
     assert run.returncode == 0, run.stderr[-3000:]
-    assert "OnnxRenderer" in run.stdout and "clean" in run.stdout
+    assert "OnnxRenderer" in run.stdout and "OnnxPrior" in run.stdout and "clean" in run.stdout
 
 
 @pytest.mark.parametrize("extra", ["codec", "train"])

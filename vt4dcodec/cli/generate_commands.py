@@ -55,7 +55,7 @@ def split_view_specs(values: list[str]) -> list[str]:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from ..model.prior import check_tokenizer  # the networks (torch): loaded by the command that needs them
+    from ..model.directories import check_tokenizer  # torch-free: the prior may run on its exported graphs
 
     # every argument is checked before anything is loaded, sampled or written
     check_upscale(args)

@@ -1,0 +1,118 @@
+"""The Co4DGen prior exported to ONNX, run on onnxruntime: generation without torch.
+
+A prior directory may hold two graphs beside ``prior.safetensors`` (written by ``model.onnx_export``): the
+condition encoder, ``prior-condition.onnx`` (V_c (1, T, 3, H, W), P_c, P_a -> h, plus the token normalisation
+the sampler undoes), and the velocity, ``prior-velocity.onnx`` (standardised tokens x_s, x_d, h, tau -> v_s, v_d).
+Their weights are external tensors into ``prior.safetensors``; their metadata ties them to prior.json
+(``vt4d_format`` ``"vt4d-prior-onnx/1"``, the weights and config hashes, the token clip ``vt4d_token_limit``).
+
+:class:`OnnxPrior` runs ``Co4DGen.sample``'s Euler / Heun integration in numpy from the same seeded noise
+(``onnx_renderer.TorchNormal``): the tokens agree with the torch prior's to float rounding (tested on every
+shipped prior). Nothing here imports torch.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vt4dcodec.errors import ModelError, ModelNotFoundError
+from vt4dcodec.format import ModelFingerprint
+
+from .configs import PriorConfig
+from .directories import PRIOR_META_FILE, model_directory, read_prior_meta
+from .onnx_renderer import TorchNormal
+from .onnx_session import open_checked
+
+__all__ = ["OnnxPrior", "PRIOR_CONDITION_FILE", "PRIOR_VELOCITY_FILE", "PRIOR_ONNX_FORMAT", "CONDITION_INPUTS",
+           "CONDITION_OUTPUTS", "VELOCITY_INPUTS", "VELOCITY_OUTPUTS", "has_onnx_prior", "SAMPLERS"]
+
+PRIOR_CONDITION_FILE, PRIOR_VELOCITY_FILE = "prior-condition.onnx", "prior-velocity.onnx"
+PRIOR_ONNX_FORMAT = "vt4d-prior-onnx/1"
+CONDITION_INPUTS = ("frames", "K_c", "w2c_c", "K_a", "w2c_a")
+CONDITION_OUTPUTS = ("h", "static_mean", "static_std", "dynamic_mean", "dynamic_std")
+VELOCITY_INPUTS = ("x_s", "x_d", "h", "tau")
+VELOCITY_OUTPUTS = ("v_s", "v_d")
+SAMPLERS = ("euler", "heun")  # as model.prior.SAMPLERS
+
+
+def has_onnx_prior(directory: str | os.PathLike[str]) -> bool:
+    return all((Path(directory) / name).is_file() for name in (PRIOR_CONDITION_FILE, PRIOR_VELOCITY_FILE))
+
+
+class OnnxPrior:
+    """A prior directory's two graphs on onnxruntime sessions; ``config``, ``model_id``, ``model_version`` and
+    ``tokenizer_fingerprint`` as the torch prior's (from prior.json), ``device`` where it runs."""
+
+    def __init__(self, directory: Path, meta: dict[str, Any], condition: Any, velocity: Any, token_limit: float,
+                 device: str) -> None:
+        self.directory, self.condition, self.velocity, self.device = directory, condition, velocity, device
+        self.config: PriorConfig = meta["config"]
+        self.model_id: str = meta["model_id"]
+        self.model_version: str = meta["model_version"]
+        self.tokenizer_fingerprint: ModelFingerprint = meta["tokenizer"]
+        self.token_limit = token_limit
+
+    @classmethod
+    def open(cls, model: str | os.PathLike[str], *, threads: int | None = None, device: str = "cpu") -> "OnnxPrior":
+        """Open the prior graphs of a prior (shipped id, directory, or name under $VT4D_MODEL_PATH) on ``device``.
+        ModelNotFoundError without them; ModelError, DeviceError as ``OnnxRenderer.open``."""
+        directory = model_directory(model, PRIOR_META_FILE)
+        meta = read_prior_meta(directory)
+        if not has_onnx_prior(directory):
+            raise ModelNotFoundError(f"{directory} has no {PRIOR_CONDITION_FILE} and {PRIOR_VELOCITY_FILE} (export them "
+                                     f"with `python -m vt4dcodec.model.onnx_export {directory}`, or sample with torch)")
+        sessions, limit = [], None
+        for name, inputs, outputs in ((PRIOR_CONDITION_FILE, CONDITION_INPUTS, CONDITION_OUTPUTS),
+                                      (PRIOR_VELOCITY_FILE, VELOCITY_INPUTS, VELOCITY_OUTPUTS)):
+            session, where, props = open_checked(directory / name, meta, fmt=PRIOR_ONNX_FORMAT, inputs=inputs,
+                                                 outputs=outputs, what="prior", device=device, threads=threads)
+            sessions.append(session)
+            limit = props.get("vt4d_token_limit", limit)
+        try:
+            token_limit = float(limit)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise ModelError(f"{directory / PRIOR_VELOCITY_FILE}: metadata vt4d_token_limit must be a number") from None
+        return cls(directory, meta, sessions[0], sessions[1], token_limit, where)
+
+    def sample(self, frames: np.ndarray, K_c: np.ndarray, w2c_c: np.ndarray, K_a: np.ndarray, w2c_a: np.ndarray, *,
+               steps: int = 16, seed: int = 0, method: str = "heun") -> tuple[np.ndarray, np.ndarray]:
+        """``Co4DGen.sample`` of one condition: frames (1, T, 3, H, W) float32 in [0, 1], cameras (1, T, 3, 3) and
+        (1, T, 4, 4) -> (Z_s (1, N_s, d), Z_d (1, N_d, d)) float32 in (-1, 1)."""
+        if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+            raise ModelError(f"steps must be a positive integer, got {steps!r}")
+        if method not in SAMPLERS:
+            raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
+        cfg = self.config
+        feed = {n: np.ascontiguousarray(a, np.float32) for n, a in zip(CONDITION_INPUTS, (frames, K_c, w2c_c, K_a, w2c_a))}
+        T, H = cfg.frames, cfg.image_size
+        want = {"frames": (1, T, 3, H, H), "K_c": (1, T, 3, 3), "w2c_c": (1, T, 4, 4), "K_a": (1, T, 3, 3),
+                "w2c_a": (1, T, 4, 4)}
+        for name, shape in want.items():
+            if feed[name].shape != shape or not np.isfinite(feed[name]).all():
+                raise ModelError(f"{name} must be a finite {shape} array, got {feed[name].shape}")
+        h, s_mean, s_std, d_mean, d_std = self.condition.run(list(CONDITION_OUTPUTS), feed)
+        noise = TorchNormal(seed)
+        x_s = noise.randn((1, cfg.n_static, cfg.token_dim))
+        x_d = noise.randn((1, cfg.n_dynamic, cfg.token_dim))
+
+        def velocity(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+            v_s, v_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h,
+                                                                  "tau": np.full(1, tau, np.float32)})
+            return v_s, v_d
+
+        for i in range(steps):  # as Co4DGen.sample: Python-float step sizes, float32 arithmetic
+            t0, t1 = 1.0 - i / steps, 1.0 - (i + 1) / steps
+            v_s, v_d = velocity(x_s, x_d, t0)
+            e_s, e_d = x_s + np.float32(t1 - t0) * v_s, x_d + np.float32(t1 - t0) * v_d
+            if method == "heun" and t1 > 0:
+                w_s, w_d = velocity(e_s, e_d, t1)
+                e_s = x_s + np.float32((t1 - t0) * 0.5) * (v_s + w_s)
+                e_d = x_d + np.float32((t1 - t0) * 0.5) * (v_d + w_d)
+            x_s, x_d = e_s, e_d
+        limit = np.float32(self.token_limit)
+        return (np.clip(x_s * s_std + s_mean, -limit, limit).astype(np.float32),
+                np.clip(x_d * d_std + d_mean, -limit, limit).astype(np.float32))
