@@ -2,7 +2,7 @@
 with the same N views rendered one at a time, in one run.
 
     python bench/bench_render_batch.py [--model vt4d-tiny] [--views 10] [--repeats 5] [--threads 1,2]
-                                       [--out bench/results/render_batch.json]
+                                       [--runtime torch|onnx] [--stages] [--out bench/results/render_batch.json]
 
 Encodes camera 0 of a held-out synthetic 10-camera capture (split "test", seed ``--seed``) with the model's
 default encoding, opens it once (``codec.SceneDecoder``) and renders the capture's cameras as targets
@@ -85,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", default="1,2", help="torch thread counts to measure, comma-separated")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--stages", action="store_true", help="also split a forward pass into sampler and decoder")
+    parser.add_argument("--runtime", choices=("torch", "onnx"), default="torch",
+                        help="renderer runtime: the torch networks, or the exported renderer.onnx on onnxruntime (its "
+                             "own threads: --threads, --stages and the float comparison apply to torch only)")
     parser.add_argument("--out", type=Path, default=Path("bench/results/render_batch.json"))
     args = parser.parse_args(argv)
     load_before = os.getloadavg()
@@ -93,12 +96,15 @@ def main(argv: list[str] | None = None) -> int:
     synth = generate_scene(args.seed, split="test", config=SynthConfig(num_cameras=10, num_frames=cfg.frames,
                                                                       height=cfg.image_size, width=cfg.image_size))
     cap = synth.capture
-    decoder = codec.SceneDecoder.open(dumps(codec.encode(cap, net, camera=cap.camera_names[0])), model=net)
+    renderer = net if args.runtime == "torch" else codec.load_renderer(args.model, "onnx")
+    decoder = codec.SceneDecoder.open(dumps(codec.encode(cap, net, camera=cap.camera_names[0])), model=renderer)
     targets = [cap.cameras[cap.camera_names[i % len(cap.camera_names)]] for i in range(args.views)]
     codec.RENDER_BATCH = max(codec.RENDER_BATCH, args.views)  # the N views in one forward pass
     runs = []
-    for threads in [int(t) for t in args.threads.split(",")]:
-        torch.set_num_threads(threads)
+    thread_counts: list[int | None] = [int(t) for t in args.threads.split(",")] if args.runtime == "torch" else [None]
+    for threads in thread_counts:
+        if threads is not None:
+            torch.set_num_threads(threads)
         decoder.render_many(targets[:2])  # warm-up: first-call allocations and kernels
         decoder.render(targets[0])
         single_wall, single_cpu, batch_wall, batch_cpu = [], [], [], []
@@ -123,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                     batch_cpu.append(cpu / args.views)
         assert alone is not None and batched is not None
         differ = max(int(np.abs(a.astype(int) - b.astype(int)).max()) for a, b in zip(alone, batched))
-        differ_float = float_difference(decoder, targets)
+        differ_float = float_difference(decoder, targets) if args.runtime == "torch" else None
         run = {
             "threads": threads,
             "single_wall_s_per_view": statistics.median(single_wall),
@@ -139,18 +145,20 @@ def main(argv: list[str] | None = None) -> int:
         run["speedup_wall_best"] = min(single_wall) / min(batch_wall)
         run["speedup_cpu_best"] = min(single_cpu) / min(batch_cpu)
         run["single_cpu_s_per_view_all"], run["batch_cpu_s_per_view_all"] = single_cpu, batch_cpu
-        if args.stages:
+        if args.stages and args.runtime == "torch":
             run["stages_batch_1"] = stage_times(decoder, targets, 1, args.repeats)
             run["stages_batch_n"] = stage_times(decoder, targets, args.views, args.repeats)
         runs.append(run)
-        print(f"{threads} thread(s): single {run['single_wall_s_per_view'] * 1000:.0f} ms/view wall "
+        print(f"{threads or 'onnxruntime default'} thread(s): single {run['single_wall_s_per_view'] * 1000:.0f} ms/view wall "
               f"({run['single_cpu_s_per_view'] * 1000:.0f} CPU), batch of {args.views} "
               f"{run['batch_wall_s_per_view'] * 1000:.0f} ms/view wall ({run['batch_cpu_s_per_view'] * 1000:.0f} CPU): "
               f"{run['speedup_wall']:.2f}x wall, {run['speedup_cpu']:.2f}x CPU per view (best repeats "
               f"{run['speedup_wall_best']:.2f}x, {run['speedup_cpu_best']:.2f}x); views differ by at most "
-              f"{differ} grey level(s), {differ_float:.1e} in float", file=sys.stderr)
+              f"{differ} grey level(s)" + ("" if differ_float is None else f", {differ_float:.1e} in float"),
+              file=sys.stderr)
     result = {
-        "model": codec.model_fingerprint(net).to_dict(), "views": args.views, "repeats": args.repeats,
+        "model": codec.model_fingerprint(net).to_dict(), "runtime": args.runtime, "views": args.views,
+        "repeats": args.repeats,
         "steps": net.decode_steps, "frames": cfg.frames, "image_size": cfg.image_size, "seed": args.seed,
         "runs": runs, "target_speedup": 3.0,
         "load_average_before": load_before, "load_average_after": os.getloadavg(),
