@@ -25,7 +25,7 @@ def _stand_in_prior(monkeypatch):
     decoder = StandInDecoder(monkeypatch)
     monkeypatch.setattr(generate_commands, "load_prior_model", lambda name, **where: SimpleNamespace(
         model_id="p", model_version="1", tokenizer_fingerprint=fp))
-    monkeypatch.setattr(generate_commands, "load_renderer", lambda name, **where: SimpleNamespace(decode_steps=1))
+    monkeypatch.setattr(generate_commands, "load_renderer", lambda name, *runtime, **where: SimpleNamespace(decode_steps=1))
     monkeypatch.setattr(prior_module, "check_tokenizer", lambda prior, fingerprint: None)
     monkeypatch.setattr(generate_commands, "model_fingerprint", lambda model: fp)
     monkeypatch.setattr(generate_commands, "generate", lambda *a, metadata=None, **k: make_scene(metadata=metadata))

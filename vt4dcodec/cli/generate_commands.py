@@ -79,10 +79,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
     loading = time.perf_counter()
     with working(args, "loading the prior and its tokenizer"):
         try:
-            prior = load_prior_model(args.prior or DEFAULT_PRIOR, device=args.device)
+            prior = load_prior_model(args.prior or DEFAULT_PRIOR, runtime=args.runtime, device=args.device)
         except ModelNotFoundError as exc:
             raise ModelNotFoundError(f"{exc}; pass --prior PATH (a prior directory)") from None
-        tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, device=args.device)
+        tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, args.runtime, device=args.device)
         check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
     with working(args, f"sampling the prior ({args.steps} {args.sampler} steps)"):
@@ -90,7 +90,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
                          steps=args.steps, method=args.sampler, start=args.start, encoding=args.encoding,
                          metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera},
                                    CAPTURE_KEY: {"fps": float(cap.fps)}},
-                         source_capture_id=cap.capture_id, device=args.device)
+                         source_capture_id=cap.capture_id, runtime=args.runtime, device=args.device)
     sampled = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_path = out_dir / "scene.vt4d"
@@ -141,6 +141,10 @@ def register(subparsers: Any) -> None:
                    help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
                         "0.07 dB of float32 tokens on generated scenes, half the bytes of int8)")
     p.add_argument("--format", choices=VIDEO_FORMATS, default="mp4", help="view output format")
+    p.add_argument("--runtime", choices=("auto", "torch", "onnx"), default="auto",
+                   help="runtime of the prior and the renderer: 'onnx' their exported graphs on onnxruntime without "
+                        "torch, 'torch' the networks (the train extra); 'auto' (default) torch where it is installed, "
+                        "else onnx")
     add_device_option(p, "the prior and the renderer")
     add_overwrite_option(p, "replace outputs that exist (without it they are replaced with a note)")
     add_upscale_option(p)
