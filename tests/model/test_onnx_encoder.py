@@ -225,3 +225,40 @@ def test_stack_inputs_are_the_batch_tensors(B: int, T: int, N: int, seed: int):
         tensor = getattr(batch, name)
         assert tensor.dtype == (torch.bool if name == "track_valid" else torch.float32)
         assert np.array_equal(tensor.numpy(), value)
+
+
+def test_a_small_models_renderer_and_two_camera_encoder_export_and_match_torch(small, tmp_path):
+    """The exporter itself (issue 51), on a small model of the shipped recipe: the two-camera encoder graph and the
+    renderer graph hold no weights of their own (external tensors into model.safetensors), give torch's tokens and
+    frames on inputs other than the export traced, and a renderer of other weights is refused."""
+    import onnx
+
+    from vt4dcodec.model.onnx_export import _torch_render, example_render_inputs, export_renderer
+    from vt4dcodec.model.onnx_renderer import RENDERER_FILE, OnnxRenderer
+
+    net, directory = small
+    copy = Path(shutil.copytree(directory, tmp_path / "small"))
+    encoder = OnnxEncoder.open(export_encoder(net, copy, views=2).parent, views=2)
+    inputs = example_inputs(net, seed=6, views=2)
+    with torch.no_grad():
+        want = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=2))]
+    got = encoder.session.run(None, {n: t.numpy() for n, t in zip(
+        ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)})
+    assert max(float(np.abs(a - b).max()) for a, b in zip(got, want)) <= TOKEN_TOLERANCE
+    path = export_renderer(net, copy)
+    graph = onnx.load(str(path), load_external_data=False)
+    external = [i for i in graph.graph.initializer if i.data_location == onnx.TensorProto.EXTERNAL]
+    assert external and {e.value for i in external for e in i.external_data if e.key == "location"} == {"model.safetensors"}
+    renderer = OnnxRenderer.open(copy)
+    assert renderer.stored_fingerprint() == net.stored_fingerprint()
+    for views, frames, cameras, steps in ((3, None, 2, 1), (1, 4, 5, 3)):
+        case = example_render_inputs(net, views=views, frames=frames, cameras=cameras, seed=9)
+        got = renderer.render(*(case[n].numpy() for n in ("z_s", "z_d", "K_tgt", "w2c_tgt", "K_src", "w2c_src")),
+                              steps=steps, seed=2)
+        assert np.abs(got - _torch_render(net, case, steps, 2)).max() <= 1e-5
+    for entry in graph.metadata_props:
+        if entry.key == "vt4d_weights_sha256":
+            entry.value = "0" * 64
+    (copy / RENDERER_FILE).write_bytes(graph.SerializeToString())
+    with pytest.raises(ModelError, match="export it again"):
+        OnnxRenderer.open(copy)
