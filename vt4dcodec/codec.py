@@ -95,7 +95,7 @@ def torch_available() -> bool:
 
 def _require_torch(what: str) -> None:
     if not torch_available():
-        raise MissingExtraError(f"{what} runs the torch networks, and torch is not installed: {TRAIN_EXTRA_HINT}")
+        raise MissingExtraError(f"{what} needs torch, which is not installed: {TRAIN_EXTRA_HINT}")
 
 
 def _require_a_runtime() -> None:
@@ -147,7 +147,7 @@ def load_model(model: "str | os.PathLike | VideoTok4D" = DEFAULT_MODEL, *, devic
     (``vt4dcodec.model.weights_io.model_directory``), or an already loaded one (returned as is), on ``device``
     (:data:`DEVICES`).  Each directory is loaded once per process and device.  Needs torch (the ``train``
     extra): MissingExtraError without it."""
-    _require_torch("loading the model's networks")
+    _require_torch("running the model's torch networks (runtime='torch')")
     from .model import VideoTok4D  # lazy: keeps torch out of `import vt4dcodec` / `vt4d` (as above)
     from .model.weights_io import model_directory
 
