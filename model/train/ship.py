@@ -30,8 +30,7 @@ from safetensors.torch import load_file
 from vt4dcodec.errors import ModelError
 
 from ..videotok4d import VideoTok4D
-from ..onnx_encoder import ONNX_FILE
-from ..onnx_export import export_encoder
+from ..onnx_export import export_model
 from ..weights_io import SHIPPED_DIR, from_pretrained, read_model_meta, save_pretrained
 from .autoencoder import AE_WEIGHTS
 from .common import parse_overrides
@@ -222,15 +221,19 @@ def main(argv: list[str] | None = None) -> int:
     model.update_entropy()  # the integer tables the codec reads (a no-op without an entropy model)
     notes = args.notes.read_text() if args.notes else ""
     stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
-    (args.dest / args.id / ONNX_FILE).unlink(missing_ok=True)  # an encoder of the old weights never stays
+    for stale in (args.dest / args.id).glob("*.onnx"):  # graphs of the old weights never stay
+        stale.unlink()
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
                           storage_dtype="float16", decode_steps=args.decode_steps, default_quality=args.default_quality)
-    export_encoder(model, out)  # encoder.onnx (save_pretrained rounded model to the stored float16 values)
+    # the encoders for 1 .. 10 cameras and the renderer, so the torch-free codec encodes and decodes with the new
+    # weights (save_pretrained rounded model to the stored float16 values the graphs read)
+    graphs = export_model(model, out)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
                                                         args.decoder_from, overrides, stage1))
-    size, onnx_size = (out / "model.safetensors").stat().st_size, (out / ONNX_FILE).stat().st_size
-    print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB; {ONNX_FILE} {onnx_size / 1e6:.1f} MB)")
+    size, onnx_size = (out / "model.safetensors").stat().st_size, sum(g.stat().st_size for g in graphs)
+    print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB; {len(graphs)} ONNX graphs "
+          f"{onnx_size / 1e6:.1f} MB)")
     return 0
 
 

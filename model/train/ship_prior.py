@@ -19,6 +19,7 @@ from pathlib import Path
 from vt4dcodec.errors import ModelError
 
 from ..directories import CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, read_model_meta
+from ..onnx_export import export_prior
 from ..weights_io import load_prior, save_prior
 
 __all__ = ["ship_prior"]
@@ -43,8 +44,10 @@ def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR) -> Path:
     out = dest / prior.model_id
     if out.exists():
         shutil.rmtree(out)
-    return save_prior(prior, out, model_id=prior.model_id, model_version=prior.model_version, tokenizer=tokenizer,
-                      card=card, extra=meta.get("extra"), storage_dtype="float16")
+    out = save_prior(prior, out, model_id=prior.model_id, model_version=prior.model_version, tokenizer=tokenizer,
+                     card=card, extra=meta.get("extra"), storage_dtype="float16")
+    export_prior(load_prior(out), out)  # the graphs the torch-free generate runs, from the stored float16 weights
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,7 +14,9 @@ from vt4dcodec.cli import KEYWORD_FLAGS, cli_message
 HINT = re.compile(r"(?<![`\w])[a-z_]+=(?:True|False|'[^']*'|<[^>]+>)")
 # hints no command can reach, with the reason
 API_ONLY = {"depth='npy'": "write_capture's depth format; the commands write synthetic rooms (depth < 65 m) only",
-            "media='png'": "write_capture's media format; the commands write PNG captures only"}
+            "media='png'": "write_capture's media format; the commands write PNG captures only",
+            "header='compact'": "dumps/save's header layout beside header_dictionary=2; the commands write compact "
+                                "headers and the writer's own dictionary choice"}
 
 
 def _message_hints() -> set[str]:
