@@ -658,16 +658,21 @@ def test_format_md_alone_reads_what_the_writer_makes_in_learned_rans(quality, se
     """learned-rans (I.6.2) as the library writes it, at either level of the test model, with one camera
     (a frame copy coded given its origin) or two: the spec-only decoder gives the library's own values."""
     from format_strategies import load_vector_tool
-    from vt4dcodec.format import dumps, loads
 
     mv = load_vector_tool()
-    scene = mv.learned_scene(quality=quality)
+    _spec_reads_the_writers_tokens(mv, mv.learned_scene(quality=quality), mv.learned_tables(), seed, two_cameras)
+
+
+def _spec_reads_the_writers_tokens(mv, scene, tables, seed: int, two_cameras: bool) -> None:
+    """Random tokens (beyond +-1: clipped to +-Q) in ``scene``, one or two cameras, written with ``tables``: the
+    spec-only decoder gives the library's own values."""
+    from vt4dcodec.format import dumps, loads
+
     rng = np.random.default_rng(seed)
-    scene.static_tokens = rng.uniform(-1.2, 1.2, (3, 2)).astype(np.float32)  # beyond +-1: clipped to +-Q
-    scene.dynamic_tokens = rng.uniform(-1, 1, (1, 2)).astype(np.float32)
+    scene.static_tokens = rng.uniform(-1.2, 1.2, scene.static_tokens.shape).astype(np.float32)
+    scene.dynamic_tokens = rng.uniform(-1, 1, scene.dynamic_tokens.shape).astype(np.float32)
     if two_cameras:
         scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
-    tables = mv.learned_tables()
     data = dumps(scene, tables=tables)
     mine = read_scene(data)
     ours = loads(data, tables=tables)
@@ -682,21 +687,9 @@ def test_format_md_alone_reads_context_coded_mean_tokens(seed, two_cameras):
     frame copy between two MEAN tokens, which the previous-MEAN rule skips) or two: the spec-only decoder
     gives the library's own values."""
     from format_strategies import load_vector_tool
-    from vt4dcodec.format import dumps, loads
 
     mv = load_vector_tool()
-    scene = mv.context_scene(quality=1)
-    rng = np.random.default_rng(seed)
-    scene.static_tokens = rng.uniform(-1.2, 1.2, (4, 2)).astype(np.float32)
-    scene.dynamic_tokens = rng.uniform(-1, 1, (1, 2)).astype(np.float32)
-    if two_cameras:
-        scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
-    tables = mv.context_tables()
-    data = dumps(scene, tables=tables)
-    mine = read_scene(data)
-    ours = loads(data, tables=tables)
-    for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
-        assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()
+    _spec_reads_the_writers_tokens(mv, mv.context_scene(quality=1), mv.context_tables(), seed, two_cameras)
 
 
 def _smooth_camera(rng: np.random.Generator, frames: int, f: float, size: int,

@@ -42,9 +42,15 @@ def fitted_model(d: int = 4, n_static: int = 10, levels: int = 3) -> TokenEntrop
     z_d = torch.tanh(torch.randn(32, 3, d) * 0.5)
     origin = torch.arange(n_static)
     origin[5:] = torch.arange(5, n_static) % 5
+    return fit_densities(model, z_s, z_d, origin, 120)
+
+
+def fit_densities(model: TokenEntropyModel, z_s: torch.Tensor, z_d: torch.Tensor, origin: torch.Tensor,
+                  iterations: int) -> TokenEntropyModel:
+    """Fit the densities alone (a level in turn each step), then freeze the tables."""
     opt = torch.optim.Adam([model.logits], lr=0.05)
-    for it in range(120):
-        loss = model.density_loss(z_s, z_d, origin, level=it % levels)
+    for it in range(iterations):
+        loss = model.density_loss(z_s, z_d, origin, level=it % model.levels)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -159,14 +165,7 @@ def test_context_coded_mean_tokens_proxy_matches_the_coder_and_costs_less():
     static = {}
     for classes in (3, 5):
         torch.manual_seed(0)
-        model = TokenEntropyModel(levels, n_static, d, classes=classes)
-        opt = torch.optim.Adam([model.logits], lr=0.05)
-        for it in range(160):
-            loss = model.density_loss(z_s, z_d, origin, level=it % levels)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        model.update(torch.stack([origin] * MAX_VIEWS))
+        model = fit_densities(TokenEntropyModel(levels, n_static, d, classes=classes), z_s, z_d, origin, 160)
         tables = EntropyTables(model.steps.numpy(), model.freqs.numpy(), model.origins.numpy(), fp)
         assert tables.contextual == (classes == 5)
         level = levels - 1

@@ -73,6 +73,20 @@ def build_container(header: bytes, sections: Sequence[SectionParts], *,
     return bytes(out)
 
 
+def _stored_header(raw: bytes, dictionary: int | None, learned: bool) -> tuple[bytes, bool]:
+    """(the compact header's zstd frame, whether it uses header dictionary 2).  ``dictionary`` None, the policy:
+    learned-rans files (1.6 already) take dictionary 2 (required flag bit 7, I.3.2) when it makes the header
+    shorter; files of the other encodings keep dictionary 1 and the lowest version that describes them."""
+    if dictionary == 2:
+        return compress_header(raw, dictionary=2), True
+    stored = compress_header(raw)
+    if dictionary is None and learned:
+        stored_2 = compress_header(raw, dictionary=2)
+        if len(stored_2) < len(stored):
+            return stored_2, True
+    return stored, False
+
+
 def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
           cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None,
@@ -163,14 +177,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
                                   scene.provenance, scene.metadata, {}), binary_digests=compact)
     dictionary_2 = False
     if compact:
-        # by default learned-rans files (1.6 already) take header dictionary 2 (bit 7, I.3.2) when it makes the header
-        # shorter; files of the other encodings keep dictionary 1 and the lowest version that describes them
-        stored = compress_header(head)
-        if header_dictionary == 2 or (header_dictionary is None and learned):
-            stored_2 = compress_header(head, dictionary=2)
-            dictionary_2 = header_dictionary == 2 or len(stored_2) < len(stored)
-            stored = stored_2 if dictionary_2 else stored
-        head = stored
+        head, dictionary_2 = _stored_header(head, header_dictionary, learned)
     parts = [(SECTION_CAMERAS, cams)]
     # re-checked here: a scene is mutable, and an extra camera must still fit the cameras it is stored beside
     extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
