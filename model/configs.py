@@ -237,6 +237,11 @@ class ModelConfig(_Config):
         of the previous MEAN token's code in its channel (two more density classes, MEAN_AFTER_NEGATIVE and
         MEAN_AFTER_POSITIVE; FORMAT.md I.6.2, tables of 5 classes): neighbouring cells' tokens agree, which
         the factorized densities cannot use. False: one MEAN density per channel.
+        entropy_rounding: with entropy_levels, the writer's rounding offsets, 3 per level (coarsest first):
+        MEAN, CHANGE and DYNAMIC values are stored as ``sign(x) floor(|x| + f)`` of ``x = token / step``
+        (``vt4dcodec.format.learned.writer_codes``): f = 1/2 rounds to nearest, a smaller f is a dead zone
+        that stores small values (a frame copy's small change) as 0. An encoder's choice, tuned on held-out
+        scenes per level (docs/training.md); decoding does not use it. Empty: round to nearest everywhere.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -290,6 +295,7 @@ class ModelConfig(_Config):
     dynamic_from_patch: bool = False
     entropy_levels: int = 0
     entropy_context: bool = False
+    entropy_rounding: tuple[float, ...] = ()
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -301,7 +307,7 @@ class ModelConfig(_Config):
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
                                                "dynamic_from_patch": False, "entropy_levels": 0,
-                                               "entropy_context": False}
+                                               "entropy_context": False, "entropy_rounding": ()}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -373,6 +379,12 @@ class ModelConfig(_Config):
         if not isinstance(self.entropy_context, bool) or (self.entropy_context and not self.entropy_levels):
             raise ModelError(f"config entropy_context must be a boolean, and true only with entropy_levels > 0, "
                              f"got {self.entropy_context!r}")
+        rounding = self.entropy_rounding
+        if not isinstance(rounding, (list, tuple)) or len(rounding) not in {0, 3 * self.entropy_levels} or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 0.5 for v in rounding):
+            raise ModelError(f"config entropy_rounding must be empty or 3 x entropy_levels ({3 * self.entropy_levels}) "
+                             f"numbers within [0, 0.5], got {rounding!r}")
+        object.__setattr__(self, "entropy_rounding", tuple(float(v) for v in rounding))
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -166,11 +166,25 @@ class TokenEntropyModel(nn.Module):
         moved = has[None, :, None] & (code != 0)
         return torch.where(moved, after, tab)
 
-    def noisy(self, z_s: torch.Tensor, z_d: torch.Tensor, level: int, origin: torch.Tensor
-              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def quantized(self, z: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+        """z on the code grid of ``step`` as a file stores it, ``clip(round(z / step), -Q, Q) * step``, with a
+        straight-through gradient (identity to z; none to the step). A CHANGE token's code is its own
+        rounded code too (round(x - n) + n = round(x) for an integer origin code n), so one rounding serves
+        every class."""
+        s = step.detach()
+        half = torch.floor(1.0 / s + 0.5)
+        q = torch.maximum(torch.minimum(torch.round(z.detach() / s), half), -half) * s
+        return z + (q - z.detach())
+
+    def noisy(self, z_s: torch.Tensor, z_d: torch.Tensor, level: int, origin: torch.Tensor,
+              quantized: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Training proxy of quantization at ``level``: z (S, N, d) + step x U(-1/2, 1/2), and the bits
         (S,) each scene's token set would cost. ``origin`` (N_s,) long: each static token's anchor origin
-        (itself for MEAN tokens); a CHANGE token's value is its difference to its noisy origin."""
+        (itself for MEAN tokens); a CHANGE token's value is its difference to its noisy origin. With
+        ``quantized`` the tokens returned (what the renderer reads) are the stored values instead
+        (:meth:`quantized`, straight-through) while the bits still come from the noisy values -- the
+        "mixed" quantization of learned image codecs, which teaches the renderer the coarse levels' real
+        inputs (a step of 1 leaves three values a channel, not a continuum)."""
         step = self.step(level)
         zs = z_s + (torch.rand_like(z_s) - 0.5) * step[0]
         zd = z_d + (torch.rand_like(z_d) - 0.5) * step[1]
@@ -179,6 +193,8 @@ class TokenEntropyModel(nn.Module):
         tab_d = (DYNAMIC * self.token_dim + torch.arange(self.token_dim, device=z_d.device)).expand(z_d.shape[1], -1)
         bits = self.bits(x_s, tab_s, step[0].expand_as(x_s)).sum(dim=(1, 2)) \
             + self.bits(zd, tab_d.expand_as(zd), step[1].expand_as(zd)).sum(dim=(1, 2))
+        if quantized:
+            return self.quantized(z_s, step[0]), self.quantized(z_d, step[1]), bits
         return zs, zd, bits
 
     def density_loss(self, z_s: torch.Tensor, z_d: torch.Tensor, origin: torch.Tensor,

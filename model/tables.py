@@ -88,7 +88,9 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
     if not (tensors["entropy.freqs"] > 0).any():
         raise EntropyTablesError(f"model {own.model_id} {own.model_version} was saved before its entropy tables "
                                  f"were frozen (VideoTok4D.update_entropy)")
-    return EntropyTables(tensors["entropy.steps"], tensors["entropy.freqs"], tensors["entropy.origins"], own)
+    rounding = meta["config"].entropy_rounding
+    return EntropyTables(tensors["entropy.steps"], tensors["entropy.freqs"], tensors["entropy.origins"], own,
+                         np.asarray(rounding, np.float64).reshape(-1, 3) if rounding else None)
 
 
 def entropy_tables(fingerprint: ModelFingerprint) -> EntropyTables | None:

@@ -300,7 +300,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
                             ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0,
                             patch_weight: float = 0.0, rate_level: int | None = None,
-                            rate_lambda: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
+                            rate_lambda: float = 0.0, rate_quantized: bool = False
+                            ) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -333,6 +334,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         rate_level: with ``config.entropy_levels``, the quality level whose quantization the tokens get in
         place of the int8-sized noise (:meth:`TokenEntropyModel.noisy`), and ``rate_lambda`` the weight of
         its rate in bits per source pixel (bits / (views x frames x H x W)): the loss D + lambda R.
+        rate_quantized: the renderer reads the level's stored token values (straight-through rounding)
+        instead of the noisy ones; the rate still comes from the noise.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -349,7 +352,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
             if self.entropy is None:
                 raise ModelError("rate_level needs a model with an entropy model (config entropy_levels > 0)")
             z_s, z_d, bits = self.entropy.noisy(torch.tanh(a_s), torch.tanh(a_d), rate_level,
-                                                self.static_origins(batch.views))
+                                                self.static_origins(batch.views), quantized=rate_quantized)
         else:
             z_s, z_d = self._bound(a_s, a_d)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)

@@ -78,10 +78,12 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
               cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
               track_weight: float = 0.0, patch_weight: float = 0.0, rate_lambdas: tuple[float, ...] = (),
-              level_weights: tuple[float, ...] = ()) -> tuple[torch.Tensor, dict[str, float]]:
+              level_weights: tuple[float, ...] = (), quantized_share: float = 0.0
+              ) -> tuple[torch.Tensor, dict[str, float]]:
     """One training loss. With ``rate_lambdas`` (one per quality level of the entropy model) each batch
     draws a level -- uniformly, or in proportion to ``level_weights`` -- and trains D + lambda_level R at
-    that level's quantization."""
+    that level's quantization; in a ``quantized_share`` of the batches the renderer reads the level's stored
+    token values (straight-through) instead of the noisy ones."""
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
@@ -89,7 +91,8 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
     if rate_lambdas:
         level = int(torch.multinomial(torch.tensor(level_weights, dtype=torch.float64), 1)) if level_weights \
             else int(torch.randint(len(rate_lambdas), ()))
-        rate = {"rate_level": level, "rate_lambda": rate_lambdas[level]}
+        rate = {"rate_level": level, "rate_lambda": rate_lambdas[level],
+                "rate_quantized": bool(quantized_share > 0 and float(torch.rand(())) < quantized_share)}
     return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
                   saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
                   pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
@@ -346,6 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     recipe.add_argument("--level-weights", default="", metavar="W,W,...",
                         help="with --rate-lambdas: how often each quality level is drawn, one weight >= 0 per level "
                              "(coarsest first; default: uniform), e.g. to train the finest levels back to fidelity")
+    recipe.add_argument("--quantized-share", type=float, default=0.0, metavar="P",
+                        help="with --rate-lambdas: share of the batches whose renderer reads the quality level's "
+                             "stored token values (rounded, straight-through gradient) instead of noisy ones")
     recipe.add_argument("--calibrate-batches", type=int, default=16, metavar="N",
                         help="with --rate-lambdas, a run that starts without a checkpoint first fits the entropy "
                              "model's densities to the tokens of N batches")
@@ -357,6 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.prefill_workers < 0:
         parser.error("--prefill-workers must be >= 0")
+    if not 0.0 <= args.quantized_share <= 1.0:
+        parser.error("--quantized-share must lie in [0, 1]")
     try:
         device = resolve_device(args.device)
     except ModelError as exc:
@@ -433,7 +441,8 @@ def main(argv: list[str] | None = None) -> int:
                              pixel_weight=args.pixel_weight, cell_weight=args.cell_weight,
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
                              track_weight=args.track_weight, patch_weight=args.patch_weight,
-                             rate_lambdas=rate_lambdas, level_weights=level_weights)
+                             rate_lambdas=rate_lambdas, level_weights=level_weights,
+                             quantized_share=args.quantized_share)
     if rate_lambdas and args.calibrate_batches > 0 and not (args.out / "checkpoint" / "state.json").is_file():
         fit = calibrate_entropy(model, batches, args.calibrate_batches, iterations=args.calibrate_iterations)
         if info.is_main:

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from vt4dcodec import errors
 from vt4dcodec.cameras import Trajectory
-from vt4dcodec.format import EntropyTables, ModelFingerprint, Scene, dumps, loads, open_scene, rans
+from vt4dcodec.format import EntropyTables, ModelFingerprint, Scene, dumps, learned, loads, open_scene, rans
 from vt4dcodec.format.layout import FLAG_ENTROPY_CODED_TOKENS, FLAG_LEARNED_TOKENS
 
 NS, ND, D = 12, 3, 4
@@ -539,3 +539,59 @@ def test_a_fixed_point_cameras_section_is_named_as_such():
     scene = make_scene(quality=1)
     assert open_scene(dumps(scene, tables=TABLES)).camera_encoding() == "compact-fixed-point-quaternion"
     assert open_scene(dumps(scene, encoding="int4")).camera_encoding() == "compact-float32-quaternion"
+
+
+# --- the writer's rounding offsets (dead zones) -------------------------------------------------------------
+def with_rounding(rounding) -> EntropyTables:
+    return EntropyTables(TABLES.steps, TABLES.freqs, TABLES.origins, TABLES.fingerprint, rounding)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2]))
+def test_rounding_offsets_of_one_half_write_the_bytes_of_round_to_nearest(seed, quality):
+    scene = make_scene(seed)
+    assert dumps(scene, quality=quality, tables=with_rounding(np.full((2, 3), 0.5))) == \
+        dumps(scene, quality=quality, tables=TABLES)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2]),
+       st.tuples(*[st.sampled_from([0.0, 0.2, 0.35, 0.5])] * 3))
+def test_dead_zones_store_smaller_codes_and_read_back_exactly(seed, quality, offsets):
+    scene = make_scene(seed)
+    tables = with_rounding(np.tile(offsets, (2, 1)))
+    data = dumps(scene, quality=quality, tables=tables)
+    back = loads(data, tables=tables)
+    level = quality - 1
+    step = tables.steps[level]
+    origin, change = tables.copies(1)
+    for which, tokens, got, g in (("static", scene.static_tokens, back.static_tokens, 0),
+                                  ("dynamic", scene.dynamic_tokens, back.dynamic_tokens, 1)):
+        codes = learned.writer_codes(tokens, tables, level, which, 1)
+        plain = learned.quantize(tokens, TABLES, level, which)
+        assert np.array_equal(got, (codes * step[g]).astype(np.float32))  # the file holds the writer's codes
+        rows = ~change if which == "static" else np.ones(len(codes), bool)
+        assert (np.abs(codes[rows]) <= np.abs(plain[rows])).all()  # a dead zone never grows a MEAN/DYNAMIC code
+        if which == "static":  # nor a frame copy's change against its origin's stored code
+            moved = np.abs(codes[change] - codes[origin[change]])
+            assert (moved <= np.abs(np.rint(tokens[change] / step[0]) - codes[origin[change]])).all()
+    assert dumps(back, tables=tables) == data  # a loaded scene re-saves to the same bytes
+    assert len(data) <= len(dumps(scene, quality=quality, tables=TABLES)) + 2  # (rANS flush granularity)
+
+
+def test_a_change_dead_zone_keeps_copies_on_their_origin():
+    scene = make_scene()
+    scene.static_tokens[:4] = np.clip(np.rint(scene.static_tokens[:4] / 0.5), -1, 1) * 0.5  # anchors on codes (step 1/2)
+    scene.static_tokens[4:] = scene.static_tokens[np.arange(4, NS) % 4] + 0.3  # each copy moved 0.6 steps at q1
+    plain = loads(dumps(scene, quality=1, tables=TABLES), tables=TABLES).static_tokens
+    tables = with_rounding(np.array([[0.5, 0.25, 0.5], [0.5, 0.5, 0.5]]))
+    dead = loads(dumps(scene, quality=1, tables=tables), tables=tables).static_tokens
+    assert not np.array_equal(plain[4:], plain[np.arange(4, NS) % 4])  # round to nearest stores a change
+    assert np.array_equal(dead[4:], dead[np.arange(4, NS) % 4])  # 0.6 steps is inside the 0.75-step dead zone
+
+
+@pytest.mark.parametrize("rounding", [np.full((1, 3), 0.5), np.full((2, 2), 0.5), np.full((2, 3), 0.6),
+                                      np.full((2, 3), -0.1), np.full((2, 3), np.nan)])
+def test_tables_reject_malformed_rounding_offsets(rounding):
+    with pytest.raises(errors.EntropyTablesError, match="rounding"):
+        with_rounding(rounding)

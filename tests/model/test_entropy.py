@@ -178,3 +178,58 @@ def test_context_coded_mean_tokens_proxy_matches_the_coder_and_costs_less():
         real = static[classes] + dynamic
         assert abs(real - proxy) < 0.1 * real + 100, (classes, real, proxy)
     assert static[5] < 0.9 * static[3], static
+
+
+def test_rounding_offsets_ship_in_the_config_and_reach_both_table_readers(tmp_path):
+    """config.entropy_rounding: validated, left out of the canonical config when empty (old fingerprints
+    stay), and handed to the writer by the torch and the torch-free table readers alike."""
+    from vt4dcodec import codec
+    from vt4dcodec.errors import ModelError
+    from vt4dcodec.model import VideoTok4D
+    from vt4dcodec.model.weights_io import save_pretrained
+
+    plain = get_config("tiny", **SMALL, entropy_levels=2)
+    assert "entropy_rounding" not in plain.canonical_json()
+    for bad in ([0.5] * 5, [0.5] * 5 + [0.6], [0.5] * 5 + [-0.1], [True] * 6, "0.5"):
+        with pytest.raises(ModelError, match="entropy_rounding"):
+            get_config("tiny", **SMALL, entropy_levels=2, entropy_rounding=bad)
+    cfg = get_config("tiny", **SMALL, entropy_levels=2, entropy_rounding=[0.5, 0.2, 0.45, 0.5, 0.5, 0.5])
+    assert cfg.entropy_rounding == (0.5, 0.2, 0.45, 0.5, 0.5, 0.5) and cfg.sha256() != plain.sha256()
+    assert type(cfg).from_dict(cfg.to_dict()) == cfg  # a JSON list reads back as the tuple
+    model = VideoTok4D(cfg)
+    model.update_entropy()
+    directory = save_pretrained(model, tmp_path / "m", model_id="vt4d-entropy-test", model_version="0.0.3")
+    want = np.array([[0.5, 0.2, 0.45], [0.5, 0.5, 0.5]])
+    assert np.array_equal(tables_from_directory(directory).rounding, want)
+    assert np.array_equal(codec.model_tables(model).rounding, want)
+    model_plain = VideoTok4D(plain)
+    model_plain.update_entropy()
+    assert codec.model_tables(model_plain).rounding is None
+
+
+def test_quantized_tokens_are_the_stored_values_with_a_straight_through_gradient():
+    """noisy(..., quantized=True): the renderer's tokens are exactly what a file stores at the level (the format's
+    quantizer), the gradient passes to the tokens unchanged, and the rate is the noisy proxy's as before."""
+    model = fitted_model()
+    origin = torch.as_tensor(model.origins[0], dtype=torch.long)
+    z_s = torch.tanh(torch.randn(2, 10, 4) * 2).requires_grad_()
+    z_d = torch.tanh(torch.randn(2, 3, 4) * 2).requires_grad_()
+    from vt4dcodec.format import ModelFingerprint
+    from vt4dcodec.format.learned import dequantize, quantize
+
+    trained_steps = torch.stack([model.step(level) for level in range(model.levels)]).detach().numpy()
+    tables = EntropyTables(trained_steps, model.freqs.numpy(), model.origins.numpy(),  # training's own steps
+                           ModelFingerprint("t", "1", "0" * 64, "1" * 64, (10, 4), (3, 4)))
+    for level in range(model.levels):
+        torch.manual_seed(1)
+        q_s, q_d, bits = model.noisy(z_s, z_d, level, origin, quantized=True)
+        torch.manual_seed(1)
+        bits_noisy = model.noisy(z_s, z_d, level, origin)[2]
+        assert torch.equal(bits, bits_noisy)
+        for got, z, which in ((q_s, z_s, "static"), (q_d, z_d, "dynamic")):
+            for s in range(2):
+                x = z[s].detach().numpy()
+                want = dequantize(quantize(x, tables, level, which), tables, level, which)
+                assert np.allclose(got[s].detach().numpy(), want, atol=1e-6)
+        grad = torch.autograd.grad((q_s * 3).sum() + q_d.sum(), (z_s, z_d))
+        assert torch.equal(grad[0], torch.full_like(z_s, 3.0)) and torch.equal(grad[1], torch.ones_like(z_d))

@@ -8,11 +8,16 @@ import torch
 from vt4dcodec.model.train.tokenizer import flow_step, main
 
 
+quantized: list[bool] = []
+
+
 def _levels(n: int, **kw) -> list[int]:
     seen = []
+    quantized.clear()
 
     def module(*args, **kwargs):
         seen.append((kwargs["rate_level"], kwargs["rate_lambda"]))
+        quantized.append(kwargs["rate_quantized"])
         return torch.zeros(()), {}
 
     batch = SimpleNamespace(target_frames=torch.zeros(2, 1), source=None, K_tgt=None, w2c_tgt=None, target_latents=None)
@@ -35,3 +40,20 @@ def test_bad_weights_are_usage_errors(weights, tmp_path, capsys):
         main(["--out", str(tmp_path / "run"), "--steps", "1", "--rate-lambdas", "4,1,0", "--level-weights", weights,
               "--set", "entropy_levels=3"])
     assert exc.value.code == 2 and "--level-weights" in capsys.readouterr().err
+
+
+def test_quantized_share_chooses_how_often_the_renderer_reads_stored_values():
+    _levels(20)
+    assert not any(quantized)  # noisy tokens by default
+    _levels(20, quantized_share=1.0)
+    assert all(quantized)
+    _levels(400, quantized_share=0.5)
+    assert 0.35 < sum(quantized) / len(quantized) < 0.65
+
+
+@pytest.mark.parametrize("share", ["-0.1", "1.5"])
+def test_a_share_outside_0_1_is_a_usage_error(share, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--out", str(tmp_path / "run"), "--steps", "1", "--rate-lambdas", "4,1,0", "--quantized-share", share,
+              "--set", "entropy_levels=3"])
+    assert exc.value.code == 2 and "--quantized-share" in capsys.readouterr().err

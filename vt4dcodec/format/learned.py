@@ -27,7 +27,7 @@ from .layout import BytesLike
 from .rans import PROB_SCALE, Dependency, dependent_contexts, rans_decode_ctx, rans_encode_ctx
 
 __all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
-           "decode_learned_tokens", "parse_learned_payload", "quantize", "set_tables_resolver", "register_tables", "find_tables",
+           "decode_learned_tokens", "parse_learned_payload", "quantize", "writer_codes", "set_tables_resolver", "register_tables", "find_tables",
            "MAX_LEARNED_VALUES", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE"]
 
 MAX_VIEWS = 64
@@ -52,13 +52,17 @@ class EntropyTables:
         or positive (:meth:`mean_dependency`);
     origins: int64 (64, N_s), for 1..64 encoded cameras the anchor origin of each static token (``o <= i``,
         and ``origins[v, o] = o``): a token with ``o = i`` is of class MEAN, else CHANGE;
-    fingerprint: the model these tables belong to.
+    fingerprint: the model these tables belong to;
+    rounding: optional float64 (L, 3), the writer's rounding offset ``f`` in [0, 1/2] of each level for MEAN
+        (every MEAN class), CHANGE and DYNAMIC values (:func:`writer_codes`); None or 1/2: round to nearest.
+        An encoder's choice, not needed to read a file.
     """
 
     steps: np.ndarray
     freqs: np.ndarray
     origins: np.ndarray
     fingerprint: ModelFingerprint
+    rounding: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         steps = np.asarray(self.steps, dtype=np.float32)
@@ -93,6 +97,13 @@ class EntropyTables:
         if (origins < 0).any() or (origins > index).any() or \
                 (np.take_along_axis(origins, origins, axis=1) != origins).any():
             raise EntropyTablesError("entropy tables: each origin must be an earlier token that is its own origin")
+        rounding = None if self.rounding is None else np.asarray(self.rounding, dtype=np.float64)
+        if rounding is not None and (rounding.shape != (L, 3) or not np.isfinite(rounding).all()
+                                     or (rounding < 0).any() or (rounding > 0.5).any()):
+            raise EntropyTablesError(f"entropy tables: rounding must be ({L}, 3) offsets within [0, 1/2]")
+        if rounding is not None:
+            rounding.setflags(write=False)
+            object.__setattr__(self, "rounding", rounding)
         for name, value in (("steps", steps), ("freqs", freqs), ("origins", origins)):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
@@ -194,6 +205,38 @@ def quantize(tokens: np.ndarray, tables: EntropyTables, level: int, which: str) 
     return codes
 
 
+def _dead_zone(x: np.ndarray, offset: float, limit: np.ndarray) -> np.ndarray:
+    """sign(x) floor(|x| + offset), clipped to -limit .. limit (int64)."""
+    out: np.ndarray = np.clip(np.sign(x) * np.floor(np.abs(x) + offset), -limit, limit).astype(np.int64)
+    return out
+
+
+def writer_codes(tokens: np.ndarray, tables: EntropyTables, level: int, which: str, views: int) -> np.ndarray:
+    """int64 codes the reference writer stores for a (N, d) token matrix of a scene of ``views`` encoded
+    cameras: :func:`quantize` (round to nearest), or with the tables' ``rounding`` offset ``f < 1/2`` for a
+    class a dead zone, ``sign(x) floor(|x| + f)`` of ``x = token / step`` -- a value is stored as 0 unless
+    ``|x| > 1 - f`` -- and for a CHANGE value of its difference to its origin's stored code, so a frame copy
+    that barely moved stores "no change", which costs next to nothing. Any codes are valid in a file; these
+    spend fewer bytes where the model's distortion rises least (the rounding offsets of video encoders' rate-
+    distortion optimised quantization)."""
+    q = quantize(tokens, tables, level, which)
+    if tables.rounding is None:
+        return q
+    f = tables.rounding[level]
+    half = tables.half_range(level)[_group(which)][None, :]
+    x = np.asarray(tokens, np.float64) / tables.steps[level, _group(which)].astype(np.float64)
+    if which == "dynamic":
+        return q if f[DYNAMIC] == 0.5 else _dead_zone(x, f[DYNAMIC], half)
+    out = q if f[MEAN] == 0.5 else _dead_zone(x, f[MEAN], half)
+    origin, change = tables.copies(views)
+    if f[CHANGE] != 0.5 and change.any():
+        base = out[origin[change]]
+        out[change] = np.clip(base + _dead_zone(x[change] - base, f[CHANGE], 2 * half), -half, half)
+    elif change.any():
+        out[change] = q[change]
+    return out
+
+
 def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
     """float32 f32(q * step), the product computed exactly (binary64) and rounded once."""
     step = tables.steps[level, _group(which)].astype(np.float64)
@@ -212,7 +255,7 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
         raise LimitExceededError(f"{x.size} learned-rans values in one matrix exceed the limit of {MAX_LEARNED_VALUES}")
     if not np.isfinite(x).all():
         raise FormatError("tokens must be finite")
-    q = quantize(x, tables, level, which)
+    q = writer_codes(x, tables, level, which, views)
     half = tables.half_range(level)[_group(which)][None, :]
     ctx = tables.contexts(which, views)
     symbols = q + half
