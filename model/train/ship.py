@@ -187,6 +187,7 @@ def reconfigure(model: VideoTok4D, overrides: dict) -> VideoTok4D:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ModelError(f"--set {overrides}: the trained weights do not fit the changed config ({first})") from None
     new.freeze_autoencoder()
+    new.decode_steps, new.default_quality = model.decode_steps, model.default_quality  # settings, not config
     return new
 
 
