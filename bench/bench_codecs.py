@@ -524,6 +524,12 @@ def headline(result: dict[str, Any], dataset: str = "synthetic", codec: str = "h
 
 
 # --- figure ---------------------------------------------------------------------------------------------
+def figure_codecs(result: dict[str, Any]) -> str:
+    """The codecs a study ran, as the figure names them ("H.265", "H.264 / H.265 / AV1")."""
+    labels = {"h264": "H.264", "h265": "H.265", "av1": "AV1"}
+    return " / ".join(labels.get(k, k) for k in result.get("codecs", {})) or "no codec"
+
+
 def plot(result: dict[str, Any], path: Path) -> Path:
     import matplotlib
 
@@ -549,8 +555,8 @@ def plot(result: dict[str, Any], path: Path) -> Path:
                 ax.plot([p["bytes"] for p in c["curve"]], [p["psnr"] for p in c["curve"]], "o-", ms=3, lw=1,
                         color=colours.get(name), label=name + (" (nearest cam)" if row.endswith("novel") else ""))
                 ax.plot([p["bytes"] for p in c["low_rate"]], [p["psnr"] for p in c["low_rate"]], "o", ms=4,
-                        mfc="none", color=colours.get(name), label=None if j or i or name != "h264" else
-                        "1/2, 1/4-size encodes")
+                        mfc="none", color=colours.get(name), label=None if j or i or name != next(iter(e["codecs"]))
+                        else "1/2, 1/4-size encodes")
             pts = sorted((v["bytes"], v["psnr"], k) for k, v in e["vt4d"].items())
             ax.plot([p[0] for p in pts], [p[1] for p in pts], "s", ms=3, color="C3", label="vt4d encodings")
             ref = e["vt4d"][result["reference_encoding"]]
@@ -567,9 +573,9 @@ def plot(result: dict[str, Any], path: Path) -> Path:
             if j == 0:
                 ax.set_ylabel("PSNR (dB)", fontsize=8)
             if i == 0 and j == 0:
-                ax.legend(fontsize=6, loc="lower right")
+                ax.legend(fontsize=6, loc="best")
     m = result["model"]
-    fig.suptitle(f".vt4d ({m['id']} {m['version']}) vs H.264 / H.265 / AV1 per camera clip "
+    fig.suptitle(f".vt4d ({m['id']} {m['version']}) vs {figure_codecs(result)} per camera clip "
                  f"({result['clip']}); novel views: codecs show the nearest stored camera", fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

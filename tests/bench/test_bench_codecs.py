@@ -157,3 +157,10 @@ def test_a_capture_directory_is_measured_clip_by_clip(bench, tmp_path):
     assert row["vt4d_se"]["int8"]["psnr"] is not None
     assert set(row["codecs"]["h265"]["rate_ratio_per_clip"]["int8"]) == {"mean", "se", "clips", "at_most",
                                                                             "unreachable"}
+
+
+def test_the_figure_names_the_codecs_the_study_ran(bench):
+    """Regression: the figure's title said "vs H.264 / H.265 / AV1" for an H.265-only study."""
+    assert bench.figure_codecs({"codecs": {"h265": {}}}) == "H.265"
+    assert bench.figure_codecs({"codecs": {"h264": {}, "h265": {}, "av1": {}}}) == "H.264 / H.265 / AV1"
+    assert bench.figure_codecs({"codecs": {}}) == "no codec"
