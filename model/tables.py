@@ -14,6 +14,7 @@ import hashlib
 import json
 import struct
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from vt4dcodec.format import EntropyTables, ModelFingerprint
 
 from .directories import WEIGHTS_FILE, meta_fingerprint, model_directory, read_model_meta
 
-__all__ = ["entropy_tables", "tables_from_directory", "read_safetensors"]
+__all__ = ["entropy_tables", "tables_from_directory", "read_safetensors", "rounding_offsets"]
 
 # safetensors dtype -> (numpy dtype as stored, the model's dtype name in weights_sha256: floats widen to float32)
 _DTYPES = {"F32": ("<f4", "float32"), "F16": ("<f2", "float32"), "I16": ("<i2", "int16"), "I32": ("<i4", "int32"),
@@ -88,9 +89,14 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
     if not (tensors["entropy.freqs"] > 0).any():
         raise EntropyTablesError(f"model {own.model_id} {own.model_version} was saved before its entropy tables "
                                  f"were frozen (VideoTok4D.update_entropy)")
-    rounding = meta["config"].entropy_rounding
     return EntropyTables(tensors["entropy.steps"], tensors["entropy.freqs"], tensors["entropy.origins"], own,
-                         np.asarray(rounding, np.float64).reshape(-1, 3) if rounding else None)
+                         rounding_offsets(meta["config"]))
+
+
+def rounding_offsets(config: Any) -> np.ndarray | None:
+    """(levels, 3) the writer's rounding offsets of a model config (``entropy_rounding``), None where it has none."""
+    values = getattr(config, "entropy_rounding", ())
+    return np.asarray(values, np.float64).reshape(-1, 3) if values else None
 
 
 def entropy_tables(fingerprint: ModelFingerprint) -> EntropyTables | None:

@@ -363,12 +363,6 @@ def encode(
     return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
 
 
-def rounding_offsets(config: Any) -> np.ndarray | None:
-    """(levels, 3) the writer's rounding offsets of a model config (``entropy_rounding``), None where it has none."""
-    values = getattr(config, "entropy_rounding", ())
-    return np.asarray(values, np.float64).reshape(-1, 3) if values else None
-
-
 def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL) -> tuple[int, ...]:
     """The quality levels (1 .. L) a model offers: ``()`` for a model without an entropy model."""
     from .model.directories import model_directory, read_model_meta  # torch-free
@@ -393,6 +387,8 @@ def default_quality(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFA
 def model_tables(model: "VideoTok4D") -> EntropyTables | None:
     """The frozen entropy tables of a loaded model (None without an entropy model or before
     ``update_entropy``): what a learned-rans file of this model is read and written with."""
+    from .model.tables import rounding_offsets  # torch-free
+
     entropy = getattr(model, "entropy", None)
     if entropy is None or not entropy.frozen:
         return None

@@ -31,7 +31,6 @@ from bench_codecs import available_codecs, bytes_at_psnr, quality, sweep, video_
 
 from vt4dcodec import codec  # noqa: E402
 from vt4dcodec.format import EntropyTables, dumps, learned  # noqa: E402
-from vt4dcodec.format.rans import dependent_contexts  # noqa: E402
 from vt4dcodec.synth import SynthConfig, generate_scene  # noqa: E402
 
 CLASS_NAMES = ("MEAN", "CHANGE", "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE")
@@ -43,16 +42,8 @@ def class_bytes(scene, tables: EntropyTables, level: int, views: int) -> dict[st
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
     out: dict[str, float] = defaultdict(float)
     for which, tokens in (("static", scene.static_tokens), ("dynamic", scene.dynamic_tokens)):
-        q = learned.quantize(tokens, tables, level, which)
-        half = tables.half_range(level)[0 if which == "static" else 1][None, :]
-        sym = q + half
-        ctx = tables.contexts(which, views).reshape(-1)
-        if which == "static":
-            origin, change = tables.copies(views)
-            sym[change] = q[change] - q[origin[change]] + 2 * half
-            if tables.contextual:
-                ctx = dependent_contexts(sym.reshape(-1), ctx, learned._mean_dependency(tables, level, views))
-        bits = -np.log2(freqs[ctx, sym.reshape(-1)] / 16384.0)
+        sym, ctx = learned.coded_symbols(learned.quantize(tokens, tables, level, which), tables, level, views, which)
+        bits = -np.log2(freqs[ctx, sym] / 16384.0)
         for cls in np.unique(ctx // d):
             out[CLASS_NAMES[cls]] += float(bits[ctx // d == cls].sum() / 8)
     return dict(out)

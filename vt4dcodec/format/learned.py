@@ -27,7 +27,7 @@ from .layout import BytesLike
 from .rans import PROB_SCALE, Dependency, dependent_contexts, rans_decode_ctx, rans_encode_ctx
 
 __all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
-           "decode_learned_tokens", "parse_learned_payload", "quantize", "writer_codes", "set_tables_resolver", "register_tables", "find_tables",
+           "decode_learned_tokens", "parse_learned_payload", "quantize", "writer_codes", "coded_symbols", "set_tables_resolver", "register_tables", "find_tables",
            "MAX_LEARNED_VALUES", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE"]
 
 MAX_VIEWS = 64
@@ -255,19 +255,26 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
         raise LimitExceededError(f"{x.size} learned-rans values in one matrix exceed the limit of {MAX_LEARNED_VALUES}")
     if not np.isfinite(x).all():
         raise FormatError("tokens must be finite")
-    q = writer_codes(x, tables, level, which, views)
+    symbols, contexts = coded_symbols(writer_codes(x, tables, level, which, views), tables, level, views, which)
+    stream = rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]))
+    return bytes([level, views]) + stream
+
+
+def coded_symbols(codes: np.ndarray, tables: EntropyTables, level: int, views: int, which: str
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(symbols, contexts), flat in coding order, of a (N, d) code matrix: MEAN and DYNAMIC symbols ``q + Q``,
+    a frame copy's ``q - q_origin + 2Q``, each with its context (class * d + channel; with tables of 5 classes
+    a MEAN token's class chosen by the previous MEAN token's code)."""
     half = tables.half_range(level)[_group(which)][None, :]
-    ctx = tables.contexts(which, views)
-    symbols = q + half
+    symbols = codes + half
     if which == "static":  # a frame copy: its code's difference to its origin's, centred on 2Q
         origin, change = tables.copies(views)
-        symbols[change] = q[change] - q[origin[change]] + 2 * half
-    freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
-    flat = ctx.reshape(-1)
+        symbols[change] = codes[change] - codes[origin[change]] + 2 * half
+    flat = symbols.reshape(-1)
+    contexts = tables.contexts(which, views).reshape(-1)
     if which == "static" and tables.contextual:
-        flat = dependent_contexts(symbols.reshape(-1), flat, _mean_dependency(tables, level, views))
-    stream = rans_encode_ctx(symbols.reshape(-1), flat, freqs)
-    return bytes([level, views]) + stream
+        contexts = dependent_contexts(flat, contexts, _mean_dependency(tables, level, views))
+    return flat, contexts
 
 
 def _mean_dependency(tables: EntropyTables, level: int, views: int) -> Dependency:
