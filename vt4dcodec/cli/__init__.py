@@ -41,6 +41,7 @@ from typing import Any, Iterable, Iterator, NoReturn, Sequence
 from ..errors import BadMagicError, FormatError, Vt4dError
 from ..format.layout import SCENE_MAGIC
 from ..format.reader import open_binary
+from ..format.sections import DEFAULT_MAX_DECODED_BYTES
 from ..version import __version__
 
 EXIT_OK, EXIT_INVALID, EXIT_USAGE, EXIT_OS, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -298,6 +299,57 @@ def read_head(source: str, options: dict[str, str] | None = None, n: int = 16) -
         return fh.read(n)
 
 
+# --- the decoded-size budget of reading (FORMAT.md I.7) ------------------------------------------------
+# Every command that decodes a stored scene (a .vt4d file or an archive record) takes --max-decoded-bytes,
+# the library's max_decoded_bytes: the default is the library's, `none` sets no budget.
+BUDGET_FLAG = "--max-decoded-bytes"
+BINARY_UNITS = (("TiB", 1 << 40), ("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10))
+_BYTE_COUNT = re.compile(r"(\d+)\s*([A-Za-z]*)")
+
+
+def in_binary_units(n: int) -> str:
+    """``n`` bytes in the largest binary unit that divides it: 67108864 -> "64MiB"."""
+    return next((f"{n // size}{unit}" for unit, size in BINARY_UNITS if n and n % size == 0), str(n))
+
+
+def decoded_budget_arg(text: str) -> int | None:
+    """An argparse type: ``none`` (no budget) or a byte count, 0 or more as the library's ``max_decoded_bytes``
+    allows, with an optional binary suffix (``256MiB``, ``1GiB``); anything else is a usage error (exit code 2)
+    that names the flag."""
+    if text.strip().lower() == "none":
+        return None
+    match = _BYTE_COUNT.fullmatch(text.strip())
+    units = {unit.lower(): size for unit, size in BINARY_UNITS} | {"": 1, "b": 1}
+    if match is None or match.group(2).lower() not in units:
+        wrong = "must be 0 or more" if text.strip().startswith("-") else "is not a byte count"
+        raise argparse.ArgumentTypeError(f"{text!r} {wrong}: give N bytes, N with a binary suffix KiB, MiB, GiB "
+                                         "or TiB (e.g. 256MiB), or none for no budget")
+    return int(match.group(1)) * units[match.group(2).lower()]
+
+
+def add_budget_option(parser: argparse.ArgumentParser) -> None:
+    """``--max-decoded-bytes N|none`` (dest ``max_decoded_bytes``), the library's default budget unless given."""
+    default = DEFAULT_MAX_DECODED_BYTES
+    parser.add_argument(BUDGET_FLAG, dest="max_decoded_bytes", type=decoded_budget_arg, default=default,
+                        metavar="N|none",
+                        help="the most bytes one scene may decode to (sections, float32 tokens, cameras; FORMAT.md "
+                             "I.7): a scene over it is refused before anything is decompressed.  N bytes, with an "
+                             "optional binary suffix (256MiB, 1GiB), or none for no budget; raise it for files you "
+                             f"trust (default {in_binary_units(default)} = {default:,} bytes)")
+
+
+_BUDGET_HINT = re.compile(r"pass max_decoded_bytes=(\d+) \(or None\)")
+_READER_BUDGET = re.compile(r"the reader's budget of ([\d,]+)")
+
+
+def budget_message(message: str) -> str:
+    """A library message about the decoded-size budget (LimitExceededError) in the words of the command line:
+    the budget and the flag that raises it, ``--max-decoded-bytes N (or none)``, for ``max_decoded_bytes=N``."""
+    message = _READER_BUDGET.sub(r"the decoded-size budget of \1 bytes", message) if _BUDGET_HINT.search(message) \
+        else message
+    return _BUDGET_HINT.sub(rf"rerun with {BUDGET_FLAG} \1 (or none)", message)
+
+
 # --- errors in the words of the command line -----------------------------------------------------------
 # The library's messages name the Python keyword that fixes a problem; on the command line the fix is a
 # flag.  KEYWORD_FLAGS maps each such keyword hint to its flag (tests/cli/test_errors.py checks that every
@@ -325,8 +377,9 @@ _ALREADY = re.compile(r" \((?:CLI: )?--[a-z][a-z-]*\)")  # "force=True (--force)
 
 
 def cli_message(message: str, flags: set[str]) -> str:
-    """``message`` with every keyword hint replaced by its flag.  A parenthesised hint whose flag the
-    command lacks is an API-only alternative and is dropped; any other one stays as it is."""
+    """``message`` with every keyword hint replaced by its flag (``max_decoded_bytes=N`` by
+    :func:`budget_message`).  A parenthesised hint whose flag the command lacks is an API-only alternative and
+    is dropped; any other one stays as it is."""
 
     def flag_of(hint: str) -> str | None:
         flag = KEYWORD_FLAGS[hint]
@@ -336,6 +389,8 @@ def cli_message(message: str, flags: set[str]) -> str:
         hints = _HINT.findall(m.group(0))
         return "" if hints and all(flag_of(h) is None for h in hints) else m.group(0)
 
+    if BUDGET_FLAG in flags:
+        message = budget_message(message)
     message = re.sub(r" \([^()]*\)", drop_api_only, message)
     message = re.sub("(" + _HINT.pattern + ")" + _ALREADY.pattern, lambda m: m.group(1), message)
     return _HINT.sub(lambda m: flag_of(m.group(0)) or m.group(0), message)

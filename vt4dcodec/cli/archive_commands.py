@@ -16,8 +16,8 @@ import threading
 from typing import Any, Iterator
 
 from ..archive import ArchiveWriter, check_key, compact_archive, open_archive, repair_archive
-from ..errors import ArchiveError
-from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
+from ..errors import ArchiveError, FormatError
+from . import (EXIT_INTERRUPTED, add_budget_option, add_command, add_deprecated_flag, add_overwrite_option, add_storage_option,
                check_output_file, check_output_folder, emit, plural, positive_int, progress, storage_options,
                working)
 
@@ -96,7 +96,13 @@ def cmd_pack(args: argparse.Namespace) -> int:
             try:
                 for n, (key, path) in enumerate(progress(args, pairs, len(pairs), "pack", "scene"), 1):
                     with open(path, "rb") as f:
-                        writer.append(key, f.read(), replace=replace)
+                        data = f.read()
+                    try:  # every scene is verified as it goes in, within the decoded-size budget
+                        writer.append(key, data, replace=replace, max_decoded_bytes=args.max_decoded_bytes)
+                    except ArchiveError:
+                        raise
+                    except FormatError as exc:  # the container's error: name the file, keep the class
+                        raise type(exc)(f"{path}: {exc}") from exc
                     finished = n
                     if args.commit_every and n % args.commit_every == 0:
                         writer.commit()
@@ -281,6 +287,7 @@ def register(subparsers: Any) -> None:
     uncommitted.add_argument("--discard-uncommitted", action="store_true",
                              help="first drop the bytes a crashed writer left after the last commit")
     p.add_argument("--commit-every", type=positive_int, default=0, metavar="N", help="commit after every N scenes")
+    add_budget_option(p)
     p.set_defaults(func=cmd_pack)
 
     p = add_command(subparsers, "ls", help="list the scenes of an archive",

@@ -20,8 +20,8 @@ from ..demo import run_demo
 from ..errors import ArchiveError, CaptureError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
-from . import (EXIT_INTERRUPTED, add_command, add_deprecated_flag, add_device_option, add_overwrite_option,
-               add_storage_option,
+from . import (EXIT_INTERRUPTED, add_budget_option, add_command, add_deprecated_flag, add_device_option,
+               add_overwrite_option, add_storage_option,
                add_upscale_option, check_output_file, check_output_folder, check_upscale, emit, nonneg_int,
                note_replacing, plural, positive_int, progress, read_head, storage_options, trajectory_label, working)
 
@@ -287,11 +287,12 @@ def _open_scene_source(args: argparse.Namespace):
     if is_archive(read_head(source, options)):
         if key is None:
             raise CaptureError(f"{source} is an archive: pick a scene with --key KEY (see `vt4d ls {source}`)")
-        with open_archive(source, allow_truncated=args.allow_truncated, **options) as ar:
+        with open_archive(source, allow_truncated=args.allow_truncated, max_decoded_bytes=args.max_decoded_bytes,
+                          **options) as ar:
             return ar.load(key), f"{stem}_{key.replace('/', '_')}"
     if key is not None:
         raise CaptureError(f"{source} is a single scene file; --key applies to archives only")
-    return load(source, **options), stem
+    return load(source, max_decoded_bytes=args.max_decoded_bytes, **options), stem
 
 
 FILE_FORMATS = {".mp4": "mp4", ".npz": "npz"}  # decode -o NAME.mp4 / NAME.npz: one trajectory, that file
@@ -430,6 +431,7 @@ def register(subparsers: Any) -> None:
     add_storage_option(p)
     p.add_argument("--allow-truncated", action="store_true",
                    help="read the last intact commit of an archive whose newest commit was cut off")
+    add_budget_option(p)
     p.add_argument("-t", "--trajectory", action="append",
                    help="trajectory: 'source', 'camera:NAME', a preset spec, or a JSON file (repeatable; default source)")
     p.add_argument("--capture", metavar="DIR", default=None,

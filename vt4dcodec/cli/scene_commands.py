@@ -11,7 +11,8 @@ from typing import Any
 from ..archive import is_archive, open_archive, verify_archive
 from ..errors import Vt4dError
 from ..format import open_scene, verify
-from . import add_command, add_storage_option, emit, in_words, os_error_message, plural, read_head, storage_options
+from . import (add_budget_option, add_command, add_storage_option, budget_message, emit, in_words, os_error_message,
+               plural, read_head, storage_options)
 
 EXIT_OK, EXIT_INVALID, EXIT_OS = 0, 1, 3
 
@@ -25,6 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                  "vt4d info https://example.org/scene.vt4d --json"])
     info.add_argument("file", help="a .vt4d scene file or a .vt4da archive (path or fsspec URL)")
     add_storage_option(info)
+    add_budget_option(info)
     info.set_defaults(func=run_info)
     verify = add_command(subparsers, "verify", help="check .vt4d files (scenes or archives) byte by byte",
                          description="Verify every checksum, size and section of each file. Exit code 0 when all "
@@ -33,6 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "vt4d verify s3://bucket/scenes.vt4da --storage-option anon=true --json"])
     verify.add_argument("files", nargs="+", metavar="FILE", help=".vt4d scene or archive files (paths or URLs)")
     add_storage_option(verify)
+    add_budget_option(verify)
     verify.set_defaults(func=run_verify)
 
 
@@ -49,11 +52,12 @@ def run_verify(args: argparse.Namespace) -> int:
         try:
             if _is_archive(path, options):
                 result["kind"] = "archive"
-                verify_archive(path, **options)
+                verify_archive(path, max_decoded_bytes=args.max_decoded_bytes, **options)
             else:
-                verify(path, **options)
+                verify(path, max_decoded_bytes=args.max_decoded_bytes, **options)
         except Vt4dError as exc:
-            result.update(ok=False, error=type(exc).__name__, message=in_words(str(exc)), exit=EXIT_INVALID)
+            result.update(ok=False, error=type(exc).__name__, message=in_words(budget_message(str(exc))),
+                          exit=EXIT_INVALID)
         except OSError as exc:
             result.update(ok=False, error=type(exc).__name__, message=os_error_message(exc), exit=EXIT_OS)
         results.append(result)
@@ -95,7 +99,7 @@ def _provenance(summary: dict[str, Any], metadata: dict[str, Any]) -> str:
 
 def _archive_info(args: argparse.Namespace, options: dict[str, str]) -> int:
     """`vt4d info` on an archive: what it is, and the commands that show and get its scenes."""
-    with open_archive(args.file, **options) as reader:
+    with open_archive(args.file, max_decoded_bytes=args.max_decoded_bytes, **options) as reader:  # no record read
         keys = reader.keys()
         summary = {"file": args.file, "kind": "archive", "scenes": len(keys), "generation": reader.generation,
                    "uncommitted_bytes": reader.uncommitted_bytes}
@@ -113,7 +117,7 @@ def run_info(args: argparse.Namespace) -> int:
     options = storage_options(args.storage_option)
     if _is_archive(args.file, options):
         return _archive_info(args, options)
-    scene = open_scene(args.file, **options)
+    scene = open_scene(args.file, max_decoded_bytes=args.max_decoded_bytes, **options)
     summary = scene.summary()
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
                 "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
