@@ -16,10 +16,11 @@ Every law may add a slow yaw spin ``yaw_rate`` (rad/s) on top.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-__all__ = ["MOTION_KINDS", "MotionLaw", "rotation_about", "sample_motion"]
+__all__ = ["MOTION_KINDS", "Motion", "MotionLaw", "rotation_about", "sample_motion"]
 
 MOTION_KINDS = ("linear", "circular", "bouncing", "spinning")
 
@@ -33,6 +34,24 @@ def rotation_about(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     s = np.sin(angle)[..., None, None]
     c = np.cos(angle)[..., None, None]
     return np.eye(3) + s * kx + (1 - c) * (kx @ kx)
+
+
+class Motion(Protocol):
+    """What the renderer and the track oracle need of a rigid part's motion: :class:`MotionLaw` (one
+    rigid object) and :class:`~.figures.PartMotion` (one limb of an articulated figure) are motions."""
+
+    @property
+    def kind(self) -> str: ...
+
+    @property
+    def params(self) -> dict: ...
+
+    @property
+    def moves(self) -> bool: ...
+
+    def pose(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (T, 3, 3) local -> world and positions (T, 3) metres at ``times`` (T,) seconds."""
+        ...
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EPS", "intersect_plane_z", "intersect_sphere", "intersect_box", "intersect_card"]
+__all__ = ["EPS", "intersect_plane_z", "intersect_sphere", "intersect_ellipsoid", "intersect_box", "intersect_card"]
 
 EPS = 1e-6
 
@@ -33,6 +33,25 @@ def intersect_sphere(o: np.ndarray, d: np.ndarray, radius: float) -> tuple[np.nd
     s = np.where((disc >= 0) & (c > 0) & (s > EPS), s, np.inf)
     hit = o + np.where(np.isfinite(s), s, 0.0)[:, None] * d
     return s, hit / radius
+
+
+def intersect_ellipsoid(o: np.ndarray, d: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned ellipsoid (x/a)^2 + (y/b)^2 + (z/c)^2 = 1 at the origin, ``radii`` = (a, b, c): (s, normal).
+
+    Solved as the unit sphere in coordinates scaled by 1 / radii; the scaling is linear, so the ray
+    parameter (the distance along the unit world direction) is the same in both frames."""
+    r = np.asarray(radii, dtype=np.float64)
+    os_, ds = o / r[None], d / r[None]
+    a = np.sum(ds * ds, axis=1)
+    b = np.sum(os_ * ds, axis=1)
+    c = np.sum(os_ * os_, axis=1) - 1.0
+    disc = b * b - a * c
+    s = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
+    s = np.where((disc >= 0) & (c > 0) & (s > EPS), s, np.inf)
+    hit = o + np.where(np.isfinite(s), s, 0.0)[:, None] * d
+    normal = hit / (r * r)[None]
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    return s, normal
 
 
 def intersect_box(o: np.ndarray, d: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

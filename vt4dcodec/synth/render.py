@@ -3,8 +3,9 @@
 Every pixel is one ray through the pixel centre (no supersampling): the RGB, depth, object id and
 flow of a pixel all describe the SAME surface point, the first one the ray hits.
 
-* RGB: trilinear mip-mapped texture lookup (mip level from the pixel footprint on the surface) times
-  Lambertian + ambient shading from one directional light; no shadows.
+* RGB: trilinear mip-mapped texture lookup (mip level from the pixel footprint on the surface), times
+  an object's tint, times Lambertian + ambient shading from one directional light; with the layout's
+  ``shadows`` the objects cast hard shadows (a shadow ray towards the light per pixel).
 * Depth: z of the hit point in the camera frame, metres (float32).
 * Flow t -> t+1: the hit point X at frame t is moved by its surface's rigid motion (static for the
   ground and walls), X' = R(t+1) R(t)^T (X - p(t)) + p(t+1), and projected by the same camera at frame
@@ -25,13 +26,15 @@ import numpy as np
 
 from ..cameras import Trajectory
 from .assets import TEXTURE_SIZE, TextureBank
-from .motion import MotionLaw
-from .raycast import intersect_box, intersect_card, intersect_plane_z, intersect_sphere
+from .motion import Motion
+from .raycast import intersect_box, intersect_card, intersect_ellipsoid, intersect_plane_z, intersect_sphere
 
-__all__ = ["SceneObject", "SceneLayout", "RenderedView", "render_layout", "FIRST_OBJECT_SURFACE"]
+__all__ = ["SceneObject", "SceneLayout", "RenderedView", "render_layout", "FIRST_OBJECT_SURFACE", "SHAPES", "ALL_SHAPES"]
 
 FIRST_OBJECT_SURFACE = 5      # surface ids: 0 ground, 1..4 walls (+x, -x, +y, -y), 5 + k object k
-SHAPES = ("sphere", "box", "card")
+SHAPES = ("sphere", "box", "card")   # the rigid objects the default scenes draw from, in this order
+ALL_SHAPES = SHAPES + ("ellipsoid",)
+SHADOW_OFFSET = 1e-4          # metres a shadow ray starts off its surface, along the normal
 VISIBILITY_TOLERANCE = 0.01   # relative inverse-depth tolerance of the flow visibility test
 MIP_BIAS = 0.5                # levels added to the footprint level (slightly softer, less aliasing)
 
@@ -42,21 +45,27 @@ class SceneObject:
 
     Attributes:
         shape: "sphere" (size = (radius,)), "box" (size = half extents (3,)), "card" (size =
-            (half width, half height), a two-sided quad in its local z = 0 plane).
+            (half width, half height), a two-sided quad in its local z = 0 plane), "ellipsoid" (size =
+            radii along local x, y, z).
         size: metres, as above.
         texture: index into the split's :class:`TextureBank`.
-        motion: its :class:`MotionLaw` (local -> world pose over time).
+        motion: its :class:`~.motion.Motion` (local -> world pose over time): a rigid object's
+            :class:`~.motion.MotionLaw` or a figure part's :class:`~.figures.PartMotion`.
+        tint: None: the texture's own colours; an RGB triple: the texture's luminance pattern in that
+            colour, ``clip(tint * (0.5 + luminance), 0, 1)`` (clothing and skin from any texture).
     """
 
     shape: str
     size: tuple[float, ...]
     texture: int
-    motion: MotionLaw
+    motion: Motion
+    tint: tuple[float, float, float] | None = None
 
     @property
     def bounding_radius(self) -> float:
         """Radius (m) of a sphere about the object's origin that contains it."""
-        return float(np.linalg.norm(self.size)) * (1.0 + 1e-6) + 1e-9
+        extent = max(self.size) if self.shape == "ellipsoid" else float(np.linalg.norm(self.size))
+        return extent * (1.0 + 1e-6) + 1e-9
 
 
 @dataclass(frozen=True)
@@ -68,7 +77,10 @@ class SceneLayout:
         ground_texture, wall_textures (4,): texture indices; ``ground_tile``, ``wall_tile``: metres
             covered by one 128-texel tile.
         light_dir: (3,) unit vector towards the light (world); ``ambient`` in [0, 1].
-        objects: the rigid objects; object k has id k + 1 in the output.
+        objects: the rigid objects (figure parts included); object k has id k + 1 in the output.
+        shadows: whether the objects cast shadows (on everything, each other included).
+        surface_tints: None, or for the ground and the four walls (in surface id order) each None or an
+            RGB tint (as :attr:`SceneObject.tint`).
     """
 
     room_half: float
@@ -79,6 +91,8 @@ class SceneLayout:
     light_dir: np.ndarray
     ambient: float
     objects: tuple[SceneObject, ...] = field(default_factory=tuple)
+    shadows: bool = False
+    surface_tints: tuple | None = None
 
 
 @dataclass
@@ -129,6 +143,8 @@ def _object_intersect(obj: SceneObject, o: np.ndarray, d: np.ndarray) -> tuple[n
         return intersect_sphere(o, d, obj.size[0])
     if obj.shape == "box":
         return intersect_box(o, d, np.asarray(obj.size))
+    if obj.shape == "ellipsoid":
+        return intersect_ellipsoid(o, d, np.asarray(obj.size))
     return intersect_card(o, d, obj.size[0], obj.size[1])
 
 
@@ -141,6 +157,12 @@ def _object_uv(obj: SceneObject, xl: np.ndarray) -> tuple[np.ndarray, np.ndarray
         lat = np.arccos(np.clip(xl[:, 2] / r, -1.0, 1.0))
         # one mirror period (2n texels) around the equator keeps the seam continuous
         return (lon / (2 * np.pi) + 0.5) * 2 * n, lat / np.pi * n, np.full(len(xl), n / (np.pi * r))
+    if obj.shape == "ellipsoid":   # the sphere's mapping on the unit-sphere coordinates
+        radii = np.asarray(obj.size)
+        xs = xl / radii[None]
+        lon = np.arctan2(xs[:, 1], xs[:, 0])
+        lat = np.arccos(np.clip(xs[:, 2], -1.0, 1.0))
+        return (lon / (2 * np.pi) + 0.5) * 2 * n, lat / np.pi * n, np.full(len(xl), n / (np.pi * float(radii.mean())))
     if obj.shape == "box":
         half = np.asarray(obj.size)
         dens = n / (2.0 * half.max())
@@ -159,6 +181,9 @@ def _object_uv(obj: SceneObject, xl: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def _object_normal(obj: SceneObject, xl: np.ndarray, dl: np.ndarray) -> np.ndarray:
     if obj.shape == "sphere":
         return xl / obj.size[0]
+    if obj.shape == "ellipsoid":
+        nrm = xl / np.square(np.asarray(obj.size))[None]
+        return nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     if obj.shape == "box":
         half = np.asarray(obj.size)
         axis = np.argmax(np.abs(xl) / half[None], axis=1)
@@ -222,6 +247,12 @@ def _render_frame(
     is_ground = surf == 0
     u = (np.take_along_axis(X, u_axis[surf][:, None], axis=1)[:, 0] + u_off[surf]) * dens
     v = np.where(is_ground, X[:, 1], -X[:, 2]) * dens
+    tint = np.zeros((N, 3), dtype=np.float32)
+    tinted = np.zeros(N, dtype=bool)
+    for sid, colour in enumerate(layout.surface_tints or ()):
+        if colour is not None:
+            sel = surf == sid
+            tint[sel], tinted[sel] = colour, True
     X_next = X.copy()
     for k, obj in enumerate(layout.objects):
         sel = np.flatnonzero(surf == FIRST_OBJECT_SURFACE + k)
@@ -231,6 +262,8 @@ def _render_frame(
         xl = (X[sel] - p) @ R
         u[sel], v[sel], dens[sel] = _object_uv(obj, xl)
         tex[sel] = obj.texture
+        if obj.tint is not None:
+            tint[sel], tinted[sel] = obj.tint, True
         normal[sel] = _object_normal(obj, xl, d[sel] @ R) @ R.T
         if poses_next is not None:
             Rn, pn = poses_next[k]
@@ -239,9 +272,37 @@ def _render_frame(
     footprint = s_best / focal / np.sqrt(np.maximum(cos, 0.05))   # metres per pixel on the surface
     level = np.log2(np.maximum(footprint * dens, 1e-6)) + MIP_BIAS
     albedo = bank.sample(tex, u, v, level)
-    shade = layout.ambient + (1.0 - layout.ambient) * np.maximum(normal @ layout.light_dir, 0.0)
+    if tinted.any():
+        luma = albedo[tinted] @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+        albedo[tinted] = np.clip(tint[tinted] * (0.5 + luma)[:, None], 0.0, 1.0)
+    direct = np.maximum(normal @ layout.light_dir, 0.0)
+    if layout.shadows:
+        direct *= ~_shadowed(layout, poses, X, normal, direct > 0)
+    shade = layout.ambient + (1.0 - layout.ambient) * direct
     rgb = np.clip(albedo * shade[:, None].astype(np.float32), 0.0, 1.0)
     return rgb, s_best, surf, X_next
+
+
+def _shadowed(layout: SceneLayout, poses: list, X: np.ndarray, normal: np.ndarray, lit: np.ndarray) -> np.ndarray:
+    """(N,) bool: the surface points ``X`` (N, 3) whose ray towards the (directional) light hits an object.
+    Only points facing the light (``lit``) are tested; the room is convex, so only objects cast shadows."""
+    out = np.zeros(len(X), dtype=bool)
+    idx = np.flatnonzero(lit)
+    if not len(idx) or not layout.objects:
+        return out
+    L = np.asarray(layout.light_dir, dtype=np.float64)
+    o = X[idx] + SHADOW_OFFSET * normal[idx]
+    for k, obj in enumerate(layout.objects):
+        R, p = poses[k]
+        rad = obj.bounding_radius
+        oc = p[None] - o
+        along = oc @ L
+        cand = np.flatnonzero((along > -rad) & (np.sum(oc * oc, axis=1) - along * along <= rad * rad))
+        if not len(cand):
+            continue
+        s, _ = _object_intersect(obj, (o[cand] - p) @ R, np.broadcast_to(L @ R, (len(cand), 3)))
+        out[idx[cand[np.isfinite(s)]]] = True
+    return out
 
 
 def _project(w2c: np.ndarray, K: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

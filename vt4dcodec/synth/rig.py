@@ -14,9 +14,18 @@ import numpy as np
 
 from ..cameras import Trajectory, look_at
 
-__all__ = ["sample_rig"]
+__all__ = ["sample_rig", "arc_azimuths"]
 
 _Z_UP = np.array([0.0, 0.0, 1.0])  # the world's up: image up is towards +z
+
+
+def arc_azimuths(rng: np.random.Generator, n: int, *, min_span: float, jitter: float) -> np.ndarray:
+    """Azimuths (n,) rad of ``n`` cameras spread evenly along an arc of ``min_span``..2 pi from a random start,
+    each moved by up to ``jitter`` of the spacing; a full circle does not repeat its first camera."""
+    span = rng.uniform(min_span, 2 * np.pi)
+    start = rng.uniform(0, 2 * np.pi)
+    step = span / (n if span > 1.9 * np.pi else max(n - 1, 1))
+    return start + step * np.arange(n) + rng.uniform(-jitter, jitter, n) * step
 
 
 def sample_rig(
@@ -25,11 +34,7 @@ def sample_rig(
 ) -> dict[str, Trajectory]:
     """Draw ``num_cameras`` synchronized trajectories ``cam00``, ``cam01``, ... sampled at ``times`` (T,) s."""
     t = np.asarray(times, dtype=np.float64)[:, None]          # (T, 1)
-    span = rng.uniform(2 * np.pi / 3, 2 * np.pi)
-    start = rng.uniform(0, 2 * np.pi)
-    # Even spread along the arc with jitter; a full circle does not repeat its first camera.
-    step = span / (num_cameras if span > 1.9 * np.pi else max(num_cameras - 1, 1))
-    azim0 = start + step * np.arange(num_cameras) + rng.uniform(-0.25, 0.25, num_cameras) * step
+    azim0 = arc_azimuths(rng, num_cameras, min_span=2 * np.pi / 3, jitter=0.25)
     radius0 = rng.uniform(3.0, 5.0, num_cameras)
     height0 = rng.uniform(0.8, 2.8, num_cameras)
     fov = np.deg2rad(rng.uniform(40.0, 75.0, num_cameras))
