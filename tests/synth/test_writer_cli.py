@@ -68,6 +68,19 @@ def test_cli_synth(tmp_path, capsys):
     assert cap.metadata["split"] == "test"
 
 
+def test_cli_synth_room_style_round_trips(tmp_path):
+    assert main(["synth", "-n", "1", "--style", "room", "-o", str(tmp_path), "--seed", "3", "--workers", "1",
+                 "--cameras", "2", "--frames", "3", "--size", "24", "-q"]) == 0
+    cap = read_capture(tmp_path / "train-000003")
+    assert cap.metadata["config"]["style"] == "room"
+    room = scene(3, "train", SynthConfig(num_cameras=2, num_frames=3, height=24, width=24, style="room"))
+    assert np.array_equal(cap.frames["cam01"], room.capture.frames["cam01"])
+    gt = read_ground_truth(tmp_path / "train-000003")
+    assert any(np.asarray(m).any() for m in gt["dynamic_mask"].values())
+    with pytest.raises(SystemExit):
+        main(["synth", "-n", "1", "--style", "studio", "-o", str(tmp_path)])
+
+
 def test_cli_synth_bad_usage(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["synth", "-n", "0", "-o", str(tmp_path)])

@@ -22,7 +22,7 @@ def run_synth(args: argparse.Namespace) -> int:
     config = SynthConfig(
         num_cameras=args.cameras, num_frames=args.frames, height=args.size, width=args.size,
         num_objects=(args.min_objects, args.max_objects), static=args.static,
-        camera_motion=not args.fixed_cameras, fps=args.fps,
+        camera_motion=not args.fixed_cameras, fps=args.fps, style=args.style,
     )
     start = time.perf_counter()
     paths = write_dataset(args.output, num_scenes=args.num_scenes, split=args.split, seed=args.seed,
@@ -40,10 +40,12 @@ def add_synth_parser(sub: Any) -> None:
     p = add_command(
         sub, "synth", help="generate synthetic multi-camera dynamic scenes as capture directories",
         examples=["vt4d synth -n 4 --split test -o captures/",
-                  "vt4d synth -n 100 --cameras 4 --frames 16 --size 128 --workers 2 -o train_caps/"],
+                  "vt4d synth -n 100 --cameras 4 --frames 16 --size 128 --workers 2 -o train_caps/",
+                  "vt4d synth -n 20 --style room --cameras 4 -o rooms/"],
         description=(
-            "Generate N synthetic scenes (textured room, moving rigid objects, K synchronized moving "
-            "cameras) as capture directories OUT/<split>-<seed>/ with PNG frames, 16-bit PNG depth "
+            "Generate N synthetic scenes (style objects: textured room, moving rigid objects, K "
+            "synchronized moving cameras; style room: people walking or gesturing in a furnished room "
+            "with shadows, webcam-like rigs and a sensor model) as capture directories OUT/<split>-<seed>/ with PNG frames, 16-bit PNG depth "
             "(mm), and ground truth synth_flow.npy + synth_gt.npz.  Deterministic from (seed, split, "
             "options); train and test scenes use disjoint textures and objects.  Complete scenes "
             "already in OUT are kept, so an interrupted run can be resumed."
@@ -60,7 +62,10 @@ def add_synth_parser(sub: Any) -> None:
     p.add_argument("--fps", type=float, default=8.0, help="frame rate (default 8)")
     p.add_argument("--min-objects", type=int_at_least(0), default=2, help="fewest objects (default 2)")
     p.add_argument("--max-objects", type=int_at_least(0), default=4, help="most objects (default 4)")
-    p.add_argument("--static", action="store_true", help="objects stand still (nothing moves)")
+    p.add_argument("--static", action="store_true", help="objects (people) stand still (nothing moves)")
+    p.add_argument("--style", choices=("objects", "room"), default="objects",
+                   help="objects: rigid shapes in a large room (default); room: people in a furnished room "
+                        "that looks like webcam footage (--min/--max-objects do not apply)")
     p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
     add_overwrite_option(p, "regenerate scenes that already exist")
     p.set_defaults(func=run_synth)

@@ -1,9 +1,12 @@
 """Synthetic multi-camera dynamic scenes, deterministic from (seed, split, config) (numpy only).
 
-A scene is a textured room (ground + four walls, photo or procedural textures of the split's pool),
-2-4 textured rigid objects (spheres, boxes, cards) with linear, circular, bouncing or spinning
-motion near the centre, and K synchronized cameras around them (see :mod:`.rig`).  It renders RGB,
-metric depth, exact optical flow t -> t+1, dynamic masks and object ids (see :mod:`.render`).
+Two styles.  ``"objects"`` (the default): a textured room (ground + four walls, photo or procedural
+textures of the split's pool), 2-4 textured rigid objects (spheres, boxes, cards) with linear,
+circular, bouncing or spinning motion near the centre, and K synchronized cameras 3-5 m around them
+(see :mod:`.rig`).  ``"room"``: scenes that look like real captures: articulated people walking or
+gesturing in a small furnished room with shadows, webcam-like rigs close to them and a sensor model
+(see :mod:`.room`).  Both render RGB, metric depth, exact optical flow t -> t+1, dynamic masks and
+object ids (see :mod:`.render`).
 """
 
 from __future__ import annotations
@@ -19,8 +22,11 @@ from .assets import SynthError, check_split, texture_bank, texture_names
 from .motion import MOTION_KINDS, sample_motion
 from .render import FIRST_OBJECT_SURFACE, SHAPES, SceneLayout, SceneObject, render_layout
 from .rig import sample_rig
+from .room import apply_sensor, sample_room, sample_sensor
 
-__all__ = ["SynthConfig", "SynthScene", "SceneSetup", "generate_scene", "scene_setup", "scene_id"]
+__all__ = ["STYLES", "SynthConfig", "SynthScene", "SceneSetup", "generate_scene", "scene_setup", "scene_id"]
+
+STYLES = ("objects", "room")
 
 MAX_SCENE_PIXELS = 64 * 2**20   # cameras x frames x height x width
 MAX_CAMERAS = 256
@@ -35,10 +41,13 @@ class SynthConfig:
         num_cameras: synchronized cameras per scene.
         num_frames: frames per camera (T >= 2 so there is flow).
         height, width: image size in pixels.
-        num_objects: inclusive (min, max) number of rigid objects.
-        static: True -> the objects stand still (nothing moves; flow is camera-induced only).
+        num_objects: inclusive (min, max) number of rigid objects (style "objects"; the "room" style
+            draws its own: one or two people, a board, 2-5 pieces of furniture).
+        static: True -> the objects (people) stand still (nothing moves; flow is camera-induced only).
         camera_motion: False -> every camera is fixed.
         fps: frame rate; motion speeds are in metres/second, so fps sets the per-frame motion.
+        style: "objects" (rigid shapes in a large room) or "room" (people in a furnished room, webcam
+            rigs and a sensor model; :mod:`.room`).
     """
 
     num_cameras: int = 10
@@ -49,6 +58,7 @@ class SynthConfig:
     static: bool = False
     camera_motion: bool = True
     fps: float = 8.0
+    style: str = "objects"
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("num_cameras", 1, MAX_CAMERAS), ("num_frames", 2, MAX_FRAMES),
@@ -63,10 +73,16 @@ class SynthConfig:
         object.__setattr__(self, "num_objects", (int(lo_hi[0]), int(lo_hi[1])))
         if not (isinstance(self.fps, (int, float)) and np.isfinite(self.fps) and 0 < self.fps <= 1000):
             raise SynthError(f"SynthConfig.fps must be a positive number of frames per second, got {self.fps!r}")
+        if self.style not in STYLES:
+            raise SynthError(f"SynthConfig.style must be one of {STYLES}, got {self.style!r}")
 
     def to_dict(self) -> dict:
+        """The fields as plain values; ``style`` only when it is not the default, so every "objects"
+        scene keeps the random draws (and pixels) it had before styles existed."""
         d = asdict(self)
         d["num_objects"] = list(self.num_objects)
+        if self.style == "objects":
+            del d["style"]
         return d
 
 
@@ -101,9 +117,10 @@ def scene_id(seed: int, split: str) -> str:
     return f"synth-{split}-{seed:06d}"
 
 
-def _rng(seed: int, split: str, config: SynthConfig) -> np.random.Generator:
+def _rng(seed: int, split: str, config: SynthConfig, stream: int = 0) -> np.random.Generator:
+    """The scene's random stream: 0 draws the setup (cameras, layout), 1 the room style's sensors."""
     digest = hashlib.sha256(repr((split, sorted(config.to_dict().items()))).encode()).digest()
-    return np.random.default_rng([int(seed), int.from_bytes(digest[:8], "little")])
+    return np.random.default_rng([int(seed), int.from_bytes(digest[:8], "little")] + ([stream] if stream else []))
 
 
 def _sample_object(rng: np.random.Generator, texture: int, kind: str) -> SceneObject:
@@ -178,6 +195,11 @@ def scene_setup(seed: int, *, split: str = "train", config: SynthConfig = SynthC
     _check_request(seed, split, config)
     rng = _rng(int(seed), split, config)
     times = np.arange(config.num_frames) / float(config.fps)
+    if config.style == "room":
+        cameras, layout = sample_room(rng, texture_names=texture_names(split), num_cameras=config.num_cameras,
+                                      times=times, width=config.width, height=config.height, static=config.static,
+                                      camera_motion=config.camera_motion)
+        return SceneSetup(times=times, cameras=cameras, layout=layout)
     cameras = sample_rig(rng, num_cameras=config.num_cameras, times=times, width=config.width,
                          height=config.height, camera_motion=config.camera_motion)
     farthest = max(float(np.abs(c.centers[:, :2]).max()) for c in cameras.values())
@@ -191,6 +213,10 @@ def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = Syn
     bank = texture_bank(split)
     times, cameras, layout = setup.times, setup.cameras, setup.layout
     views = render_layout(layout, cameras, times, bank)
+    if config.style == "room":
+        sensors = sample_sensor(_rng(int(seed), split, config, stream=1), len(views))
+        for view, sensor in zip(views.values(), sensors):
+            view.rgb = apply_sensor(view.rgb, sensor)
     moving = np.array([False] + [o.motion.moves for o in layout.objects])
     frames, depth, flow, valid, masks, ids = {}, {}, {}, {}, {}, {}
     for name, view in views.items():
