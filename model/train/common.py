@@ -127,7 +127,7 @@ def scene_pool_and_seeds(args: argparse.Namespace, cfg: Any, info: DistInfo) -> 
     """The rank's share of the training scenes: seeds to generate, or indices into ``--data``."""
     cache = args.cache or args.out.parent / "scene_cache"
     if args.data is None:
-        pool = ScenePool.for_config(cfg, cache, args.cameras)
+        pool = ScenePool.for_config(cfg, cache, args.cameras, room_share=getattr(args, "room_share", 0.0))
         return pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size)
     captures = tuple(find_capture_dirs(args.data)[:args.scenes])
     pool = ScenePool.for_config(cfg, cache, args.cameras, captures=captures)
@@ -279,6 +279,10 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
                              "generating scenes from seeds; uses its first --scenes captures")
     parser.add_argument("--cameras", type=int, default=4, help="cameras per synthetic scene")
     parser.add_argument("--scene-seed", type=int, default=0, help="first synthetic scene seed")
+    parser.add_argument("--room-share", type=float, default=0.0, metavar="P",
+                        help="share of the synthetic scenes drawn in the \"room\" style (people in a furnished "
+                             "room, webcam rigs, a sensor model; vt4dcodec.synth.room), by a hash of the seed "
+                             "(default 0: every scene in the \"objects\" style)")
     parser.add_argument("--cache", type=Path, default=None,
                         help="scene cache directory (default <out>/../scene_cache); shared across runs")
     parser.add_argument("--workers", type=int, default=1, help="DataLoader workers per process")

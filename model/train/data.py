@@ -17,6 +17,8 @@ or, with ``captures``, from capture directories on disk (e.g. written by ``vt4d 
 
 from __future__ import annotations
 
+import hashlib
+
 import functools
 import itertools
 import math
@@ -78,15 +80,27 @@ class ScenePool:
     motion_isolation: bool = True
     split: str = "train"
     captures: tuple[Path, ...] = ()
+    room_share: float = 0.0
 
     @classmethod
-    def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int, captures: tuple[Path, ...] = ()
-                   ) -> "ScenePool":
+    def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int, captures: tuple[Path, ...] = (),
+                   room_share: float = 0.0) -> "ScenePool":
+        if not 0.0 <= room_share <= 1.0:
+            raise ValueError(f"--room-share must be a share in [0, 1], got {room_share!r}")
         return cls(Path(cache), cameras, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks,
-                   cfg.motion_isolation, captures=tuple(Path(p).resolve() for p in captures))
+                   cfg.motion_isolation, captures=tuple(Path(p).resolve() for p in captures),
+                   room_share=float(room_share))
+
+    def style(self, seed: int) -> str:
+        """The synthetic style of scene ``seed``: "room" for a fixed ``room_share`` of the seeds (by a hash
+        of the seed, so a scene's style never depends on the pool's size or order), else "objects"."""
+        u = int.from_bytes(hashlib.sha256(f"room-share:{seed}".encode()).digest()[:8], "little") / 2.0**64
+        return "room" if u < self.room_share else "objects"
 
     def _stem(self, seed: int) -> str:
         source = f"disk-{self.captures[seed].name}" if self.captures else f"{self.split}-{seed:06d}"
+        if not self.captures and self.style(seed) == "room":
+            source = "room-" + source
         return f"{source}-c{self.cameras}-t{self.frames}-s{self.image_size}"
 
     def scene(self, seed: int) -> dict[str, np.ndarray]:
@@ -117,7 +131,7 @@ class ScenePool:
 
     def _generate(self, seed: int) -> dict[str, np.ndarray]:
         config = SynthConfig(num_cameras=self.cameras, num_frames=self.frames, height=self.image_size,
-                             width=self.image_size)
+                             width=self.image_size, style=self.style(seed))
         capture = generate_scene(seed, split=self.split, config=config).capture
         names = sorted(capture.cameras)
         return {

@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -197,6 +198,32 @@ def test_prepared_cache_is_keyed_by_the_mask_rule_version(tmp_path, monkeypatch)
     assert pool.prepared_path(3) != before
     no_iso = data.ScenePool(tmp_path, 2, 8, 64, 16, 8, motion_isolation=False)
     assert no_iso.prepared_path(3).name.endswith("-noiso.npz")  # the mask rule is not used at all
+
+
+def test_room_share_picks_a_fixed_share_of_seeds_and_keys_their_cache():
+    from vt4dcodec.model.train import data
+
+    pool = data.ScenePool(Path("/nonexistent"), 2, 4, 32, 8, 8, room_share=0.5)
+    styles = [pool.style(seed) for seed in range(400)]
+    assert 0.4 < styles.count("room") / 400 < 0.6
+    assert styles == [data.ScenePool(Path("/x"), 3, 8, 64, 16, 8, room_share=0.5).style(s) for s in range(400)]
+    grown = data.ScenePool(Path("/nonexistent"), 2, 4, 32, 8, 8, room_share=0.8)
+    assert all(grown.style(s) == "room" for s in range(400) if styles[s] == "room")  # a larger share adds seeds
+    assert {data.ScenePool(Path("/n"), 2, 4, 32, 8, 8).style(s) for s in range(50)} == {"objects"}
+    room = next(s for s in range(400) if styles[s] == "room")
+    objects = next(s for s in range(400) if styles[s] == "objects")
+    assert pool._stem(room).startswith("room-train-") and pool._stem(objects).startswith("train-")
+    with pytest.raises(ValueError, match="room-share"):
+        data.ScenePool.for_config(None, Path("/n"), 2, room_share=1.5)  # checked before the config is read
+
+
+def test_stage2_trains_on_room_scenes(runs, tmp_path):
+    out = tmp_path / "tok-room"
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out),
+                        "--steps", "2", "--batch-size", "2", "--samples", "1", "--cache", str(tmp_path / "cache"),
+                        "--room-share", "1", *common(2)]) == 0
+    cached = sorted(p.name for p in (tmp_path / "cache").glob("scene-*.npz"))
+    assert cached and all(name.startswith("scene-room-") for name in cached)
 
 
 def test_stage2_continues_a_saved_model_with_init(runs, tmp_path):
