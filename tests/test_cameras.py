@@ -87,3 +87,20 @@ def test_look_at_puts_the_target_on_the_axis_and_up_upwards_for_one_camera_or_ma
         look_at(eye[0], eye[0], up)
     with pytest.raises(TrajectoryError, match="parallel"):
         look_at(np.zeros(3), np.array([0.0, 0.0, 2.0]), up)
+
+
+def test_huge_rotation_entries_are_refused_by_name_without_numeric_warnings():
+    """Regression (fuzz campaign): entries near the float64 limit overflowed R^T R with a RuntimeWarning, and
+    a NaN in the check would have compared as within the tolerance."""
+    import warnings
+
+    from vt4dcodec.cameras import validate_w2c
+    from vt4dcodec.errors import CameraError
+
+    for value in (1e200, 1e308, np.nan):
+        w2c = np.eye(4)
+        w2c[:3, :3] = [[value, value, 0.0], [value, -value, 0.0], [0.0, 0.0, 1.0]]
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(CameraError):
+                validate_w2c(w2c)

@@ -68,14 +68,16 @@ def validate_w2c(w2c: np.ndarray, *, what: str = "w2c") -> np.ndarray:
     if (w2c[..., 3, :] != _LAST_ROW).any():
         raise CameraError(f"{what}: the last row of every pose must be exactly [0, 0, 0, 1]")
     R = w2c[..., :3, :3]
-    gram = np.matmul(np.swapaxes(R, -1, -2), R)
-    gram -= _EYE3
-    err = float(np.abs(gram).max(initial=0.0))
-    if err > ROTATION_TOLERANCE:
+    with np.errstate(over="ignore", invalid="ignore"):  # huge entries: inf or NaN below, refused by name
+        gram = np.matmul(np.swapaxes(R, -1, -2), R)
+        gram -= _EYE3
+        err = float(np.abs(gram).max(initial=0.0))
+        det = np.linalg.det(R) if err <= ROTATION_TOLERANCE else None
+    if not err <= ROTATION_TOLERANCE:  # NaN-safe: a NaN error is not within the tolerance
         raise CameraError(
             f"{what}: rotation is not orthonormal (max |R^T R - I| = {err:.2e} > {ROTATION_TOLERANCE})"
         )
-    if (np.linalg.det(R) < 0).any():
+    if det is None or not (det > 0).all():
         raise CameraError(f"{what}: rotation has determinant -1 (a reflection), not a rotation")
     return w2c
 

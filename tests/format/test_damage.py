@@ -258,3 +258,17 @@ def test_zstd_section_is_exactly_one_frame(content_size, tail):
     # stream reader may already stop on it (reading on, or failing on the garbage) -- rejected either way
     with pytest.raises(MalformedSectionError, match="follow the zstd frame" if content_size else None):
         load(mv.rebuild(header, sections))
+
+
+def test_quantization_parameters_beyond_float32_are_refused_without_numeric_warnings():
+    """Regression (fuzz campaign): scales and offsets whose tokens overflow float32 printed numpy
+    RuntimeWarnings on the way to the MalformedSectionError."""
+    import warnings
+
+    from vt4dcodec.format.encodings import dequantize
+
+    codes = np.full((2, 3), 255, np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(MalformedSectionError, match="non-finite"):
+            dequantize(codes, np.full(3, 3e38, np.float32), np.full(3, 3e38, np.float32), 8, "int8")

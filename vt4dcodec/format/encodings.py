@@ -210,8 +210,10 @@ def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: i
     q = codes.astype(np.float64)
     q *= s64
     q += o64
-    out = q.astype(np.float32)
-    if not np.all(np.isfinite((o64 + s64 * float((1 << bits) - 1)).astype(np.float32))):
+    with np.errstate(over="ignore", invalid="ignore"):  # values beyond float32 become inf and are refused below
+        out = q.astype(np.float32)
+        top = (o64 + s64 * float((1 << bits) - 1)).astype(np.float32)
+    if not np.all(np.isfinite(top)):
         if not np.all(np.isfinite(out)):
             raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
     return out
