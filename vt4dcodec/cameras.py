@@ -13,6 +13,8 @@ Conventions (normative text in FORMAT.md, "Camera conventions"):
 
 from __future__ import annotations
 
+import contextlib
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,7 +70,10 @@ def validate_w2c(w2c: np.ndarray, *, what: str = "w2c") -> np.ndarray:
     if (w2c[..., 3, :] != _LAST_ROW).any():
         raise CameraError(f"{what}: the last row of every pose must be exactly [0, 0, 0, 1]")
     R = w2c[..., :3, :3]
-    with np.errstate(over="ignore", invalid="ignore"):  # huge entries: inf or NaN below, refused by name
+    # entries below 1e150 cannot overflow R^T R; huge ones give inf or NaN there, refused by name below
+    quiet = contextlib.nullcontext() if float(np.abs(R).max(initial=0.0)) < 1e150 else \
+        np.errstate(over="ignore", invalid="ignore")
+    with quiet:
         gram = np.matmul(np.swapaxes(R, -1, -2), R)
         gram -= _EYE3
         err = float(np.abs(gram).max(initial=0.0))

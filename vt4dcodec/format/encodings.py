@@ -197,6 +197,9 @@ def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, ro
     return out
 
 
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
 def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: int, encoding: str) -> np.ndarray:
     """``f32(f64(offset_c) + f64(scale_c) * q)`` for uint8 codes (rows, cols) and per-channel float32
     parameters (cols,); MalformedSectionError if any value is not finite.
@@ -210,9 +213,12 @@ def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: i
     q = codes.astype(np.float64)
     q *= s64
     q += o64
+    top64 = o64 + s64 * float((1 << bits) - 1)
+    if float(np.abs(o64).max(initial=0.0)) <= _F32_MAX and float(np.abs(top64).max(initial=0.0)) <= _F32_MAX:
+        return q.astype(np.float32)  # every value within float32's range: nothing overflows
     with np.errstate(over="ignore", invalid="ignore"):  # values beyond float32 become inf and are refused below
         out = q.astype(np.float32)
-        top = (o64 + s64 * float((1 << bits) - 1)).astype(np.float32)
+        top = top64.astype(np.float32)
     if not np.all(np.isfinite(top)):
         if not np.all(np.isfinite(out)):
             raise MalformedSectionError(f"{encoding} token section decodes to non-finite values")
