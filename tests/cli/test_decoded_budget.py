@@ -146,3 +146,22 @@ def test_exit_codes_as_a_user_sees_them(sources):
     assert vt4d("verify", sources["scene"], sources["archive"], FLAG, size, "-q").returncode == 0
     r = vt4d("info", sources["scene"], FLAG, "-1")
     assert r.returncode == 2 and f"argument {FLAG}: '-1' must be 0 or more" in r.stderr, r.stderr
+
+
+def test_encode_archive_never_refuses_its_own_output_by_the_reading_budget(small_captures, tmp_path, monkeypatch):
+    """Regression: `encode --archive` validated the scenes it had just encoded against the default reading budget,
+    which has no flag there: a large enough encode would have been refused with the Python keyword's message."""
+    from cli_helpers import StandInCodec
+
+    import vt4dcodec.format.reader as reader
+
+    StandInCodec(monkeypatch)
+    # the library's default budget made tiny: every scene read under it is over it
+    monkeypatch.setattr(reader, "check_decoded_budget", lambda size, budget: check_decoded_budget(
+        size, 1 if budget == DEFAULT_MAX_DECODED_BYTES else budget))
+    with pytest.raises(LimitExceededError):
+        reader.check_decoded_budget(10, DEFAULT_MAX_DECODED_BYTES)
+    archive = tmp_path / "a.vt4da"
+    assert cli.main(["encode", str(small_captures / "cap-a"), "--archive", str(archive), "-q"]) == 0
+    with open_archive(archive) as ar:
+        assert len(ar) == 1

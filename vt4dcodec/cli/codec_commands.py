@@ -238,7 +238,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
                         skipped.append(key)
                         continue
                     data = dumps(scene)
-                    writer.append(key, data, replace=args.replace or args.overwrite)
+                    # the encoder's own output: checked as a container, never refused by the reading budget
+                    writer.append(key, data, replace=args.replace or args.overwrite, max_decoded_bytes=None)
                     results.append({"key": key, "bytes": len(data), "capture": str(cap_dir)})
                 else:
                     n = _save_keeping_mode(scene, args.output)
