@@ -83,7 +83,8 @@ def _unpack_block(raw: bytes, records: int, values: int, precision: int) -> np.n
     planes = np.frombuffer(raw, dtype=np.uint8).reshape(precision, records * values)
     e = np.ascontiguousarray(planes.T).reshape(-1).view(_UINT[precision]).reshape(records, values)
     u: np.ndarray = np.cumsum(e, axis=0, dtype=_UINT[precision])  # wraps mod 2^(8P), inverting the difference
-    out: np.ndarray = u.view(_FLOAT[precision]).astype(np.float64)
+    with np.errstate(invalid="ignore"):  # a signalling NaN widens quietly; the camera checks refuse any NaN
+        out: np.ndarray = u.view(_FLOAT[precision]).astype(np.float64)
     return out
 
 

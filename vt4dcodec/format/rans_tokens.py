@@ -246,7 +246,8 @@ def decode_rans_token_pair(sections: Sequence[tuple[BytesLike, int, int]], encod
         for payload, rows, cols in sections:
             p = _parse_payload(payload, encoding, rows, cols, lanes)
             q = np.arange(p.top + 1, dtype=np.float64)
-            lut = (q * p.scale.astype(np.float64)[:, None] + p.offset.astype(np.float64)[:, None]).astype(np.float32)
+            with np.errstate(over="ignore", invalid="ignore"):  # entries beyond float32: refused below if used
+                lut = (q * p.scale.astype(np.float64)[:, None] + p.offset.astype(np.float64)[:, None]).astype(np.float32)
             colbase = (np.arange(cols) // (cols // p.groups)) * (p.top + 1)
             jobs.append((p.stream, p.freqs, rows, cols, colbase, lut, p.centre, p.top, p.lanes))
             parsed.append((p, lut))
