@@ -274,7 +274,30 @@ def archive_disagreement(data: bytes, records: dict[str, bytes]) -> str | None:
 
 
 # --- the campaign -----------------------------------------------------------------------------------------
+def peak_rss_mb() -> float:
+    """This process's peak resident memory in MB: VmHWM (it starts afresh with the program, unlike ru_maxrss,
+    which Linux carries over from a parent across fork and exec), else ru_maxrss."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def run_worker(args: tuple[int, int, int, float, str | None]) -> dict[str, Any]:
+    """One worker's share of the campaign (the process's warning filters and alarm handler are restored)."""
+    previous = signal.getsignal(signal.SIGALRM)
+    with warnings.catch_warnings():
+        try:
+            return _run_worker(args)
+        finally:
+            signal.signal(signal.SIGALRM, previous)
+
+
+def _run_worker(args: tuple[int, int, int, float, str | None]) -> dict[str, Any]:
     worker, first, count, timeout, save = args
     import make_vectors as mv
 
@@ -337,7 +360,7 @@ def run_worker(args: tuple[int, int, int, float, str | None]) -> dict[str, Any]:
                 findings.append(finding)
     return {"worker": worker, "inputs": count, "counts": dict(counts), "by_mutator": dict(by_mutator),
             "errors": dict(errors), "findings": findings, "slowest_s": slowest,
-            "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            "max_rss_mb": peak_rss_mb()}
 
 
 def campaign(inputs: int, workers: int = 1, timeout: float = 5.0, save: str | None = None) -> dict[str, Any]:
