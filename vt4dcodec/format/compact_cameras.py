@@ -319,8 +319,12 @@ def fixed_exponents(traj: Trajectory, *, centre: bool = False) -> tuple[int, int
 
 def _grid_quaternions(q: np.ndarray, e: int) -> list[list[int]]:
     """Integer quaternions k (k * 2^-e ~ q) that are fixed points of normalise-and-round, so that the rotation
-    they decode to gives the same integers again (a saved file saves to the same bytes)."""
-    out = []
+    they decode to gives the same integers again (a saved file saves to the same bytes).  Their signs (q and -q
+    are one rotation) follow from the integers alone: each record's dot product with the one before it is
+    positive, and where there is none (the first record) or it is 0, the first non-zero component is positive
+    -- so a rotation of half a turn (w = 0), whose float quaternion's sign hangs on rounding, is stored the
+    same way again from the rotation it decodes to."""
+    out: list[list[int]] = []
     for row in q:
         k = [int(round(float(v) * 2.0 ** e)) for v in row]
         for _ in range(8):
@@ -329,6 +333,9 @@ def _grid_quaternions(q: np.ndarray, e: int) -> list[list[int]]:
             if nxt == k:
                 break
             k = nxt
+        dot = sum(a * b for a, b in zip(k, out[-1])) if out else 0
+        if dot < 0 or (dot == 0 and next((v for v in k if v), 0) < 0):
+            k = [-v for v in k]
         out.append(k)
     return out
 
