@@ -14,7 +14,6 @@ Conventions (normative text in FORMAT.md, "Camera conventions"):
 from __future__ import annotations
 
 import contextlib
-
 from dataclasses import dataclass
 from typing import Any
 

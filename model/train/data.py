@@ -17,9 +17,8 @@ or, with ``captures``, from capture directories on disk (e.g. written by ``vt4d 
 
 from __future__ import annotations
 
-import hashlib
-
 import functools
+import hashlib
 import itertools
 import math
 import os

@@ -23,7 +23,7 @@ from ..errors import Vt4dError
 __all__ = [
     "TEXTURE_SIZE", "MIP_LEVELS", "SPLITS", "PHOTO_TEXTURES", "PROCEDURAL_KINDS",
     "texture_names", "texture_split", "photo_image", "check_split", "load_texture", "TextureBank", "texture_bank",
-    "SynthError",
+    "SynthError", "hsv_rgb",
 ]
 
 TEXTURE_SIZE = 128          # texels along each side of mip level 0
@@ -124,9 +124,14 @@ def _colours(rng: np.random.Generator, n: int) -> np.ndarray:
     hues = (rng.random() + np.arange(n) / n + 0.1 * rng.random(n)) % 1.0
     sat = 0.35 + 0.55 * rng.random(n)
     val = 0.35 + 0.6 * rng.random(n)
-    k = (np.array([5.0, 3.0, 1.0])[None] + hues[:, None] * 6.0) % 6.0
-    rgb = val[:, None] - val[:, None] * sat[:, None] * np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)
-    return np.clip(rgb, 0.05, 0.95)
+    return np.clip(hsv_rgb(hues, sat, val), 0.05, 0.95)
+
+
+def hsv_rgb(hue: np.ndarray, sat: np.ndarray, val: np.ndarray) -> np.ndarray:
+    """(n,) hues in [0, 1), saturations and values -> (n, 3) RGB (the HSV cone, piecewise linear in hue)."""
+    k = (np.array([5.0, 3.0, 1.0])[None] + np.asarray(hue, np.float64)[:, None] * 6.0) % 6.0
+    val, sat = np.asarray(val, np.float64)[:, None], np.asarray(sat, np.float64)[:, None]
+    return val - val * sat * np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)
 
 
 def _periodic_noise(rng: np.random.Generator, size: int, cutoff: float) -> np.ndarray:

@@ -42,7 +42,7 @@ class SynthConfig:
         num_frames: frames per camera (T >= 2 so there is flow).
         height, width: image size in pixels.
         num_objects: inclusive (min, max) number of rigid objects (style "objects"; the "room" style
-            draws its own: one or two people, a board, 2-5 pieces of furniture).
+            draws its own: one or two people, a board, 3-7 pieces of furniture, 2-4 wall cards).
         static: True -> the objects (people) stand still (nothing moves; flow is camera-induced only).
         camera_motion: False -> every camera is fixed.
         fps: frame rate; motion speeds are in metres/second, so fps sets the per-frame motion.

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..cameras import Trajectory, look_at
-from .assets import PHOTO_TEXTURES, PROCEDURAL_KINDS
+from .assets import PHOTO_TEXTURES, PROCEDURAL_KINDS, hsv_rgb
 from .figures import BOARD_HALF, FIGURE_PARTS, Figure, PartMotion, sample_figure
 from .motion import MotionLaw, rotation_about
 from .render import SceneLayout, SceneObject
@@ -47,11 +47,10 @@ def _pick(rng: np.random.Generator, pools: dict[str, list[int]], *kinds: str) ->
 
 def _muted(rng: np.random.Generator, value: tuple[float, float], saturation: tuple[float, float]) -> tuple[float, float, float]:
     """A clothing colour: a random hue at the given value and saturation ranges."""
-    hue = rng.random() * 6.0
+    hue = rng.random()
     v, s = rng.uniform(*value), rng.uniform(*saturation)
-    k = (np.array([5.0, 3.0, 1.0]) + hue) % 6.0
-    rgb = v - v * s * np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)
-    return (float(rgb[0]), float(rgb[1]), float(rgb[2]))
+    r, g, b = hsv_rgb(np.array([hue]), np.array([s]), np.array([v]))[0]
+    return (float(r), float(g), float(b))
 
 
 def _skin(rng: np.random.Generator) -> tuple[float, float, float]:
