@@ -278,6 +278,7 @@ def valid_vectors() -> dict[str, tuple[bytes, str]]:
 # --- format 1.6: learned-rans tokens with a model's tables (FORMAT.md I.6.2) -----------------------------------
 LEARNED_TABLES_FILE = "tables/vt4d-test-learned.json"
 CONTEXT_TABLES_FILE = "tables/vt4d-test-learned-context.json"
+PARTNER_TABLES_FILE = "tables/vt4d-test-learned-partners.json"
 
 
 def _laplace_row(q: int, width: float, change: bool) -> list[int]:
@@ -331,6 +332,31 @@ def context_tables() -> EntropyTables:
     return EntropyTables(steps, freqs, origins, fp)
 
 
+def partner_tables() -> EntropyTables:
+    """The partner test model's tables (FORMAT.md I.6.2, 11 classes): 1 level, d = 3 with partners (-1, 0, 0),
+    N_s = 4 (one camera: token 2 is a frame copy of token 0), N_d = 1; steps 1/4 (Z_s) and 1/2 (Z_d); the rows
+    of classes 3 and 4 peak at codes -1 and +1, those of classes 5-7 at -2, -1, 0 and of 8-10 at 0, +1, +2."""
+    steps = np.array([[[0.25, 0.25, 0.25], [0.5, 0.5, 0.5]]], np.float32)
+    freqs = np.zeros((1, 11, 3, 17), np.int64)
+    leans = (None, None, None, -1, 1, -2, -1, 0, 0, 1, 2)
+    for c in range(3):
+        for cls, lean in enumerate(leans):
+            row = (_laplace_row(4, 0.8 + c, False), _laplace_row(4, 0.8 + c, True),
+                   _laplace_row(2, 0.8 + c, False))[cls] if lean is None else _tilted_row(4, 0.8, lean)
+            freqs[0, cls, c, :len(row)] = row
+    origins = np.tile(np.arange(4), (64, 1))
+    origins[0, 2] = 0
+    fp = ModelFingerprint("vt4d-test-partners", "1.0", hashlib.sha256(b"config-partners").hexdigest(),
+                          hashlib.sha256(b"weights-partners").hexdigest(), (4, 3), (1, 3))
+    return EntropyTables(steps, freqs, origins, fp, partners=np.array([-1, 0, 0]))
+
+
+def partner_scene(**kw: Any) -> Scene:
+    zs = np.array([[0.5, -0.3, 0.25], [0.75, 0.5, -0.25], [0.45, -0.2, 0.3], [-0.2, -0.5, 0.0]], np.float32)
+    zd = np.array([[0.4, -0.6, 0.1]], np.float32)  # token 2 a copy of token 0
+    return Scene(zs, zd, cameras(2), partner_tables().fingerprint, encoding="learned-rans", **kw)
+
+
 def context_scene(**kw: Any) -> Scene:
     zs = np.array([[0.5, -0.3], [0.75, -0.5], [0.45, -0.2], [0.2, 0.05]], np.float32)  # token 2 a copy of token 0
     zd = np.array([[0.4, -0.6]], np.float32)
@@ -343,7 +369,7 @@ def install_spec_tables() -> None:
     previous = _learned._resolver
     if getattr(previous, "spec_tables", False):
         return
-    known = {t.fingerprint: t for t in (learned_tables(), context_tables())}
+    known = {t.fingerprint: t for t in (learned_tables(), context_tables(), partner_tables())}
 
     def resolve(fp: ModelFingerprint) -> EntropyTables | None:
         return known[fp] if fp in known else previous(fp) if previous is not None else None
@@ -354,9 +380,12 @@ def install_spec_tables() -> None:
 
 def learned_tables_json(tables: EntropyTables) -> dict[str, Any]:
     """The tables as spec/vectors stores them: each frequency row as its positive run only."""
-    return {"fingerprint": tables.fingerprint.to_dict(), "steps": tables.steps.astype(np.float64).tolist(),
-            "freqs": [[[[int(v) for v in row if v] for row in cls] for cls in level] for level in tables.freqs],
-            "origins": tables.origins.tolist()}
+    out = {"fingerprint": tables.fingerprint.to_dict(), "steps": tables.steps.astype(np.float64).tolist(),
+           "freqs": [[[[int(v) for v in row if v] for row in cls] for cls in level] for level in tables.freqs],
+           "origins": tables.origins.tolist()}
+    if tables.partners is not None:
+        out["partners"] = tables.partners.tolist()
+    return out
 
 
 def learned_scene(**kw: Any) -> Scene:
@@ -395,6 +424,11 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
             "1.6: learned-rans with tables of 5 classes (spec/vectors/tables/vt4d-test-learned-context.json): MEAN "
             "tokens 1 and 3 coded given the previous MEAN token's code (token 2, a frame copy of token 0, is "
             "skipped), every section raw"),
+        "learned_rans_partner_context": (
+            dumps(partner_scene(quality=1), tables=partner_tables(), compression_level=None, header_dictionary=1),
+            "1.6: learned-rans with tables of 11 classes (spec/vectors/tables/vt4d-test-learned-partners.json): "
+            "MEAN values of channels 1 and 2 coded given the sign of their token's code in channel 0 as well as "
+            "the previous MEAN token's, every section raw"),
         "learned_rans_moving_camera": (
             moving, "1.6: fixed-point cameras (I.5.4) of a turning, accelerating camera: camera centres (t = -R c), "
                     "cubic prediction and fixed-point timestamps (layout flags 0x3d), every section raw"),
@@ -1310,7 +1344,8 @@ def generate() -> dict[str, bytes]:
     entropy tables (format 1.6)."""
     install_spec_tables()
     files: dict[str, bytes] = {LEARNED_TABLES_FILE: _json(learned_tables_json(learned_tables())),
-                               CONTEXT_TABLES_FILE: _json(learned_tables_json(context_tables()))}
+                               CONTEXT_TABLES_FILE: _json(learned_tables_json(context_tables())),
+                               PARTNER_TABLES_FILE: _json(learned_tables_json(partner_tables()))}
     manifest: dict[str, Any] = {"zstd_version": ".".join(map(str, zstandard.ZSTD_VERSION)),
                                 "valid": {}, "invalid": {}}
     for name, (data, why) in valid_vectors().items():

@@ -33,7 +33,8 @@ from vt4dcodec import codec  # noqa: E402
 from vt4dcodec.format import EntropyTables, dumps, learned  # noqa: E402
 from vt4dcodec.synth import SynthConfig, generate_scene  # noqa: E402
 
-CLASS_NAMES = ("MEAN", "CHANGE", "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE")
+CLASS_NAMES = ("MEAN", "CHANGE", "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE") + tuple(
+    f"MEAN_PARTNER_{sign}{k}" for sign in ("NEGATIVE", "POSITIVE") for k in ("_AFTER_NEGATIVE", "", "_AFTER_POSITIVE"))
 
 
 def class_bytes(scene, tables: EntropyTables, level: int, views: int) -> dict[str, float]:
@@ -88,7 +89,7 @@ def main() -> int:
                 classes[v, level].append(class_bytes(scene, base, level - 1, v))
                 for off in offsets:
                     tables = EntropyTables(base.steps, base.freqs, base.origins, base.fingerprint,
-                                           np.tile(off, (base.levels, 1)))
+                                           np.tile(off, (base.levels, 1)), base.partners)
                     data = dumps(scene, encoding="learned-rans", quality=level, tables=tables)
                     videos = codec.SceneDecoder.open(data, model=net).render_many([trajs[n] for n in stored], seed=0)
                     psnr = float(np.mean([quality(x, truth[n])[0] for n, x in zip(stored, videos)]))

@@ -314,19 +314,28 @@ def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, vie
     freqs = tables["freqs"][level]  # [class][channel] -> the positive run of the row
     half = [[(len(freqs[k][c]) - 1) // 2 for c in range(cols)] for k in (0, 2)]  # Q_s, Q_d per channel
     assert all(len(freqs[1][c]) == 4 * half[0][c] + 1 for c in range(cols))
-    assert len(freqs) in (3, 5) and all(len(freqs[k][c]) == len(freqs[0][c]) for k in range(3, len(freqs))
-                                        for c in range(cols))
+    assert len(freqs) in (3, 5, 11) and all(len(freqs[k][c]) == len(freqs[0][c]) for k in range(3, len(freqs))
+                                            for c in range(cols))
+    partners = tables.get("partners")  # C = 11: each channel's partner channel, -1 or an earlier one
+    assert (partners is not None) == (len(freqs) == 11)
+    assert partners is None or (len(partners) == cols and all(-1 <= r < c for c, r in enumerate(partners)))
     static = tok == "ZSTA"
     origin = tables["origins"][V - 1] if static else None
     x, pos, codes = struct.unpack_from("<I", raw, 2)[0], 6, []
     assert x >= L
-    previous = None  # the previous MEAN token (C = 5: context-coded MEAN tokens)
+    previous = None  # the previous MEAN token (C = 5 or 11: context-coded MEAN tokens)
+
+    def sign(v: int) -> int:
+        return (v > 0) - (v < 0)
+
     for k in range(rows * cols):
         i, c = divmod(k, cols)
         cls = (0 if origin[i] == i else 1) if static else 2
-        if cls == 0 and len(freqs) == 5 and previous is not None:
-            before = codes[previous * cols + c]
-            cls = 3 if before < 0 else 4 if before > 0 else 0
+        if cls == 0 and len(freqs) > 3:
+            a = sign(codes[previous * cols + c]) if previous is not None else 0
+            b = sign(codes[i * cols + partners[c]]) if partners is not None and partners[c] >= 0 else 0
+            # the table of I.6.2: rows b = -1, 0, +1, columns a = -1, 0, +1
+            cls = ((5, 6, 7), (3, 0, 4), (8, 9, 10))[b + 1][a + 1]
         if static and c == cols - 1 and origin[i] == i:
             previous = i
         f = freqs[cls][c]
@@ -678,6 +687,17 @@ def _spec_reads_the_writers_tokens(mv, scene, tables, seed: int, two_cameras: bo
     ours = loads(data, tables=tables)
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_format_md_alone_reads_partner_channel_tokens(seed, two_cameras):
+    """Tables of 11 classes (I.6.2, partner channels) as the library writes them, with one camera (a frame copy
+    between two MEAN tokens) or two: the spec-only decoder gives the library's own values."""
+    from format_strategies import load_vector_tool
+
+    mv = load_vector_tool()
+    _spec_reads_the_writers_tokens(mv, mv.partner_scene(quality=1), mv.partner_tables(), seed, two_cameras)
 
 
 @settings(max_examples=40, deadline=None)

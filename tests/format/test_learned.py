@@ -85,16 +85,19 @@ def test_context_coder_c_and_python_agree(seed, n):
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 400))
 def test_dependent_contexts_c_and_python_agree(seed, n):
-    """A symbol whose row is chosen by an earlier decoded symbol (context-coded MEAN tokens, FORMAT.md I.6.2):
-    the C decoder, the Python reference and the encoder's own row choice agree."""
+    """A symbol whose row is chosen by up to two earlier decoded symbols (context-coded MEAN tokens, FORMAT.md
+    I.6.2): the C decoder, the Python reference and the encoder's own row choice agree."""
     rng = np.random.default_rng(seed)
     tables = np.stack([np.pad(laplace_table(3, w), (0, 6)) for w in (0.3, 1.0, 4.0, 0.5, 2.0)])
     ctx = rng.integers(0, 3, n)
     dep = np.where(rng.random(n) < 0.6, np.arange(n) - rng.integers(1, 6, n), -1).clip(min=-1)
-    dependency = (dep, np.full(n, 3), np.full(n, 3), np.full(n, 4))
+    dep2 = np.where(rng.random(n) < 0.5, np.arange(n) - rng.integers(1, 9, n), -1).clip(min=-1)
+    offsets = rng.integers(0, 3, 9)
+    offsets[4] = 0  # equal / no dependency on both: the symbol's own row
+    dependency = (dep, np.full(n, 3), dep2, rng.integers(2, 5, n), offsets)
     symbols = rng.integers(0, 7, n)
     rows = rans.dependent_contexts(symbols, ctx, dependency)
-    assert ((rows != ctx) <= (dep >= 0)).all()
+    assert ((rows != ctx) <= ((dep >= 0) | (dep2 >= 0))).all()
     stream = rans.rans_encode_ctx(symbols, rows, tables)
     assert np.array_equal(rans.rans_decode_ctx(stream, ctx, tables, dependency), symbols)
     x = int.from_bytes(stream[:4], "little")
@@ -106,7 +109,10 @@ def test_a_dependency_on_a_later_symbol_is_refused():
     tables = np.stack([laplace_table(2, 1.0)] * 3)
     with pytest.raises(ValueError, match="earlier"):
         rans.rans_decode_ctx(b"\x00\x00\x80\x00", np.zeros(2), tables, (np.array([1, -1]), np.full(2, 2),
-                                                                          np.ones(2), np.full(2, 2)))
+                                                                          np.full(2, -1), np.full(2, 2), np.zeros(9)))
+    with pytest.raises(ValueError, match="earlier"):
+        rans.rans_decode_ctx(b"\x00\x00\x80\x00", np.zeros(2), tables, (np.full(2, -1), np.full(2, 2),
+                                                                          np.array([-1, 1]), np.full(2, 2), np.zeros(9)))
 
 
 def make_context_tables(tag: str = "ctx") -> EntropyTables:
@@ -126,6 +132,61 @@ def make_context_tables(tag: str = "ctx") -> EntropyTables:
 
 
 CONTEXT_TABLES = make_context_tables()
+
+
+def make_partner_tables(tag: str = "pc") -> EntropyTables:
+    """make_context_tables with 11 classes: channel c's partner c - 1 (channel 0 none); the six partner rows
+    peak at the partner's sign (plus the previous token's lean)."""
+    base = make_context_tables(tag)
+    freqs = np.zeros(base.freqs.shape[:1] + (11,) + base.freqs.shape[2:], np.int64)
+    freqs[:, :5] = base.freqs
+    for level in range(base.levels):
+        for c in range(D):
+            n = int((base.freqs[level, 0, c] > 0).sum())
+            for cls in range(5, 11):
+                lean = (-1 if cls < 8 else 1) + (cls - 5) % 3 - 1
+                centre = min(max(n // 2 + lean, 0), n - 1)
+                p = np.exp(-np.abs(np.arange(n) - centre) / 0.7)
+                f = np.floor(p / p.sum() * (16384 - n)).astype(np.int64) + 1
+                f[centre] += 16384 - f.sum()
+                freqs[level, cls, c, :n] = f
+    return EntropyTables(base.steps, freqs, base.origins, base.fingerprint, partners=np.arange(D) - 1)
+
+
+PARTNER_TABLES = make_partner_tables()
+
+
+@pytest.mark.parametrize("views", [1, 2])
+@pytest.mark.parametrize("quality", [1, 2])
+def test_partner_channels_round_trip_and_cost_less_when_channels_agree(views, quality):
+    """Tables of 11 classes: tokens decode to the writer's codes with the C and the pure-Python decoders, and
+    tokens whose channels share their sign cost less than with the 5-class tables they extend."""
+    from vt4dcodec.format import rans
+    from vt4dcodec.format.learned import dequantize, writer_codes
+
+    sizes = {}
+    for name, tables in (("plain", make_context_tables("pc")), ("partners", PARTNER_TABLES)):
+        rng = np.random.default_rng(views)
+        total = 0
+        for seed in range(20):
+            scene = make_scene(seed, quality=quality, tag="pc")
+            sign = np.where(rng.random((NS, 1)) < 0.5, -1.0, 1.0)
+            scene.static_tokens = (sign * rng.uniform(0.3, 0.9, (NS, D))).astype(np.float32)
+            if views == 2:
+                scene.extra_cameras = (trajectory(),)
+            data = dumps(scene, tables=tables)
+            total += len(data)
+            want = dequantize(writer_codes(scene.static_tokens, tables, quality - 1, "static", views), tables,
+                              quality - 1, "static")
+            assert np.array_equal(loads(data, tables=tables).static_tokens, want)
+            native = rans.NATIVE
+            try:
+                rans.NATIVE = False
+                assert np.array_equal(loads(data, tables=tables).static_tokens, want)
+            finally:
+                rans.NATIVE = native
+        sizes[name] = total
+    assert sizes["partners"] < sizes["plain"], sizes
 
 
 @pytest.mark.parametrize("views", [1, 2])
@@ -155,7 +216,7 @@ def test_context_tables_need_mean_sized_rows():
     freqs[0, 3, 0] = np.pad(laplace_table(1, 1.0), (0, freqs.shape[3] - 3))  # 3 symbols, MEAN has 5
     with pytest.raises(errors.EntropyTablesError, match="MEAN_AFTER"):
         EntropyTables(tables.steps, freqs, tables.origins, tables.fingerprint)
-    with pytest.raises(errors.EntropyTablesError, match="3 or 5"):
+    with pytest.raises(errors.EntropyTablesError, match="3, 5 or 11"):
         EntropyTables(tables.steps, tables.freqs[:, :4], tables.origins, tables.fingerprint)
 
 
@@ -315,11 +376,11 @@ def damaged(data, original: bytes, *, edits: int, cut: int) -> bytearray:
 @settings(max_examples=150, deadline=None)
 @given(st.data())
 def test_fuzzed_learned_files_give_only_library_errors(data):
-    """Random byte flips, cuts and insertions anywhere in a learned-rans file (3-class tables, or 5-class tables
-    with context-coded MEAN tokens; header dictionary 1 or 2): the reader returns tokens equal to the
+    """Random byte flips, cuts and insertions anywhere in a learned-rans file (3-class tables, 5-class tables
+    with context-coded MEAN tokens or 11-class tables with partner channels; header dictionary 1 or 2): the reader returns tokens equal to the
     original's (the change was harmless) or raises a FormatError, never anything else."""
-    tag = data.draw(st.sampled_from(["t", "ctx"]))
-    tables = TABLES if tag == "t" else CONTEXT_TABLES
+    tag = data.draw(st.sampled_from(["t", "ctx", "pc"]))
+    tables = {"t": TABLES, "ctx": CONTEXT_TABLES, "pc": PARTNER_TABLES}[tag]
     original = dumps(make_scene(tag=tag), quality=2, tables=tables,
                      header_dictionary=data.draw(st.sampled_from([1, 2])))
     buf = damaged(data, original, edits=4, cut=8)

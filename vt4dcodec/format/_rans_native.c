@@ -717,11 +717,12 @@ done:
  * to PROB_SCALE (checked here again); a symbol of frequency 0 cannot be encoded.
  *   encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> bytes, or None if a symbol has frequency 0 or lies
  *       outside its table
- *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, below_u16, above_u16])
- *       -> (symbols_decoded, stream_pos, final_state); with the four dependency buffers (one value per
- *       symbol) symbol i with dep[i] >= 0 (an earlier symbol, dep[i] < i) is coded with table below[i] when
- *       out[dep[i]] < centre[i], above[i] when it is greater, and ctx[i] when equal (learned-rans tables with
- *       context-coded MEAN tokens, FORMAT.md I.6.2) */
+ *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16, offsets_i32])
+ *       -> (symbols_decoded, stream_pos, final_state); with the dependency buffers (one value per symbol for
+ *       dep, centre, dep2 and centre2; 9 values for offsets) symbol i is coded with table
+ *       ctx[i] + offsets[3 a + b], where a is 0, 1 or 2 as out[dep[i]] is below, equal to or above centre[i]
+ *       (1 when dep[i] < 0), and b likewise for dep2 and centre2; a dependency must be an earlier symbol
+ *       (learned-rans tables with context-coded MEAN tokens, FORMAT.md I.6.2) */
 static uint32_t *ctx_cums(Py_buffer *fb, Py_ssize_t alphabet, Py_ssize_t *tables) {
     if (alphabet < 1 || alphabet > MAX_ALPHABET || fb->len % (4 * alphabet) || fb->len == 0) {
         PyErr_SetString(PyExc_ValueError, "freqs must be T x A uint32 values");
@@ -806,11 +807,19 @@ done:
     return result;
 }
 
+/* 0, 1 or 2 as the symbol decoded at dep is below, equal to or above centre; 1 when dep < 0 (no dependency);
+ * -1 when dep is not an earlier symbol than i */
+static inline int compare_dependency(const uint16_t *out, int32_t dep, uint16_t centre, Py_ssize_t i) {
+    if (dep < 0) return 1;
+    if (dep >= i) return -1;
+    return out[dep] < centre ? 0 : out[dep] > centre ? 2 : 1;
+}
+
 static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     Py_buffer sb, xb, fb, ob;
-    Py_buffer db = {0}, cb = {0}, lb = {0}, hb = {0};
+    Py_buffer db = {0}, cb = {0}, db2 = {0}, cb2 = {0}, offb = {0};
     Py_ssize_t alphabet, tables;
-    if (!PyArg_ParseTuple(args, "y*y*y*nw*|y*y*y*y*", &sb, &xb, &fb, &alphabet, &ob, &db, &cb, &lb, &hb))
+    if (!PyArg_ParseTuple(args, "y*y*y*nw*|y*y*y*y*y*", &sb, &xb, &fb, &alphabet, &ob, &db, &cb, &db2, &cb2, &offb))
         return NULL;
     PyObject *result = NULL;
     uint32_t *cum = NULL;
@@ -819,9 +828,11 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "out and ctx must be uint16 buffers of one length, the stream >= 4 bytes");
         goto done;
     }
-    if (dependent && (db.len != 2 * ob.len || cb.buf == NULL || lb.buf == NULL || hb.buf == NULL
-                      || cb.len != ob.len || lb.len != ob.len || hb.len != ob.len)) {
-        PyErr_SetString(PyExc_ValueError, "dep (int32), centre, below and above (uint16) need one value per symbol");
+    if (dependent && (db.len != 2 * ob.len || cb.buf == NULL || db2.buf == NULL || cb2.buf == NULL
+                      || offb.buf == NULL || cb.len != ob.len || db2.len != 2 * ob.len || cb2.len != ob.len
+                      || offb.len != 9 * 4)) {
+        PyErr_SetString(PyExc_ValueError, "dep, dep2 (int32), centre, centre2 (uint16) need one value per symbol, "
+                        "offsets (int32) 9 values");
         goto done;
     }
     cum = ctx_cums(&fb, alphabet, &tables);
@@ -830,9 +841,9 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     const uint16_t *ctx = (const uint16_t *)xb.buf;
     const uint32_t *freqs = (const uint32_t *)fb.buf;
     uint16_t *out = (uint16_t *)ob.buf;
-    const int32_t *dep = (const int32_t *)db.buf;
-    const uint16_t *centre = (const uint16_t *)cb.buf, *below = (const uint16_t *)lb.buf,
-                   *above = (const uint16_t *)hb.buf;
+    const int32_t *dep = (const int32_t *)db.buf, *dep2 = (const int32_t *)db2.buf,
+                  *offsets = (const int32_t *)offb.buf;
+    const uint16_t *centre = (const uint16_t *)cb.buf, *centre2 = (const uint16_t *)cb2.buf;
     const Py_ssize_t n = ob.len / 2, end = sb.len;
     uint32_t x = read_u32(data);
     Py_ssize_t pos = 4, i = 0;
@@ -840,15 +851,15 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     for (; i < n; i++) {
         Py_ssize_t t = ctx[i];
-        if (dependent && dep[i] >= 0) {
-            if (dep[i] >= i) {
+        if (dependent) {
+            const int a = compare_dependency(out, dep[i], centre[i], i), b = compare_dependency(out, dep2[i], centre2[i], i);
+            if (a < 0 || b < 0) {
                 bad_ctx = 1;
                 break;
             }
-            const uint16_t v = out[dep[i]];
-            t = v < centre[i] ? below[i] : v > centre[i] ? above[i] : t;
+            t += offsets[3 * a + b];
         }
-        if (t >= tables) {
+        if (t < 0 || t >= tables) {
             bad_ctx = 1;
             break;
         }
@@ -882,8 +893,9 @@ done:
     PyBuffer_Release(&ob);
     if (db.buf) PyBuffer_Release(&db);
     if (cb.buf) PyBuffer_Release(&cb);
-    if (lb.buf) PyBuffer_Release(&lb);
-    if (hb.buf) PyBuffer_Release(&hb);
+    if (db2.buf) PyBuffer_Release(&db2);
+    if (cb2.buf) PyBuffer_Release(&cb2);
+    if (offb.buf) PyBuffer_Release(&offb);
     return result;
 }
 
@@ -901,8 +913,8 @@ static PyMethodDef methods[] = {
     {"encode_ctx", rans_encode_ctx, METH_VARARGS,
      "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
     {"decode_ctx", rans_decode_ctx, METH_VARARGS,
-     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, below_u16, above_u16]) -> "
-     "(symbols_decoded, stream_pos, final_state)"},
+     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16, offsets_i32])"
+     " -> (symbols_decoded, stream_pos, final_state)"},
     {NULL, NULL, 0, NULL},
 };
 

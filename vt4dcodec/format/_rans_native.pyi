@@ -16,5 +16,6 @@ def column_histograms(codes_u8: _Buffer, cols: int, size: int, out_i64: _Buffer,
 # context-coded single chains (format 1.6): symbol k with table ctx_u16[k] of the T x A freqs_u32
 def encode_ctx(symbols_u16: _Buffer, ctx_u16: _Buffer, freqs_u32: _Buffer, alphabet: int, /) -> bytes | None: ...
 def decode_ctx(stream: _Buffer, ctx_u16: _Buffer, freqs_u32: _Buffer, alphabet: int, out_u16: _Buffer,
-               dep_i32: _Buffer = ..., centre_u16: _Buffer = ..., below_u16: _Buffer = ..., above_u16: _Buffer = ...,
+               dep_i32: _Buffer = ..., centre_u16: _Buffer = ..., dep2_i32: _Buffer = ..., centre2_u16: _Buffer = ...,
+               offsets_i32: _Buffer = ...,
                /) -> tuple[int, int, int]: ...

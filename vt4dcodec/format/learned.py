@@ -28,13 +28,17 @@ from .rans import PROB_SCALE, Dependency, dependent_contexts, rans_decode_ctx, r
 
 __all__ = ["LEARNED_ENCODING", "EntropyTables", "MAX_VIEWS", "MEAN", "CHANGE", "DYNAMIC", "encode_learned_tokens",
            "decode_learned_tokens", "parse_learned_payload", "quantize", "writer_codes", "coded_symbols", "set_tables_resolver", "register_tables", "find_tables",
-           "MAX_LEARNED_VALUES", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE"]
+           "MAX_LEARNED_VALUES", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE", "MEAN_PARTNER_NEGATIVE",
+           "MEAN_PARTNER_POSITIVE", "pair_class"]
 
 MAX_VIEWS = 64
 MEAN, CHANGE, DYNAMIC = 0, 1, 2
 # tables of 5 classes code a MEAN token given the sign of the previous MEAN token's code in its channel
 MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE = 3, 4
-CLASS_COUNTS = (3, 5)
+# tables of 11 classes also by the sign of the same token's code in the channel's partner channel: classes
+# 5, 6, 7 when it is negative and 8, 9, 10 when it is positive, for a previous MEAN code below, at or above 0
+MEAN_PARTNER_NEGATIVE, MEAN_PARTNER_POSITIVE = 5, 8
+CLASS_COUNTS = (3, 5, 11)
 MAX_LEVELS = 16
 MAX_LEARNED_VALUES = 1 << 21  # N * d per matrix, as the other entropy-coded encodings (I.7)
 
@@ -55,7 +59,10 @@ class EntropyTables:
     fingerprint: the model these tables belong to;
     rounding: optional float64 (L, 3), the writer's rounding offset ``f`` in [0, 1/2] of each level for MEAN
         (every MEAN class), CHANGE and DYNAMIC values (:func:`writer_codes`); None or 1/2: round to nearest.
-        An encoder's choice, not needed to read a file.
+        An encoder's choice, not needed to read a file;
+    partners: with C = 11 (and only then) int64 (d,), each channel's partner channel ``-1 <= p < c`` (-1: none):
+        a MEAN value is coded given the signs of the previous MEAN token's code in its channel and of its own
+        token's code in the partner channel (:func:`pair_class`), channels that tokens move together in.
     """
 
     steps: np.ndarray
@@ -63,6 +70,7 @@ class EntropyTables:
     origins: np.ndarray
     fingerprint: ModelFingerprint
     rounding: np.ndarray | None = None
+    partners: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         steps = np.asarray(self.steps, dtype=np.float32)
@@ -75,7 +83,7 @@ class EntropyTables:
         L = steps.shape[0]
         if freqs.ndim != 4 or freqs.shape[1] not in CLASS_COUNTS or freqs.shape[0] != L or freqs.shape[2] != d \
                 or freqs.shape[3] < 3:
-            raise EntropyTablesError(f"entropy tables: freqs must be ({L}, 3 or 5, {d}, A)")
+            raise EntropyTablesError(f"entropy tables: freqs must be ({L}, 3, 5 or 11, {d}, A)")
         if origins.shape != (MAX_VIEWS, n_s):
             raise EntropyTablesError(f"entropy tables: origins must be ({MAX_VIEWS}, {n_s})")
         if not (np.isfinite(steps).all() and (steps > 0).all()):
@@ -90,9 +98,15 @@ class EntropyTables:
         half = (size[:, [MEAN, DYNAMIC]] - 1) // 2  # (L, 2, d): Q of Z_s and Z_d
         if (size[:, CHANGE] != 4 * half[:, 0] + 1).any():
             raise EntropyTablesError("entropy tables: a CHANGE table must have 4Q + 1 symbols (Q of its MEAN table)")
-        if freqs.shape[1] == 5 and (size[:, [MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE]] != size[:, [MEAN]]).any():
-            raise EntropyTablesError("entropy tables: a MEAN_AFTER_* table must have the symbol count of its MEAN "
-                                     "table")
+        if freqs.shape[1] > 3 and (size[:, 3:] != size[:, [MEAN]]).any():
+            raise EntropyTablesError("entropy tables: a MEAN_AFTER_* or MEAN_PARTNER_* table must have the symbol "
+                                     "count of its MEAN table")
+        partners = None if self.partners is None else np.asarray(self.partners).astype(np.int64)
+        if (partners is not None) != (freqs.shape[1] == 11):
+            raise EntropyTablesError("entropy tables: partners come with tables of 11 classes, and only with them")
+        if partners is not None and (partners.shape != (d,) or (partners < -1).any()
+                                     or (partners >= np.arange(d)).any()):
+            raise EntropyTablesError(f"entropy tables: partners must be ({d},) channels, each -1 or below its own")
         index = np.arange(n_s)[None, :]
         if (origins < 0).any() or (origins > index).any() or \
                 (np.take_along_axis(origins, origins, axis=1) != origins).any():
@@ -104,6 +118,9 @@ class EntropyTables:
         if rounding is not None:
             rounding.setflags(write=False)
             object.__setattr__(self, "rounding", rounding)
+        if partners is not None:
+            partners.setflags(write=False)
+            object.__setattr__(self, "partners", partners)
         for name, value in (("steps", steps), ("freqs", freqs), ("origins", origins)):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
@@ -115,8 +132,8 @@ class EntropyTables:
 
     @property
     def contextual(self) -> bool:
-        """Whether MEAN tokens are coded given the previous MEAN token (tables of 5 classes)."""
-        return int(self.freqs.shape[1]) == 5
+        """Whether MEAN tokens are coded given the previous MEAN token (tables of 5 or 11 classes)."""
+        return int(self.freqs.shape[1]) > 3
 
     def mean_dependency(self, views: int) -> np.ndarray:
         """(N_s,) int64: for each MEAN static token after the first, the index of the previous MEAN token (the
@@ -185,6 +202,16 @@ def find_tables(fingerprint: ModelFingerprint, tables: EntropyTables | None = No
             f"the entropy tables given belong to model {tables.fingerprint.model_id} "
             f"{tables.fingerprint.model_version}, not to the file's {fingerprint.model_id} {fingerprint.model_version}")
     return tables
+
+
+def pair_class(previous: int, partner: int) -> int:
+    """The class of a MEAN value in tables of 11 classes from the signs (-1, 0, 1) of the previous MEAN token's
+    code in its channel and of its own token's code in the partner channel (0 also where there is none)."""
+    if partner < 0:
+        return MEAN_PARTNER_NEGATIVE + previous + 1
+    if partner > 0:
+        return MEAN_PARTNER_POSITIVE + previous + 1
+    return (MEAN_AFTER_NEGATIVE, MEAN, MEAN_AFTER_POSITIVE)[previous + 1]
 
 
 def _check_level(tables: EntropyTables, level: int) -> None:
@@ -278,18 +305,29 @@ def coded_symbols(codes: np.ndarray, tables: EntropyTables, level: int, views: i
 
 
 def _mean_dependency(tables: EntropyTables, level: int, views: int) -> Dependency:
-    """The rANS dependency (dep, centre, below, above), one value per symbol of the static matrix, of tables with
+    """The rANS dependency (dep, centre, dep2, centre2, offsets) of the static matrix, of tables with
     context-coded MEAN tokens: value (i, c) of a MEAN token after the first depends on value (j, c) of the
-    previous MEAN token j; centre Q (the symbol of code 0), rows MEAN_AFTER_NEGATIVE / MEAN_AFTER_POSITIVE."""
+    previous MEAN token j, and with tables of 11 classes value (i, c) of a MEAN token on value (i, p) of the
+    same token in the partner channel p; centres Q of the channel depended on (the symbol of code 0); the
+    offsets move a MEAN row to the row of :func:`pair_class`."""
     d = tables.steps.shape[2]
+    n = tables.origins.shape[1]
     prev = tables.mean_dependency(views)
     channel = np.arange(d)[None, :]
+    half = tables.half_range(level)[0]
     dep = np.where(prev[:, None] >= 0, prev[:, None] * d + channel, -1)
-    centre = np.broadcast_to(tables.half_range(level)[0][None, :], dep.shape)
-    below = np.broadcast_to(MEAN_AFTER_NEGATIVE * d + channel, dep.shape)
-    above = np.broadcast_to(MEAN_AFTER_POSITIVE * d + channel, dep.shape)
-    flat = [np.ascontiguousarray(a).reshape(-1) for a in (dep, centre, below, above)]
-    return flat[0], flat[1], flat[2], flat[3]
+    centre = np.broadcast_to(half[None, :], dep.shape)
+    if tables.partners is None:
+        dep2 = np.full(dep.shape, -1)
+        centre2 = np.zeros(dep.shape, np.int64)
+    else:
+        mean = ~tables.copies(views)[1]
+        partner = tables.partners[None, :]
+        dep2 = np.where(mean[:, None] & (partner >= 0), np.arange(n)[:, None] * d + partner, -1)
+        centre2 = np.broadcast_to(half[np.maximum(tables.partners, 0)][None, :], dep.shape)
+    offsets = np.array([d * (pair_class(a - 1, b - 1) - MEAN) for a in range(3) for b in range(3)], np.int64)
+    flat = [np.ascontiguousarray(a).reshape(-1) for a in (dep, centre, dep2, centre2)]
+    return flat[0], flat[1], flat[2], flat[3], offsets
 
 
 def parse_learned_payload(payload: BytesLike) -> tuple[int, int]:

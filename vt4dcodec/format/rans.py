@@ -390,29 +390,39 @@ def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> b
     return x.to_bytes(4, "little") + bytes(out)
 
 
-Dependency = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+Dependency = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 def _dependency_args(dependency: Dependency, n: int) -> Dependency:
-    """(dep int32, centre, below, above uint16) checked: one value per symbol, each dep earlier than its symbol."""
-    dep = np.ascontiguousarray(dependency[0], dtype=np.int32).reshape(-1)
-    rest = tuple(np.ascontiguousarray(a, dtype=np.uint16).reshape(-1) for a in dependency[1:])
-    if dep.size != n or any(a.size != n for a in rest):
-        raise ValueError("a dependency needs one dep, centre, below and above value per symbol")
-    if n and (dep >= np.arange(n)).any():
+    """(dep int32, centre uint16, dep2 int32, centre2 uint16, offsets int32) checked: one value per symbol for the
+    first four, each dependency earlier than its symbol (or -1: none); 9 offsets."""
+    dep, dep2 = (np.ascontiguousarray(dependency[k], dtype=np.int32).reshape(-1) for k in (0, 2))
+    centre, centre2 = (np.ascontiguousarray(dependency[k], dtype=np.uint16).reshape(-1) for k in (1, 3))
+    offsets = np.ascontiguousarray(dependency[4], dtype=np.int32).reshape(-1)
+    if any(a.size != n for a in (dep, centre, dep2, centre2)) or offsets.size != 9:
+        raise ValueError("a dependency needs one dep, centre, dep2 and centre2 value per symbol and 9 offsets")
+    if n and ((dep >= np.arange(n)).any() or (dep2 >= np.arange(n)).any()):
         raise ValueError("a symbol can depend only on an earlier symbol")
-    return dep, rest[0], rest[1], rest[2]
+    return dep, centre, dep2, centre2, offsets
+
+
+def _comparison(symbols: np.ndarray, dep: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """0, 1 or 2 per symbol: the symbol at ``dep`` below, equal to or above ``centre``; 1 where dep < 0."""
+    out = np.ones(dep.size, np.int64)
+    has = dep >= 0
+    v = symbols[dep[has]]
+    out[has] = np.where(v < centre[has], 0, np.where(v > centre[has], 2, 1))
+    return out
 
 
 def dependent_contexts(symbols: np.ndarray, ctx: np.ndarray, dependency: Dependency) -> np.ndarray:
     """The row of each symbol under ``dependency`` (see :func:`rans_decode_ctx`), for an encoder that knows every
-    symbol: ``below[k]`` / ``above[k]`` where ``symbols[dep[k]]`` is below / above ``centre[k]``, else ``ctx[k]``."""
+    symbol: ``ctx[k] + offsets[3 a + b]``, ``a`` and ``b`` 0, 1 or 2 as the symbols at ``dep[k]`` and
+    ``dep2[k]`` are below, equal to or above ``centre[k]`` and ``centre2[k]`` (1 where there is none)."""
     syms = np.asarray(symbols, dtype=np.int64).reshape(-1)
-    dep, centre, below, above = _dependency_args(dependency, syms.size)
-    out = np.asarray(ctx, dtype=np.int64).reshape(-1).copy()
-    has = dep >= 0
-    v = syms[dep[has]]
-    out[has] = np.where(v < centre[has], below[has], np.where(v > centre[has], above[has], out[has]))
+    dep, centre, dep2, centre2, offsets = _dependency_args(dependency, syms.size)
+    a, b = _comparison(syms, dep, centre), _comparison(syms, dep2, centre2)
+    out: np.ndarray = np.asarray(ctx, dtype=np.int64).reshape(-1) + offsets.astype(np.int64)[3 * a + b]
     return out
 
 
@@ -420,17 +430,16 @@ def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray,
                     dependency: Dependency | None = None) -> np.ndarray:
     """Decode ``len(ctx)`` symbols (uint16) of a single-chain stream, symbol ``k`` with row ``ctx[k]`` of
     ``freqs`` (T, A; every row validated to sum to 2^14 by the caller). With ``dependency`` = (dep, centre,
-    below, above), one value each per symbol: a symbol with ``dep[k] >= 0`` (an earlier symbol) takes row
-    ``below[k]`` when the symbol decoded at ``dep[k]`` is below ``centre[k]``, ``above[k]`` when above, else
-    ``ctx[k]`` (context-coded MEAN tokens, FORMAT.md I.6.2). TruncatedError if the stream ends early,
+    dep2, centre2, offsets), one value each per symbol but the 9 offsets: symbol ``k`` takes row
+    ``ctx[k] + offsets[3 a + b]``, where ``a`` is 0, 1 or 2 as the symbol decoded at ``dep[k]`` (an earlier
+    symbol) is below, equal to or above ``centre[k]``, 1 where ``dep[k] < 0``, and ``b`` likewise for ``dep2``
+    and ``centre2`` (context-coded MEAN tokens, FORMAT.md I.6.2). TruncatedError if the stream ends early,
     MalformedSectionError if bytes are left over or the final state is not ``L``."""
     ctx16, table, alphabet = _ctx_args(ctx, freqs)
     data, states = _opened(stream, 1)
     if ctx16.size and int(ctx16.max()) >= table.shape[0]:
         raise ValueError("a context lies outside the tables")
     dep = None if dependency is None else _dependency_args(dependency, ctx16.size)
-    if dep is not None and ctx16.size and max(int(dep[2].max()), int(dep[3].max())) >= table.shape[0]:
-        raise ValueError("a context lies outside the tables")
     if not NATIVE:
         return _decode_ctx_py(data, states[0], ctx16, table, dep)
     out = np.empty(ctx16.size, np.uint16)
@@ -446,14 +455,23 @@ def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray,
     """Pure-Python :func:`rans_decode_ctx` after the initial-state check (the reference)."""
     table, cums = _rows_and_cumulative(freqs)
     mask, end, pos = PROB_SCALE - 1, len(data), 4
-    used = set(ctx.tolist()) | (set() if dependency is None else set(dependency[2].tolist()) | set(dependency[3].tolist()))
-    rows = {t: (table[t].tolist(), cums[t].tolist()) for t in used}
-    dep, centre, below, above = ([], [], [], []) if dependency is None else (a.tolist() for a in dependency)
+    rows: dict[int, tuple[list[int], list[int]]] = {}
+    dep, centre, dep2, centre2, offsets = ([], [], [], [], []) if dependency is None else (a.tolist() for a in dependency)
     syms = [0] * len(ctx)
     for i, t in enumerate(ctx.tolist()):
-        if dependency is not None and dep[i] >= 0:
-            v = syms[dep[i]]
-            t = below[i] if v < centre[i] else above[i] if v > centre[i] else t
+        if dependency is not None:
+            a = b = 1
+            if dep[i] >= 0:
+                v = syms[dep[i]]
+                a = 0 if v < centre[i] else 2 if v > centre[i] else 1
+            if dep2[i] >= 0:
+                v = syms[dep2[i]]
+                b = 0 if v < centre2[i] else 2 if v > centre2[i] else 1
+            t += offsets[3 * a + b]
+        if t not in rows:
+            if not 0 <= t < table.shape[0]:
+                raise ValueError("a context lies outside the tables, or a dependency is not earlier")
+            rows[t] = (table[t].tolist(), cums[t].tolist())
         f, cum = rows[t]
         slot = x & mask
         s = int(np.searchsorted(cums[t], slot, side="right")) - 1
