@@ -237,6 +237,11 @@ class ModelConfig(_Config):
         of the previous MEAN token's code in its channel (two more density classes, MEAN_AFTER_NEGATIVE and
         MEAN_AFTER_POSITIVE; FORMAT.md I.6.2, tables of 5 classes): neighbouring cells' tokens agree, which
         the factorized densities cannot use. False: one MEAN density per channel.
+        entropy_partners: with entropy_context, each channel's partner channel (token_dim values, each -1 or an
+        earlier channel): a MEAN value is also coded given the sign of its own token's code in the partner
+        channel (six more classes, FORMAT.md I.6.2, tables of 11 classes). Channels that move together (one
+        pair of channels correlates at 0.9 on q1 codes) cost a fraction once one of them is known. Chosen
+        from token statistics (``python -m vt4dcodec.model.train.partners``). Empty: no partners.
         entropy_rounding: with entropy_levels, the writer's rounding offsets, 3 per level (coarsest first):
         MEAN, CHANGE and DYNAMIC values are stored as ``sign(x) floor(|x| + f)`` of ``x = token / step``
         (``vt4dcodec.format.learned.writer_codes``): f = 1/2 rounds to nearest, a smaller f is a dead zone
@@ -296,6 +301,7 @@ class ModelConfig(_Config):
     entropy_levels: int = 0
     entropy_context: bool = False
     entropy_rounding: tuple[float, ...] = ()
+    entropy_partners: tuple[int, ...] = ()
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -307,7 +313,8 @@ class ModelConfig(_Config):
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
                                                "dynamic_from_patch": False, "entropy_levels": 0,
-                                               "entropy_context": False, "entropy_rounding": ()}
+                                               "entropy_context": False, "entropy_rounding": (),
+                                               "entropy_partners": ()}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -385,6 +392,14 @@ class ModelConfig(_Config):
             raise ModelError(f"config entropy_rounding must be empty or 3 x entropy_levels ({3 * self.entropy_levels}) "
                              f"numbers within [0, 0.5], got {rounding!r}")
         object.__setattr__(self, "entropy_rounding", tuple(float(v) for v in rounding))
+        partners = self.entropy_partners
+        if not isinstance(partners, (list, tuple)) or (partners and (
+                not self.entropy_context or len(partners) != self.token_dim
+                or not all(isinstance(v, int) and not isinstance(v, bool) and -1 <= v < c
+                           for c, v in enumerate(partners)))):
+            raise ModelError(f"config entropy_partners must be empty or, with entropy_context, token_dim "
+                             f"({self.token_dim}) channels each -1 or below its own index, got {partners!r}")
+        object.__setattr__(self, "entropy_partners", tuple(int(v) for v in partners))
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -13,7 +13,11 @@ and Z_d have their own steps). The integers are entropy-coded with one frequency
 - ``DYNAMIC`` (2): a dynamic token; symbol ``q + Q``;
 - with ``config.entropy_context``, ``MEAN_AFTER_NEGATIVE`` (3) and ``MEAN_AFTER_POSITIVE`` (4): a MEAN token
   after the first whose previous MEAN token (the one with the largest smaller index) has a negative or
-  positive code in the same channel (neighbouring cells' tokens agree); symbol ``q + Q`` as for MEAN.
+  positive code in the same channel (neighbouring cells' tokens agree); symbol ``q + Q`` as for MEAN;
+- with ``config.entropy_partners`` as well, six more MEAN classes by the sign of the same token's code in
+  the channel's *partner* channel (an earlier channel that moves with it): ``MEAN_PARTNER_NEGATIVE`` + 0/1/2
+  (5, 6, 7) and ``MEAN_PARTNER_POSITIVE`` + 0/1/2 (8, 9, 10) for a previous MEAN code below / at / above 0
+  (``vt4dcodec.format.learned.pair_class``); a partner code of 0 (or no partner) keeps the classes above.
 
 Each context has a density over its value range (``HALF_RANGE``: (-1, 1), the change class (-2, 2)): a
 piecewise-constant density of ``BINS`` bins (softmax of learned logits), so its CDF F is piecewise
@@ -37,7 +41,8 @@ import torch
 from torch import nn
 
 __all__ = ["TokenEntropyModel", "BINS", "Q_MAX", "ALPHABET", "MIN_STEP", "MAX_STEP", "MAX_VIEWS", "MEAN", "CHANGE",
-           "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE", "HALF_RANGE", "PROB_BITS", "bin_probabilities", "frequencies", "symbol_count"]
+           "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE", "MEAN_PARTNER_NEGATIVE", "MEAN_PARTNER_POSITIVE",
+           "HALF_RANGE", "PROB_BITS", "bin_probabilities", "frequencies", "symbol_count"]
 
 BINS = 256                 # density bins over a class's value range
 Q_MAX = 32                 # |q| <= 32: steps >= 1/32 (finer than int5)
@@ -45,7 +50,8 @@ MIN_STEP, MAX_STEP = 1.0 / 32.0, 1.0
 ALPHABET = 4 * Q_MAX + 1   # the widest table: a change symbol in 0 .. 4Q
 MAX_VIEWS = 64             # encoded cameras of one token set (format: 1 + 63 extra cameras)
 MEAN, CHANGE, DYNAMIC, MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE = 0, 1, 2, 3, 4
-HALF_RANGE = (1.0, 2.0, 1.0, 1.0, 1.0)
+MEAN_PARTNER_NEGATIVE, MEAN_PARTNER_POSITIVE = 5, 8  # + 0, 1, 2: previous MEAN code below, at, above 0
+HALF_RANGE = (1.0, 2.0) + (1.0,) * 9
 PROB_BITS = 14             # the rANS coder's precision (vt4dcodec.format.rans)
 MIN_PROB = 2.0 ** -PROB_BITS
 
@@ -93,17 +99,22 @@ def frequencies(prob: np.ndarray) -> np.ndarray:
 
 
 class TokenEntropyModel(nn.Module):
-    """Densities (3 or 5 classes x ``token_dim`` channels) and per-level quantizer steps of one tokenizer.
+    """Densities (3, 5 or 11 classes x ``token_dim`` channels) and per-level quantizer steps of one tokenizer.
 
     Parameters: ``logits`` (classes, d, BINS) and ``log_step`` (levels, 2, d) (index 0: Z_s, 1: Z_d).
     Buffers filled by :meth:`update` (zero until then): ``steps`` float32 (levels, 2, d),
-    ``freqs`` int16 (levels, classes, d, ALPHABET) and ``origins`` int16 (MAX_VIEWS, N_s).
+    ``freqs`` int16 (levels, classes, d, ALPHABET) and ``origins`` int16 (MAX_VIEWS, N_s); with 11 classes
+    ``partners`` int16 (d,), each channel's partner channel (-1: none), set at construction.
     """
 
-    def __init__(self, levels: int, n_static: int, token_dim: int, classes: int = 3) -> None:
+    def __init__(self, levels: int, n_static: int, token_dim: int, classes: int = 3,
+                 partners: tuple[int, ...] | None = None) -> None:
         super().__init__()
-        if classes not in (3, 5):
-            raise ValueError(f"an entropy model has 3 or 5 density classes, not {classes}")
+        if classes not in (3, 5, 11):
+            raise ValueError(f"an entropy model has 3, 5 or 11 density classes, not {classes}")
+        if (classes == 11) != (partners is not None) or (partners is not None and (
+                len(partners) != token_dim or any(not -1 <= p < c for c, p in enumerate(partners)))):
+            raise ValueError("an entropy model of 11 classes needs partners, one earlier channel or -1 a channel")
         self.levels, self.n_static, self.token_dim, self.classes = levels, n_static, token_dim, classes
         self.logits = nn.Parameter(torch.zeros(classes, token_dim, BINS))
         # level 0 the coarsest (1/3 of the range a step), the last the finest (1/32)
@@ -113,6 +124,8 @@ class TokenEntropyModel(nn.Module):
         self.register_buffer("steps", torch.zeros(levels, 2, token_dim))
         self.register_buffer("freqs", torch.zeros(levels, classes, token_dim, ALPHABET, dtype=torch.int16))
         self.register_buffer("origins", torch.zeros(MAX_VIEWS, n_static, dtype=torch.int16))
+        if partners is not None:
+            self.register_buffer("partners", torch.tensor(partners, dtype=torch.int16))
 
     # training ------------------------------------------------------------------------------------
     def step(self, level: int) -> torch.Tensor:
@@ -153,18 +166,30 @@ class TokenEntropyModel(nn.Module):
     def context_tables(self, z_s: torch.Tensor, origin: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         """(S, N_s, d) context index of every static value: :meth:`static_tables`, and with 5 classes a MEAN
         token after the first moved to MEAN_AFTER_NEGATIVE / _POSITIVE by the sign of the previous MEAN token's
-        code ``round(z / step)`` at this level (the code a file stores; no gradient flows through it)."""
+        code ``round(z / step)`` at this level (the code a file stores; no gradient flows through it); with 11
+        classes also by the sign of the token's own code in the channel's partner channel
+        (``vt4dcodec.format.learned.pair_class``)."""
         tab = self.static_tables(origin).expand(z_s.shape[0], -1, -1)
         if self.classes == 3:
             return tab
         prev = self.previous_mean(origin)
         has = prev >= 0
         code = torch.round(z_s.detach()[:, prev.clamp(min=0)] / step)  # (S, N_s, d)
+        a = torch.where(has[None, :, None], torch.sign(code), torch.zeros_like(code)).long() + 1  # 0, 1, 2
         channel = torch.arange(self.token_dim, device=z_s.device)
-        after = torch.where(code < 0, MEAN_AFTER_NEGATIVE * self.token_dim + channel,
-                            MEAN_AFTER_POSITIVE * self.token_dim + channel)
-        moved = has[None, :, None] & (code != 0)
-        return torch.where(moved, after, tab)
+        if self.classes == 5:
+            cls_of = torch.tensor([MEAN_AFTER_NEGATIVE, MEAN, MEAN_AFTER_POSITIVE], device=z_s.device)
+            cls = cls_of[a]
+        else:
+            partners = self.partners.long()
+            p = partners.clamp(min=0)
+            own = torch.round(z_s.detach()[:, :, p] / step[p])  # (S, N_s, d): the partner channel's code
+            b = torch.where(partners[None, None, :] >= 0, torch.sign(own), torch.zeros_like(own)).long() + 1
+            table = torch.tensor([[MEAN_PARTNER_NEGATIVE + k, (MEAN_AFTER_NEGATIVE, MEAN, MEAN_AFTER_POSITIVE)[k],
+                                   MEAN_PARTNER_POSITIVE + k] for k in range(3)], device=z_s.device)  # [a][b]
+            cls = table[a, b]
+        mean = (tab // self.token_dim == MEAN)
+        return torch.where(mean, cls * self.token_dim + channel, tab)
 
     def quantized(self, z: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         """z on the code grid of ``step`` as a file stores it, ``clip(round(z / step), -Q, Q) * step``, with a

@@ -1,7 +1,8 @@
 """The frozen entropy tables of an installed tokenizer, read without torch.
 
 ``learned-rans`` files (FORMAT.md I.6.2) need the integer tables of the model that coded them. They ship in
-the model's ``model.safetensors`` as the tensors ``entropy.steps``, ``entropy.freqs`` and ``entropy.origins``
+the model's ``model.safetensors`` as the tensors ``entropy.steps``, ``entropy.freqs`` and ``entropy.origins`` (and
+with partner channels ``entropy.partners``)
 (``model.entropy.TokenEntropyModel.update``). :func:`entropy_tables` finds the model by a file's fingerprint
 (shipped id or ``$VT4D_MODEL_PATH``), parses the safetensors with numpy, checks the weights against the
 ``weights_sha256`` the fingerprint names (so the tables are the model's, bit for bit), and returns them as
@@ -90,7 +91,7 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
         raise EntropyTablesError(f"model {own.model_id} {own.model_version} was saved before its entropy tables "
                                  f"were frozen (VideoTok4D.update_entropy)")
     return EntropyTables(tensors["entropy.steps"], tensors["entropy.freqs"], tensors["entropy.origins"], own,
-                         rounding_offsets(meta["config"]))
+                         rounding_offsets(meta["config"]), tensors.get("entropy.partners"))
 
 
 def rounding_offsets(config: Any) -> np.ndarray | None:

@@ -84,7 +84,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
         self.entropy: TokenEntropyModel | None = None
         if cfg.entropy_levels:  # quality levels: quantizer steps and token densities (model.entropy)
             self.entropy = TokenEntropyModel(cfg.entropy_levels, cfg.n_static, cfg.token_dim,
-                                             classes=5 if cfg.entropy_context else 3)
+                                             classes=(11 if cfg.entropy_partners else 5) if cfg.entropy_context else 3,
+                                             partners=cfg.entropy_partners or None)
         self.track_direct: nn.Linear | None = None
         if cfg.dynamic_splat and not cfg.unified_tokens:  # Z_d pre-activation + W * its track's (u, v, valid) per frame
             self.track_direct = nn.Linear(3 * cfg.frames, cfg.token_dim)

@@ -392,8 +392,9 @@ def model_tables(model: "VideoTok4D") -> EntropyTables | None:
     entropy = getattr(model, "entropy", None)
     if entropy is None or not entropy.frozen:
         return None
+    partners = getattr(entropy, "partners", None)
     return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(), model_fingerprint(model),
-                         rounding_offsets(model.config))
+                         rounding_offsets(model.config), None if partners is None else partners.numpy())
 
 
 def __getattr__(name: str) -> Any:
