@@ -130,28 +130,34 @@ def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
 
 def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndarray:
     """(n, 3, 3) rotations -> (n, 4) unit quaternions (w, x, y, z) (informative: any writer method will do).
-    Shepperd's method, from the largest of w, x, y, z.  ``continuous``: each sign is chosen so consecutive
-    quaternions are close (q and -q are the same rotation), which keeps the predicted differences small;
-    else each is signed on its own (the one closer to (1, 0, 0, 0))."""
-    out = np.empty((len(R), 4))
-    for i, m in enumerate(np.asarray(R, dtype=np.float64)):
-        diag = (m[0, 0] + m[1, 1] + m[2, 2], m[0, 0], m[1, 1], m[2, 2])
-        k = int(np.argmax(diag))
-        if k == 0:
-            w = 0.5 * np.sqrt(max(1.0 + diag[0], 0.0))
-            q = (w, (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w))
-        elif k == 1:
-            x = 0.5 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-            q = ((m[2, 1] - m[1, 2]) / (4 * x), x, (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x))
-        elif k == 2:
-            y = 0.5 * np.sqrt(max(1.0 - m[0, 0] + m[1, 1] - m[2, 2], 0.0))
-            q = ((m[0, 2] - m[2, 0]) / (4 * y), (m[0, 1] + m[1, 0]) / (4 * y), y, (m[1, 2] + m[2, 1]) / (4 * y))
-        else:
-            z = 0.5 * np.sqrt(max(1.0 - m[0, 0] - m[1, 1] + m[2, 2], 0.0))
-            q = ((m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z)
-        v = np.array(q) / np.linalg.norm(q)
-        previous = out[i - 1] if i and continuous else np.array([1.0, 0.0, 0.0, 0.0])
-        out[i] = -v if float(v @ previous) < 0 else v
+    Shepperd's method, from the largest of w, x, y, z (the first of the trace, R00, R11, R22 that is largest),
+    normalised by the square root of ((w^2 + x^2) + y^2) + z^2 summed in that order.  ``continuous``: each sign
+    is chosen so consecutive quaternions are close (q and -q are the same rotation: a negative dot product with
+    the one before flips it), which keeps the predicted differences small; else each is signed on its own (a
+    negative w flips it).  Vectorised: every value is the same binary64 operations for every rotation."""
+    m = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (m[:, i, j] for i in range(3) for j in range(3))
+    trace = (m00 + m11) + m22
+    k = np.argmax(np.stack([trace, m00, m11, m22], axis=1), axis=1)
+    with np.errstate(all="ignore"):  # every branch is computed for every rotation; only the chosen one is kept
+        w = 0.5 * np.sqrt(np.maximum(1.0 + trace, 0.0))
+        x = 0.5 * np.sqrt(np.maximum(((1.0 + m00) - m11) - m22, 0.0))
+        y = 0.5 * np.sqrt(np.maximum(((1.0 - m00) + m11) - m22, 0.0))
+        z = 0.5 * np.sqrt(np.maximum(((1.0 - m00) - m11) + m22, 0.0))
+        branches = np.stack([
+            np.stack([w, (m21 - m12) / (4 * w), (m02 - m20) / (4 * w), (m10 - m01) / (4 * w)], axis=1),
+            np.stack([(m21 - m12) / (4 * x), x, (m01 + m10) / (4 * x), (m02 + m20) / (4 * x)], axis=1),
+            np.stack([(m02 - m20) / (4 * y), (m01 + m10) / (4 * y), y, (m12 + m21) / (4 * y)], axis=1),
+            np.stack([(m10 - m01) / (4 * z), (m02 + m20) / (4 * z), (m12 + m21) / (4 * z), z], axis=1)])
+        q = branches[k, np.arange(len(m))]
+        norm = np.sqrt(((q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]) + q[:, 2] * q[:, 2]) + q[:, 3] * q[:, 3])
+        v = q / norm[:, None]
+    flip = v[:, 0] < 0  # against (1, 0, 0, 0): the first record, and every record when not continuous
+    if continuous and len(v) > 1:
+        dots = (((v[1:, 0] * v[:-1, 0] + v[1:, 1] * v[:-1, 1]) + v[1:, 2] * v[:-1, 2]) + v[1:, 3] * v[:-1, 3]).tolist()
+        for i, dot in enumerate(dots, start=1):  # flipped when its dot with the (signed) record before is negative
+            flip[i] = (-dot if flip[i - 1] else dot) < 0
+    out: np.ndarray = np.where(flip[:, None], -v, v)
     return out
 
 
@@ -401,24 +407,22 @@ def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     """The largest pixel distance between where camera ``a`` and camera ``b`` (same frame) put the same
     world point, over the reference writer's probe points: a 5 x 5 grid over each frame's image
     (corner pixels' outer edges included) lifted through ``a`` (its exact inverse) to depths 0.1, 1, 10 and
-    100 m.
+    100 m (all depths in one batch of solves).
     Distortion is ignored (the compact encoding stores it unchanged)."""
-    W, H = a.width, a.height
+    W, H, T = a.width, a.height, a.num_frames
     u, v = np.meshgrid(np.linspace(-0.5, W - 0.5, PROBE_GRID), np.linspace(-0.5, H - 0.5, PROBE_GRID))
     pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])                  # (3, P)
-    rays = np.linalg.solve(a.K, np.broadcast_to(pix, (a.num_frames, *pix.shape)))  # (T, 3, P), z = 1
-    worst = 0.0
-    for z in PROBE_DEPTHS_M:
-        cam_a = rays * z
-        world = np.linalg.solve(a.w2c[:, :3, :3], cam_a - a.w2c[:, :3, 3:])  # R^-1 (x - t), not R^T: a float32
-        # rotation is orthonormal only to ~1e-7, and R^T would move the points of a camera against itself
-        cam_b = np.einsum("tij,tjp->tip", b.w2c[:, :3, :3], world) + b.w2c[:, :3, 3:]
-        proj = np.einsum("tij,tjp->tip", b.K, cam_b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = proj[:, :2] / proj[:, 2:]
-        d = np.abs(uv - pix[None, :2])
-        worst = max(worst, float(np.nanmax(d)) if np.isfinite(d).all() else float("inf"))
-    return worst
+    rays = np.linalg.solve(a.K, np.broadcast_to(pix, (T, *pix.shape)))       # (T, 3, P), z = 1
+    depths = np.asarray(PROBE_DEPTHS_M)
+    cam_a = (rays[:, :, None, :] * depths[None, None, :, None]).reshape(T, 3, -1)  # (T, 3, Z P)
+    world = np.linalg.solve(a.w2c[:, :3, :3], cam_a - a.w2c[:, :3, 3:])  # R^-1 (x - t), not R^T: a float32
+    # rotation is orthonormal only to ~1e-7, and R^T would move the points of a camera against itself
+    cam_b = np.einsum("tij,tjp->tip", b.w2c[:, :3, :3], world) + b.w2c[:, :3, 3:]
+    proj = np.einsum("tij,tjp->tip", b.K, cam_b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = proj[:, :2] / proj[:, 2:]
+    d = np.abs(uv - np.tile(pix[:2], len(depths))[None])
+    return float(np.max(d)) if np.isfinite(d).all() else float("inf")
 
 
 def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False,
@@ -434,9 +438,23 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
         raise FormatError(f"compact camera mode must be 'compact' or 'exact', got {mode!r}")
     if mode == "compact":
         for raw, back in _within_tolerance(traj, quaternions, fixed):
-            if next(_within_tolerance(back, quaternions, fixed), (None, None))[0] == raw:
+            if _chosen_again(raw, back, quaternions, fixed):
                 return raw
     return _encode(traj, 8)
+
+
+def _chosen_again(raw: bytes, back: Trajectory, quaternions: bool, fixed: bool) -> bool:
+    """Whether the writer, given ``back`` (what ``raw`` decodes to), chooses ``raw`` again.  A float32
+    quaternion payload is the first candidate the writer tries for any trajectory outside format 1.6's fixed
+    point; when ``back``'s own canonical quaternions encode to ``raw`` it is chosen again (it decodes to
+    ``back`` itself, moving no probe point), without a second tolerance test.  Otherwise the whole choice is
+    made again on ``back``."""
+    if quaternions and not fixed and raw[0] == 4 and raw[1] & QUATERNION_POSES:
+        w2c = back.w2c[:1] if _flags(back) & STATIC_POSE else back.w2c
+        q = canonical_float32_quaternions(w2c[:, :3, :3])
+        if q is not None and _encode(back, 4, q) == raw:
+            return True
+    return next(_within_tolerance(back, quaternions, fixed), (None, None))[0] == raw
 
 
 def _within_tolerance(traj: Trajectory, quaternions: bool, fixed: bool = False) -> Iterator[tuple[bytes, Trajectory]]:
