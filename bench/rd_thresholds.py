@@ -46,12 +46,22 @@ def _equal(points: list[dict[str, Any]], v: dict[str, Any]) -> str:
 
 
 def report(result: dict[str, Any]) -> str:
-    syn = result["datasets"]["synthetic"]
+    lines = [f"Study: `{result['command']}`", ""]
+    syn = result["datasets"].get("synthetic")
+    cal = result["datasets"].get("caliscope")
+    encs = list((syn or cal)["summary"]["single/captured"]["vt4d"])
+    if syn:
+        lines += _synthetic_lines(result, syn, encs)
+    else:
+        lines.append(f"Model {result['model']['fingerprint']}; real footage only (--scenes 0).")
+    return _report_tail(result, cal, encs, lines)
+
+
+def _synthetic_lines(result: dict[str, Any], syn: dict[str, Any], encs: list[str]) -> list[str]:
     s = syn["summary"]
-    encs = list(s["single/captured"]["vt4d"])
-    lines = [f"Study: `{result['command']}`", "",
-             f"Model {result['model']['fingerprint']}; {syn['title']}, {syn['clips']} clips; bytes = the whole .vt4d file, H.265 = bitstream bytes summed over the stored "
-             "cameras; ratio = vt4d bytes / H.265 bytes at vt4d's PSNR.", "",
+    lines = [f"Model {result['model']['fingerprint']}; {syn['title']}, {syn['clips']} clips; bytes = the whole .vt4d "
+             "file, H.265 = bitstream bytes summed over the stored cameras; ratio = vt4d bytes / H.265 bytes at "
+             "vt4d's PSNR.", "",
              "| level | whole capture: B / dB | ratio (mean curve) | ratio per clip | one camera: B / dB | "
              "ratio (mean curve) | ratio per clip | five stored, held-out: dB +- SE from B |",
              "|---|---|---|---|---|---|---|---|"]
@@ -70,7 +80,10 @@ def report(result: dict[str, Any]) -> str:
         rising = all(b > a for a, b in zip(own, own[1:]))
         lines += ["", f"Own-view span over the levels {levels[0]}..{levels[-1]}: {max(own) - min(own):.2f} dB "
                       f"(target >= {TARGETS['span']} dB), PSNR {'rising' if rising else 'NOT rising'} with the level."]
-    cal = result["datasets"].get("caliscope")
+    return lines
+
+
+def _report_tail(result: dict[str, Any], cal: dict[str, Any] | None, encs: list[str], lines: list[str]) -> str:
     if cal:
         row = cal["summary"]["all/captured"]
         lines += ["", f"Caliscope, {cal['cameras']} cameras in one file ({cal['clips']} clips):", "",
