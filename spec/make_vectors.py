@@ -38,8 +38,10 @@ from vt4dcodec.format import learned as _learned  # noqa: E402
 from vt4dcodec.format import compact_cameras as _cc  # noqa: E402
 from vt4dcodec.format.compact_cameras import fixed_exponents as _fixed_exponents  # noqa: E402
 from vt4dcodec.format.compact_cameras import pack_compact_cameras  # noqa: E402
+from vt4dcodec.format.camera_dictionary import CAMERA_DICTIONARY  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
-from vt4dcodec.format.layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,  # noqa: E402
+from vt4dcodec.format.layout import (COMPRESSION_ZSTD_CAMERAS, FLAG_CAMERA_DICTIONARY,  # noqa: E402
+                                     FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
                                      FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS,
                                      FLAG_RANS_LANES, PREAMBLE_SIZE,
@@ -126,7 +128,8 @@ def split(data: bytes) -> tuple[dict, list[list]]:
         header["fingerprint"] = dict(header["fingerprint"], **{k: header["fingerprint"][k].hex() for k in DIGESTS})
     start = PREAMBLE_SIZE + pre.header_length
     end = start + pre.section_count * entry_size(pre.required_flags)
-    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length, compact=compact)
+    entries = parse_table(data[start:end], pre.section_count, end, pre.file_length, compact=compact,
+                          camera_dictionary=bool(pre.required_flags & FLAG_CAMERA_DICTIONARY))
     return header, [[e.type, e.critical, e.compression, data[e.offset:e.offset + e.stored_length], e.raw_length]
                     + ([e.aligned] if compact else []) for e in entries]
 
@@ -171,15 +174,17 @@ def rebuild_1_3(header: dict | bytes, sections: list[list], *, compress: bool = 
     raw = header if isinstance(header, bytes) else msgpack.packb(binary_digests(header), use_bin_type=True)
     encoding = str(_header_map(header).get("encoding", ""))
     learned = encoding == "learned-rans"  # format 1.6 (I.6.2): bit 5, never bit 0
+    camera_dictionary = any(s[2] == COMPRESSION_ZSTD_CAMERAS for s in sections)  # bit 8 (I.4.2)
     if minor is None:
-        minor = 6 if learned else 4 if _extra_cameras(sections) else 3
+        minor = 6 if learned or camera_dictionary else 4 if _extra_cameras(sections) else 3
     if required_flags is None:
         rans = encoding.endswith("-rans") and not learned
         legacy_cameras = _legacy_cameras(header, sections)  # bit 1 unless CAMS is known to be the 1.0 section
         required_flags = (FLAG_COMPACT_CONTAINER | (0 if legacy_cameras else FLAG_COMPACT_CAMERAS)
                           | (FLAG_ENTROPY_CODED_TOKENS if rans else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
                           | (FLAG_FIXED_CAMERAS if learned and not legacy_cameras else 0)
-                          | (FLAG_EXTRA_CAMERAS if _extra_cameras(sections) else 0))
+                          | (FLAG_EXTRA_CAMERAS if _extra_cameras(sections) else 0)
+                          | (FLAG_CAMERA_DICTIONARY if camera_dictionary else 0))
     stored = compress_header(raw) if compress else raw
     return build_container(stored, [tuple(s) for s in sections], minor=minor, required_flags=required_flags, **kw)
 
@@ -424,6 +429,10 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
             "1.6: learned-rans with tables of 5 classes (spec/vectors/tables/vt4d-test-learned-context.json): MEAN "
             "tokens 1 and 3 coded given the previous MEAN token's code (token 2, a frame copy of token 0, is "
             "skipped), every section raw"),
+        "learned_rans_camera_dictionary": (
+            camera_dictionary_vector(tables),
+            "1.6 with required flag bit 8: CAMS and XCAM (the turning camera and two shifted copies) compressed with "
+            "the camera dictionary (compression 2, I.4.2), the tokens raw"),
         "learned_rans_partner_context": (
             dumps(partner_scene(quality=1), tables=partner_tables(), compression_level=None, header_dictionary=1),
             "1.6: learned-rans with tables of 11 classes (spec/vectors/tables/vt4d-test-learned-partners.json): "
@@ -448,6 +457,19 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
             "turning camera of learned_rans_moving_camera in the writer's coarser centre-pose steps, every "
             "section raw"),
     }
+
+
+def camera_dictionary_vector(tables: EntropyTables) -> bytes:
+    """The turning camera of learned_rans_moving_camera with two shifted copies as extra cameras, written by the
+    writer's policy: its camera sections compressed with the camera dictionary (FORMAT.md I.4.2)."""
+    scene = learned_scene(quality=1)
+    scene.cameras = gliding(8)
+    scene.extra_cameras = tuple(shifted(gliding(8), dx) for dx in (0.5, -0.75))
+    data = dumps(scene, tables=tables, header_dictionary=1)
+    header, sections = split(data)
+    assert [s[2] for s in sections] == [2, 2, 0, 0], "CAMS and XCAM with the camera dictionary, tokens raw"
+    assert parse_preamble(data).required_flags & FLAG_CAMERA_DICTIONARY
+    return data
 
 
 def dictionary_2_vector(tables: EntropyTables) -> bytes:
@@ -485,6 +507,29 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
     forged = rans_encode_ctx(symbols.reshape(-1), ctx.reshape(-1), tables.freqs[level].reshape(-1, tables.freqs.shape[3]))
     with_payload("change_code_out_of_range", bytes([level, 1]) + forged, "MalformedSectionError",
                  "token 2's CHANGE symbol 4Q puts its code at +2Q = 16, outside -8 .. 8")
+    dictionary = camera_dictionary_vector(tables)
+    pre = parse_preamble(dictionary)
+    out["camera_dictionary_without_flag"] = (
+        patch_preamble(dictionary, 16, "<Q", pre.required_flags & ~FLAG_CAMERA_DICTIONARY), "UnsupportedFeatureError",
+        "CAMS and XCAM use compression 2 with required flag bit 8 clear: a compression code the file does not "
+        "announce (critical sections)")
+    REPAIRED["camera_dictionary_without_flag"] = dictionary
+    d_header, d_sections = split(dictionary)
+    frame = zstandard.ZstdCompressor(level=19, dict_data=zstandard.ZstdCompressionDict(CAMERA_DICTIONARY),
+                                     write_content_size=True, write_dict_id=True).compress(bytes(
+                                         open_scene(dictionary).raw_section("CAMS")))
+    bad = [list(x) for x in d_sections]
+    find(bad, "CAMS")[3] = frame
+    out["camera_dictionary_frame_with_dictionary_id"] = (
+        rebuild_1_3(d_header, bad, minor=6, required_flags=pre.required_flags), "MalformedSectionError",
+        "the CAMS frame names a dictionary id (the camera dictionary's own): section frames name none")
+    REPAIRED["camera_dictionary_frame_with_dictionary_id"] = dictionary
+    legacy = dumps_1_2(scene(2, 1, 3), encoding="int8")
+    out["camera_dictionary_flag_without_compact_container"] = (
+        patch_preamble(patch_preamble(legacy, 12, "<H", 6), 16, "<Q", parse_preamble(legacy).required_flags
+                       | FLAG_CAMERA_DICTIONARY), "MalformedHeaderError",
+        "required flag bit 8 (the camera dictionary) in a 1.0-1.2 layout, which has no compression 2")
+    REPAIRED["camera_dictionary_flag_without_compact_container"] = legacy
     out["learned_rans_without_flag"] = (patch_preamble(good, 16, "<Q", FLAG_COMPACT_CONTAINER | FLAG_COMPACT_CAMERAS
                                                        | FLAG_FIXED_CAMERAS),
                                         "MalformedHeaderError", "encoding learned-rans with required flag bit 5 clear")

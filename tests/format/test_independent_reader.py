@@ -8,6 +8,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import struct
 import zlib
 
@@ -70,13 +71,28 @@ def compact_header(stored: bytes, dictionary_2: bool = False) -> bytes:
     return out
 
 
+def _camera_dictionary() -> bytes:
+    """FORMAT.md I.4.2: the camera dictionary, read from the hex block of its own text (32 lines of 64 digits)."""
+    text = (REPO / "FORMAT.md").read_text()
+    section = text[text.index("### I.4.2 The camera dictionary"):]
+    block = section[section.index("```\n") + 4:]
+    block = block[:block.index("```")]
+    dictionary = bytes.fromhex("".join(block.split()))
+    crc = re.search(r"CRC-32\s+`0x([0-9A-F]{8})`", section)
+    assert crc is not None and len(dictionary) == 1024 and zlib.crc32(dictionary) == int(crc.group(1), 16)
+    return dictionary
+
+
+CAMERA_DICTIONARY = _camera_dictionary()
+
+
 def read_scene(data: bytes) -> dict:
     """FORMAT.md I.10, steps 1-6 (without the rejection checks an independent reader would also need)."""
     assert data[:9] == SIGNATURE and data[9] == 0
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 256 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 512 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
@@ -88,6 +104,8 @@ def read_scene(data: bytes) -> dict:
     assert not required & 64 or (required & 6) == 6
     assert minor >= 6 or not required & 128  # I.3.2: header dictionary 2 since 1.6, in compact containers
     assert not required & 128 or required & 4
+    assert minor >= 6 or not required & 256  # I.4.2: the camera dictionary since 1.6, in compact containers
+    assert not required & 256 or required & 4
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes, bool(required & 128)) if compact else header_bytes,
@@ -115,8 +133,12 @@ def read_scene(data: bytes) -> dict:
         cursor = offset + stored
         if not flags & 1:
             continue  # ancillary: skip
-        if comp == 1:
-            payload = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(payload)).read(raw + 1)
+        assert comp in (0, 1) or (comp == 2 and required & 256)
+        if comp:  # I.4, I.4.2: one frame naming no dictionary; compression 2 with the camera dictionary
+            assert zstandard.get_frame_parameters(payload).dict_id == 0
+            dictionary = zstandard.ZstdCompressionDict(CAMERA_DICTIONARY, dict_type=zstandard.DICT_TYPE_FULLDICT)
+            decompressor = zstandard.ZstdDecompressor(dict_data=dictionary) if comp == 2 else zstandard.ZstdDecompressor()
+            payload = decompressor.stream_reader(io.BytesIO(payload)).read(raw + 1)
         assert len(payload) == raw
         sections[code.decode()] = payload
     assert cursor == file_length

@@ -61,7 +61,7 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
-           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
+           "COMPRESSION_RAW", "COMPRESSION_ZSTD", "COMPRESSION_ZSTD_CAMERAS", "COMPRESSION_NAMES", "FLAG_CAMERA_DICTIONARY", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
            "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_LEARNED_TOKENS", "FLAG_FIXED_CAMERAS", "FLAG_HEADER_DICTIONARY_2", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
            "BytesLike"]
 
@@ -84,18 +84,21 @@ FLAG_RANS_LANES = 1 << 4  # required flag: entropy-coded token payloads hold K i
 FLAG_FIXED_CAMERAS = 1 << 6  # required flag: compact cameras may hold fixed-point records, P = 0 (1.6, I.5.4)
 FLAG_LEARNED_TOKENS = 1 << 5  # required flag: tokens coded with the model's entropy tables, learned-rans (1.6, I.6.2)
 FLAG_HEADER_DICTIONARY_2 = 1 << 7  # required flag: the compact header uses header dictionary 2 (1.6, I.3.2)
+FLAG_CAMERA_DICTIONARY = 1 << 8  # required flag: sections may use compression 2, the camera dictionary (1.6, I.4.2)
 KNOWN_REQUIRED_FLAGS = (FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS | FLAG_COMPACT_CONTAINER
                         | FLAG_EXTRA_CAMERAS | FLAG_RANS_LANES | FLAG_LEARNED_TOKENS
-                        | FLAG_FIXED_CAMERAS | FLAG_HEADER_DICTIONARY_2)
+                        | FLAG_FIXED_CAMERAS | FLAG_HEADER_DICTIONARY_2 | FLAG_CAMERA_DICTIONARY)
 # The version that introduced each required flag: in a file that says an older minor version the flag is
 # unknown, and the file is refused as a reader of that version would (UnsupportedFeatureError).  Bit 1 keeps its
 # 1.2 rule (MalformedHeaderError in files below 1.2, checked by the reader), which its golden vectors pin.
 FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3, FLAG_EXTRA_CAMERAS: 4, FLAG_RANS_LANES: 5, FLAG_LEARNED_TOKENS: 6,
-                    FLAG_FIXED_CAMERAS: 6, FLAG_HEADER_DICTIONARY_2: 6}
+                    FLAG_FIXED_CAMERAS: 6, FLAG_HEADER_DICTIONARY_2: 6, FLAG_CAMERA_DICTIONARY: 6}
 FLAG_CRITICAL = 0x0001
 FLAG_ALIGNED = 0x0002  # compact table entries only: the payload starts at a multiple of 64
 COMPACT_ENTRY_SIZE = 18
 COMPRESSION_RAW, COMPRESSION_ZSTD = 0, 1
+COMPRESSION_ZSTD_CAMERAS = 2  # a zstd frame compressed with the camera dictionary (1.6, required flag bit 8, I.4.2)
+COMPRESSION_NAMES = {COMPRESSION_RAW: "raw", COMPRESSION_ZSTD: "zstd", COMPRESSION_ZSTD_CAMERAS: "zstd-cameras"}
 
 _PREAMBLE = struct.Struct("<9sBHHHQQQIIIIII")
 _ENTRY = struct.Struct("<4sHBBQQQII")
@@ -227,12 +230,13 @@ def pack_table(entries: list[SectionEntry], *, compact: bool = False) -> bytes:
 
 
 def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int, *,
-                compact: bool = False) -> list[SectionEntry]:
+                compact: bool = False, camera_dictionary: bool = False) -> list[SectionEntry]:
     """Parse ``count`` entries and check the canonical layout: each payload starts at the 64-aligned end
     of the previous one (the first after the table), no overlap, and the last one ends the container.
 
     ``compact`` (format 1.3): 18-byte entries without offsets; each payload starts right where the previous
-    one ended (the first right after the table), or at the next multiple of 64 when its entry says aligned."""
+    one ended (the first right after the table), or at the next multiple of 64 when its entry says aligned.
+    ``camera_dictionary`` (required flag bit 8): compression 2 is known too."""
     entries: list[SectionEntry] = []
     cursor = table_end
     seen: set[str] = set()
@@ -253,7 +257,7 @@ def parse_table(raw: BytesLike, count: int, table_end: int, file_length: int, *,
         seen.add(name)
         if flags & ~known_flags or res8 or res32:
             raise MalformedSectionError(f"section {name} sets reserved bits or bytes")
-        if comp not in (COMPRESSION_RAW, COMPRESSION_ZSTD):
+        if comp not in (COMPRESSION_RAW, COMPRESSION_ZSTD) and not (camera_dictionary and comp == COMPRESSION_ZSTD_CAMERAS):
             if flags & FLAG_CRITICAL:
                 raise UnsupportedFeatureError(f"critical section {name} uses unknown compression {comp}")
         if rawlen > MAX_SECTION_RAW_BYTES:

@@ -19,8 +19,8 @@ from .header import HeaderInfo, parse_header
 from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
-from .layout import (FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+from .layout import (COMPRESSION_NAMES, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
+                     FLAG_CAMERA_DICTIONARY, FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -147,12 +147,16 @@ class SceneFile:
         if dictionary_2 and not compact:
             raise MalformedHeaderError("required flag bit 7 (header dictionary 2) is set without bit 2 (compact "
                                        "container): only a compact header is compressed with a dictionary")
+        camera_dictionary = bool(pre.required_flags & FLAG_CAMERA_DICTIONARY)
+        if camera_dictionary and not compact:
+            raise MalformedHeaderError("required flag bit 8 (the camera dictionary) is set without bit 2 (compact "
+                                       "container)")
         self._info: HeaderInfo = parse_header(header_raw, newer_minor=pre.minor > FORMAT_MINOR, compressed=compact,
                                               dictionary=2 if dictionary_2 else 1)
         self._check_encoding_version()
         self._table_end = table_end
         self.sections: list[SectionEntry] = parse_table(table_raw, pre.section_count, table_end, pre.file_length,
-                                                        compact=compact)
+                                                        compact=compact, camera_dictionary=camera_dictionary)
         self._by_type = {e.type: e for e in self.sections}
         self._check_section_set()
         self._decoded_bytes = self._declared_decoded_bytes()
@@ -507,8 +511,8 @@ class SceneFile:
             "created_utc": None if prov is None else prov.created_utc,
             "metadata_keys": sorted(self.metadata),
             "sections": [{"type": e.type, "critical": e.critical, "stored_bytes": e.stored_length,
-                          "raw_bytes": e.raw_length, "compression": ["raw", "zstd"][e.compression]
-                          if e.compression < 2 else str(e.compression)} for e in self.sections],
+                          "raw_bytes": e.raw_length, "compression": COMPRESSION_NAMES.get(e.compression, str(e.compression))}
+                         for e in self.sections],
         }
 
     def camera_encoding(self) -> str:

@@ -16,7 +16,7 @@ from .encodings import is_entropy_coded, is_learned
 from .learned import EntropyTables, encode_learned_tokens, find_tables
 from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, pack_extra_cameras
-from .layout import (COMPRESSION_RAW, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
+from .layout import (COMPRESSION_RAW, COMPRESSION_ZSTD_CAMERAS, FLAG_CAMERA_DICTIONARY, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
                      FLAG_HEADER_DICTIONARY_2,
                      FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
                      entry_size, pack_preamble, pack_table)
@@ -24,7 +24,7 @@ from .rans_tokens import check_lanes, policy_lanes
 from .limits import PREAMBLE_SIZE
 from .scene import Scene, normalize_extra_cameras
 from .sections import (SECTION_CAMERAS, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, SECTION_STATIC,
-                       SECTION_STATIC_QUANT, compress_payload, pack_cameras)
+                       SECTION_STATIC_QUANT, compress_payload, compress_with_camera_dictionary, pack_cameras)
 
 __all__ = ["dumps", "save", "build_container", "DEFAULT_COMPRESSION_LEVEL", "HEADER_MODES"]
 
@@ -91,7 +91,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
           compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1,
           cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None,
           quality: int | None = None, tables: EntropyTables | None = None,
-          header_dictionary: int | None = None) -> bytes:
+          header_dictionary: int | None = None, camera_dictionary: bool | None = None) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
     The file says the lowest format version that describes it: 1.5 with required flag bit 4 when its
@@ -134,6 +134,12 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             header shorter (about 60 bytes for a 10-camera encode), else dictionary 1 (I.3.1), so files of the
             other encodings keep their version.  ``1``: always dictionary 1 (files that readers of the first 1.6
             text read); ``2``: always dictionary 2 (then the file says 1.6).  Only with ``header="compact"``.
+        camera_dictionary: whether the cameras sections (``CAMS``, ``XCAM``) may be compressed with the camera
+            dictionary (format 1.6, required flag bit 8, compression 2, FORMAT.md I.4.2), which holds the entropy
+            tables of typical fixed-point camera records: a 10-camera ``XCAM`` ~70 bytes shorter than zstd alone.
+            ``None``, the writer's policy: for ``learned-rans`` files (already 1.6) with fixed-point cameras,
+            where it makes the section shorter; ``True``: the same for any file in a compact container (then it
+            says 1.6 when it is used); ``False``: never.  Not with ``compression_level=None`` (every section raw).
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -149,6 +155,10 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         raise FormatError(f"header_dictionary must be None, 1 or 2, got {header_dictionary!r}")
     if header_dictionary == 2 and header != "compact":
         raise FormatError("header_dictionary=2 needs header='compact' (only a compact header has a dictionary)")
+    if camera_dictionary is not None and not isinstance(camera_dictionary, bool):
+        raise FormatError(f"camera_dictionary must be None, True or False, got {camera_dictionary!r}")
+    if camera_dictionary and header != "compact":
+        raise FormatError("the camera dictionary (compression 2) exists only in compact containers: header='compact'")
     learned = is_learned(encoding)
     if learned:
         tables = find_tables(scene.fingerprint, tables)
@@ -170,6 +180,8 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     compact = header == "compact"
     # learned-rans files (already 1.6) store their cameras in fixed point where it keeps the 0.01 px bound (I.5.4)
     fixed = learned and compact and cameras == "compact"
+    use_camera_dictionary = compact and compression_level is not None and (
+        camera_dictionary if camera_dictionary is not None else fixed)
     layout, cams = pack_cameras(scene.cameras)
     if cameras != "legacy":
         cams = pack_compact_cameras(scene.cameras, cameras, quaternions=compact, fixed=fixed)
@@ -204,14 +216,19 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         # costs a verified load a sixth of its time (bench/bench_format.py)
         saving = TOKEN_ZSTD_MIN_SAVING if compact and tokens_section else 0.0
         compression, stored = compress_payload(raw, level, min_saving=saving)
+        if use_camera_dictionary and name in (SECTION_CAMERAS, SECTION_EXTRA_CAMERAS) and raw:
+            packed = compress_with_camera_dictionary(raw)
+            if len(packed) < len(stored):
+                compression, stored = COMPRESSION_ZSTD_CAMERAS, packed
         # a compact container aligns only what a reader can use in place: raw fixed-width token arrays
         aligned = tokens_section and not (entropy_coded or learned) and compression == COMPRESSION_RAW
         sections.append((name, True, compression, stored, len(raw), aligned))
     flags = ((FLAG_ENTROPY_CODED_TOKENS if entropy_coded else 0) | (FLAG_COMPACT_CAMERAS if cameras != "legacy" else 0)
              | (FLAG_COMPACT_CONTAINER if compact else 0) | (FLAG_EXTRA_CAMERAS if extras else 0)
              | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
-             | (FLAG_FIXED_CAMERAS if fixed else 0) | (FLAG_HEADER_DICTIONARY_2 if dictionary_2 else 0))
-    minor = (6 if learned or dictionary_2 else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
+             | (FLAG_FIXED_CAMERAS if fixed else 0) | (FLAG_HEADER_DICTIONARY_2 if dictionary_2 else 0)
+             | (FLAG_CAMERA_DICTIONARY if any(part[2] == COMPRESSION_ZSTD_CAMERAS for part in sections) else 0))
+    minor = (6 if learned or dictionary_2 or flags & FLAG_CAMERA_DICTIONARY else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
              else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
 
@@ -219,14 +236,15 @@ def dumps(scene: Scene, *, encoding: str | None = None,
 def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encoding: str | None = None,
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
          header: str = "compact", rans_lanes: int | None = None, quality: int | None = None,
-         tables: EntropyTables | None = None, header_dictionary: int | None = None) -> int:
+         tables: EntropyTables | None = None, header_dictionary: int | None = None,
+         camera_dictionary: bool | None = None) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
     """
     data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
                  header=header, rans_lanes=rans_lanes, quality=quality, tables=tables,
-                 header_dictionary=header_dictionary)
+                 header_dictionary=header_dictionary, camera_dictionary=camera_dictionary)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)
