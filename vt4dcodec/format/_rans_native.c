@@ -712,6 +712,37 @@ done:
     return result;
 }
 
+/* map_codes(codes_u8, cols, lut_f32, out_f32): out[r, c] = lut[c * 256 + codes[r, c]] (the int8 / int4
+ * dequantization of a (rows, cols) code matrix through per-column 256-entry tables the caller computed) */
+static PyObject *map_codes(PyObject *self, PyObject *args) {
+    Py_buffer cb, lb, ob;
+    Py_ssize_t cols;
+    if (!PyArg_ParseTuple(args, "y*ny*w*", &cb, &cols, &lb, &ob)) return NULL;
+    PyObject *result = NULL;
+    if (cols < 1 || cb.len % cols || lb.len != (Py_ssize_t)sizeof(float) * 256 * cols
+        || ob.len != (Py_ssize_t)sizeof(float) * cb.len) {
+        PyErr_SetString(PyExc_ValueError, "map_codes: shapes do not match");
+        goto done;
+    }
+    const uint8_t *codes = (const uint8_t *)cb.buf;
+    const float *lut = (const float *)lb.buf;
+    float *out = (float *)ob.buf;
+    const Py_ssize_t rows = cb.len / cols;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        const uint8_t *row = codes + r * cols;
+        float *dst = out + r * cols;
+        for (Py_ssize_t c = 0; c < cols; c++) dst[c] = lut[c * 256 + row[c]];
+    }
+    Py_END_ALLOW_THREADS
+    result = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&lb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
 /* Context-coded streams (format 1.6, learned-rans): one chain, symbol k coded with frequency table ctx[k]
  * of T tables of A symbols each (freqs_u32 holds T * A values, table t at t * A).  Every table must sum
  * to PROB_SCALE (checked here again); a symbol of frequency 0 cannot be encoded.
@@ -910,6 +941,8 @@ static PyMethodDef methods[] = {
      " ...] for 1 or 2 streams"},
     {"column_histograms", column_histograms, METH_VARARGS,
      "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
+    {"map_codes", map_codes, METH_VARARGS,
+     "map_codes(codes_u8, cols, lut_f32, out_f32): out[r, c] = lut[c * 256 + codes[r, c]]"},
     {"encode_ctx", rans_encode_ctx, METH_VARARGS,
      "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
     {"decode_ctx", rans_decode_ctx, METH_VARARGS,

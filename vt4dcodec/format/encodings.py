@@ -26,6 +26,7 @@ The quantization section holds ``scale[0..d)`` then ``offset[0..d)``, little-end
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -198,6 +199,12 @@ def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, ro
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
+_CODES_256 = np.arange(256, dtype=np.float64)
+_native_map: Callable[[np.ndarray, int, np.ndarray, np.ndarray], None] | None
+try:  # the compiled gather of vt4dcodec.format._rans_native (absent: the numpy formula below)
+    from ._rans_native import map_codes as _native_map
+except ImportError:  # pragma: no cover - a build without the extension
+    _native_map = None
 
 
 def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: int, encoding: str) -> np.ndarray:
@@ -210,6 +217,15 @@ def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: i
     top value ``q = 2^b - 1`` is finite, all are; only otherwise is every value checked.
     """
     s64, o64 = scale.astype(np.float64), offset.astype(np.float64)
+    if _native_map is not None and codes.dtype == np.uint8 and codes.ndim == 2 and codes.shape[1] > 0:
+        # the same formula for each column's 256 possible codes, then one gather in C (~4x faster than the
+        # float64 passes over every value); only where every table value is finite
+        with np.errstate(over="ignore", invalid="ignore"):
+            lut = (o64[:, None] + s64[:, None] * _CODES_256[None, :]).astype(np.float32)
+        if np.isfinite(lut).all():
+            out = np.empty(codes.shape, np.float32)
+            _native_map(np.ascontiguousarray(codes), codes.shape[1], lut, out)
+            return out
     q = codes.astype(np.float64)
     q *= s64
     q += o64
