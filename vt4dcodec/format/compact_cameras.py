@@ -443,13 +443,23 @@ def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions
     return _encode(traj, 8)
 
 
+def _self_change_is_noise(traj: Trajectory) -> bool:
+    """Whether the probe test of ``traj`` against itself can only measure rounding: its probe points (depths up
+    to 100 m, rays up to the image's edge) and translations are small enough that binary64 moves them by far
+    less than 1e-5 px (about (f (|t| + 100) + 100 side) x 1e-15 / 0.1 m), so the test would pass."""
+    f = float(np.abs(traj.K[:, :2, :2]).max())
+    t = float(np.abs(traj.w2c[:, :3, 3]).max())
+    return f * (t + 100.0) + 100.0 * max(traj.width, traj.height) < 1e9
+
+
 def _chosen_again(raw: bytes, back: Trajectory, quaternions: bool, fixed: bool) -> bool:
     """Whether the writer, given ``back`` (what ``raw`` decodes to), chooses ``raw`` again.  A float32
     quaternion payload is the first candidate the writer tries for any trajectory outside format 1.6's fixed
     point; when ``back``'s own canonical quaternions encode to ``raw`` it is chosen again (it decodes to
-    ``back`` itself, moving no probe point), without a second tolerance test.  Otherwise the whole choice is
-    made again on ``back``."""
-    if quaternions and not fixed and raw[0] == 4 and raw[1] & QUATERNION_POSES:
+    ``back`` itself, and the tolerance test of a camera against itself measures only rounding where
+    :func:`_self_change_is_noise`), without a second tolerance test.  Otherwise the whole choice is made again
+    on ``back``."""
+    if quaternions and not fixed and raw[0] == 4 and raw[1] & QUATERNION_POSES and _self_change_is_noise(back):
         w2c = back.w2c[:1] if _flags(back) & STATIC_POSE else back.w2c
         q = canonical_float32_quaternions(w2c[:, :3, :3])
         if q is not None and _encode(back, 4, q) == raw:

@@ -202,7 +202,8 @@ _F32_MAX = float(np.finfo(np.float32).max)
 _CODES_256 = np.arange(256, dtype=np.float64)
 _native_map: Callable[[np.ndarray, int, np.ndarray, np.ndarray], None] | None
 try:  # the compiled gather of vt4dcodec.format._rans_native (absent: the numpy formula below)
-    from ._rans_native import map_codes as _native_map
+    from . import _rans_native as _compiled  # (the import form rans.py uses: the import contracts resolve it)
+    _native_map = _compiled.map_codes
 except ImportError:  # pragma: no cover - a build without the extension
     _native_map = None
 
