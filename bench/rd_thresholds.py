@@ -54,7 +54,17 @@ def report(result: dict[str, Any]) -> str:
         lines += _synthetic_lines(result, syn, encs)
     else:
         lines.append(f"Model {result['model']['fingerprint']}; real footage only (--scenes 0).")
-    return _report_tail(result, cal, encs, lines)
+    if cal:
+        row = cal["summary"]["all/captured"]
+        lines += ["", f"Caliscope, {cal['cameras']} cameras in one file ({cal['clips']} clips):", "",
+                  "| level | B / dB | ratio (mean curve) | ratio per clip |", "|---|---|---|---|"]
+        for enc in encs:
+            m, c = _ratio_cells(row, enc)
+            lines.append(f"| {enc} | {row['vt4d'][enc]['bytes']:,.0f} / {row['vt4d'][enc]['psnr']:.2f} | {m} | {c} |")
+    lines += ["", f"Targets: whole capture <= {TARGETS['whole']}x, one camera <= {TARGETS['single']}x, five stored "
+                  f">= {TARGETS['five_psnr']} dB from <= {TARGETS['five_bytes']:,.0f} B, span >= {TARGETS['span']} dB, "
+                  f"caliscope <= {TARGETS['caliscope']}x."]
+    return "\n".join(lines) + "\n"
 
 
 def _synthetic_lines(result: dict[str, Any], syn: dict[str, Any], encs: list[str]) -> list[str]:
@@ -81,20 +91,6 @@ def _synthetic_lines(result: dict[str, Any], syn: dict[str, Any], encs: list[str
         lines += ["", f"Own-view span over the levels {levels[0]}..{levels[-1]}: {max(own) - min(own):.2f} dB "
                       f"(target >= {TARGETS['span']} dB), PSNR {'rising' if rising else 'NOT rising'} with the level."]
     return lines
-
-
-def _report_tail(result: dict[str, Any], cal: dict[str, Any] | None, encs: list[str], lines: list[str]) -> str:
-    if cal:
-        row = cal["summary"]["all/captured"]
-        lines += ["", f"Caliscope, {cal['cameras']} cameras in one file ({cal['clips']} clips):", "",
-                  "| level | B / dB | ratio (mean curve) | ratio per clip |", "|---|---|---|---|"]
-        for enc in encs:
-            m, c = _ratio_cells(row, enc)
-            lines.append(f"| {enc} | {row['vt4d'][enc]['bytes']:,.0f} / {row['vt4d'][enc]['psnr']:.2f} | {m} | {c} |")
-    lines += ["", f"Targets: whole capture <= {TARGETS['whole']}x, one camera <= {TARGETS['single']}x, five stored "
-                  f">= {TARGETS['five_psnr']} dB from <= {TARGETS['five_bytes']:,.0f} B, span >= {TARGETS['span']} dB, "
-                  f"caliscope <= {TARGETS['caliscope']}x."]
-    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -241,7 +241,7 @@ class ModelConfig(_Config):
         earlier channel): a MEAN value is also coded given the sign of its own token's code in the partner
         channel (six more classes, FORMAT.md I.6.2, tables of 11 classes). Channels that move together (one
         pair of channels correlates at 0.9 on q1 codes) cost a fraction once one of them is known. Chosen
-        from token statistics (``python -m vt4dcodec.model.train.partners``). Empty: no partners.
+        from token statistics (``python -m vt4dcodec.model.train.partner_context``). Empty: no partners.
         entropy_rounding: with entropy_levels, the writer's rounding offsets, 3 per level (coarsest first):
         MEAN, CHANGE and DYNAMIC values are stored as ``sign(x) floor(|x| + f)`` of ``x = token / step``
         (``vt4dcodec.format.learned.writer_codes``): f = 1/2 rounds to nearest, a smaller f is a dead zone

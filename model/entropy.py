@@ -40,6 +40,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from vt4dcodec.format.learned import pair_class
+
 __all__ = ["TokenEntropyModel", "BINS", "Q_MAX", "ALPHABET", "MIN_STEP", "MAX_STEP", "MAX_VIEWS", "MEAN", "CHANGE",
            "DYNAMIC", "MEAN_AFTER_NEGATIVE", "MEAN_AFTER_POSITIVE", "MEAN_PARTNER_NEGATIVE", "MEAN_PARTNER_POSITIVE",
            "HALF_RANGE", "PROB_BITS", "bin_probabilities", "frequencies", "symbol_count"]
@@ -176,18 +178,15 @@ class TokenEntropyModel(nn.Module):
         has = prev >= 0
         code = torch.round(z_s.detach()[:, prev.clamp(min=0)] / step)  # (S, N_s, d)
         a = torch.where(has[None, :, None], torch.sign(code), torch.zeros_like(code)).long() + 1  # 0, 1, 2
-        channel = torch.arange(self.token_dim, device=z_s.device)
-        if self.classes == 5:
-            cls_of = torch.tensor([MEAN_AFTER_NEGATIVE, MEAN, MEAN_AFTER_POSITIVE], device=z_s.device)
-            cls = cls_of[a]
-        else:
+        b = torch.ones_like(a)  # no partner: the sign class of 0
+        if self.classes == 11:
             partners = self.partners.long()
             p = partners.clamp(min=0)
             own = torch.round(z_s.detach()[:, :, p] / step[p])  # (S, N_s, d): the partner channel's code
             b = torch.where(partners[None, None, :] >= 0, torch.sign(own), torch.zeros_like(own)).long() + 1
-            table = torch.tensor([[MEAN_PARTNER_NEGATIVE + k, (MEAN_AFTER_NEGATIVE, MEAN, MEAN_AFTER_POSITIVE)[k],
-                                   MEAN_PARTNER_POSITIVE + k] for k in range(3)], device=z_s.device)  # [a][b]
-            cls = table[a, b]
+        table = torch.tensor([[pair_class(i - 1, j - 1) for j in range(3)] for i in range(3)], device=z_s.device)
+        cls = table[a, b]  # FORMAT.md I.6.2's class of a MEAN value (the 5-class rule where b is 1)
+        channel = torch.arange(self.token_dim, device=z_s.device)
         mean = (tab // self.token_dim == MEAN)
         return torch.where(mean, cls * self.token_dim + channel, tab)
 

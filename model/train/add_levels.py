@@ -53,7 +53,9 @@ def add_levels(model: VideoTok4D, ratios: list[float]) -> VideoTok4D:
                     state)
 
 
-_FROZEN = ("entropy.steps", "entropy.freqs", "entropy.origins")
+# buffers that follow from the config and the other weights: the frozen tables (rebuilt by update_entropy) and
+# the partner channels (config.entropy_partners, set when the model is built)
+_FROZEN = ("entropy.steps", "entropy.freqs", "entropy.origins", "entropy.partners")
 
 
 def _trained_state(model: VideoTok4D) -> dict[str, torch.Tensor]:
@@ -65,7 +67,7 @@ def _rebuilt(model: VideoTok4D, cfg: ModelConfig, state: dict[str, torch.Tensor]
     """A model of ``cfg`` with ``state`` (every weight but the frozen tables), its tables frozen again."""
     out = VideoTok4D(cfg)
     missing, unexpected = out.load_state_dict(state, strict=False)
-    if unexpected or set(missing) != set(_FROZEN):
+    if unexpected or set(missing) != {k for k in _FROZEN if k in out.state_dict()}:
         raise ModelError(f"the model does not fit its own config: missing {missing}, unexpected {unexpected}")
     out.decode_steps = model.decode_steps
     out.eval()

@@ -33,7 +33,7 @@ from vt4dcodec.errors import ModelError
 from ..entropy import MEAN, MEAN_AFTER_NEGATIVE, MEAN_AFTER_POSITIVE, MEAN_PARTNER_NEGATIVE
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
-from .add_levels import _trained_state
+from .add_levels import _rebuilt, _trained_state
 
 __all__ = ["choose_partners", "add_partner_context", "fit_mean_densities", "main"]
 
@@ -74,19 +74,10 @@ def add_partner_context(model: VideoTok4D, partners: tuple[int, ...]) -> VideoTo
     if model.config.entropy_partners:
         raise ModelError("the model already has partner channels (config entropy_partners)")
     state = _trained_state(model)
-    state.pop("entropy.partners", None)
     logits = state["entropy.logits"]
     by_sign = [logits[MEAN_AFTER_NEGATIVE], logits[MEAN], logits[MEAN_AFTER_POSITIVE]]
     state["entropy.logits"] = torch.cat([logits, torch.stack(by_sign + by_sign)])
-    cfg = dataclasses.replace(model.config, entropy_partners=tuple(partners))
-    out = VideoTok4D(cfg)
-    missing, unexpected = out.load_state_dict(state, strict=False)
-    if unexpected or set(missing) != {"entropy.steps", "entropy.freqs", "entropy.origins", "entropy.partners"}:
-        raise ModelError(f"the model does not fit its own config: missing {missing}, unexpected {unexpected}")
-    out.decode_steps = model.decode_steps
-    out.eval()
-    out.update_entropy()
-    return out
+    return _rebuilt(model, dataclasses.replace(model.config, entropy_partners=tuple(partners)), state)
 
 
 def fit_mean_densities(model: VideoTok4D, samples: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import io
 import threading
 
@@ -70,13 +71,10 @@ def compress_payload(raw: bytes, level: int | None, *, min_saving: float = 0.0) 
 #: zstd level of sections compressed with the camera dictionary: they are small (a few hundred bytes), so the
 #: strongest level costs nothing that shows and saves ~20 bytes a 10-camera XCAM over level 9
 CAMERA_DICTIONARY_LEVEL = 19
-_camera_dictionary: list[zstandard.ZstdCompressionDict] = []
-
-
+@functools.cache
 def _camera_dict() -> zstandard.ZstdCompressionDict:
-    if not _camera_dictionary:  # a full (ZDICT) dictionary: its entropy tables and content both serve
-        _camera_dictionary.append(zstandard.ZstdCompressionDict(CAMERA_DICTIONARY, dict_type=zstandard.DICT_TYPE_FULLDICT))
-    return _camera_dictionary[0]
+    """The camera dictionary as zstd loads it: a full (ZDICT) dictionary, its entropy tables and content both used."""
+    return zstandard.ZstdCompressionDict(CAMERA_DICTIONARY, dict_type=zstandard.DICT_TYPE_FULLDICT)
 
 
 def compress_with_camera_dictionary(raw: bytes) -> bytes:
@@ -109,8 +107,13 @@ def section_payload(container: BytesLike, entry: SectionEntry, *, check_crc: boo
 _local = threading.local()
 
 
+def _decompressor(dictionary: bool) -> zstandard.ZstdDecompressor:
+    """A zstd decompressor, with the camera dictionary for compression 2."""
+    return zstandard.ZstdDecompressor(dict_data=_camera_dict()) if dictionary else zstandard.ZstdDecompressor()
+
+
 def _new_dctx(dictionary: bool = False) -> zstandard.ZstdDecompressor:
-    dctx = zstandard.ZstdDecompressor(dict_data=_camera_dict()) if dictionary else zstandard.ZstdDecompressor()
+    dctx = _decompressor(dictionary)
     setattr(_local, "dctx_cameras" if dictionary else "dctx", dctx)
     return dctx
 
@@ -141,8 +144,7 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry, *, dictionary: bool =
         if len(out) == entry.raw_length and frame.eof:
             _reject_trailing(frame.unused_data, entry)
             return out
-    fresh = zstandard.ZstdDecompressor(dict_data=_camera_dict()) if dictionary else zstandard.ZstdDecompressor()
-    reader = fresh.stream_reader(io.BytesIO(stored), read_across_frames=False)
+    reader = _decompressor(dictionary).stream_reader(io.BytesIO(stored), read_across_frames=False)
     chunks, total = [], 0
     try:
         while total <= entry.raw_length:
@@ -161,8 +163,7 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry, *, dictionary: bool =
         )
     # The first frame yields exactly raw_length bytes (checked above with bounded reads), so decoding it
     # once more to find where it ends allocates no more than that.
-    again = zstandard.ZstdDecompressor(dict_data=_camera_dict()) if dictionary else zstandard.ZstdDecompressor()
-    frame = again.decompressobj(read_across_frames=False)
+    frame = _decompressor(dictionary).decompressobj(read_across_frames=False)
     try:
         frame.decompress(stored)
     except zstandard.ZstdError as exc:
