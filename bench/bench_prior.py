@@ -14,7 +14,14 @@ same way:
   which can at best reproduce this state;
 * ``encoded_conditioning``: the tokenizer's Z^c = E(V_c, P_c) rendered at every camera -- what the
   tokenizer alone makes of the same single video (no prior);
-* ``mean_tokens``: the prior's training-set mean tokens -- the floor (no information about the event).
+* ``mean_tokens``: the prior's training-set mean tokens (no information about the event);
+* ``flat_image``: every pixel of every view the conditioning video's mean colour -- the floor a user
+  gets from the input alone.
+
+``gap_closed``: how much of the floor-to-ceiling PSNR gap over all cameras the sample closes,
+(co4dgen - flat_image) / (encoded_conditioning - flat_image), from the means and per event (mean +- SE):
+with ``--anchor-camera`` equal to ``--cond-camera`` (the anchor ``source`` of ``vt4d generate``) the
+ceiling is the tokenizer's own encode of the conditioning video.
 
 Timing (one event, measured in this one run, best of ``--repeats``): sampling one state and rendering
 9 trajectories around the anchor, against 9 independent (sample + render one view) runs; wall and
@@ -36,14 +43,14 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 NINE_VIEWS = ["source", "orbit:degrees=10", "orbit:degrees=-10", "orbit:degrees=20", "orbit:degrees=-20",
               "pan:degrees=15", "pan:degrees=-15", "dolly_in:metres=0.3", "tilt:degrees=10"]
-METHODS = ("co4dgen", "encoded_anchor", "encoded_conditioning", "mean_tokens")
+METHODS = ("co4dgen", "encoded_anchor", "encoded_conditioning", "mean_tokens", "flat_image")
 
 
 def quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """PSNR (dB) and SSIM (11x11 Gaussian window) of (T, H, W, 3) uint8 videos."""
     import kornia
 
-    a = torch.from_numpy(pred).permute(0, 3, 1, 2).float() / 255.0
+    a = torch.from_numpy(np.array(pred)).permute(0, 3, 1, 2).float() / 255.0
     b = torch.from_numpy(truth).permute(0, 3, 1, 2).float() / 255.0
     mse = float(((a - b) ** 2).mean().clamp_min(1e-10))
     ssim = float(kornia.metrics.ssim(a, b, 11).mean())
@@ -121,25 +128,59 @@ def load_events(shards: str) -> dict[str, dict[int, dict[str, Any]]]:
     return dict(sorted(events.items()))
 
 
+def parse_samplers(text: str) -> list[tuple[str, int, float]]:
+    """"heun:16,euler:1,heun:16:2" -> [("heun", 16, 1.0), ("euler", 1, 1.0), ("heun", 16, 2.0)] (the third field
+    is the classifier-free guidance, default 1); SystemExit naming --samplers on bad input."""
+    out = []
+    for item in text.split(","):
+        method, steps, *rest = item.strip().split(":") + [""]
+        guidance = rest[0] if len(rest) == 2 else None
+        try:
+            g = 1.0 if not guidance else float(guidance)
+        except ValueError:
+            g = -1.0
+        if method not in ("euler", "heun") or not steps.isdigit() or int(steps) < 1 or len(rest) > 2 \
+                or not 0.0 <= g <= 20.0:
+            raise SystemExit(f"--samplers takes METHOD:STEPS[:GUIDANCE] items (euler or heun, steps >= 1, guidance "
+                             f"in [0, 20]), got {item!r}")
+        out.append((method, int(steps), g))
+    return out
+
+
+def sampler_name(method: str, steps: int, guidance: float) -> str:
+    return f"co4dgen[{method}:{steps}" + ("" if guidance == 1.0 else f":{guidance:g}") + "]"
+
+
 def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
-             render_steps: int, seed: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+             render_steps: int, seed: int, samplers: list[tuple[str, int, float]] | None = None
+             ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """One sample per event with heun:``prior_steps`` ("co4dgen"), and with each extra sampler setting
+    ("co4dgen[euler:1]", ...) from the same seed, every one rendered at every camera beside the references."""
     rows: list[dict[str, Any]] = []
     figure_rows: list[dict[str, Any]] = []
     mean_s = prior.static_mean.expand(1, prior.config.n_static, -1)
     mean_d = prior.dynamic_mean.expand(1, prior.config.n_dynamic, -1)
     for event, cams in events.items():
         clip_c, clip_a = cams[cond_cam]["clip"], cams[anchor_cam]["clip"]
-        z_s, z_d = prior.sample(condition(clip_c, clip_a["K"], clip_a["w2c"]), steps=prior_steps, seed=seed)
-        states = {"co4dgen": (z_s, z_d, clip_a), "encoded_anchor": (cams[anchor_cam]["z_s"], cams[anchor_cam]["z_d"], clip_a),
+        cond = condition(clip_c, clip_a["K"], clip_a["w2c"])
+        z_s, z_d = prior.sample(cond, steps=prior_steps, seed=seed)
+        extra = {sampler_name(m, n, g): (*prior.sample(cond, steps=n, seed=seed, method=m, guidance=g), clip_a)
+                 for m, n, g in samplers or []}
+        states = {"co4dgen": (z_s, z_d, clip_a), **extra, "encoded_anchor": (cams[anchor_cam]["z_s"], cams[anchor_cam]["z_d"], clip_a),
                   "encoded_conditioning": (cams[cond_cam]["z_s"], cams[cond_cam]["z_d"], clip_c),
                   "mean_tokens": (mean_s, mean_d, clip_a)}
         fig = {"event": event, "cond": clip_c["frames"], "truth": {}, "pred": {}}
+        flat = clip_c["frames"].reshape(-1, 3).mean(0).round().astype(np.uint8)
         for k, cam in sorted(cams.items()):
             kind = "anchor" if k == anchor_cam else "conditioning" if k == cond_cam else "other"
             truth = cam["clip"]["frames"]
             fig["truth"][k] = truth
-            for method, (s, d, src) in states.items():
-                pred = render(tokenizer, s, d, cam["clip"]["K"], cam["clip"]["w2c"], render_steps, src)
+            for method in (*METHODS, *extra):
+                if method == "flat_image":
+                    pred = np.broadcast_to(flat, truth.shape)
+                else:
+                    s, d, src = states[method]
+                    pred = render(tokenizer, s, d, cam["clip"]["K"], cam["clip"]["w2c"], render_steps, src)
                 psnr, ssim = quality(pred, truth)
                 rows.append({"event": event, "camera": k, "view": kind, "method": method, "psnr": psnr, "ssim": ssim})
                 if method == "co4dgen":
@@ -149,14 +190,37 @@ def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam
                                         for r in rows if r["event"] == event and r["method"] == "co4dgen"),
               file=sys.stderr)
     summary: dict[str, Any] = {}
-    for method in METHODS:
+    for method in (*METHODS, *(sampler_name(*x) for x in samplers or [])):
         for view in ("anchor", "conditioning", "other", "all"):
             sel = [r for r in rows if r["method"] == method and (view == "all" or r["view"] == view)]
             if sel:
                 summary.setdefault(method, {})[view] = {
                     "psnr_db": round(float(np.mean([r["psnr"] for r in sel])), 3),
                     "ssim": round(float(np.mean([r["ssim"] for r in sel])), 4), "videos": len(sel)}
-    return {"summary": summary, "rows": rows}, figure_rows
+    closed = {"co4dgen": gap_closed(rows)}
+    closed.update({sampler_name(*x): gap_closed(rows, sampler_name(*x)) for x in samplers or []})
+    return {"summary": summary, "rows": rows, "gap_closed": closed}, figure_rows
+
+
+def gap_closed(rows: list[dict[str, Any]], method: str = "co4dgen") -> dict[str, Any]:
+    """Share of the flat-image-to-encode PSNR gap (all cameras) that ``method``'s sample closes: of the
+    means, and per event (mean, standard error, events)."""
+    def event_mean(method: str, event: str) -> float:
+        return float(np.mean([r["psnr"] for r in rows if r["method"] == method and r["event"] == event]))
+
+    events = sorted({r["event"] for r in rows})
+    per_event = []
+    for e in events:
+        gap = event_mean("encoded_conditioning", e) - event_mean("flat_image", e)
+        if gap > 0.25:  # an event where the encode barely beats a flat image says nothing about the gap
+            per_event.append((event_mean(method, e) - event_mean("flat_image", e)) / gap)
+    means = {m: float(np.mean([event_mean(m, e) for e in events])) for m in (method, "encoded_conditioning",
+                                                                              "flat_image")}
+    of_means = (means[method] - means["flat_image"]) / (means["encoded_conditioning"] - means["flat_image"])
+    se = float(np.std(per_event, ddof=1) / np.sqrt(len(per_event))) if len(per_event) > 1 else None
+    return {"of_means": round(of_means, 4), "per_event_mean": round(float(np.mean(per_event)), 4) if per_event
+            else None, "per_event_se": None if se is None else round(se, 4), "events": len(per_event),
+            "events_skipped": len(events) - len(per_event)}
 
 
 def timing(tokenizer: Any, prior: Any, event: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
@@ -244,7 +308,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--events", type=int, default=8, help="held-out events to evaluate")
     parser.add_argument("--cond-camera", type=int, default=0)
     parser.add_argument("--anchor-camera", type=int, default=1)
-    parser.add_argument("--prior-steps", type=int, default=16)
+    parser.add_argument("--prior-steps", type=int, default=16, help="Heun steps of the headline sample")
+    parser.add_argument("--samplers", default="", metavar="METHOD:STEPS,...",
+                        help="further sampler settings to score from the same seed, e.g. euler:1,euler:4,heun:8,heun:16:2 "
+                             "(METHOD:STEPS[:GUIDANCE])")
     parser.add_argument("--render-steps", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best is kept)")
     parser.add_argument("--seed", type=int, default=0)
@@ -257,7 +324,8 @@ def main(argv: list[str] | None = None) -> int:
     events = held_out_events(args.shards, args.events, args.cond_camera, fp)
     t0 = time.perf_counter()
     quality_result, figure_rows = evaluate(tokenizer, prior, events, args.cond_camera, args.anchor_camera,
-                                           args.prior_steps, args.render_steps, args.seed)
+                                           args.prior_steps, args.render_steps, args.seed,
+                                           parse_samplers(args.samplers) if args.samplers else None)
     eval_s = time.perf_counter() - t0
     timing_result = timing(tokenizer, prior, next(iter(events.values())), args.cond_camera, args.anchor_camera,
                            args.prior_steps, args.render_steps, args.repeats)
@@ -268,13 +336,18 @@ def main(argv: list[str] | None = None) -> int:
         "events": list(events), "cond_camera": args.cond_camera, "anchor_camera": args.anchor_camera,
         "prior_steps": args.prior_steps, "render_steps": args.render_steps, "seed": args.seed,
         "threads": args.threads, "evaluation_seconds": round(eval_s, 1),
-        "quality": quality_result["summary"], "per_video": quality_result["rows"], "timing": timing_result,
+        "quality": quality_result["summary"], "gap_closed": quality_result["gap_closed"],
+        "per_video": quality_result["rows"], "timing": timing_result,
     }
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(json.dumps(result, indent=1) + "\n")
     draw_figure(figure_rows, args.figure, args.cond_camera, args.anchor_camera)
     for method, views in result["quality"].items():
         print(f"{method:22s} " + "  ".join(f"{v}: {m['psnr_db']:.2f} dB / {m['ssim']:.3f}" for v, m in views.items()))
+    for method, g in result["gap_closed"].items():
+        print(f"{method}: gap closed (flat image -> encode, all cameras) {100 * g['of_means']:.1f} % of the means; "
+              f"per event {100 * (g['per_event_mean'] or float('nan')):.1f} +- "
+              f"{100 * (g['per_event_se'] or float('nan')):.1f} % ({g['events']} events)")
     t = timing_result
     print(f"9 views from 1 sample: {t['one_sample_nine_views_s']['cpu']:.2f} s CPU; 9 independent samples: "
           f"{t['nine_independent_samples_s']['cpu']:.2f} s CPU -> {t['speedup_cpu']:.2f}x "

@@ -468,6 +468,9 @@ class PriorConfig(_Config):
     Conditioning clip: frames (T), image_size (H = W pixels), cond_patch (pixels per video-token side),
     anchor_grid (anchor-ray tokens per frame side), cond_layers (self-attention blocks of E_cond).
     Denoiser: width (D), heads, mlp_ratio, layers (co-denoising blocks G^l).
+    cond_dropout: the share of training samples whose condition is replaced by a learned null condition,
+    so the prior also learns the unconditional velocity and can sample with classifier-free guidance
+    (0: no null condition; the field's default leaves older configs' hashes unchanged).
     """
 
     name: str = "co4dgen-tiny"
@@ -483,12 +486,17 @@ class PriorConfig(_Config):
     heads: int = 4
     mlp_ratio: float = 2.0
     layers: int = 4
+    cond_dropout: float = 0.0
 
     _KIND: ClassVar[str] = "prior"
+    _LATER_FIELDS: ClassVar[dict[str, Any]] = {"cond_dropout": 0.0}
 
     def __post_init__(self) -> None:
-        _require_positive_ints(self, [f.name for f in dataclasses.fields(self) if f.name not in ("name", "mlp_ratio")],
-                               "prior config")
+        _require_positive_ints(self, [f.name for f in dataclasses.fields(self)
+                                      if f.name not in ("name", "mlp_ratio", "cond_dropout")], "prior config")
+        if isinstance(self.cond_dropout, bool) or not isinstance(self.cond_dropout, (int, float)) \
+                or not 0.0 <= self.cond_dropout < 1.0:
+            raise ModelError(f"prior cond_dropout must lie in [0, 1), got {self.cond_dropout!r}")
         if not isinstance(self.name, str) or not self.name:
             raise ModelError("prior config name must be a non-empty string")
         if self.width % self.heads or self.image_size % self.cond_patch:

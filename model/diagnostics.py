@@ -17,9 +17,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch
 
-__all__ = ["slot_spread", "effective_rank", "saturation", "token_health", "psnr_db", "swap_drop_db"]
+__all__ = ["slot_spread", "effective_rank", "saturation", "token_health", "psnr_db", "swap_drop_db", "video_quality"]
 
 
 def slot_spread(z: torch.Tensor) -> float:
@@ -63,6 +64,16 @@ def psnr_db(video: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     """Per-item PSNR (dB) of videos (B, ...) in [0, 1]."""
     mse = ((video.float() - truth.float()) ** 2).flatten(1).mean(dim=1).clamp_min(1e-10)
     return 10.0 * torch.log10(1.0 / mse)
+
+
+def video_quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """PSNR (dB) and SSIM (kornia, 11x11 Gaussian window, mean over frames) of (T, H, W, 3) uint8 videos."""
+    import kornia
+
+    a = torch.from_numpy(np.ascontiguousarray(pred)).permute(0, 3, 1, 2).float() / 255.0
+    b = torch.from_numpy(np.ascontiguousarray(truth)).permute(0, 3, 1, 2).float() / 255.0
+    psnr = float(psnr_db(a.flatten()[None], b.flatten()[None])[0])
+    return psnr, float(kornia.metrics.ssim(a, b, 11).mean())
 
 
 @torch.no_grad()

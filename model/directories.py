@@ -19,7 +19,7 @@ from vt4dcodec.format import ModelFingerprint
 from .configs import ModelConfig
 
 __all__ = [
-    "check_tokenizer", "read_prior_meta",
+    "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -27,6 +27,48 @@ __all__ = [
 ]
 
 MODEL_FORMAT, PRIOR_FORMAT = "vt4d-model/1", "co4dgen-prior/1"
+
+
+class SamplerSetting(tuple):
+    """(method, steps, guidance) of a prior's sampler: ``"euler"``/``"heun"``, steps >= 1, classifier-free
+    guidance in [0, 20] (1: none).  A prior records the setting chosen for it by measurement in prior.json
+    (``extra.sampler``); ``vt4d generate`` and :func:`vt4dcodec.generate.generate` use it by default."""
+
+    __slots__ = ()
+
+    def __new__(cls, method: str, steps: int, guidance: float = 1.0) -> "SamplerSetting":
+        if method not in ("euler", "heun"):
+            raise ModelError(f"sampler method must be euler or heun, got {method!r}")
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 1000:
+            raise ModelError(f"sampler steps must be an integer in 1..1000, got {steps!r}")
+        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
+            raise ModelError(f"sampler guidance must be a number in [0, 20], got {guidance!r}")
+        return super().__new__(cls, (method, steps, float(guidance)))
+
+    method = property(lambda self: self[0])
+    steps = property(lambda self: self[1])
+    guidance = property(lambda self: self[2])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "steps": self.steps, "guidance": self.guidance}
+
+    def __str__(self) -> str:
+        return f"{self.method}:{self.steps}" + ("" if self.guidance == 1.0 else f":{self.guidance:g}")
+
+
+DEFAULT_SAMPLER = SamplerSetting("heun", 16, 1.0)  # a prior that records none
+
+
+def parse_sampler(text: str) -> SamplerSetting:
+    """``"heun:16"`` or ``"euler:4:1.5"`` (METHOD:STEPS[:GUIDANCE]) -> a :class:`SamplerSetting`."""
+    parts = str(text).strip().split(":")
+    if len(parts) not in (2, 3) or not parts[1].isdigit():
+        raise ModelError(f"a sampler setting is METHOD:STEPS[:GUIDANCE], e.g. heun:16 or euler:4:1.5; got {text!r}")
+    try:
+        guidance = float(parts[2]) if len(parts) == 3 else 1.0
+    except ValueError:
+        raise ModelError(f"sampler guidance must be a number, got {parts[2]!r}") from None
+    return SamplerSetting(parts[0], int(parts[1]), guidance)
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 MODEL_PATH_ENV = "VT4D_MODEL_PATH"  # os.pathsep-separated directories holding user model and prior directories
 CONFIG_FILE, WEIGHTS_FILE, CARD_FILE = "config.json", "model.safetensors", "MODEL_CARD.md"
@@ -123,7 +165,29 @@ def read_prior_meta(directory: Path) -> dict[str, Any]:
         meta["tokenizer"] = ModelFingerprint.from_dict(meta.get("tokenizer"))
     except Exception as exc:  # the format's own validation errors
         raise ModelError(f"{directory / PRIOR_META_FILE}: bad tokenizer fingerprint: {exc}") from None
+    meta["sampler"] = prior_sampler(meta, directory / PRIOR_META_FILE)
     return meta
+
+
+def prior_sampler(meta: dict[str, Any], path: Any) -> SamplerSetting:
+    """The sampler setting prior.json records (``extra.sampler``: method, steps, guidance), or
+    :data:`DEFAULT_SAMPLER`; ModelError naming ``path`` when it is malformed or asks for guidance from a
+    prior without a null condition."""
+    extra = meta.get("extra")
+    recorded = extra.get("sampler") if isinstance(extra, dict) else None
+    if recorded is None:
+        return DEFAULT_SAMPLER
+    try:
+        if not isinstance(recorded, dict) or set(recorded) - {"method", "steps", "guidance", "measured"}:
+            raise ModelError("it must be a map of method, steps, guidance (and measured)")
+        setting = SamplerSetting(recorded.get("method"), recorded.get("steps"), recorded.get("guidance", 1.0))
+    except ModelError as exc:
+        raise ModelError(f"{path}: bad extra.sampler: {exc}") from None
+    config = meta.get("config")
+    if setting.guidance != 1.0 and getattr(config, "cond_dropout", 0.0) <= 0:
+        raise ModelError(f"{path}: extra.sampler asks for guidance {setting.guidance:g} but the prior has no null "
+                         "condition (cond_dropout 0)")
+    return setting
 
 
 def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:

@@ -23,11 +23,11 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
-from .directories import PRIOR_META_FILE, model_directory, read_prior_meta
+from .directories import PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SamplerSetting, model_directory, read_prior_meta
 from .onnx_renderer import TorchNormal
 from .onnx_session import open_checked
 
-__all__ = ["OnnxPrior", "PRIOR_CONDITION_FILE", "PRIOR_VELOCITY_FILE", "PRIOR_ONNX_FORMAT", "CONDITION_INPUTS",
+__all__ = ["OnnxPrior", "read_safetensor", "PRIOR_CONDITION_FILE", "PRIOR_VELOCITY_FILE", "PRIOR_ONNX_FORMAT", "CONDITION_INPUTS",
            "CONDITION_OUTPUTS", "VELOCITY_INPUTS", "VELOCITY_OUTPUTS", "has_onnx_prior", "SAMPLERS"]
 
 PRIOR_CONDITION_FILE, PRIOR_VELOCITY_FILE = "prior-condition.onnx", "prior-velocity.onnx"
@@ -54,7 +54,9 @@ class OnnxPrior:
         self.model_id: str = meta["model_id"]
         self.model_version: str = meta["model_version"]
         self.tokenizer_fingerprint: ModelFingerprint = meta["tokenizer"]
+        self.sampler: SamplerSetting = meta["sampler"]
         self.token_limit = token_limit
+        self._null: np.ndarray | None = None
 
     @classmethod
     def open(cls, model: str | os.PathLike[str], *, threads: int | None = None, device: str = "cpu") -> "OnnxPrior":
@@ -78,14 +80,29 @@ class OnnxPrior:
             raise ModelError(f"{directory / PRIOR_VELOCITY_FILE}: metadata vt4d_token_limit must be a number") from None
         return cls(directory, meta, sessions[0], sessions[1], token_limit, where)
 
+    def null_condition(self) -> np.ndarray:
+        """The learned null condition (D,) float32 of a prior trained with ``cond_dropout``, read from its
+        weights file (the tensor the guided sampler puts in place of every condition token)."""
+        if self._null is None:
+            if self.config.cond_dropout <= 0:
+                raise ModelError("classifier-free guidance needs a prior trained with cond_dropout > 0 (this one has "
+                                 "no null condition); sample with guidance 1")
+            self._null = read_safetensor(self.directory / PRIOR_WEIGHTS_FILE, "null_condition", (self.config.width,))
+        return self._null
+
     def sample(self, frames: np.ndarray, K_c: np.ndarray, w2c_c: np.ndarray, K_a: np.ndarray, w2c_a: np.ndarray, *,
-               steps: int = 16, seed: int = 0, method: str = "heun") -> tuple[np.ndarray, np.ndarray]:
+               steps: int = 16, seed: int = 0, method: str = "heun", guidance: float = 1.0
+               ) -> tuple[np.ndarray, np.ndarray]:
         """``Co4DGen.sample`` of one condition: frames (1, T, 3, H, W) float32 in [0, 1], cameras (1, T, 3, 3) and
-        (1, T, 4, 4) -> (Z_s (1, N_s, d), Z_d (1, N_d, d)) float32 in (-1, 1)."""
+        (1, T, 4, 4) -> (Z_s (1, N_s, d), Z_d (1, N_d, d)) float32 in (-1, 1); ``guidance`` as there."""
         if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         if method not in SAMPLERS:
             raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
+        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
+            raise ModelError(f"guidance must be a number in [0, 20], got {guidance!r}")
+        guidance = float(guidance)
+        null = self.null_condition() if guidance != 1.0 else None
         cfg = self.config
         feed = {n: np.ascontiguousarray(a, np.float32) for n, a in zip(CONDITION_INPUTS, (frames, K_c, w2c_c, K_a, w2c_a))}
         T, H = cfg.frames, cfg.image_size
@@ -99,10 +116,16 @@ class OnnxPrior:
         x_s = noise.randn((1, cfg.n_static, cfg.token_dim))
         x_d = noise.randn((1, cfg.n_dynamic, cfg.token_dim))
 
+        h_null = None if null is None else np.ascontiguousarray(np.broadcast_to(null.astype(h.dtype), h.shape))
+
         def velocity(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-            v_s, v_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h,
-                                                                  "tau": np.full(1, tau, np.float32)})
-            return v_s, v_d
+            t = np.full(1, tau, np.float32)
+            v_s, v_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h, "tau": t})
+            if h_null is None:
+                return v_s, v_d
+            u_s, u_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h_null, "tau": t})
+            g = np.float32(guidance)
+            return u_s + g * (v_s - u_s), u_d + g * (v_d - u_d)
 
         for i in range(steps):  # as Co4DGen.sample: Python-float step sizes, float32 arithmetic
             t0, t1 = 1.0 - i / steps, 1.0 - (i + 1) / steps
@@ -116,3 +139,38 @@ class OnnxPrior:
         limit = np.float32(self.token_limit)
         return (np.clip(x_s * s_std + s_mean, -limit, limit).astype(np.float32),
                 np.clip(x_d * d_std + d_mean, -limit, limit).astype(np.float32))
+
+
+_SAFETENSOR_DTYPES = {"F16": np.float16, "F32": np.float32, "BF16": None}
+
+
+def read_safetensor(path: Path, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """One tensor of a safetensors file as float32, without torch: the 8-byte little-endian header length,
+    the JSON header, then the named tensor's byte range.  ModelError when the file is not a safetensors
+    file, lacks the tensor or holds it with another shape or a dtype other than F16 / F32."""
+    import json
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            if len(head) != 8:
+                raise ValueError("shorter than its header length")
+            n = int.from_bytes(head, "little")
+            if not 2 <= n <= 16 << 20:
+                raise ValueError(f"header length {n} out of range")
+            header = json.loads(f.read(n).decode("utf-8"))
+            entry = header.get(name) if isinstance(header, dict) else None
+            if not isinstance(entry, dict):
+                raise ValueError(f"no tensor {name!r}")
+            dtype = _SAFETENSOR_DTYPES.get(entry.get("dtype"))
+            begin, end = entry.get("data_offsets", (None, None))
+            if dtype is None or list(entry.get("shape", ())) != list(shape) or not isinstance(begin, int) \
+                    or not isinstance(end, int) or end - begin != int(np.prod(shape)) * np.dtype(dtype).itemsize:
+                raise ValueError(f"tensor {name!r} is not a {shape} float16/float32 tensor")
+            f.seek(8 + n + begin)
+            data = f.read(end - begin)
+            if len(data) != end - begin:
+                raise ValueError(f"tensor {name!r} runs past the end of the file")
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise ModelError(f"{path}: {exc}") from None
+    return np.frombuffer(data, dtype=dtype).reshape(shape).astype(np.float32)

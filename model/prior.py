@@ -3,6 +3,7 @@
     prior = Co4DGen(get_prior_config("co4dgen-tiny"))
     loss, logs = prior.flow_matching_loss(z_s, z_d, cond)            # Eq. 9, one training step
     z_s, z_d = prior.sample(cond, steps=16, seed=0, method="heun")  # one joint token state
+    z_s, z_d = prior.sample(cond, guidance=2.0)                      # classifier-free guidance
 
 Training pairs (c != a) of one event: the target is the anchor camera's joint token state
 Z^a = [Z_s^a; Z_d^a] = E(V_a, P_a) (Eq. 8); the condition is (V_c, P_c, P_a) (:class:`PriorCondition`).
@@ -11,6 +12,11 @@ with the weights) and perturbed on the linear path Z_tau = alpha_tau Z + sigma_t
 alpha_tau = 1 - tau, sigma_tau = tau (rectified flow, the renderer's convention); the network predicts
 the velocity v = eps - Z (Eq. 9).  Sampling integrates dZ/dtau = v from tau = 1 (seeded noise) to 0 with
 Euler or Heun steps, un-standardises and clips to the tokenizer's open interval (-1, 1).
+
+A prior configured with ``cond_dropout`` > 0 replaces that share of its training conditions by a learned
+null condition (one vector in place of every condition token), so it also learns the unconditional
+velocity; sampling with ``guidance`` w then follows v_uncond + w (v_cond - v_uncond) (classifier-free
+guidance; w = 1 is the plain conditional sample).
 
 Its configuration, :class:`~vt4dcodec.model.configs.PriorConfig`, sits in ``configs.py`` beside the
 tokenizer's.  Weights: a prior directory holds ``prior.json`` (config, hashes and the fingerprint of the tokenizer the
@@ -31,6 +37,7 @@ from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
+from .directories import DEFAULT_SAMPLER, SamplerSetting
 from .directories import check_tokenizer  # noqa: F401  (torch-free, where the ONNX prior needs it; kept importable here)
 from .identity import ModelIdentity
 from .layers import MLP
@@ -94,6 +101,7 @@ class Co4DGen(ModelIdentity, nn.Module):
     """
 
     tokenizer_fingerprint: ModelFingerprint | None = None
+    sampler: SamplerSetting = DEFAULT_SAMPLER  # the setting prior.json records (set by load_prior)
 
     def __init__(self, cfg: PriorConfig) -> None:
         super().__init__()
@@ -115,6 +123,8 @@ class Co4DGen(ModelIdentity, nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
         # per-stream, per-channel token statistics of the training set (standardisation)
+        if cfg.cond_dropout > 0:
+            self.null_condition = nn.Parameter(torch.zeros(D))
         self.register_buffer("static_mean", torch.zeros(cfg.token_dim))
         self.register_buffer("static_std", torch.ones(cfg.token_dim))
         self.register_buffer("dynamic_mean", torch.zeros(cfg.token_dim))
@@ -187,6 +197,9 @@ class Co4DGen(ModelIdentity, nn.Module):
         tau = torch.rand((B,), generator=generator).to(x_s.device)
         t = tau.view(B, 1, 1)
         h = self.encode_condition(cond)
+        if self.config.cond_dropout > 0 and self.training:
+            drop = (torch.rand((B,), generator=generator) < self.config.cond_dropout).to(h.device)
+            h = torch.where(drop.view(B, 1, 1), self.null_condition.to(h.dtype).expand_as(h), h)
         v_s, v_d = self.velocity((1 - t) * x_s + t * eps_s, (1 - t) * x_d + t * eps_d, h, tau)
         err_s = (v_s.float() - (eps_s - x_s)).pow(2)
         err_d = (v_d.float() - (eps_d - x_d)).pow(2)
@@ -199,19 +212,38 @@ class Co4DGen(ModelIdentity, nn.Module):
         """The training objective (so DistributedDataParallel can wrap the prior)."""
         return self.flow_matching_loss(z_s, z_d, cond, generator)
 
+    def guided_velocity(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor,
+                        guidance: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`velocity` with classifier-free guidance w: v_u + w (v_c - v_u), v_u the velocity under the
+        null condition (one batch of 2B); w = 1 is :meth:`velocity` itself."""
+        if guidance == 1.0:
+            return self.velocity(x_s, x_d, h, tau)
+        B = x_s.shape[0]
+        null = self.null_condition.to(h.dtype).expand_as(h)
+        v_s, v_d = self.velocity(torch.cat([x_s, x_s]), torch.cat([x_d, x_d]), torch.cat([h, null]),
+                                 torch.cat([tau, tau]))
+        return (v_s[B:] + guidance * (v_s[:B] - v_s[B:]), v_d[B:] + guidance * (v_d[:B] - v_d[B:]))
+
     @torch.no_grad()
-    def sample(self, cond: PriorCondition, *, steps: int = 16, seed: int = 0, method: str = "heun"
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(self, cond: PriorCondition, *, steps: int = 16, seed: int = 0, method: str = "heun",
+               guidance: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """Draw one joint token state per condition: (Z_s (B, N_s, d), Z_d (B, N_d, d)) float32 in (-1, 1).
 
         Integrates dx/dtau = v from tau = 1 (noise from ``torch.Generator().manual_seed(seed)``) to 0 in
-        ``steps`` uniform steps, Euler or Heun (2 network evaluations per step except the last).
-        Same condition, seed, steps and method -> the same tokens.
+        ``steps`` uniform steps, Euler or Heun (2 network evaluations per step except the last), with
+        classifier-free guidance ``guidance`` (1: none; other values need a prior trained with
+        ``cond_dropout``).  Same condition, seed, steps, method and guidance -> the same tokens.
         """
         if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         if method not in SAMPLERS:
             raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
+        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
+            raise ModelError(f"guidance must be a number in [0, 20], got {guidance!r}")
+        guidance = float(guidance)
+        if guidance != 1.0 and self.config.cond_dropout <= 0:
+            raise ModelError("classifier-free guidance needs a prior trained with cond_dropout > 0 (this one has no "
+                             "null condition); sample with guidance 1")
         cfg = self.config
         h = self.encode_condition(cond)
         B, device = h.shape[0], h.device
@@ -220,10 +252,10 @@ class Co4DGen(ModelIdentity, nn.Module):
         x_d = torch.randn((B, cfg.n_dynamic, cfg.token_dim), generator=generator).to(device)
         for i in range(steps):
             t0, t1 = 1.0 - i / steps, 1.0 - (i + 1) / steps
-            v_s, v_d = self.velocity(x_s, x_d, h, torch.full((B,), t0, device=device))
+            v_s, v_d = self.guided_velocity(x_s, x_d, h, torch.full((B,), t0, device=device), guidance)
             e_s, e_d = x_s + (t1 - t0) * v_s.float(), x_d + (t1 - t0) * v_d.float()
             if method == "heun" and t1 > 0:
-                w_s, w_d = self.velocity(e_s, e_d, h, torch.full((B,), t1, device=device))
+                w_s, w_d = self.guided_velocity(e_s, e_d, h, torch.full((B,), t1, device=device), guidance)
                 e_s = x_s + (t1 - t0) * 0.5 * (v_s.float() + w_s.float())
                 e_d = x_d + (t1 - t0) * 0.5 * (v_d.float() + w_d.float())
             x_s, x_d = e_s, e_d

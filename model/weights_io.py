@@ -50,7 +50,8 @@ from .configs import DenseConfig, PriorConfig
 from .dense_baseline import DenseViewDiffusion
 from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE, MODEL_FORMAT,
                           MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
-                          model_directory, read_model_meta, read_weights_meta, shipped_model_ids, shipped_prior_ids)
+                          model_directory, read_model_meta, read_prior_meta, read_weights_meta, shipped_model_ids,
+                          shipped_prior_ids)
 from .identity import weights_sha256
 from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
@@ -245,10 +246,12 @@ def _load_bound(name_or_path: str | Path, cls: Any, *, fmt: str, meta_file: str,
 def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
     """A shipped prior id (e.g. "co4dgen-tiny") or a prior directory, verified, in eval mode.
 
-    Its ``model_id``, ``model_version`` and ``tokenizer_fingerprint`` are those recorded in prior.json.
+    Its ``model_id``, ``model_version``, ``tokenizer_fingerprint`` and ``sampler`` (the sampler setting
+    chosen for it, :class:`~.directories.SamplerSetting`) are those recorded in prior.json.
     """
     prior: Co4DGen = _load_bound(name_or_path, Co4DGen, fmt=PRIOR_FORMAT, meta_file=PRIOR_META_FILE,
                                  weights_file=PRIOR_WEIGHTS_FILE, config_type=PriorConfig, device=device)
+    prior.sampler = read_prior_meta(model_directory(name_or_path, PRIOR_META_FILE))["sampler"]
     return prior
 
 

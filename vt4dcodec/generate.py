@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["generate", "load_prior_model", "fit_conditioning", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS", "GENERATED_ENCODING"]
 
 DEFAULT_PRIOR = "co4dgen-tiny"
-DEFAULT_PRIOR_STEPS = 16
+DEFAULT_PRIOR_STEPS = 16  # the steps of a prior that records no sampler setting (model.directories.DEFAULT_SAMPLER)
 # Generated scenes are saved like encoded ones, in codec.DEFAULT_ENCODING (int4 for vt4d-tiny 1.0.0, 0.13.0 and 0.12.0, int4-rans
 # for 0.11.0, int4 for 0.10.0 and 0.9.0, chosen by the rate-distortion rule on encoded scenes; int5-rans for 0.8.0, int4-rans for 0.7.0).  Measured earlier on co4dgen-tiny 0.3.0
 # samples (6 held-out test scenes, camera 0, anchor "source", seed 0, rendered by vt4d-tiny 0.3.0
@@ -116,8 +116,9 @@ def generate(
     *,
     seed: int = 0,
     model: "str | os.PathLike | Co4DGen" = DEFAULT_PRIOR,
-    steps: int = DEFAULT_PRIOR_STEPS,
-    method: str = "heun",
+    steps: int | None = None,
+    method: str | None = None,
+    guidance: float | None = None,
     start: int = 0,
     encoding: str = GENERATED_ENCODING,
     metadata: dict[str, Any] | None = None,
@@ -133,9 +134,11 @@ def generate(
         anchor_trajectory: P_a -- a :class:`Trajectory`, ``"source"`` (P_c itself), a preset spec such as
             ``"orbit:degrees=30"`` built from the first conditioning camera, or a trajectory JSON path;
             it must cover the clip's frames.
-        seed: seeds the prior's noise: same inputs, seed, steps and method -> the same tokens.
+        seed: seeds the prior's noise: same inputs, seed and sampler setting -> the same tokens.
         model: prior id ("co4dgen-tiny"), prior directory, or a loaded prior.
-        steps, method: sampler steps and "euler" / "heun".
+        steps, method, guidance: sampler steps, "euler" / "heun" and classifier-free guidance (1: none);
+            each None takes the setting the prior records (``prior.sampler``, chosen for it by measurement;
+            heun, 16 steps, no guidance for a prior that records none).
         start: first video frame of the clip.
         encoding: token encoding used when the scene is saved (default int4, the codec's default;
             see GENERATED_ENCODING for the measurement on generated tokens).
@@ -152,6 +155,10 @@ def generate(
 
     prior = load_prior_model(model, runtime=runtime, device=device)
     cfg = prior.config
+    recorded = prior.sampler
+    steps = recorded.steps if steps is None else steps
+    method = recorded.method if method is None else method
+    guidance = recorded.guidance if guidance is None else guidance
     frames, cond_traj = fit_conditioning(video, cameras, size=cfg.image_size, frames=cfg.frames, start=start)
     anchor = resolve_trajectory(anchor_trajectory, cond_traj, size=cfg.image_size, max_frames=cfg.frames)
     if anchor.num_frames != cfg.frames:
@@ -161,12 +168,16 @@ def generate(
     if isinstance(prior, OnnxPrior):
         pixels = frames.transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255.0)
         z_s, z_d = prior.sample(pixels[None], *(np.asarray(a, np.float32)[None] for a in (
-            cond_traj.K, cond_traj.w2c, anchor.K, anchor.w2c)), steps=steps, seed=seed, method=method)
+            cond_traj.K, cond_traj.w2c, anchor.K, anchor.w2c)), steps=steps, seed=seed, method=method,
+            guidance=guidance)
     else:
-        z_s, z_d = (t.cpu().numpy() for t in _sample_torch(prior, frames, cond_traj, anchor, steps, seed, method))
+        z_s, z_d = (t.cpu().numpy() for t in _sample_torch(prior, frames, cond_traj, anchor, steps, seed, method,
+                                                             guidance))
     info = {"prior_id": prior.model_id or "unnamed", "prior_version": prior.model_version or "0",
             "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
             "clip_start": int(start), "clip_frames": int(cfg.frames)}
+    if guidance != 1.0:
+        info["guidance"] = float(guidance)
     return Scene(
         static_tokens=z_s[0].astype(np.float32),
         dynamic_tokens=z_d[0].astype(np.float32),
@@ -179,7 +190,7 @@ def generate(
 
 
 def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, anchor: Trajectory, steps: int,
-                  seed: int, method: str) -> tuple[Any, Any]:
+                  seed: int, method: str, guidance: float) -> tuple[Any, Any]:
     """``Co4DGen.sample`` of the fitted clip ``frames`` (T, H, W, 3) uint8 and its trajectories, on the prior's device."""
     import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
 
@@ -194,4 +205,4 @@ def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, a
                           K_c=tensor(cond_traj.K), w2c_c=tensor(cond_traj.w2c), K_a=tensor(anchor.K),
                           w2c_a=tensor(anchor.w2c))
     with torch.no_grad():
-        return prior.sample(cond, steps=steps, seed=seed, method=method)
+        return prior.sample(cond, steps=steps, seed=seed, method=method, guidance=guidance)

@@ -1,11 +1,12 @@
 """Shared training machinery: distributed setup (torchrun, gloo), resumable checkpoints without
-pickle, a JSONL log, the loss-curve PNG, bf16 autocast, the device batches go to, a wall-clock budget
-and the progress bar.
+pickle, a JSONL log, the loss-curve PNG, bf16 autocast, the device batches go to, a wall-clock budget,
+an exponential moving average of the weights, periodic validation and the progress bar.
 
 Checkpoint layout (``<out>/checkpoint/``): ``model.safetensors`` (the module's state dict),
 ``optimizer.pt`` (``torch.save`` of the optimizer state dict; read back with
-``torch.load(weights_only=True)``, which refuses arbitrary objects), and ``state.json`` (step, args,
-RNG seed) written last, so a checkpoint without ``state.json`` is ignored as incomplete.
+``torch.load(weights_only=True)``, which refuses arbitrary objects), ``ema.safetensors`` (the moving
+average, for runs that keep one) and ``state.json`` (step, args, RNG seed) written last, so a checkpoint
+without ``state.json`` is ignored as incomplete.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -39,7 +40,7 @@ from .data import ScenePool, rank_seeds
 __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "shard_model_arguments", "cycle",
-    "parse_overrides", "lr_at", "train_loop", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
+    "parse_overrides", "lr_at", "train_loop", "WeightAverage", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
 ]
 
 
@@ -153,9 +154,54 @@ def _atomic_write(path: Path, write) -> None:
     os.replace(tmp, path)
 
 
+class WeightAverage:
+    """Exponential moving average of a module's floating-point state (parameters and buffers), in float32.
+
+    ``update(module)`` after each optimizer step: avg <- d avg + (1 - d) w with d = min(decay, (1 + n) /
+    (10 + n)) after n updates, so the first steps are not dominated by the initial weights.  ``copy_to``
+    writes the average into a module of the same architecture (for validation and the saved model);
+    non-float entries (integer buffers) are copied as they are.
+    """
+
+    def __init__(self, module: nn.Module, decay: float) -> None:
+        if not 0.0 < decay < 1.0:
+            raise ModelError(f"the weight-average decay must lie in (0, 1), got {decay!r}")
+        self.decay = float(decay)
+        self.updates = 0
+        self.shadow = {k: v.detach().float().clone() if v.is_floating_point() else v.detach().clone()
+                       for k, v in module.state_dict().items()}
+
+    @torch.no_grad()
+    def update(self, module: nn.Module) -> None:
+        d = min(self.decay, (1 + self.updates) / (10 + self.updates))
+        for k, v in module.state_dict().items():
+            avg = self.shadow[k]
+            if avg.is_floating_point():
+                avg.mul_(d).add_(v.detach().float(), alpha=1.0 - d)
+            else:
+                avg.copy_(v)
+        self.updates += 1
+
+    @torch.no_grad()
+    def copy_to(self, module: nn.Module) -> None:
+        state = module.state_dict()
+        module.load_state_dict({k: self.shadow[k].to(state[k].dtype) for k in state}, strict=True)
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {k: v.contiguous().clone() for k, v in self.shadow.items()}
+
+    def load(self, tensors: dict[str, torch.Tensor], updates: int) -> None:
+        if set(tensors) != set(self.shadow):
+            raise ModelError("the checkpoint's weight average does not match the model's state")
+        self.shadow = {k: (v.detach().float() if v.is_floating_point() else v.detach()).clone()
+                       for k, v in tensors.items()}
+        self.updates = int(updates)
+
+
 def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer, step: int,
-                    extra: dict[str, Any]) -> None:
-    """Write model (safetensors), optimizer (weights-only torch.save) and state.json, atomically each."""
+                    extra: dict[str, Any], average: WeightAverage | None = None) -> None:
+    """Write model (safetensors), optimizer (weights-only torch.save), the weight average when there is
+    one, and state.json, atomically each."""
     directory.mkdir(parents=True, exist_ok=True)
     state_json = directory / "state.json"
     if state_json.exists():
@@ -163,6 +209,10 @@ def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     tensors = {k: v.detach().cpu().contiguous().clone() for k, v in module.state_dict().items()}
     _atomic_write(directory / "model.safetensors", lambda p: save_file(tensors, str(p)))
     _atomic_write(directory / "optimizer.pt", lambda p: torch.save(optimizer.state_dict(), p))
+    if average is not None:
+        shadow = average.tensors()
+        _atomic_write(directory / "ema.safetensors", lambda p: save_file(shadow, str(p)))
+        extra = {**extra, "ema_updates": average.updates, "ema_decay": average.decay}
     payload = {"step": int(step), "time": time.time(), **extra}
     _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
 
@@ -195,9 +245,11 @@ def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
     return model.eval(), state
 
 
-def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None
-                    ) -> dict[str, Any] | None:
+def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None,
+                    average: WeightAverage | None = None) -> dict[str, Any] | None:
     """Restore a checkpoint written by :func:`save_checkpoint`; None when there is no complete one.
+    ``average`` is restored from ``ema.safetensors``, or started from the restored weights when the
+    checkpoint has none (a run that kept no average before).
 
     A checkpoint without ``optimizer.pt`` (the weights and state.json committed to carry a run to
     another machine, ``checkpoints/README.md``) restores the weights and leaves ``optimizer`` fresh; the
@@ -213,6 +265,11 @@ def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
                 optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))
             else:
                 state["fresh_optimizer"] = True
+        if average is not None:
+            if (directory / "ema.safetensors").is_file():
+                average.load(load_file(str(directory / "ema.safetensors")), state.get("ema_updates", 0))
+            else:
+                average.load(module.state_dict(), 0)
     except (OSError, ValueError, RuntimeError, KeyError) as exc:
         raise ModelError(f"cannot resume from {directory}: {exc}") from None
     return state
@@ -349,7 +406,9 @@ def lr_at(step: int, base: float, warmup: int, total: int) -> float:
 
 def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trained: nn.Module,
                optimizer: torch.optim.Optimizer, batches: Iterator[Any], step_fn, *, title: str,
-               extra_state: dict[str, Any], device: torch.device | None = None) -> list[dict[str, Any]]:
+               extra_state: dict[str, Any], device: torch.device | None = None,
+               average: WeightAverage | None = None, validate: Callable[[int], dict[str, Any]] | None = None,
+               validate_every: int = 0) -> list[dict[str, Any]]:
     """Run optimizer steps up to ``args.steps``, resuming from ``<out>/checkpoint``.
 
     ``device``: where the batches go (the modules must already be there); default CPU. With
@@ -362,18 +421,25 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
     which ``step_fn(module, batch) -> (loss, logs)`` calls). Rank 0 logs every ``log_every`` steps to
     ``<out>/log.jsonl`` (losses averaged over ranks), checkpoints every ``ckpt_every`` steps and at
     the end, and draws ``<out>/loss.png``. Returns the log records.
+
+    ``average`` (optional) is updated after every optimizer step and checkpointed with the weights.
+    ``validate(step) -> metrics`` (optional, rank 0) runs every ``validate_every`` steps and at the last
+    step; its records go to ``<out>/val.jsonl`` (trimmed to the checkpoint on resume like the log).
     """
     out: Path = args.out
     ckpt = out / "checkpoint"
-    state = load_checkpoint(ckpt, trained, optimizer)
+    state = load_checkpoint(ckpt, trained, optimizer, average)
     start = int(state["step"]) if state else 0
     rewarm = bool(state and state.get("fresh_optimizer")) and start > 0
     if rewarm and info.is_main:  # Adam's moments start over: ramp the schedule's rate up again
         print(f"resuming at step {start} without optimizer state: learning rate re-warmed over {args.warmup} steps")
     log = JsonlLog(out / "log.jsonl", enabled=info.is_main)
+    val_log = JsonlLog(out / "val.jsonl", enabled=info.is_main and validate is not None)
     if info.is_main:  # drop records a crash left after the last checkpoint
-        kept = [r for r in log.read() if r.get("step", -1) <= start]
-        log.path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept))
+        for kept_log in (log, val_log):
+            if kept_log.enabled:
+                kept = [r for r in kept_log.read() if r.get("step", -1) <= start]
+                kept_log.path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept))
     bar = tqdm(range(start, args.steps), initial=start, total=args.steps, desc=title,
                disable=args.no_progress or not info.is_main, dynamic_ncols=True)
     window: list[float] = []
@@ -401,6 +467,8 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_([p for p in trained.parameters() if p.requires_grad], 1.0)
         optimizer.step()
+        if average is not None:
+            average.update(trained)
         window.append(float(loss.detach()))
         out_of_time = budget is not None and time.time() - t0 >= budget
         if budget is not None and info.distributed:  # every rank takes part, and stops at the same step
@@ -420,9 +488,16 @@ def train_loop(args: argparse.Namespace, info: DistInfo, module: nn.Module, trai
             log.write(record)
             bar.set_postfix(loss=f"{float(mean):.4f}")
             window.clear()
+        if validate is not None and info.is_main and ((validate_every > 0 and (step + 1) % validate_every == 0)
+                                                      or last):
+            t_val = time.time()
+            metrics = validate(step + 1)
+            val_log.write({"step": step + 1, **metrics, "seconds": round(time.time() - t_val, 2)})
+            module.train()
         if (step + 1) % args.ckpt_every == 0 or last:
             if info.is_main:
-                save_checkpoint(ckpt, trained, optimizer, step + 1, {"args": _jsonable(vars(args)), **extra_state})
+                save_checkpoint(ckpt, trained, optimizer, step + 1, {"args": _jsonable(vars(args)), **extra_state},
+                                average)
             if info.distributed:
                 dist.barrier()
         if out_of_time or stop_here:

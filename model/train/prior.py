@@ -6,10 +6,20 @@
 The data path is the one users take at scale: token shards written by
 :mod:`model.train.tokenize_scenes` are read through :class:`vt4dcodec.data.archive_dataset.ArchiveDataset`
 (anchor tokens Z^a and cameras P_a) and the conditioning clips (V_c, P_c) through their sidecars.
-One sample is an ordered pair (anchor record a, conditioning clip c != a) of the same event; the
-dataset enumerates every such pair.  Every record must carry the same tokenizer fingerprint, which the
-finished prior records (``save_prior``), so it is only ever used with that tokenizer.
-The loop, checkpoints, log and loss plot are :mod:`model.train.common`'s.
+One sample is an ordered pair (anchor record a, conditioning clip c) of the same event; the dataset
+enumerates every such pair, with c != a as in the paper (``--anchors distinct``) or also the pairs whose
+anchor is the conditioning camera itself (``--anchors all``, the default: ``vt4d generate``'s default
+anchor is the source camera, so the prior is trained on that case too).  Every record must carry the same
+tokenizer fingerprint, which the finished prior records (``save_prior``), so it is only ever used with
+that tokenizer.
+
+The loop, checkpoints, log and loss plot are :mod:`model.train.common`'s.  With ``--ema-decay`` the run
+keeps an exponential moving average of the weights, which validation samples with and the finished prior
+is saved from.  With ``--val-shards`` (test-split shards by the same tokenizer) it validates every
+``--val-every`` steps (:class:`SampleValidation`): one sample per held-out event from camera 0's video,
+anchored at camera 0, rendered at every camera of the event, scored against the ground truth between the
+floor (a flat image of the video's mean colour) and the ceiling (the tokenizer's own encode of the video);
+the curve is ``<out>/val.jsonl`` and ``<out>/val.png``.
 """
 
 from __future__ import annotations
@@ -32,11 +42,14 @@ from vt4dcodec.format import ModelFingerprint
 from ..configs import PriorConfig, get_prior_config
 from ..prior import Co4DGen, PriorCondition
 from ..weights_io import save_prior
-from .common import (cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything, setup_distributed,
-                     shard_model_arguments, train_loop)
+from .common import (JsonlLog, WeightAverage, cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything,
+                     setup_distributed, shard_model_arguments, train_loop)
 from .tokenize_scenes import ClipStore
 
-__all__ = ["PriorPairDataset", "PriorBatch", "collate_prior", "token_statistics", "model_card", "main"]
+__all__ = ["PriorPairDataset", "PriorBatch", "collate_prior", "token_statistics", "model_card", "SampleValidation",
+           "ANCHORS", "main"]
+
+ANCHORS = ("all", "distinct")
 
 
 @dataclass
@@ -50,11 +63,15 @@ class PriorBatch:
 
 
 class PriorPairDataset(Dataset):
-    """All ordered (anchor record, conditioning clip of another camera of the same event) pairs of some
-    token shards.  Item: dict with ``z_s``, ``z_d``, ``K_a``, ``w2c_a`` (tensors of the anchor record),
-    ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, and the two keys."""
+    """All ordered (anchor record, conditioning clip of the same event) pairs of some token shards: the
+    clips of the other cameras (``anchors="distinct"``, the paper's pairs) or of every camera including
+    the anchor's own (``anchors="all"``).  Item: dict with ``z_s``, ``z_d``, ``K_a``, ``w2c_a`` (tensors of
+    the anchor record), ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, and the
+    two keys."""
 
-    def __init__(self, shards: Any) -> None:
+    def __init__(self, shards: Any, anchors: str = "distinct") -> None:
+        if anchors not in ANCHORS:
+            raise ModelError(f"anchors must be one of {ANCHORS}, got {anchors!r}")
         self.tokens = ArchiveDataset(shards)
         if len(self.tokens) == 0:
             raise ModelError(f"no token records in {shards}")
@@ -65,6 +82,10 @@ class PriorPairDataset(Dataset):
             others = [k for k in self._event_clips(event) if k != key]
             if not event or not others:
                 raise ModelError(f"token record {key!r} has no conditioning clip of another camera")
+            if anchors == "all":
+                if key not in self.clips:
+                    raise ModelError(f"token record {key!r} has no clip of its own camera")
+                others = sorted(others + [key])
             self.pairs.extend((i, k) for k in others)
 
     def _event_clips(self, event: str) -> list[str]:
@@ -149,6 +170,129 @@ tokenizer's renderer along any trajectory: `vt4d generate CAPTURE --anchor PRESE
 """
 
 
+class SampleValidation:
+    """Sample quality on held-out events during training, against the floor and ceiling of each event.
+
+    For each of the first ``events`` events of ``shards`` (test split, tokenized by ``tokenizer``): one
+    sample (``steps`` Heun steps, seed 0) conditioned on camera 0's video and anchored at camera 0, rendered
+    by the tokenizer at every camera of the event.  Reported (means over every rendered video): PSNR and
+    SSIM of the sample, of the ceiling (camera 0's own record, E(V_0, P_0), rendered the same way) and of
+    the floor (every pixel the conditioning video's mean colour), ``gap_closed`` = (sample - floor) /
+    (ceiling - floor) of the mean PSNRs, and the own view's SSIM beside the ceiling's.  ``average`` (a
+    :class:`WeightAverage`) is what is sampled when given; ``prior``'s own weights are left unchanged.
+    """
+
+    def __init__(self, shards: Any, tokenizer: Any, events: int = 8, steps: int = 16) -> None:
+        from ..diagnostics import video_quality
+
+        self._quality = video_quality
+        self.tokenizer, self.steps = tokenizer, int(steps)
+        stored = tokenizer.stored_fingerprint()
+        fingerprint = stored.to_dict()
+        dataset = ArchiveDataset(shards)
+        clips = ClipStore(dataset.shards)
+        by_event: dict[str, dict[int, dict[str, Any]]] = {}
+        for i in range(len(dataset)):
+            sample = dataset[i]
+            if sample["metadata"]["fingerprint"] != fingerprint:
+                raise ModelError(f"validation record {sample['key']} was not tokenized by {stored.short()}")
+            meta = sample["metadata"]["user"]["co4dgen"]
+            by_event.setdefault(meta["event"], {})[int(meta["camera"])] = {
+                "z_s": sample["static_tokens"].float(), "z_d": sample["dynamic_tokens"].float(),
+                "clip": clips.load(sample["key"])}
+        chosen = sorted(by_event)[:events]
+        if not chosen or any(0 not in by_event[e] or len(by_event[e]) < 2 for e in chosen):
+            raise ModelError(f"validation needs events with a camera 0 and another camera in {shards}")
+        self.events = [[by_event[e][k] for k in sorted(by_event[e])] for e in chosen]
+        self.names = chosen
+        self.truth = [np.stack([cam["clip"]["frames"] for cam in cams]) for cams in self.events]
+        self.floor = [np.broadcast_to(cams[0]["clip"]["frames"].reshape(-1, 3).mean(0).round().astype(np.uint8),
+                                      t.shape) for cams, t in zip(self.events, self.truth)]
+        self.ceiling = [self._render(cams, cams[0]["z_s"][None], cams[0]["z_d"][None]) for cams in self.events]
+        self.reference = {"ceiling": self._score(self.ceiling), "floor": self._score(self.floor)}
+
+    def _render(self, cams: list[dict[str, Any]], z_s: torch.Tensor, z_d: torch.Tensor) -> np.ndarray:
+        """Tokens (1, N, d) of camera 0 rendered at every camera: (V, T, H, W, 3) uint8."""
+        V = len(cams)
+        K = torch.from_numpy(np.stack([c["clip"]["K"] for c in cams])).float()
+        w2c = torch.from_numpy(np.stack([c["clip"]["w2c"] for c in cams])).float()
+        src = cams[0]["clip"]
+        source = (torch.from_numpy(src["K"]).float()[None].expand(V, -1, -1, -1),
+                  torch.from_numpy(src["w2c"]).float()[None].expand(V, -1, -1, -1))
+        with torch.no_grad():
+            frames = self.tokenizer.render(z_s.expand(V, -1, -1), z_d.expand(V, -1, -1), K, w2c, seed=0,
+                                           source=source)
+        return (frames.permute(0, 1, 3, 4, 2).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+
+    def _score(self, videos: list[np.ndarray]) -> dict[str, float]:
+        psnr, ssim, own = [], [], []
+        for pred, truth in zip(videos, self.truth):
+            for v in range(truth.shape[0]):
+                p, q = self._quality(pred[v], truth[v])
+                psnr.append(p)
+                ssim.append(q)
+                if v == 0:
+                    own.append(q)
+        return {"psnr": float(np.mean(psnr)), "ssim": float(np.mean(ssim)), "own_ssim": float(np.mean(own))}
+
+    def sample(self, prior: Co4DGen) -> list[np.ndarray]:
+        prior.eval()
+        out = []
+        for cams in self.events:
+            clip = cams[0]["clip"]
+            K = torch.from_numpy(clip["K"]).float()[None]
+            w2c = torch.from_numpy(clip["w2c"]).float()[None]
+            frames = torch.from_numpy(clip["frames"]).permute(0, 3, 1, 2).float().div(255.0)[None]
+            z_s, z_d = prior.sample(PriorCondition(frames=frames, K_c=K, w2c_c=w2c, K_a=K, w2c_a=w2c),
+                                    steps=self.steps, seed=0)
+            out.append(self._render(cams, z_s, z_d))
+        return out
+
+    def __call__(self, prior: Co4DGen, average: WeightAverage | None = None) -> dict[str, float]:
+        model = prior
+        if average is not None:
+            model = Co4DGen(prior.config)
+            average.copy_to(model)
+        got = self._score(self.sample(model))
+        ceiling, floor = self.reference["ceiling"], self.reference["floor"]
+        gap = ceiling["psnr"] - floor["psnr"]
+        return {"val_psnr": round(got["psnr"], 3), "val_ssim": round(got["ssim"], 4),
+                "val_own_ssim": round(got["own_ssim"], 4),
+                "gap_closed": round((got["psnr"] - floor["psnr"]) / gap, 4) if gap > 0 else float("nan"),
+                "ceiling_psnr": round(ceiling["psnr"], 3), "ceiling_own_ssim": round(ceiling["own_ssim"], 4),
+                "floor_psnr": round(floor["psnr"], 3), "events": len(self.events)}
+
+
+def plot_validation(records: list[dict[str, Any]], png: Any, title: str) -> None:
+    """The validation curve: sample PSNR against step between the ceiling and the floor, and the own
+    view's SSIM against the ceiling's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not records:
+        return
+    steps = [r["step"] for r in records]
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), dpi=100)
+    panels = [("PSNR (dB)", [("val_psnr", "o-", "C0", "sample, all cameras"),
+                             ("ceiling_psnr", "--", "C2", "ceiling: the encode"),
+                             ("floor_psnr", "--", "0.5", "floor: flat image")]),
+              ("SSIM", [("val_own_ssim", "o-", "C1", "sample, own view"),
+                        ("ceiling_own_ssim", "--", "C2", "the encode, own view")])]
+    for ax, (ylabel, lines) in zip(axes, panels):
+        for key, style, colour, label in lines:
+            ax.plot(steps, [r[key] for r in records], style, color=colour, label=label)
+        ax.set_xlabel("step")
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
 def _prior_step(module: torch.nn.Module, batch: PriorBatch) -> tuple[torch.Tensor, dict[str, float]]:
     return module(batch.z_s, batch.z_d, batch.cond)
 
@@ -158,6 +302,19 @@ def arguments() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     shard_model_arguments(parser, what="prior", config="co4dgen-tiny", model_id="co4dgen-tiny",
                           model_version="0.1.0", ckpt_every=250)
+    parser.add_argument("--anchors", choices=ANCHORS, default="all",
+                        help="training pairs: every (anchor, conditioning camera) pair of an event, the anchor "
+                             "itself included (all, default), or only distinct cameras (the paper's pairs)")
+    parser.add_argument("--ema-decay", type=float, default=0.999,
+                        help="keep an exponential moving average of the weights with this decay; validation "
+                             "and the saved prior use it (0: none, the last weights)")
+    parser.add_argument("--val-shards", default=None, help="test-split shards by the same tokenizer to validate on")
+    parser.add_argument("--val-events", type=int, default=8, help="held-out events per validation")
+    parser.add_argument("--val-every", type=int, default=500, help="validate every N steps (and at the end)")
+    parser.add_argument("--val-steps", type=int, default=16, help="sampler steps of a validation sample")
+    parser.add_argument("--tokenizer", default=None,
+                        help="the tokenizer that wrote the shards, to render validation samples (default: the "
+                             "shipped model the shards' fingerprint names)")
     return parser
 
 
@@ -167,7 +324,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
     args.out.mkdir(parents=True, exist_ok=True)
-    dataset = PriorPairDataset(args.shards)
+    if args.ema_decay and not 0.0 < args.ema_decay < 1.0:
+        raise ModelError(f"--ema-decay must lie in (0, 1) or be 0, got {args.ema_decay}")
+    dataset = PriorPairDataset(args.shards, anchors=args.anchors)
     all_s, all_d, fp_dict = token_statistics(dataset)
     cfg = get_prior_config(args.config, **parse_overrides(args.set))
     first = dataset.tokens[0]["metadata"]  # the token state and clip sizes come from the data
@@ -178,13 +337,39 @@ def main(argv: list[str] | None = None) -> int:
     prior.set_token_statistics(all_s, all_d)
     optimizer = torch.optim.AdamW(prior.parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(prior) if info.distributed else prior
+    average = WeightAverage(prior, args.ema_decay) if args.ema_decay else None
+    validate = None
+    if args.val_shards and info.is_main:
+        from ..weights_io import from_pretrained
+
+        tokenizer = from_pretrained(args.tokenizer or fp_dict["model_id"])
+        if tokenizer.stored_fingerprint().to_dict() != fp_dict:
+            raise ModelError(f"--tokenizer {tokenizer.stored_fingerprint().short()} did not write the training shards "
+                             f"({fp_dict['model_id']}@{fp_dict['model_version']})")
+        validation = SampleValidation(args.val_shards, tokenizer, args.val_events, args.val_steps)
+        print(f"validation on {len(validation.events)} held-out events: ceiling "
+              f"{validation.reference['ceiling']['psnr']:.2f} dB, floor {validation.reference['floor']['psnr']:.2f} dB")
+
+        def validate(step: int) -> dict[str, Any]:
+            metrics = validation(prior, average)
+            print(f"step {step}: sample {metrics['val_psnr']:.2f} dB ({100 * metrics['gap_closed']:.0f} % of the "
+                  f"gap), own-view SSIM {metrics['val_own_ssim']:.3f} (encode {metrics['ceiling_own_ssim']:.3f})")
+            return metrics
+
     batches = cycle(make_loader(dataset, args, info, collate_fn=collate_prior))
     records = train_loop(args, info, module, prior, optimizer, batches, _prior_step, title="Co4DGen prior",
-                         extra_state={"config": cfg.to_dict(), "tokenizer": fp_dict})
+                         extra_state={"config": cfg.to_dict(), "tokenizer": fp_dict}, average=average,
+                         validate=validate, validate_every=args.val_every)
+    if info.is_main and validate is not None:
+        plot_validation(JsonlLog(args.out / "val.jsonl").read(), args.out / "val.png",
+                        f"Co4DGen validation ({args.out.name})")
     if info.is_main:
+        if average is not None:
+            average.copy_to(prior)  # the saved prior is the weight average
         tokenizer = ModelFingerprint.from_dict(fp_dict)
         training = {"shards": str(args.shards), "pairs": len(dataset), "records": len(dataset.tokens),
-                    "steps": args.steps, "batch_size": args.batch_size,
+                    "steps": args.steps, "batch_size": args.batch_size, "anchors": args.anchors,
+                    "ema_decay": args.ema_decay, "lr": args.lr,
                     "first_loss": records[0]["loss"] if records else None,
                     "final_loss": records[-1]["loss"] if records else None,
                     "seconds": records[-1].get("elapsed_s") if records else None}

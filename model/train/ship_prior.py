@@ -1,10 +1,13 @@
 """Ship a trained Co4DGen prior: a training run's prior directory -> ``model/weights/<id>/`` in float16.
 
-    python -m vt4dcodec.model.train.ship_prior runs/co4dgen/prior [--dest model/weights]
+    python -m vt4dcodec.model.train.ship_prior runs/co4dgen/prior [--dest model/weights] \
+        [--sampler euler:4 --measured "bench/bench_prior.py ... -> results.json"]
 
 The prior's id and version, the fingerprint of the tokenizer it was trained on, its extra records and its
 model card are kept; its weights are rounded to float16 (half the file; what is saved, loaded and hashed is
-the same prior) and the destination directory is replaced. The tokenizer it names must be shipped in
+the same prior) and the destination directory is replaced.  ``--sampler`` records the sampler setting
+chosen for the prior by measurement (prior.json ``extra.sampler``, with ``--measured`` naming the
+measurement), which ``vt4d generate`` then uses by default. The tokenizer it names must be shipped in
 ``--dest`` with that very fingerprint: a prior trained on another tokenizer's tokens is refused.
 """
 
@@ -18,19 +21,30 @@ from pathlib import Path
 
 from vt4dcodec.errors import ModelError
 
-from ..directories import CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, read_model_meta
+from ..directories import (CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, parse_sampler,
+                           prior_sampler, read_model_meta)
 from ..onnx_export import export_prior
 from ..weights_io import load_prior, save_prior
 
 __all__ = ["ship_prior"]
 
 
-def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR) -> Path:
+def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR, *, sampler: str | None = None,
+               measured: str | None = None) -> Path:
     """Store the prior directory ``source`` as ``dest/<its model_id>`` (float16); returns that directory.
-    ModelError when the tokenizer it was trained on is not shipped in ``dest`` with the same fingerprint."""
+    ``sampler`` ("heun:16", "euler:4:1.5") is recorded as the prior's default sampler setting, with
+    ``measured`` (how it was chosen).  ModelError when the tokenizer it was trained on is not shipped in
+    ``dest`` with the same fingerprint, or the setting is malformed or asks a prior without a null condition
+    for guidance."""
     source, dest = Path(source), Path(dest)
     prior = load_prior(source)
     meta = json.loads((source / PRIOR_META_FILE).read_text(encoding="utf-8"))
+    if sampler is not None:
+        setting = parse_sampler(sampler).to_dict()
+        if measured:
+            setting["measured"] = str(measured)
+        meta["extra"] = {**(meta.get("extra") or {}), "sampler": setting}
+        prior_sampler({"extra": meta["extra"], "config": prior.config}, f"--sampler {sampler}")
     tokenizer = prior.tokenizer_fingerprint
     tokenizer_dir = dest / tokenizer.model_id
     if not (tokenizer_dir / CONFIG_FILE).is_file():
@@ -55,9 +69,12 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("prior", type=Path, help="the prior directory a training run wrote (<out>/prior)")
     parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="directory of shipped models")
+    parser.add_argument("--sampler", default=None, metavar="METHOD:STEPS[:GUIDANCE]",
+                        help="record this sampler setting as the prior's default (chosen by measurement)")
+    parser.add_argument("--measured", default=None, help="the measurement that chose --sampler (command, results file)")
     args = parser.parse_args(argv)
     try:
-        out = ship_prior(args.prior, args.dest)
+        out = ship_prior(args.prior, args.dest, sampler=args.sampler, measured=args.measured)
     except ModelError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -23,8 +23,11 @@ def _stand_in_prior(monkeypatch):
 
     fp = make_scene().fingerprint
     decoder = StandInDecoder(monkeypatch)
+    from vt4dcodec.model.directories import DEFAULT_SAMPLER
+
     monkeypatch.setattr(generate_commands, "load_prior_model", lambda name, **where: SimpleNamespace(
-        model_id="p", model_version="1", tokenizer_fingerprint=fp))
+        model_id="p", model_version="1", tokenizer_fingerprint=fp, sampler=DEFAULT_SAMPLER,
+        config=SimpleNamespace(cond_dropout=0.0)))
     monkeypatch.setattr(generate_commands, "load_renderer", lambda name, *runtime, **where: SimpleNamespace(decode_steps=1))
     monkeypatch.setattr(prior_module, "check_tokenizer", lambda prior, fingerprint: None)
     monkeypatch.setattr(generate_commands, "model_fingerprint", lambda model: fp)

@@ -18,11 +18,30 @@ def test_bench_prior_reports_quality_of_every_method_and_the_nine_view_timing(sh
     results, figure = tmp_path / "prior.json", tmp_path / "co4dgen.png"
     assert bench.main(["--shards", str(shards), "--prior", str(trained_prior / "prior"), "--events", "1",
                        "--prior-steps", "1", "--render-steps", "1", "--repeats", "1", "--results", str(results),
-                       "--figure", str(figure)]) == 0
+                       "--figure", str(figure), "--samplers", "euler:1,heun:2"]) == 0
     out = json.loads(results.read_text())
-    assert set(out["quality"]) == set(bench.METHODS)
+    assert set(out["quality"]) == {*bench.METHODS, "co4dgen[euler:1]", "co4dgen[heun:2]"}
+    assert set(out["gap_closed"]) == {"co4dgen", "co4dgen[euler:1]", "co4dgen[heun:2]"}
+    # heun with one step is euler with one step: the headline and the euler:1 row are the same sample
+    rows = {(r["method"], r["camera"]): r["psnr"] for r in out["per_video"]}
+    assert all(rows[("co4dgen", k)] == rows[("co4dgen[euler:1]", k)] for k in range(3))
     assert set(out["quality"]["co4dgen"]) == {"anchor", "conditioning", "other", "all"}
     assert out["quality"]["co4dgen"]["all"]["videos"] == 3  # every camera of the one event
     t = out["timing"]
     assert len(t["views"]) == 9 and t["speedup_cpu"] > 0 and t["nine_independent_samples_s"]["cpu"] > 0
     assert out["tokenizer"]["model_id"] == "tok-test" and figure.stat().st_size > 1000
+
+
+def test_bench_prior_refuses_bad_sampler_settings():
+    import pytest
+
+    spec = importlib.util.spec_from_file_location("bench_prior", BENCH)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.parse_samplers("euler:1, heun:16,heun:8:2.5") == [("euler", 1, 1.0), ("heun", 16, 1.0),
+                                                                    ("heun", 8, 2.5)]
+    assert bench.sampler_name("heun", 8, 2.5) == "co4dgen[heun:8:2.5]" and bench.sampler_name("euler", 1, 1.0) == \
+        "co4dgen[euler:1]"
+    for bad in ("rk4:2", "euler:0", "heun", "euler:x", "heun:4:x", "heun:4:-1", "heun:4:2:1"):
+        with pytest.raises(SystemExit, match="--samplers"):
+            bench.parse_samplers(bad)

@@ -11,7 +11,7 @@ from typing import Any
 from ..capture.io import read_capture, read_manifest
 from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import DEFAULT_STEPS, SceneDecoder, load_renderer, model_fingerprint
-from ..errors import CaptureError, ModelNotFoundError, TrajectoryError
+from ..errors import CaptureError, ModelError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
 from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
@@ -54,6 +54,17 @@ def split_view_specs(values: list[str]) -> list[str]:
     return specs
 
 
+def guidance_scale(text: str) -> float:
+    """argparse type of --guidance: a number in [0, 20]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 20], got {text!r}") from None
+    if not 0.0 <= value <= 20.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 20], got {text!r}")
+    return value
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     from ..model.directories import check_tokenizer  # torch-free: the prior may run on its exported graphs
 
@@ -85,9 +96,16 @@ def cmd_generate(args: argparse.Namespace) -> int:
         tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, args.runtime, device=args.device)
         check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
-    with working(args, f"sampling the prior ({args.steps} {args.sampler} steps)"):
+    steps = prior.sampler.steps if args.steps is None else args.steps
+    method = prior.sampler.method if args.sampler is None else args.sampler
+    guidance = prior.sampler.guidance if args.guidance is None else args.guidance
+    if guidance != 1.0 and prior.config.cond_dropout <= 0:
+        raise ModelError(f"--guidance {guidance:g}: {prior.model_id} {prior.model_version} was trained without a null "
+                         "condition (cond_dropout 0); pass --guidance 1")
+    with working(args, f"sampling the prior ({steps} {method} steps"
+                       + ("" if guidance == 1.0 else f", guidance {guidance:g}") + ")"):
         scene = generate(cap.frames[camera], cap.cameras[camera], args.anchor, seed=args.seed, model=prior,
-                         steps=args.steps, method=args.sampler, start=args.start, encoding=args.encoding,
+                         steps=steps, method=method, guidance=guidance, start=args.start, encoding=args.encoding,
                          metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera},
                                    CAPTURE_KEY: {"fps": float(cap.fps)}},
                          source_capture_id=cap.capture_id, runtime=args.runtime, device=args.device)
@@ -110,6 +128,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         "load_seconds": round(started - loading, 3), "sample_seconds": round(sampled - started, 3),
         "render_seconds": round(done - sampled, 3),
         "prior": {"model_id": prior.model_id, "model_version": prior.model_version},
+        "sampler": {"method": method, "steps": steps, "guidance": guidance},
         "tokenizer": model_fingerprint(decoder.model).to_dict(),
     }
     emit(args, result, [f"sampled 1 token state in {result['sample_seconds']:.1f} s -> {scene_path} ({size} bytes); "
@@ -134,8 +153,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=nonneg_int, default=0, help="seed of the prior sample and the renders")
     p.add_argument("--prior", default=None, help="prior id or directory (default co4dgen-tiny)")
     p.add_argument("--model", default=None, help="tokenizer id or directory (default: the prior's tokenizer)")
-    p.add_argument("--steps", type=positive_int, default=DEFAULT_PRIOR_STEPS, help="prior sampler steps")
-    p.add_argument("--sampler", choices=("euler", "heun"), default="heun")
+    p.add_argument("--steps", type=positive_int, default=None,
+                   help=f"prior sampler steps (default: the prior's recorded setting; {DEFAULT_PRIOR_STEPS} for a "
+                        "prior that records none)")
+    p.add_argument("--sampler", choices=("euler", "heun"), default=None,
+                   help="prior sampler (default: the prior's recorded setting; heun for a prior that records none)")
+    p.add_argument("--guidance", type=guidance_scale, default=None,
+                   help="classifier-free guidance on the video, 0..20 (1: none; default: the prior's recorded setting); "
+                        "needs a prior trained with a null condition")
     p.add_argument("--render-steps", type=positive_int, default=DEFAULT_STEPS, help="renderer steps per view (default: the tokenizer's recorded decode_steps)")
     p.add_argument("--encoding", choices=ENCODINGS, default=GENERATED_ENCODING,
                    help=f"token encoding of the saved scene (default {GENERATED_ENCODING}, as vt4d encode: within "
