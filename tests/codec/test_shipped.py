@@ -128,6 +128,22 @@ def test_cluster_ranks_encode_disjoint_shares_into_their_own_shards(tmp_path):
     assert len(keys) == 3 and len(set(keys)) == 3  # every capture encoded exactly once across ranks
 
 
+def test_every_shipped_prior_is_bound_to_a_shipped_tokenizer_and_records_its_sampler():
+    """A prior is retrained whenever its tokenizer changes: the shipped prior's recorded tokenizer fingerprint is
+    the fingerprint of the tokenizer shipped beside it, and it records the sampler setting measured for it."""
+    from vt4dcodec.model.directories import (CONFIG_FILE, PRIOR_META_FILE, meta_fingerprint, model_directory,
+                                             read_model_meta, read_prior_meta, shipped_prior_ids)
+
+    priors = shipped_prior_ids()
+    assert "co4dgen-tiny" in priors
+    for prior in priors:
+        meta = read_prior_meta(model_directory(prior, PRIOR_META_FILE))
+        tokenizer = meta_fingerprint(read_model_meta(model_directory(meta["tokenizer"].model_id, CONFIG_FILE)))
+        assert tokenizer.matches(meta["tokenizer"]), (prior, tokenizer.short(), meta["tokenizer"].short())
+        assert tokenizer == codec.model_fingerprint(codec.load_model(meta["tokenizer"].model_id))
+        assert isinstance(meta["extra"].get("sampler"), dict) and meta["extra"]["sampler"].get("measured"), prior
+
+
 def test_generate_with_the_shipped_prior(tmp_path, scene):
     """`vt4d generate` from a capture with co4dgen-tiny + vt4d-tiny: one sample, several views."""
     from vt4dcodec.capture.io import write_capture
