@@ -161,12 +161,15 @@ tokenizer's renderer along any trajectory: `vt4d generate CAPTURE --anchor PRESE
   {cfg.image_size}x{cfg.image_size}.
 * Training: {training["steps"]} steps, batch {training["batch_size"]}, on {training["pairs"]} ordered camera
   pairs ({training["records"]} anchor records) read from `{training["shards"]}` through
-  vt4dcodec.data.archive_dataset; loss {training["first_loss"]} -> {training["final_loss"]}
-  in {training["seconds"]} s wall time on a shared CPU.
+  vt4dcodec.data.archive_dataset (anchors: {training.get("anchors", "distinct")}); loss {training["first_loss"]} ->
+  {training["final_loss"]} in {training["seconds"]} s wall time on a shared CPU; learning rate {training.get("lr")}
+  (warm-up, cosine decay); {"the weights are the exponential moving average (decay " + str(training["ema_decay"]) + ")"
+  if training.get("ema_decay") else "the last weights"}; null condition for classifier-free guidance:
+  {"a share of " + str(cfg.cond_dropout) + " of the conditions" if cfg.cond_dropout else "none"}.
 * Data: procedurally generated synthetic multi-camera scenes (vt4dcodec.synth, train split); evaluate on
   split="test" (disjoint assets) with bench/bench_prior.py.
-* Limits: a CPU-size model trained for minutes; samples are coarse.  Only valid with the tokenizer above
-  (load_prior + check_tokenizer refuse others).
+* Limits: a CPU-size model trained on one machine's CPUs; samples are coarse (docs/co4dgen.md has the
+  measured quality).  Only valid with the tokenizer above (load_prior + check_tokenizer refuse others).
 """
 
 
