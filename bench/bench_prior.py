@@ -47,14 +47,11 @@ METHODS = ("co4dgen", "encoded_anchor", "encoded_conditioning", "mean_tokens", "
 
 
 def quality(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """PSNR (dB) and SSIM (11x11 Gaussian window) of (T, H, W, 3) uint8 videos."""
-    import kornia
+    """PSNR (dB) and SSIM (11x11 Gaussian window) of (T, H, W, 3) uint8 videos: the training validation's
+    measure (``model.diagnostics.video_quality``)."""
+    from vt4dcodec.model.diagnostics import video_quality
 
-    a = torch.from_numpy(np.array(pred)).permute(0, 3, 1, 2).float() / 255.0
-    b = torch.from_numpy(truth).permute(0, 3, 1, 2).float() / 255.0
-    mse = float(((a - b) ** 2).mean().clamp_min(1e-10))
-    ssim = float(kornia.metrics.ssim(a, b, 11).mean())
-    return 10.0 * float(np.log10(1.0 / mse)), ssim
+    return video_quality(pred, truth)
 
 
 def videos(frames: torch.Tensor) -> list[np.ndarray]:
@@ -128,27 +125,23 @@ def load_events(shards: str) -> dict[str, dict[int, dict[str, Any]]]:
     return dict(sorted(events.items()))
 
 
-def parse_samplers(text: str) -> list[tuple[str, int, float]]:
-    """"heun:16,euler:1,heun:16:2" -> [("heun", 16, 1.0), ("euler", 1, 1.0), ("heun", 16, 2.0)] (the third field
-    is the classifier-free guidance, default 1); SystemExit naming --samplers on bad input."""
-    out = []
-    for item in text.split(","):
-        method, steps, *rest = item.strip().split(":") + [""]
-        guidance = rest[0] if len(rest) == 2 else None
-        try:
-            g = 1.0 if not guidance else float(guidance)
-        except ValueError:
-            g = -1.0
-        if method not in ("euler", "heun") or not steps.isdigit() or int(steps) < 1 or len(rest) > 2 \
-                or not 0.0 <= g <= 20.0:
-            raise SystemExit(f"--samplers takes METHOD:STEPS[:GUIDANCE] items (euler or heun, steps >= 1, guidance "
-                             f"in [0, 20]), got {item!r}")
-        out.append((method, int(steps), g))
-    return out
+def parse_samplers(text: str) -> list[Any]:
+    """"heun:16,euler:1,heun:16:2" -> [("heun", 16, 1.0), ("euler", 1, 1.0), ("heun", 16, 2.0)] (SamplerSetting:
+    method, steps, classifier-free guidance, default 1); SystemExit naming --samplers on bad input."""
+    from vt4dcodec.errors import ModelError
+    from vt4dcodec.model.directories import parse_sampler
+
+    try:
+        return [parse_sampler(item) for item in text.split(",")]
+    except ModelError as exc:
+        raise SystemExit(f"--samplers takes METHOD:STEPS[:GUIDANCE] items (euler or heun, steps >= 1, guidance "
+                         f"in [0, 20]): {exc}") from None
 
 
 def sampler_name(method: str, steps: int, guidance: float) -> str:
-    return f"co4dgen[{method}:{steps}" + ("" if guidance == 1.0 else f":{guidance:g}") + "]"
+    from vt4dcodec.model.directories import SamplerSetting
+
+    return f"co4dgen[{SamplerSetting(method, steps, guidance)}]"
 
 
 def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam: int, prior_steps: int,

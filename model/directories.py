@@ -19,7 +19,8 @@ from vt4dcodec.format import ModelFingerprint
 from .configs import ModelConfig
 
 __all__ = [
-    "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler",
+    "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler", "checked_guidance",
+    "prior_sampler",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -41,9 +42,7 @@ class SamplerSetting(tuple):
             raise ModelError(f"sampler method must be euler or heun, got {method!r}")
         if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 1000:
             raise ModelError(f"sampler steps must be an integer in 1..1000, got {steps!r}")
-        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
-            raise ModelError(f"sampler guidance must be a number in [0, 20], got {guidance!r}")
-        return super().__new__(cls, (method, steps, float(guidance)))
+        return super().__new__(cls, (method, steps, checked_guidance(guidance)))
 
     method = property(lambda self: self[0])
     steps = property(lambda self: self[1])
@@ -54,6 +53,17 @@ class SamplerSetting(tuple):
 
     def __str__(self) -> str:
         return f"{self.method}:{self.steps}" + ("" if self.guidance == 1.0 else f":{self.guidance:g}")
+
+
+def checked_guidance(guidance: Any, cond_dropout: float | None = None) -> float:
+    """``guidance`` as a float: a number in [0, 20]; other than 1 only for a prior whose ``cond_dropout`` > 0
+    (one with a null condition; ``cond_dropout`` None: not checked).  ModelError otherwise."""
+    if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
+        raise ModelError(f"guidance must be a number in [0, 20], got {guidance!r}")
+    if guidance != 1.0 and cond_dropout is not None and cond_dropout <= 0:
+        raise ModelError(f"classifier-free guidance {guidance:g} needs a prior trained with a null condition "
+                         "(cond_dropout > 0); sample with guidance 1")
+    return float(guidance)
 
 
 DEFAULT_SAMPLER = SamplerSetting("heun", 16, 1.0)  # a prior that records none
@@ -181,12 +191,9 @@ def prior_sampler(meta: dict[str, Any], path: Any) -> SamplerSetting:
         if not isinstance(recorded, dict) or set(recorded) - {"method", "steps", "guidance", "measured"}:
             raise ModelError("it must be a map of method, steps, guidance (and measured)")
         setting = SamplerSetting(recorded.get("method"), recorded.get("steps"), recorded.get("guidance", 1.0))
+        checked_guidance(setting.guidance, getattr(meta.get("config"), "cond_dropout", 0.0))
     except ModelError as exc:
         raise ModelError(f"{path}: bad extra.sampler: {exc}") from None
-    config = meta.get("config")
-    if setting.guidance != 1.0 and getattr(config, "cond_dropout", 0.0) <= 0:
-        raise ModelError(f"{path}: extra.sampler asks for guidance {setting.guidance:g} but the prior has no null "
-                         "condition (cond_dropout 0)")
     return setting
 
 

@@ -23,7 +23,8 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
-from .directories import PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SamplerSetting, model_directory, read_prior_meta
+from .directories import (PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SamplerSetting, checked_guidance, model_directory,
+                          read_prior_meta)
 from .onnx_renderer import TorchNormal
 from .onnx_session import open_checked
 
@@ -84,9 +85,7 @@ class OnnxPrior:
         """The learned null condition (D,) float32 of a prior trained with ``cond_dropout``, read from its
         weights file (the tensor the guided sampler puts in place of every condition token)."""
         if self._null is None:
-            if self.config.cond_dropout <= 0:
-                raise ModelError("classifier-free guidance needs a prior trained with cond_dropout > 0 (this one has "
-                                 "no null condition); sample with guidance 1")
+            checked_guidance(2.0, self.config.cond_dropout)  # ModelError for a prior without one
             self._null = read_safetensor(self.directory / PRIOR_WEIGHTS_FILE, "null_condition", (self.config.width,))
         return self._null
 
@@ -99,9 +98,7 @@ class OnnxPrior:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         if method not in SAMPLERS:
             raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
-        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
-            raise ModelError(f"guidance must be a number in [0, 20], got {guidance!r}")
-        guidance = float(guidance)
+        guidance = checked_guidance(guidance, self.config.cond_dropout)
         null = self.null_condition() if guidance != 1.0 else None
         cfg = self.config
         feed = {n: np.ascontiguousarray(a, np.float32) for n, a in zip(CONDITION_INPUTS, (frames, K_c, w2c_c, K_a, w2c_a))}

@@ -37,7 +37,7 @@ from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import PriorConfig
-from .directories import DEFAULT_SAMPLER, SamplerSetting
+from .directories import DEFAULT_SAMPLER, SamplerSetting, checked_guidance
 from .directories import check_tokenizer  # noqa: F401  (torch-free, where the ONNX prior needs it; kept importable here)
 from .identity import ModelIdentity
 from .layers import MLP
@@ -238,12 +238,7 @@ class Co4DGen(ModelIdentity, nn.Module):
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         if method not in SAMPLERS:
             raise ModelError(f"unknown sampler {method!r}; choose one of {SAMPLERS}")
-        if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance <= 20.0:
-            raise ModelError(f"guidance must be a number in [0, 20], got {guidance!r}")
-        guidance = float(guidance)
-        if guidance != 1.0 and self.config.cond_dropout <= 0:
-            raise ModelError("classifier-free guidance needs a prior trained with cond_dropout > 0 (this one has no "
-                             "null condition); sample with guidance 1")
+        guidance = checked_guidance(guidance, self.config.cond_dropout)
         cfg = self.config
         h = self.encode_condition(cond)
         B, device = h.shape[0], h.device

@@ -50,7 +50,7 @@ from .configs import DenseConfig, PriorConfig
 from .dense_baseline import DenseViewDiffusion
 from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE, MODEL_FORMAT,
                           MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
-                          model_directory, read_model_meta, read_prior_meta, read_weights_meta, shipped_model_ids,
+                          model_directory, prior_sampler, read_model_meta, read_weights_meta, shipped_model_ids,
                           shipped_prior_ids)
 from .identity import weights_sha256
 from .prior import Co4DGen
@@ -215,7 +215,7 @@ def save_dense(dense: DenseViewDiffusion, directory: str | Path, *, model_id: st
 
 
 def _load_bound(name_or_path: str | Path, cls: Any, *, fmt: str, meta_file: str, weights_file: str,
-                config_type: Any, device: str | torch.device) -> Any:
+                config_type: Any, device: str | torch.device) -> tuple[Any, dict[str, Any], Path]:
     directory = model_directory(name_or_path, meta_file)
     path = directory / meta_file
     meta = read_weights_meta(directory, meta_file=meta_file, weights_file=weights_file, fmt=fmt,
@@ -240,7 +240,7 @@ def _load_bound(name_or_path: str | Path, cls: Any, *, fmt: str, meta_file: str,
     module.set_identity(meta["model_id"], meta["model_version"])
     module.tokenizer_fingerprint = tokenizer
     module.requires_grad_(False)
-    return module.to(device).eval()
+    return module.to(device).eval(), meta, path
 
 
 def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> Co4DGen:
@@ -249,16 +249,15 @@ def load_prior(name_or_path: str | Path, *, device: str | torch.device = "cpu") 
     Its ``model_id``, ``model_version``, ``tokenizer_fingerprint`` and ``sampler`` (the sampler setting
     chosen for it, :class:`~.directories.SamplerSetting`) are those recorded in prior.json.
     """
-    prior: Co4DGen = _load_bound(name_or_path, Co4DGen, fmt=PRIOR_FORMAT, meta_file=PRIOR_META_FILE,
-                                 weights_file=PRIOR_WEIGHTS_FILE, config_type=PriorConfig, device=device)
-    prior.sampler = read_prior_meta(model_directory(name_or_path, PRIOR_META_FILE))["sampler"]
+    prior, meta, path = _load_bound(name_or_path, Co4DGen, fmt=PRIOR_FORMAT, meta_file=PRIOR_META_FILE,
+                                    weights_file=PRIOR_WEIGHTS_FILE, config_type=PriorConfig, device=device)
+    prior.sampler = prior_sampler(meta, path)
     return prior
 
 
 def load_dense(name_or_path: str | Path, *, device: str | torch.device = "cpu") -> DenseViewDiffusion:
     """A dense-baseline directory (dense.json), verified, frozen, in eval mode; ``tokenizer_fingerprint`` is
     the tokenizer whose autoencoder it holds."""
-    dense: DenseViewDiffusion = _load_bound(name_or_path, DenseViewDiffusion, fmt=DENSE_FORMAT,
-                                            meta_file=DENSE_META_FILE, weights_file=DENSE_WEIGHTS_FILE,
-                                            config_type=DenseConfig, device=device)
+    dense, _, _ = _load_bound(name_or_path, DenseViewDiffusion, fmt=DENSE_FORMAT, meta_file=DENSE_META_FILE,
+                              weights_file=DENSE_WEIGHTS_FILE, config_type=DenseConfig, device=device)
     return dense

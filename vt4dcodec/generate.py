@@ -33,7 +33,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from .model.onnx_prior import OnnxPrior
     from .model.prior import Co4DGen
 
-__all__ = ["generate", "load_prior_model", "fit_conditioning", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS", "GENERATED_ENCODING"]
+__all__ = ["generate", "load_prior_model", "fit_conditioning", "sampler_setting", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS",
+           "GENERATED_ENCODING"]
 
 DEFAULT_PRIOR = "co4dgen-tiny"
 DEFAULT_PRIOR_STEPS = 16  # the steps of a prior that records no sampler setting (model.directories.DEFAULT_SAMPLER)
@@ -155,10 +156,7 @@ def generate(
 
     prior = load_prior_model(model, runtime=runtime, device=device)
     cfg = prior.config
-    recorded = prior.sampler
-    steps = recorded.steps if steps is None else steps
-    method = recorded.method if method is None else method
-    guidance = recorded.guidance if guidance is None else guidance
+    steps, method, guidance = sampler_setting(prior, steps, method, guidance)
     frames, cond_traj = fit_conditioning(video, cameras, size=cfg.image_size, frames=cfg.frames, start=start)
     anchor = resolve_trajectory(anchor_trajectory, cond_traj, size=cfg.image_size, max_frames=cfg.frames)
     if anchor.num_frames != cfg.frames:
@@ -187,6 +185,19 @@ def generate(
         provenance=Provenance.now(source_capture_id, "generated"),
         encoding=encoding,
     )
+
+
+def sampler_setting(prior: Any, steps: int | None = None, method: str | None = None, guidance: float | None = None
+                    ) -> tuple[int, str, float]:
+    """(steps, method, guidance) to sample ``prior`` with: each one given, or else the setting the prior records
+    (``prior.sampler``).  Guidance is checked here (ModelError: a number in [0, 20], other than 1 only for a prior
+    with a null condition); steps and method by the sampler."""
+    from .model.directories import checked_guidance  # torch-free
+
+    recorded = prior.sampler
+    guidance = recorded.guidance if guidance is None else guidance
+    return (recorded.steps if steps is None else steps, recorded.method if method is None else method,
+            checked_guidance(guidance, prior.config.cond_dropout))
 
 
 def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, anchor: Trajectory, steps: int,

@@ -21,8 +21,8 @@ from pathlib import Path
 
 from vt4dcodec.errors import ModelError
 
-from ..directories import (CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, meta_fingerprint, parse_sampler,
-                           prior_sampler, read_model_meta)
+from ..directories import (CARD_FILE, CONFIG_FILE, PRIOR_META_FILE, SHIPPED_DIR, checked_guidance, meta_fingerprint,
+                           parse_sampler, read_model_meta)
 from ..onnx_export import export_prior
 from ..weights_io import load_prior, save_prior
 
@@ -40,11 +40,10 @@ def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR, *, sampler: s
     prior = load_prior(source)
     meta = json.loads((source / PRIOR_META_FILE).read_text(encoding="utf-8"))
     if sampler is not None:
-        setting = parse_sampler(sampler).to_dict()
-        if measured:
-            setting["measured"] = str(measured)
+        chosen = parse_sampler(sampler)
+        checked_guidance(chosen.guidance, prior.config.cond_dropout)
+        setting = chosen.to_dict() | ({"measured": str(measured)} if measured else {})
         meta["extra"] = {**(meta.get("extra") or {}), "sampler": setting}
-        prior_sampler({"extra": meta["extra"], "config": prior.config}, f"--sampler {sampler}")
     tokenizer = prior.tokenizer_fingerprint
     tokenizer_dir = dest / tokenizer.model_id
     if not (tokenizer_dir / CONFIG_FILE).is_file():

@@ -13,7 +13,8 @@ from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import DEFAULT_STEPS, SceneDecoder, load_renderer, model_fingerprint
 from ..errors import CaptureError, ModelError, ModelNotFoundError, TrajectoryError
 from ..format import ENCODINGS, save
-from ..generate import DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model
+from ..generate import (DEFAULT_PRIOR, DEFAULT_PRIOR_STEPS, GENERATED_ENCODING, generate, load_prior_model,
+                        sampler_setting)
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, write_frames
 from . import (add_command, add_device_option, add_overwrite_option, add_upscale_option, check_output_folder,
                check_upscale, emit,
@@ -96,12 +97,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
         tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, args.runtime, device=args.device)
         check_tokenizer(prior, model_fingerprint(tokenizer))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
-    steps = prior.sampler.steps if args.steps is None else args.steps
-    method = prior.sampler.method if args.sampler is None else args.sampler
-    guidance = prior.sampler.guidance if args.guidance is None else args.guidance
-    if guidance != 1.0 and prior.config.cond_dropout <= 0:
-        raise ModelError(f"--guidance {guidance:g}: {prior.model_id} {prior.model_version} was trained without a null "
-                         "condition (cond_dropout 0); pass --guidance 1")
+    try:
+        steps, method, guidance = sampler_setting(prior, args.steps, args.sampler, args.guidance)
+    except ModelError as exc:
+        raise ModelError(f"--guidance {args.guidance}: {prior.model_id} {prior.model_version}: {exc}") from None
     with working(args, f"sampling the prior ({steps} {method} steps"
                        + ("" if guidance == 1.0 else f", guidance {guidance:g}") + ")"):
         scene = generate(cap.frames[camera], cap.cameras[camera], args.anchor, seed=args.seed, model=prior,
