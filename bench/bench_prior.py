@@ -74,12 +74,32 @@ def render(tokenizer: Any, z_s: torch.Tensor, z_d: torch.Tensor, K: np.ndarray, 
                                       source=(_tensor(source["K"]), _tensor(source["w2c"]))))
 
 
-def condition(clip_c: dict[str, np.ndarray], K_a: np.ndarray, w2c_a: np.ndarray) -> Any:
+def condition(clip_c: dict[str, np.ndarray], K_a: np.ndarray, w2c_a: np.ndarray,
+              tokens: tuple[torch.Tensor, torch.Tensor] | None = None) -> Any:
     from vt4dcodec.model.prior import PriorCondition
 
     frames = torch.from_numpy(clip_c["frames"]).permute(0, 3, 1, 2).float().div(255.0)[None]
     return PriorCondition(frames=frames, K_c=_tensor(clip_c["K"]), w2c_c=_tensor(clip_c["w2c"]), K_a=_tensor(K_a),
-                          w2c_a=_tensor(w2c_a))
+                          w2c_a=_tensor(w2c_a), z_s=None if tokens is None else tokens[0],
+                          z_d=None if tokens is None else tokens[1])
+
+
+def condition_tokens(prior: Any, tokenizer: Any, cam_c: dict[str, Any], mode: str
+                     ) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Z^c for a prior with ``cond_tokens`` (None otherwise): ``"encode"`` -- what ``vt4d generate`` computes, the
+    tokenizer's encode of the conditioning video with estimated depth (``generate.conditioning_tokens``); ``"record"``
+    -- the conditioning camera's token record (encoded with the synthetic scene's depth, as in training)."""
+    if not prior.config.cond_tokens:
+        return None
+    if mode == "record":
+        return cam_c["z_s"], cam_c["z_d"]
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.generate import conditioning_tokens
+
+    clip, size = cam_c["clip"], tokenizer.config.image_size
+    traj = Trajectory(K=clip["K"].astype(np.float64), w2c=clip["w2c"].astype(np.float64), width=size, height=size)
+    z_s, z_d = conditioning_tokens(prior, clip["frames"], traj, tokenizer, runtime="torch")
+    return torch.from_numpy(z_s), torch.from_numpy(z_d)
 
 
 def load_models(prior_spec: str, tokenizer_spec: str | None) -> tuple[Any, Any, Any]:
@@ -145,8 +165,8 @@ def sampler_name(method: str, steps: int, guidance: float) -> str:
 
 
 def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
-             render_steps: int, seed: int, samplers: list[tuple[str, int, float]] | None = None
-             ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+             render_steps: int, seed: int, samplers: list[tuple[str, int, float]] | None = None,
+             tokens_from: str = "encode") -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """One sample per event with heun:``prior_steps`` ("co4dgen"), and with each extra sampler setting
     ("co4dgen[euler:1]", ...) from the same seed, every one rendered at every camera beside the references."""
     rows: list[dict[str, Any]] = []
@@ -155,7 +175,8 @@ def evaluate(tokenizer: Any, prior: Any, events: dict, cond_cam: int, anchor_cam
     mean_d = prior.dynamic_mean.expand(1, prior.config.n_dynamic, -1)
     for event, cams in events.items():
         clip_c, clip_a = cams[cond_cam]["clip"], cams[anchor_cam]["clip"]
-        cond = condition(clip_c, clip_a["K"], clip_a["w2c"])
+        cond = condition(clip_c, clip_a["K"], clip_a["w2c"], condition_tokens(prior, tokenizer, cams[cond_cam],
+                                                                               tokens_from))
         z_s, z_d = prior.sample(cond, steps=prior_steps, seed=seed)
         extra = {sampler_name(m, n, g): (*prior.sample(cond, steps=n, seed=seed, method=m, guidance=g), clip_a)
                  for m, n, g in samplers or []}
@@ -218,7 +239,8 @@ def gap_closed(rows: list[dict[str, Any]], method: str = "co4dgen") -> dict[str,
 
 def timing(tokenizer: Any, prior: Any, event: dict, cond_cam: int, anchor_cam: int, prior_steps: int,
            render_steps: int, repeats: int) -> dict[str, Any]:
-    """9 views from one sample vs 9 independent samples, interleaved, best of ``repeats``."""
+    """9 views from one sample vs 9 independent samples, interleaved, best of ``repeats``; a prior with
+    ``cond_tokens`` pays the tokenizer's encode of the conditioning video in every sample (as ``vt4d generate``)."""
     from vt4dcodec.codec import resolve_trajectory
 
     clip_c, clip_a = event[cond_cam]["clip"], event[anchor_cam]["clip"]
@@ -228,20 +250,21 @@ def timing(tokenizer: Any, prior: Any, event: dict, cond_cam: int, anchor_cam: i
     ref = Trajectory(K=clip_a["K"].astype(np.float64), w2c=clip_a["w2c"].astype(np.float64), width=cfg.image_size,
                      height=cfg.image_size)
     views = [resolve_trajectory(v, ref, size=cfg.image_size, max_frames=cfg.frames) for v in NINE_VIEWS]
-    cond = condition(clip_c, clip_a["K"], clip_a["w2c"])
+    def cond() -> Any:
+        return condition(clip_c, clip_a["K"], clip_a["w2c"], condition_tokens(prior, tokenizer, event[cond_cam], "encode"))
 
     def one_sample() -> None:
-        z_s, z_d = prior.sample(cond, steps=prior_steps, seed=0)
+        z_s, z_d = prior.sample(cond(), steps=prior_steps, seed=0)
         for v in views:
             render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps, clip_a)
 
     def independent() -> None:
         for i, v in enumerate(views):
-            z_s, z_d = prior.sample(cond, steps=prior_steps, seed=i)
+            z_s, z_d = prior.sample(cond(), steps=prior_steps, seed=i)
             render(tokenizer, z_s, z_d, v.K, v.w2c, render_steps, clip_a)
 
     def sample_only() -> None:
-        prior.sample(cond, steps=prior_steps, seed=0)
+        prior.sample(cond(), steps=prior_steps, seed=0)
 
     results: dict[str, dict[str, list[float]]] = {n: {"wall": [], "cpu": []} for n in ("one", "nine", "sample")}
     for _ in range(repeats):
@@ -272,8 +295,9 @@ def draw_figure(rows: list[dict[str, Any]], path: Path, cond_cam: int, anchor_ca
 
     rows = rows[:count]
     cams = sorted(rows[0]["truth"])
-    cols = [("V_c (input)", None, None)] + [(f"cam{k} {'GT'}", k, "truth") for k in cams if k != cond_cam] + \
-           [(f"cam{k} sample", k, "pred") for k in cams if k != cond_cam]
+    cols = [("V_c (input)", None, None), (f"cam{cond_cam} sample", cond_cam, "pred")] + \
+        [(f"cam{k} {'GT'}", k, "truth") for k in cams if k != cond_cam] + \
+        [(f"cam{k} sample", k, "pred") for k in cams if k != cond_cam]
     fig, axes = plt.subplots(len(rows), len(cols), figsize=(1.25 * len(cols), 1.35 * len(rows)), dpi=90,
                              squeeze=False)
     for r, row in enumerate(rows):
@@ -305,6 +329,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samplers", default="", metavar="METHOD:STEPS,...",
                         help="further sampler settings to score from the same seed, e.g. euler:1,euler:4,heun:8,heun:16:2 "
                              "(METHOD:STEPS[:GUIDANCE])")
+    parser.add_argument("--cond-tokens", choices=("encode", "record"), default="encode",
+                        help="for a prior conditioned on the tokenizer's tokens of the video: compute them as vt4d "
+                             "generate does (encode, default) or take the conditioning camera's token record")
     parser.add_argument("--render-steps", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best is kept)")
     parser.add_argument("--seed", type=int, default=0)
@@ -318,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     quality_result, figure_rows = evaluate(tokenizer, prior, events, args.cond_camera, args.anchor_camera,
                                            args.prior_steps, args.render_steps, args.seed,
-                                           parse_samplers(args.samplers) if args.samplers else None)
+                                           parse_samplers(args.samplers) if args.samplers else None,
+                                           args.cond_tokens)
     eval_s = time.perf_counter() - t0
     timing_result = timing(tokenizer, prior, next(iter(events.values())), args.cond_camera, args.anchor_camera,
                            args.prior_steps, args.render_steps, args.repeats)
@@ -328,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
                                              "config": prior.config.to_dict()},
         "events": list(events), "cond_camera": args.cond_camera, "anchor_camera": args.anchor_camera,
         "prior_steps": args.prior_steps, "render_steps": args.render_steps, "seed": args.seed,
+        "cond_tokens": args.cond_tokens if prior.config.cond_tokens else None,
         "threads": args.threads, "evaluation_seconds": round(eval_s, 1),
         "quality": quality_result["summary"], "gap_closed": quality_result["gap_closed"],
         "per_video": quality_result["rows"], "timing": timing_result,

@@ -8,8 +8,9 @@ per-view baseline (one latent video-diffusion run per view), quality and wall ti
 Held-out (split="test") events from ``model.train.tokenize_scenes`` shards: conditioning camera c = 0, the
 9 target views are the event's other cameras 1..9, whose ground truth the clip sidecars hold.
 
-* **co4dgen@P**: the prior samples Z^a ~ p(. | V_c, P_c, P_a) once (anchor a = 1, P Heun steps, seed 0;
-  the first of ``--prior-steps`` is the headline setting, 16 as ``vt4d generate``); the tokenizer's
+* **co4dgen@P**: the prior samples Z^a ~ p(. | V_c, P_c, P_a) once (anchor ``--anchor-camera``, default 1; P a
+  number of Heun steps or a sampler setting such as ``euler:2``, seed 0; the first of ``--prior-steps`` is the
+  headline setting, e.g. the one the prior records for ``vt4d generate``); the tokenizer's
   renderer draws all 9 cameras from that one state in one batched call (``--render-steps``, the
   tokenizer's recorded decode steps by default).
 * **dense@S**: the dense baseline generates each target camera's latent video from (V_c, P_c, P_k) with
@@ -41,7 +42,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_prior import held_out_events, load_models, quality, videos as _videos  # noqa: E402
+from bench_prior import condition_tokens, held_out_events, load_models, quality, videos as _videos  # noqa: E402
 
 
 def _tensor(a: np.ndarray) -> torch.Tensor:
@@ -61,11 +62,30 @@ def conditions(cams: dict[int, dict[str, Any]], cond_cam: int, targets: list[int
                           w2c_a=torch.stack([_tensor(cams[k]["clip"]["w2c"]) for k in targets]))
 
 
+class Labelled:
+    """A ``--prior-steps`` entry: a number of Heun steps (named by the number, ``co4dgen@16``) or a sampler
+    setting METHOD:STEPS[:GUIDANCE] (``co4dgen@euler:2``)."""
+
+    def __init__(self, text: str) -> None:
+        from vt4dcodec.model.directories import SamplerSetting, parse_sampler
+
+        self.label = text
+        setting = SamplerSetting("heun", int(text)) if text.isdigit() else parse_sampler(text)
+        self.method, self.steps, self.guidance = setting.method, setting.steps, setting.guidance
+
+    def __str__(self) -> str:
+        return self.label
+
+
 def co4dgen_views(tokenizer: Any, prior: Any, cams: dict, cond_cam: int, anchor_cam: int, targets: list[int],
-                  prior_steps: int, render_steps: int, seed: int = 0) -> list[np.ndarray]:
-    """Sample Z^a once, render every target camera from it in one batched call."""
+                  setting: Any, render_steps: int, seed: int = 0) -> list[np.ndarray]:
+    """Sample Z^a once, render every target camera from it in one batched call (a prior conditioned on the
+    tokenizer's tokens of the video encodes it first, as ``vt4d generate`` does: inside the timed call)."""
     cond = conditions(cams, cond_cam, [anchor_cam])
-    z_s, z_d = prior.sample(cond, steps=prior_steps, seed=seed)
+    tokens = condition_tokens(prior, tokenizer, cams[cond_cam], "encode")
+    if tokens is not None:
+        cond.z_s, cond.z_d = tokens
+    z_s, z_d = prior.sample(cond, steps=setting.steps, seed=seed, method=setting.method, guidance=setting.guidance)
     return render_state(tokenizer, z_s, z_d, cams, anchor_cam, targets, render_steps)
 
 
@@ -148,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cond-camera", type=int, default=0)
     parser.add_argument("--anchor-camera", type=int, default=1)
     parser.add_argument("--views", type=int, default=9, help="target cameras per event (the first after cond)")
-    parser.add_argument("--prior-steps", default="16,4,1", help="comma-separated Heun step counts; the first is "
+    parser.add_argument("--prior-steps", default="16,4,1", help="comma-separated Heun step counts or sampler settings "
+                        "(METHOD:STEPS[:GUIDANCE], e.g. euler:2); the first is "
                         "the headline setting")
     parser.add_argument("--render-steps", type=int, default=None, help="default: the tokenizer's decode steps")
     parser.add_argument("--dense-steps", default="4,8,16,32", help="comma-separated Euler step counts")
@@ -168,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
                          f"not of {fp.short()}: both must decode through the same latent space")
     render_steps = args.render_steps or tokenizer.decode_steps
     dense_steps = [int(s) for s in args.dense_steps.split(",") if s]
-    prior_steps = [int(s) for s in args.prior_steps.split(",") if s]
+    prior_steps = [Labelled(s) for s in args.prior_steps.split(",") if s]  # "16" (Heun steps) or "euler:2"
     headline = f"co4dgen@{prior_steps[0]}"
     events = held_out_events(args.shards, args.events, args.cond_camera, fp)
     methods = [*(f"co4dgen@{p}" for p in prior_steps), *(f"dense@{s}" for s in dense_steps), "encoded_anchor"]
@@ -228,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     cond_tokens = pcfg.frames * ((pcfg.image_size // pcfg.cond_patch) ** 2 + pcfg.anchor_grid ** 2)
     table = {
         "co4dgen": {"sequence_per_run": pcfg.n_static + pcfg.n_dynamic, "context_tokens": cond_tokens,
-                    "prior_runs": 1, "prior_steps": prior_steps, "prior_sampler": "heun",
+                    "prior_runs": 1, "prior_samplers": [f"{p.method}:{p.steps}" for p in prior_steps],
                     "render_runs": 1, "render_batch": args.views, "render_steps": render_steps,
                     "render_sequence_per_view": tcfg.frames * (latent // render_patch) ** 2,
                     "trainable_parameters": sum(p.numel() for p in prior.parameters())

@@ -471,6 +471,9 @@ class PriorConfig(_Config):
     cond_dropout: the share of training samples whose condition is replaced by a learned null condition,
     so the prior also learns the unconditional velocity and can sample with classifier-free guidance
     (0: no null condition; the field's default leaves older configs' hashes unchanged).
+    cond_tokens: whether E_cond also takes the tokenizer's own tokens of the conditioning video,
+    Z^c = E(V_c, P_c), projected and added to the denoiser's input tokens at their positions (the way
+    image-conditioned latent diffusion concatenates the conditioning image's latent); False for older configs.
     """
 
     name: str = "co4dgen-tiny"
@@ -487,13 +490,16 @@ class PriorConfig(_Config):
     mlp_ratio: float = 2.0
     layers: int = 4
     cond_dropout: float = 0.0
+    cond_tokens: bool = False
 
     _KIND: ClassVar[str] = "prior"
-    _LATER_FIELDS: ClassVar[dict[str, Any]] = {"cond_dropout": 0.0}
+    _LATER_FIELDS: ClassVar[dict[str, Any]] = {"cond_dropout": 0.0, "cond_tokens": False}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, [f.name for f in dataclasses.fields(self)
-                                      if f.name not in ("name", "mlp_ratio", "cond_dropout")], "prior config")
+                                      if f.name not in ("name", "mlp_ratio", "cond_dropout", "cond_tokens")], "prior config")
+        if not isinstance(self.cond_tokens, bool):
+            raise ModelError(f"prior cond_tokens must be true or false, got {self.cond_tokens!r}")
         if isinstance(self.cond_dropout, bool) or not isinstance(self.cond_dropout, (int, float)) \
                 or not 0.0 <= self.cond_dropout < 1.0:
             raise ModelError(f"prior cond_dropout must lie in [0, 1), got {self.cond_dropout!r}")

@@ -200,11 +200,13 @@ class AdaLNBlock(nn.Module):
         return x + gate * self.mlp(h)
 
 
-def timestep_embedding(tau: torch.Tensor, dim: int, max_period: float = 10_000.0) -> torch.Tensor:
-    """Sinusoidal embedding of flow times tau in [0, 1] (scaled by 1000 as in DiT). (B,) -> (B, dim)."""
+def timestep_embedding(tau: torch.Tensor, dim: int, max_period: float = 10_000.0,
+                       dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Sinusoidal embedding of flow times tau in [0, 1] (scaled by 1000 as in DiT). (B,) -> (B, dim) in ``dtype``
+    (float32; float64 for the prior's sampler)."""
     half = dim // 2
-    freqs = torch.exp(-math.log(max_period) * torch.arange(half, device=tau.device, dtype=torch.float32) / half)
-    args = 1000.0 * tau.float()[:, None] * freqs[None]
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, device=tau.device, dtype=dtype) / half)
+    args = 1000.0 * tau.to(dtype)[:, None] * freqs[None]
     emb = torch.cat([torch.cos(args), torch.sin(args)], dim=-1)
     return F.pad(emb, (0, dim - emb.shape[-1]))
 

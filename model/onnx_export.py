@@ -154,8 +154,8 @@ def _safetensors_index(path: Path) -> dict[tuple[tuple[int, ...], bytes], tuple[
 
 
 def _link_weights(model: Any, weights: Path) -> int:
-    """Rewrite the float32 initializers of an ``onnx.ModelProto`` whose values are exactly float16 as float16 +
-    Cast: an external tensor into ``weights`` (a safetensors file beside the graph) where that file holds the
+    """Rewrite the float32 (or float64) initializers of an ``onnx.ModelProto`` whose values are exactly float16 as
+    float16 + Cast: an external tensor into ``weights`` (a safetensors file beside the graph) where that file holds the
     same values, else stored in the graph. Returns the number linked to the file."""
     import onnx
     from onnx import helper, numpy_helper
@@ -164,8 +164,8 @@ def _link_weights(model: Any, weights: Path) -> int:
     graph, casts, kept, linked = model.graph, [], [], 0
     for init in graph.initializer:
         value = numpy_helper.to_array(init)
-        if value.dtype != np.float32 or value.size < 16 or \
-                not np.array_equal(value.astype(np.float16).astype(np.float32), value):
+        if value.dtype not in (np.float32, np.float64) or value.size < 16 or \
+                not np.array_equal(value.astype(np.float16).astype(value.dtype), value):
             kept.append(init)
             continue
         half = value.astype(np.float16)
@@ -180,8 +180,8 @@ def _link_weights(model: Any, weights: Path) -> int:
                 entry.key, entry.value = key, text
             linked += 1
         kept.append(tensor)
-        casts.append(helper.make_node("Cast", [tensor.name], [init.name], to=onnx.TensorProto.FLOAT,
-                                      name=init.name + "__cast"))
+        to = onnx.TensorProto.DOUBLE if value.dtype == np.float64 else onnx.TensorProto.FLOAT
+        casts.append(helper.make_node("Cast", [tensor.name], [init.name], to=to, name=init.name + "__cast"))
     del graph.initializer[:]
     graph.initializer.extend(kept)
     nodes = casts + list(graph.node)
@@ -439,10 +439,16 @@ class _PriorCondition(nn.Module):
         self.prior = prior
 
     def forward(self, frames: torch.Tensor, K_c: torch.Tensor, w2c_c: torch.Tensor, K_a: torch.Tensor,
-                w2c_a: torch.Tensor) -> tuple[torch.Tensor, ...]:
+                w2c_a: torch.Tensor, *tokens: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.prior
         h = p.cond_encoder(frames, K_c, w2c_c, K_a, w2c_a)
-        return h, p.static_mean * 1.0, p.static_std * 1.0, p.dynamic_mean * 1.0, p.dynamic_std * 1.0  # as outputs
+        out = (h, p.static_mean * 1.0, p.static_std * 1.0, p.dynamic_mean * 1.0, p.dynamic_std * 1.0)  # as outputs
+        if not tokens:
+            return out
+        from .prior import relative_pose
+
+        zc_s, zc_d = p.normalize(*tokens)  # Co4DGen.token_condition without its Python-side checks
+        return (*out, p.cond_in_s(zc_s), p.cond_in_d(zc_d), p.relative_pose(relative_pose(w2c_a, w2c_c)))
 
 
 class _PriorVelocity(nn.Module):
@@ -450,16 +456,21 @@ class _PriorVelocity(nn.Module):
         super().__init__()
         self.prior = prior
 
-    def forward(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor
+    def forward(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor, *tokens: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.prior.velocity(x_s, x_d, h, tau)
+        return self.prior.velocity(x_s, x_d, h, tau, (tokens[0], tokens[1], tokens[2]) if tokens else None)
 
 
 def _prior_condition(prior: Any, seed: int) -> tuple[torch.Tensor, ...]:
+    """An example condition: V_c, P_c, P_a, and Z^c (tokens in (-0.9, 0.9)) for a prior with ``cond_tokens``."""
     cfg = prior.config
     g = torch.Generator().manual_seed(seed)
-    return (torch.rand(1, cfg.frames, 3, cfg.image_size, cfg.image_size, generator=g),
+    case = (torch.rand(1, cfg.frames, 3, cfg.image_size, cfg.image_size, generator=g),
             *_orbit(1, cfg.frames, cfg.image_size, 0.1 * seed), *_orbit(1, cfg.frames, cfg.image_size, -0.2))
+    if not cfg.cond_tokens:
+        return case
+    return (*case, (torch.rand(1, cfg.n_static, cfg.token_dim, generator=g) - 0.5) * 1.8,
+            (torch.rand(1, cfg.n_dynamic, cfg.token_dim, generator=g) - 0.5) * 1.8)
 
 
 def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
@@ -469,8 +480,7 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
     from .configs import PriorConfig  # noqa: F401  (the prior's config type, read by read_prior_meta)
     from .directories import PRIOR_WEIGHTS_FILE, read_prior_meta
     from .identity import weights_sha256
-    from .onnx_prior import (CONDITION_INPUTS, CONDITION_OUTPUTS, PRIOR_CONDITION_FILE, PRIOR_ONNX_FORMAT,
-                             PRIOR_VELOCITY_FILE, VELOCITY_INPUTS, VELOCITY_OUTPUTS, OnnxPrior)
+    from .onnx_prior import PRIOR_CONDITION_FILE, PRIOR_ONNX_FORMAT, PRIOR_VELOCITY_FILE, OnnxPrior, graph_io
     from .prior import TOKEN_LIMIT, PriorCondition
 
     directory = Path(directory)
@@ -479,13 +489,18 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
         raise ModelError(f"{directory} describes other weights than the prior given")
     prior = prior.eval()
     cfg = prior.config
-    condition = _prior_condition(prior, 0)
+    net = prior.sampling_network()  # the graphs compute in the sampler's float64, as Co4DGen.sample does
+    dtype = net.static_mean.dtype
+    condition = tuple(t.to(dtype) for t in _prior_condition(prior, 0))
     with torch.no_grad():
-        h = prior.cond_encoder(*condition)
-    velocity_inputs = (torch.randn(1, cfg.n_static, cfg.token_dim), torch.randn(1, cfg.n_dynamic, cfg.token_dim), h,
-                       torch.ones(1))
-    graphs = [(PRIOR_CONDITION_FILE, _PriorCondition(prior), condition, CONDITION_INPUTS, CONDITION_OUTPUTS),
-              (PRIOR_VELOCITY_FILE, _PriorVelocity(prior), velocity_inputs, VELOCITY_INPUTS, VELOCITY_OUTPUTS)]
+        outputs = _PriorCondition(net)(*condition)
+        h = outputs[0]
+    velocity_inputs = (torch.randn(1, cfg.n_static, cfg.token_dim, dtype=dtype),
+                       torch.randn(1, cfg.n_dynamic, cfg.token_dim, dtype=dtype), h, torch.ones(1, dtype=dtype),
+                       *outputs[5:])
+    (cond_in, cond_out), (vel_in, vel_out) = graph_io(cfg)
+    graphs = [(PRIOR_CONDITION_FILE, _PriorCondition(net), condition, cond_in, cond_out),
+              (PRIOR_VELOCITY_FILE, _PriorVelocity(net), velocity_inputs, vel_in, vel_out)]
     extra = {"vt4d_token_limit": repr(TOKEN_LIMIT)}
     paths = [_finish(_trace(module.eval(), inputs, list(input_names), list(output_names)), directory, meta,
                      PRIOR_ONNX_FORMAT, name, extra, lambda path: None, weights=PRIOR_WEIGHTS_FILE)
@@ -496,7 +511,8 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
             case = _prior_condition(prior, seed)
             with torch.no_grad():
                 want = prior.sample(PriorCondition(*case), steps=steps, seed=seed, method=method)
-            got = exported.sample(*(t.numpy() for t in case), steps=steps, seed=seed, method=method)
+            tokens = dict(zip(("z_s", "z_d"), (t.numpy() for t in case[5:])))
+            got = exported.sample(*(t.numpy() for t in case[:5]), steps=steps, seed=seed, method=method, **tokens)
             _parity(list(got), [t.numpy() for t in want], "prior")
     except BaseException:
         for path in paths:

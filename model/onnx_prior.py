@@ -3,6 +3,8 @@
 A prior directory may hold two graphs beside ``prior.safetensors`` (written by ``model.onnx_export``): the
 condition encoder, ``prior-condition.onnx`` (V_c (1, T, 3, H, W), P_c, P_a -> h, plus the token normalisation
 the sampler undoes), and the velocity, ``prior-velocity.onnx`` (standardised tokens x_s, x_d, h, tau -> v_s, v_d).
+A prior with ``cond_tokens`` also feeds Z^c (``z_s``, ``z_d``) to the first and its outputs ``c_s``, ``c_d`` (Z^c
+projected) and ``c_pose`` (the relative pose of the anchor, embedded) to the second (:func:`graph_io`).
 Their weights are external tensors into ``prior.safetensors``; their metadata ties them to prior.json
 (``vt4d_format`` ``"vt4d-prior-onnx/1"``, the weights and config hashes, the token clip ``vt4d_token_limit``).
 
@@ -29,7 +31,8 @@ from .onnx_renderer import TorchNormal
 from .onnx_session import open_checked
 
 __all__ = ["OnnxPrior", "read_safetensor", "PRIOR_CONDITION_FILE", "PRIOR_VELOCITY_FILE", "PRIOR_ONNX_FORMAT", "CONDITION_INPUTS",
-           "CONDITION_OUTPUTS", "VELOCITY_INPUTS", "VELOCITY_OUTPUTS", "has_onnx_prior", "SAMPLERS"]
+           "CONDITION_OUTPUTS", "VELOCITY_INPUTS", "VELOCITY_OUTPUTS", "TOKEN_INPUTS", "TOKEN_OUTPUTS", "graph_io",
+           "has_onnx_prior", "SAMPLERS"]
 
 PRIOR_CONDITION_FILE, PRIOR_VELOCITY_FILE = "prior-condition.onnx", "prior-velocity.onnx"
 PRIOR_ONNX_FORMAT = "vt4d-prior-onnx/1"
@@ -37,6 +40,18 @@ CONDITION_INPUTS = ("frames", "K_c", "w2c_c", "K_a", "w2c_a")
 CONDITION_OUTPUTS = ("h", "static_mean", "static_std", "dynamic_mean", "dynamic_std")
 VELOCITY_INPUTS = ("x_s", "x_d", "h", "tau")
 VELOCITY_OUTPUTS = ("v_s", "v_d")
+# a prior with cond_tokens: Z^c in; projected Z^c and the embedded relative pose of P_a to P_c out
+TOKEN_INPUTS, TOKEN_OUTPUTS = ("z_s", "z_d"), ("c_s", "c_d", "c_pose")
+
+
+def graph_io(config: PriorConfig) -> tuple[tuple[tuple[str, ...], tuple[str, ...]], tuple[tuple[str, ...], tuple[str, ...]]]:
+    """(inputs, outputs) of the condition graph and of the velocity graph of a prior with ``config``: a prior
+    with ``cond_tokens`` also feeds the condition tokens Z^c to the condition graph, which returns them
+    projected (``c_s``, ``c_d``) with the embedded relative pose (``c_pose``) for the velocity graph."""
+    if not config.cond_tokens:
+        return (CONDITION_INPUTS, CONDITION_OUTPUTS), (VELOCITY_INPUTS, VELOCITY_OUTPUTS)
+    return ((CONDITION_INPUTS + TOKEN_INPUTS, CONDITION_OUTPUTS + TOKEN_OUTPUTS),
+            (VELOCITY_INPUTS + TOKEN_OUTPUTS, VELOCITY_OUTPUTS))
 SAMPLERS = ("euler", "heun")  # as model.prior.SAMPLERS
 
 
@@ -68,9 +83,9 @@ class OnnxPrior:
         if not has_onnx_prior(directory):
             raise ModelNotFoundError(f"{directory} has no {PRIOR_CONDITION_FILE} and {PRIOR_VELOCITY_FILE} (export them "
                                      f"with `python -m vt4dcodec.model.onnx_export {directory}`, or sample with torch)")
-        sessions, limit = [], None
-        for name, inputs, outputs in ((PRIOR_CONDITION_FILE, CONDITION_INPUTS, CONDITION_OUTPUTS),
-                                      (PRIOR_VELOCITY_FILE, VELOCITY_INPUTS, VELOCITY_OUTPUTS)):
+        sessions, limit = [], None  # graphs of float64 (since co4dgen-tiny 1.2.0) or float32 tensors
+        (cond_in, cond_out), (vel_in, vel_out) = graph_io(meta["config"])
+        for name, inputs, outputs in ((PRIOR_CONDITION_FILE, cond_in, cond_out), (PRIOR_VELOCITY_FILE, vel_in, vel_out)):
             session, where, props = open_checked(directory / name, meta, fmt=PRIOR_ONNX_FORMAT, inputs=inputs,
                                                  outputs=outputs, what="prior", device=device, threads=threads)
             sessions.append(session)
@@ -81,6 +96,11 @@ class OnnxPrior:
             raise ModelError(f"{directory / PRIOR_VELOCITY_FILE}: metadata vt4d_token_limit must be a number") from None
         return cls(directory, meta, sessions[0], sessions[1], token_limit, where)
 
+    @property
+    def dtype(self) -> type:
+        """The float type the graphs compute in (their inputs): np.float64, or np.float32 for older exports."""
+        return np.float64 if self.condition.get_inputs()[0].type == "tensor(double)" else np.float32
+
     def null_condition(self) -> np.ndarray:
         """The learned null condition (D,) float32 of a prior trained with ``cond_dropout``, read from its
         weights file (the tensor the guided sampler puts in place of every condition token)."""
@@ -90,10 +110,11 @@ class OnnxPrior:
         return self._null
 
     def sample(self, frames: np.ndarray, K_c: np.ndarray, w2c_c: np.ndarray, K_a: np.ndarray, w2c_a: np.ndarray, *,
-               steps: int = 16, seed: int = 0, method: str = "heun", guidance: float = 1.0
-               ) -> tuple[np.ndarray, np.ndarray]:
+               steps: int = 16, seed: int = 0, method: str = "heun", guidance: float = 1.0,
+               z_s: np.ndarray | None = None, z_d: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``Co4DGen.sample`` of one condition: frames (1, T, 3, H, W) float32 in [0, 1], cameras (1, T, 3, 3) and
-        (1, T, 4, 4) -> (Z_s (1, N_s, d), Z_d (1, N_d, d)) float32 in (-1, 1); ``guidance`` as there."""
+        (1, T, 4, 4) -> (Z_s (1, N_s, d), Z_d (1, N_d, d)) float32 in (-1, 1); ``guidance`` as there; ``z_s``,
+        ``z_d`` the tokenizer's tokens of the video, (1, N_s, d) and (1, N_d, d), for a prior with ``cond_tokens``."""
         if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
             raise ModelError(f"steps must be a positive integer, got {steps!r}")
         if method not in SAMPLERS:
@@ -101,39 +122,50 @@ class OnnxPrior:
         guidance = checked_guidance(guidance, self.config.cond_dropout)
         null = self.null_condition() if guidance != 1.0 else None
         cfg = self.config
-        feed = {n: np.ascontiguousarray(a, np.float32) for n, a in zip(CONDITION_INPUTS, (frames, K_c, w2c_c, K_a, w2c_a))}
+        dtype = self.dtype
+        feed = {n: np.ascontiguousarray(a, dtype) for n, a in zip(CONDITION_INPUTS, (frames, K_c, w2c_c, K_a, w2c_a))}
         T, H = cfg.frames, cfg.image_size
         want = {"frames": (1, T, 3, H, H), "K_c": (1, T, 3, 3), "w2c_c": (1, T, 4, 4), "K_a": (1, T, 3, 3),
                 "w2c_a": (1, T, 4, 4)}
+        if cfg.cond_tokens:
+            if z_s is None or z_d is None:
+                raise ModelError("this prior is conditioned on the tokenizer's tokens of the conditioning video: pass "
+                                 "z_s and z_d (Z^c = E(V_c, P_c))")
+            feed.update(z_s=np.ascontiguousarray(z_s, dtype), z_d=np.ascontiguousarray(z_d, dtype))
+            want.update(z_s=(1, cfg.n_static, cfg.token_dim), z_d=(1, cfg.n_dynamic, cfg.token_dim))
         for name, shape in want.items():
             if feed[name].shape != shape or not np.isfinite(feed[name]).all():
                 raise ModelError(f"{name} must be a finite {shape} array, got {feed[name].shape}")
-        h, s_mean, s_std, d_mean, d_std = self.condition.run(list(CONDITION_OUTPUTS), feed)
+        (_, cond_out), _ = graph_io(cfg)
+        h, s_mean, s_std, d_mean, d_std, *tokens = self.condition.run(list(cond_out), feed)
+        token_feed = dict(zip(TOKEN_OUTPUTS, tokens))
+        null_tokens = {k: np.zeros_like(v) for k, v in token_feed.items()}
         noise = TorchNormal(seed)
-        x_s = noise.randn((1, cfg.n_static, cfg.token_dim))
-        x_d = noise.randn((1, cfg.n_dynamic, cfg.token_dim))
+        x_s = noise.randn((1, cfg.n_static, cfg.token_dim)).astype(dtype)  # torch's float32 noise, as there
+        x_d = noise.randn((1, cfg.n_dynamic, cfg.token_dim)).astype(dtype)
 
         h_null = None if null is None else np.ascontiguousarray(np.broadcast_to(null.astype(h.dtype), h.shape))
 
         def velocity(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-            t = np.full(1, tau, np.float32)
-            v_s, v_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h, "tau": t})
+            t = np.full(1, tau, dtype)
+            v_s, v_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h, "tau": t, **token_feed})
             if h_null is None:
                 return v_s, v_d
-            u_s, u_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h_null, "tau": t})
-            g = np.float32(guidance)
+            u_s, u_d = self.velocity.run(list(VELOCITY_OUTPUTS), {"x_s": a, "x_d": b, "h": h_null, "tau": t,
+                                                                  **null_tokens})
+            g = dtype(guidance)
             return u_s + g * (v_s - u_s), u_d + g * (v_d - u_d)
 
-        for i in range(steps):  # as Co4DGen.sample: Python-float step sizes, float32 arithmetic
+        for i in range(steps):  # as Co4DGen.sample: Python-float step sizes, arithmetic in the graphs' type
             t0, t1 = 1.0 - i / steps, 1.0 - (i + 1) / steps
             v_s, v_d = velocity(x_s, x_d, t0)
-            e_s, e_d = x_s + np.float32(t1 - t0) * v_s, x_d + np.float32(t1 - t0) * v_d
+            e_s, e_d = x_s + dtype(t1 - t0) * v_s, x_d + dtype(t1 - t0) * v_d
             if method == "heun" and t1 > 0:
                 w_s, w_d = velocity(e_s, e_d, t1)
-                e_s = x_s + np.float32((t1 - t0) * 0.5) * (v_s + w_s)
-                e_d = x_d + np.float32((t1 - t0) * 0.5) * (v_d + w_d)
+                e_s = x_s + dtype((t1 - t0) * 0.5) * (v_s + w_s)
+                e_d = x_d + dtype((t1 - t0) * 0.5) * (v_d + w_d)
             x_s, x_d = e_s, e_d
-        limit = np.float32(self.token_limit)
+        limit = dtype(self.token_limit)
         return (np.clip(x_s * s_std + s_mean, -limit, limit).astype(np.float32),
                 np.clip(x_d * d_std + d_mean, -limit, limit).astype(np.float32))
 

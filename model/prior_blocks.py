@@ -150,8 +150,9 @@ class ConditionEncoder(nn.Module):
         p, g, ga = self.patch, self.grid, self.anchor_grid
         patches = frames.reshape(B, T, 3, g, p, g, p).permute(0, 1, 3, 5, 2, 4, 6).reshape(B, T, g * g, 3 * p * p)
         with torch.autocast(frames.device.type, enabled=False):
-            rays_c = latent_rays(K_c, w2c_c, self.image_size, g).flatten(3).transpose(2, 3)   # (B, T, g*g, 6)
-            rays_a = latent_rays(K_a, w2c_a, self.image_size, ga).flatten(3).transpose(2, 3)  # (B, T, ga*ga, 6)
+            dtype = self.patch_embed.weight.dtype  # float32, or float64 in the sampler's copy
+            rays_c = latent_rays(K_c, w2c_c, self.image_size, g, dtype).flatten(3).transpose(2, 3)   # (B, T, g*g, 6)
+            rays_a = latent_rays(K_a, w2c_a, self.image_size, ga, dtype).flatten(3).transpose(2, 3)  # (B, T, ga*ga, 6)
         frame_pos = self.frame_embed[:T][None, :, None, :]
         video = self.patch_embed(patches) + self.ray_embed_c(rays_c) + frame_pos + self.type_embed[0]
         anchor = self.ray_embed_a(rays_a) + frame_pos + self.type_embed[1]
@@ -163,4 +164,4 @@ class ConditionEncoder(nn.Module):
 
 def flow_time_embedding(tau: torch.Tensor, width: int, mlp: nn.Module) -> torch.Tensor:
     """emb(tau): sinusoidal features of tau in [0, 1] through ``mlp``. (B,) -> (B, width)."""
-    return mlp(timestep_embedding(tau, width))
+    return mlp(timestep_embedding(tau, width, dtype=next(mlp.parameters()).dtype))

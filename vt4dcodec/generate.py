@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .model.onnx_prior import OnnxPrior
     from .model.prior import Co4DGen
 
-__all__ = ["generate", "load_prior_model", "fit_conditioning", "sampler_setting", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS",
+__all__ = ["generate", "load_prior_model", "fit_conditioning", "conditioning_tokens", "sampler_setting", "DEFAULT_PRIOR", "DEFAULT_PRIOR_STEPS",
            "GENERATED_ENCODING"]
 
 DEFAULT_PRIOR = "co4dgen-tiny"
@@ -126,6 +126,7 @@ def generate(
     source_capture_id: str | None = None,
     runtime: str = "auto",
     device: str = "cpu",
+    tokenizer: "str | os.PathLike | Any | None" = None,
 ) -> Scene:
     """Sample one joint token state Z^a ~ p(Z^a | V_c, P_c, P_a) and return it as a Scene.
 
@@ -147,6 +148,9 @@ def generate(
         source_capture_id: the capture the video came from, recorded in the provenance (``vt4d info``).
         runtime: ``"auto"``, ``"torch"`` or ``"onnx"``: which runtime samples the prior (module docstring).
         device: ``"cpu"``, ``"cuda"`` or ``"auto"``: where the prior runs (DeviceError for ``"cuda"`` without a GPU).
+        tokenizer: for a prior conditioned on the tokenizer's tokens of the video (``config.cond_tokens``), the
+            encoder that computes them (an id, a directory or a loaded encoder; default: the tokenizer the prior
+            was trained on), on ``runtime`` and ``device``; it must be that tokenizer (ModelError otherwise).
     Returns:
         A :class:`Scene` whose tokens are the sample, cameras P_a, fingerprint the tokenizer's the prior
         was trained on, and provenance kind "generated".
@@ -163,14 +167,17 @@ def generate(
         raise TrajectoryError(f"the anchor trajectory has {anchor.num_frames} frames; the prior samples scenes of "
                               f"{cfg.frames} frames")
 
+    tokens = None
+    if cfg.cond_tokens:
+        tokens = conditioning_tokens(prior, frames, cond_traj, tokenizer, runtime=runtime, device=device)
     if isinstance(prior, OnnxPrior):
         pixels = frames.transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255.0)
         z_s, z_d = prior.sample(pixels[None], *(np.asarray(a, np.float32)[None] for a in (
             cond_traj.K, cond_traj.w2c, anchor.K, anchor.w2c)), steps=steps, seed=seed, method=method,
-            guidance=guidance)
+            guidance=guidance, **({} if tokens is None else {"z_s": tokens[0], "z_d": tokens[1]}))
     else:
         z_s, z_d = (t.cpu().numpy() for t in _sample_torch(prior, frames, cond_traj, anchor, steps, seed, method,
-                                                             guidance))
+                                                             guidance, tokens))
     info = {"prior_id": prior.model_id or "unnamed", "prior_version": prior.model_version or "0",
             "prior_config_sha256": cfg.sha256(), "seed": int(seed), "steps": int(steps), "method": method,
             "clip_start": int(start), "clip_frames": int(cfg.frames)}
@@ -200,8 +207,43 @@ def sampler_setting(prior: Any, steps: int | None = None, method: str | None = N
             checked_guidance(guidance, prior.config.cond_dropout))
 
 
+def conditioning_tokens(prior: Any, frames: np.ndarray, cameras: Trajectory, tokenizer: Any = None, *,
+                        runtime: str = "auto", device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
+    """Z^c = E(V_c, P_c): the tokens a prior with ``cond_tokens`` is conditioned on, (1, N_s, d) and (1, N_d, d)
+    float32, from the fitted clip ``frames`` (T, H, W, 3) uint8 with ``cameras``, encoded by ``tokenizer`` (id,
+    directory or loaded encoder; default: the prior's tokenizer) on ``runtime`` / ``device`` like ``encode``
+    (depth estimated, seed 0).  They are not rounded to float16 like the token records the prior was trained
+    on (a difference of at most 2^-11 relative, below what the prior resolves): rounding would turn the
+    encoder runtimes' float32 differences into whole float16 steps where a value sits at a rounding boundary,
+    and the torch and ONNX generate paths would part by more than float rounding.  ModelError when the
+    tokenizer is not the one the prior was trained on."""
+    from .codec import load_encoder, model_fingerprint
+    from .model.directories import check_tokenizer  # torch-free
+    from .model.inputs.preprocess import prepare_source
+    from .model.onnx_encoder import OnnxEncoder
+
+    net = load_encoder(tokenizer if tokenizer is not None else prior.tokenizer_fingerprint.model_id, runtime,
+                       device=device)
+    check_tokenizer(prior, model_fingerprint(net))
+    cfg = net.config
+    source = prepare_source(frames, cameras, None, latent_hw=(cfg.latent_size, cfg.latent_size),
+                            num_tracks=cfg.n_tracks, seed=0, motion_isolation=cfg.motion_isolation)
+    if isinstance(net, OnnxEncoder):
+        z_s, z_d = net.encode([source])
+    else:
+        import torch
+
+        from .model.inputs.source_inputs import SourceBatch
+
+        with torch.no_grad():
+            t_s, t_d = net.encode(SourceBatch.collate([source]).to(next(net.parameters()).device))
+        z_s, z_d = t_s.cpu().numpy(), t_d.cpu().numpy()
+    return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
+
+
 def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, anchor: Trajectory, steps: int,
-                  seed: int, method: str, guidance: float) -> tuple[Any, Any]:
+                  seed: int, method: str, guidance: float, tokens: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> tuple[Any, Any]:
     """``Co4DGen.sample`` of the fitted clip ``frames`` (T, H, W, 3) uint8 and its trajectories, on the prior's device."""
     import torch  # the networks and torch load on call: `import vt4dcodec` imports this module
 
@@ -214,6 +256,8 @@ def _sample_torch(prior: "Co4DGen", frames: np.ndarray, cond_traj: Trajectory, a
 
     cond = PriorCondition(frames=torch.from_numpy(frames).permute(0, 3, 1, 2).float().div(255.0)[None].to(where),
                           K_c=tensor(cond_traj.K), w2c_c=tensor(cond_traj.w2c), K_a=tensor(anchor.K),
-                          w2c_a=tensor(anchor.w2c))
+                          w2c_a=tensor(anchor.w2c),
+                          z_s=None if tokens is None else torch.from_numpy(tokens[0]).to(where),
+                          z_d=None if tokens is None else torch.from_numpy(tokens[1]).to(where))
     with torch.no_grad():
         return prior.sample(cond, steps=steps, seed=seed, method=method, guidance=guidance)

@@ -28,6 +28,7 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from vt4dcodec.errors import ModelError
 from vt4dcodec.format import ModelFingerprint
 
 from ..configs import PriorConfig, get_prior_config
+from ..directories import parse_sampler
 from ..prior import Co4DGen, PriorCondition
 from ..weights_io import save_prior
 from .common import (JsonlLog, WeightAverage, cleanup_distributed, cycle, make_loader, parse_overrides, seed_everything,
@@ -65,17 +67,22 @@ class PriorBatch:
 class PriorPairDataset(Dataset):
     """All ordered (anchor record, conditioning clip of the same event) pairs of some token shards: the
     clips of the other cameras (``anchors="distinct"``, the paper's pairs) or of every camera including
-    the anchor's own (``anchors="all"``).  Item: dict with ``z_s``, ``z_d``, ``K_a``, ``w2c_a`` (tensors of
-    the anchor record), ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, and the
-    two keys."""
+    the anchor's own (``anchors="all"``; that pair ``source_repeats`` times, so a share of the batches is the
+    ``anchor="source"`` case ``vt4d generate`` defaults to).  Item: dict with ``z_s``, ``z_d``, ``K_a``, ``w2c_a`` (tensors of
+    the anchor record), ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, ``zc_s``,
+    ``zc_d`` the conditioning camera's own token record (Z^c), and the two keys."""
 
-    def __init__(self, shards: Any, anchors: str = "distinct") -> None:
+    def __init__(self, shards: Any, anchors: str = "distinct", source_repeats: int = 1) -> None:
         if anchors not in ANCHORS:
             raise ModelError(f"anchors must be one of {ANCHORS}, got {anchors!r}")
+        if not isinstance(source_repeats, int) or source_repeats < 1 or (source_repeats > 1 and anchors != "all"):
+            raise ModelError(f"source_repeats must be a positive integer, and above 1 only when every anchor's own "
+                             f"clip is among the pairs (anchors all); got {source_repeats!r}")
         self.tokens = ArchiveDataset(shards)
         if len(self.tokens) == 0:
             raise ModelError(f"no token records in {shards}")
         self.clips = ClipStore(self.tokens.shards)
+        self.index = {key: i for i, (_, key) in enumerate(self.tokens.keys)}
         self.pairs: list[tuple[int, str]] = []
         for i, (_, key) in enumerate(self.tokens.keys):
             event, _, cam = key.rpartition("/cam")
@@ -85,7 +92,7 @@ class PriorPairDataset(Dataset):
             if anchors == "all":
                 if key not in self.clips:
                     raise ModelError(f"token record {key!r} has no clip of its own camera")
-                others = sorted(others + [key])
+                others = sorted(others + [key] * source_repeats)
             self.pairs.extend((i, k) for k in others)
 
     def _event_clips(self, event: str) -> list[str]:
@@ -105,9 +112,14 @@ class PriorPairDataset(Dataset):
         clip = self.clips.load(clip_key)
         if clip["frames"].shape[0] != anchor["K"].shape[0]:
             raise ModelError(f"clip {clip_key} and record {anchor['key']} differ in frame count")
+        own = self.index.get(clip_key)  # Z^c, the conditioning camera's own record
+        if own is None:
+            raise ModelError(f"clip {clip_key} has no token record of its own")
+        cond_tokens = anchor if own == i else self.tokens[own]
         return {"z_s": anchor["static_tokens"].float(), "z_d": anchor["dynamic_tokens"].float(),
                 "K_a": anchor["K"], "w2c_a": anchor["w2c"], "frames": clip["frames"], "K_c": clip["K"],
-                "w2c_c": clip["w2c"], "anchor_key": anchor["key"], "clip_key": clip_key,
+                "w2c_c": clip["w2c"], "zc_s": cond_tokens["static_tokens"].float(),
+                "zc_d": cond_tokens["dynamic_tokens"].float(), "anchor_key": anchor["key"], "clip_key": clip_key,
                 "fingerprint": anchor["metadata"]["fingerprint"]}
 
 
@@ -118,7 +130,8 @@ def collate_prior(items: list[dict[str, Any]]) -> PriorBatch:
                           K_c=torch.from_numpy(np.stack([it["K_c"] for it in items])).float(),
                           w2c_c=torch.from_numpy(np.stack([it["w2c_c"] for it in items])).float(),
                           K_a=torch.stack([it["K_a"] for it in items]).float(),
-                          w2c_a=torch.stack([it["w2c_a"] for it in items]).float())
+                          w2c_a=torch.stack([it["w2c_a"] for it in items]).float(),
+                          z_s=torch.stack([it["zc_s"] for it in items]), z_d=torch.stack([it["zc_d"] for it in items]))
     return PriorBatch(z_s=torch.stack([it["z_s"] for it in items]), z_d=torch.stack([it["z_d"] for it in items]),
                       cond=cond, keys=[it["anchor_key"] for it in items])
 
@@ -144,6 +157,9 @@ def model_card(model_id: str, model_version: str, cfg: PriorConfig, tokenizer: A
                ) -> str:
     """MODEL_CARD.md of a trained prior: what it models, the tokenizer it is bound to, how it was trained."""
     params = sum(p.numel() for p in Co4DGen(cfg).parameters())
+    token_note = ("; and the tokenizer's own tokens of the video, Z^c = E(V_c, P_c), added to the input tokens, "
+                  "with the relative pose of P_a to P_c in the modulation (so `vt4d generate` encodes the video "
+                  "with the tokenizer first)") if cfg.cond_tokens else ""
     return f"""# {model_id} {model_version}
 
 Co4DGen token-space prior (VideoTok4D paper, Sec. 3.3): samples the joint token state
@@ -156,13 +172,15 @@ tokenizer's renderer along any trajectory: `vt4d generate CAPTURE --anchor PRESE
 * Architecture: {cfg.layers} co-denoising blocks (Static-Dynamic Cross-Token Attention, cross-attention to
   E_cond, adaLN from tau + pooled condition), width {cfg.width}, {cfg.heads} heads; E_cond with
   {cfg.cond_layers} blocks over {cfg.cond_patch}x{cfg.cond_patch}-pixel video patches + Plucker rays and
-  {cfg.anchor_grid}x{cfg.anchor_grid} anchor-ray tokens per frame; {params / 1e6:.2f} M parameters.
+  {cfg.anchor_grid}x{cfg.anchor_grid} anchor-ray tokens per frame{token_note}; {params / 1e6:.2f} M parameters.
 * Token state: N_s = {cfg.n_static}, N_d = {cfg.n_dynamic}, d = {cfg.token_dim}; clips of {cfg.frames} frames at
   {cfg.image_size}x{cfg.image_size}.
 * Training: {training["steps"]} steps, batch {training["batch_size"]}, on {training["pairs"]} ordered camera
   pairs ({training["records"]} anchor records) read from `{training["shards"]}` through
-  vt4dcodec.data.archive_dataset (anchors: {training.get("anchors", "distinct")}); loss {training["first_loss"]} ->
-  {training["final_loss"]} in {training["seconds"]} s wall time on a shared CPU; learning rate {training.get("lr")}
+  vt4dcodec.data.archive_dataset (anchors: {training.get("anchors", "distinct")}{", the anchor's own clip " + str(training["source_repeats"]) +
+  " times" if training.get("source_repeats", 1) > 1 else ""}); loss {training["first_loss"]} ->
+  {training["final_loss"]} in {training["seconds"]} s wall time on a shared CPU{
+  ", starting from the weights of " + training["init"] if training.get("init") else ""}; learning rate {training.get("lr")}
   (warm-up, cosine decay); {"the weights are the exponential moving average (decay " + str(training["ema_decay"]) + ")"
   if training.get("ema_decay") else "the last weights"}; null condition for classifier-free guidance:
   {"a share of " + str(cfg.cond_dropout) + " of the conditions" if cfg.cond_dropout else "none"}.
@@ -177,7 +195,7 @@ class SampleValidation:
     """Sample quality on held-out events during training, against the floor and ceiling of each event.
 
     For each of the first ``events`` events of ``shards`` (test split, tokenized by ``tokenizer``): one
-    sample (``steps`` Heun steps, seed 0) conditioned on camera 0's video and anchored at camera 0, rendered
+    sample (``steps`` steps of ``method``, seed 0) conditioned on camera 0's video and anchored at camera 0, rendered
     by the tokenizer at every camera of the event.  Reported (means over every rendered video): PSNR and
     SSIM of the sample, of the ceiling (camera 0's own record, E(V_0, P_0), rendered the same way) and of
     the floor (every pixel the conditioning video's mean colour), ``gap_closed`` = (sample - floor) /
@@ -185,11 +203,11 @@ class SampleValidation:
     :class:`WeightAverage`) is what is sampled when given; ``prior``'s own weights are left unchanged.
     """
 
-    def __init__(self, shards: Any, tokenizer: Any, events: int = 8, steps: int = 16) -> None:
+    def __init__(self, shards: Any, tokenizer: Any, events: int = 8, steps: int = 16, method: str = "heun") -> None:
         from ..diagnostics import video_quality
 
         self._quality = video_quality
-        self.tokenizer, self.steps = tokenizer, int(steps)
+        self.tokenizer, self.steps, self.method = tokenizer, int(steps), method
         stored = tokenizer.stored_fingerprint()
         fingerprint = stored.to_dict()
         dataset = ArchiveDataset(shards)
@@ -246,8 +264,9 @@ class SampleValidation:
             K = torch.from_numpy(clip["K"]).float()[None]
             w2c = torch.from_numpy(clip["w2c"]).float()[None]
             frames = torch.from_numpy(clip["frames"]).permute(0, 3, 1, 2).float().div(255.0)[None]
-            z_s, z_d = prior.sample(PriorCondition(frames=frames, K_c=K, w2c_c=w2c, K_a=K, w2c_a=w2c),
-                                    steps=self.steps, seed=0)
+            z_s, z_d = prior.sample(PriorCondition(frames=frames, K_c=K, w2c_c=w2c, K_a=K, w2c_a=w2c,
+                                                   z_s=cams[0]["z_s"][None], z_d=cams[0]["z_d"][None]),
+                                    steps=self.steps, seed=0, method=self.method)
             out.append(self._render(cams, z_s, z_d))
         return out
 
@@ -296,6 +315,27 @@ def plot_validation(records: list[dict[str, Any]], png: Any, title: str) -> None
     plt.close(fig)
 
 
+def initialise_from(prior: Co4DGen, source: Path) -> list[str]:
+    """Copy the weights of a saved prior or training checkpoint into ``prior`` (``--init``): every tensor of
+    the source must exist in ``prior`` with the same shape; tensors only ``prior`` has (parameters its config
+    adds) keep their initial values.  Returns the names copied; ModelError for anything else."""
+    from safetensors.torch import load_file
+
+    from ..directories import PRIOR_WEIGHTS_FILE
+
+    candidates = [source / PRIOR_WEIGHTS_FILE, source / "ema.safetensors", source / "model.safetensors"]
+    path = next((p for p in candidates if p.is_file()), None)
+    if path is None:
+        raise ModelError(f"--init {source}: no {PRIOR_WEIGHTS_FILE}, ema.safetensors or model.safetensors there")
+    weights = load_file(str(path))
+    own = prior.state_dict()
+    wrong = [k for k, v in weights.items() if k not in own or tuple(own[k].shape) != tuple(v.shape)]
+    if wrong:
+        raise ModelError(f"--init {path}: {len(wrong)} tensors do not fit this prior's config, e.g. {wrong[:3]}")
+    prior.load_state_dict({**own, **weights})
+    return sorted(weights)
+
+
 def _prior_step(module: torch.nn.Module, batch: PriorBatch) -> tuple[torch.Tensor, dict[str, float]]:
     return module(batch.z_s, batch.z_d, batch.cond)
 
@@ -308,13 +348,21 @@ def arguments() -> argparse.ArgumentParser:
     parser.add_argument("--anchors", choices=ANCHORS, default="all",
                         help="training pairs: every (anchor, conditioning camera) pair of an event, the anchor "
                              "itself included (all, default), or only distinct cameras (the paper's pairs)")
+    parser.add_argument("--source-repeats", type=int, default=1, metavar="N",
+                        help="with --anchors all: each pair whose anchor is the conditioning camera itself N times "
+                             "(with 10 cameras, 9 makes it half of the pairs; default 1)")
     parser.add_argument("--ema-decay", type=float, default=0.999,
                         help="keep an exponential moving average of the weights with this decay; validation "
                              "and the saved prior use it (0: none, the last weights)")
     parser.add_argument("--val-shards", default=None, help="test-split shards by the same tokenizer to validate on")
     parser.add_argument("--val-events", type=int, default=8, help="held-out events per validation")
     parser.add_argument("--val-every", type=int, default=500, help="validate every N steps (and at the end)")
-    parser.add_argument("--val-steps", type=int, default=16, help="sampler steps of a validation sample")
+    parser.add_argument("--val-sampler", default="heun:16", metavar="METHOD:STEPS",
+                        help="sampler of a validation sample (default heun:16)")
+    parser.add_argument("--init", type=Path, default=None, metavar="DIR",
+                        help="start from these weights: a prior directory (prior.safetensors) or a run's checkpoint "
+                             "directory (its ema.safetensors, else model.safetensors); parameters the config adds "
+                             "(e.g. cond_tokens) keep their initial values. Ignored when the run resumes")
     parser.add_argument("--tokenizer", default=None,
                         help="the tokenizer that wrote the shards, to render validation samples (default: the "
                              "shipped model the shards' fingerprint names)")
@@ -329,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.ema_decay and not 0.0 < args.ema_decay < 1.0:
         raise ModelError(f"--ema-decay must lie in (0, 1) or be 0, got {args.ema_decay}")
-    dataset = PriorPairDataset(args.shards, anchors=args.anchors)
+    dataset = PriorPairDataset(args.shards, anchors=args.anchors, source_repeats=args.source_repeats)
     all_s, all_d, fp_dict = token_statistics(dataset)
     cfg = get_prior_config(args.config, **parse_overrides(args.set))
     first = dataset.tokens[0]["metadata"]  # the token state and clip sizes come from the data
@@ -338,6 +386,9 @@ def main(argv: list[str] | None = None) -> int:
                                  "image_size": first["width"]})
     prior = Co4DGen(cfg)
     prior.set_token_statistics(all_s, all_d)
+    if args.init is not None and not (args.out / "checkpoint" / "state.json").is_file():
+        loaded = initialise_from(prior, args.init)
+        print(f"initialised {len(loaded)} tensors from {args.init}")
     optimizer = torch.optim.AdamW(prior.parameters(), lr=args.lr, weight_decay=0.01)
     module = DistributedDataParallel(prior) if info.distributed else prior
     average = WeightAverage(prior, args.ema_decay) if args.ema_decay else None
@@ -349,7 +400,8 @@ def main(argv: list[str] | None = None) -> int:
         if tokenizer.stored_fingerprint().to_dict() != fp_dict:
             raise ModelError(f"--tokenizer {tokenizer.stored_fingerprint().short()} did not write the training shards "
                              f"({fp_dict['model_id']}@{fp_dict['model_version']})")
-        validation = SampleValidation(args.val_shards, tokenizer, args.val_events, args.val_steps)
+        setting = parse_sampler(args.val_sampler)
+        validation = SampleValidation(args.val_shards, tokenizer, args.val_events, setting.steps, setting.method)
         print(f"validation on {len(validation.events)} held-out events: ceiling "
               f"{validation.reference['ceiling']['psnr']:.2f} dB, floor {validation.reference['floor']['psnr']:.2f} dB")
 
@@ -372,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
         tokenizer = ModelFingerprint.from_dict(fp_dict)
         training = {"shards": str(args.shards), "pairs": len(dataset), "records": len(dataset.tokens),
                     "steps": args.steps, "batch_size": args.batch_size, "anchors": args.anchors,
+                    "source_repeats": args.source_repeats, "init": str(args.init) if args.init else None,
                     "ema_decay": args.ema_decay, "lr": args.lr,
                     "first_loss": records[0]["loss"] if records else None,
                     "final_loss": records[-1]["loss"] if records else None,

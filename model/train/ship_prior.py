@@ -29,6 +29,13 @@ from ..weights_io import load_prior, save_prior
 __all__ = ["ship_prior"]
 
 
+ONNX_CARD_NOTE = """* ONNX: `prior-condition.onnx` and `prior-velocity.onnx`, exported for onnxruntime from these weights
+  (`python -m vt4dcodec.model.onnx_export co4dgen-tiny`; their weights are read from `prior.safetensors`):
+  `vt4d generate` samples with them where torch is not installed. They compute in float64, as the torch
+  sampler does, so both give the same tokens to float32 rounding.
+"""
+
+
 def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR, *, sampler: str | None = None,
                measured: str | None = None) -> Path:
     """Store the prior directory ``source`` as ``dest/<its model_id>`` (float16); returns that directory.
@@ -54,6 +61,11 @@ def ship_prior(source: str | Path, dest: str | Path = SHIPPED_DIR, *, sampler: s
                          f"train the prior on the shipped tokenizer's tokens")
     card_path = source / CARD_FILE
     card = card_path.read_text(encoding="utf-8") if card_path.is_file() else None
+    if card is not None and "prior-velocity.onnx" not in card:
+        card = card.rstrip("\n") + "\n" + ONNX_CARD_NOTE
+    if card is not None and sampler is not None:
+        card = card.rstrip("\n") + f"\n* Sampler (`vt4d generate`'s default, chosen by measurement): {chosen}" + (
+            f" ({measured})" if measured else "") + "\n"
     out = dest / prior.model_id
     if out.exists():
         shutil.rmtree(out)

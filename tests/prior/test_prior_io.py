@@ -109,7 +109,9 @@ def test_ship_prior_stores_float16_beside_its_tokenizer_and_refuses_another_toke
     run = save_prior(prior, tmp_path / "run" / "prior", model_id="p-ship", model_version="3", tokenizer=tokenizer,
                      card="# trained\n", extra={"steps": 5})
     out = ship_prior(run, dest)
-    assert out == dest / "p-ship" and (out / "MODEL_CARD.md").read_text() == "# trained\n"
+    from vt4dcodec.model.train.ship_prior import ONNX_CARD_NOTE
+
+    assert out == dest / "p-ship" and (out / "MODEL_CARD.md").read_text() == "# trained\n" + ONNX_CARD_NOTE
     shipped = load_prior(out)
     assert shipped.tokenizer_fingerprint == tokenizer
     assert json.loads((out / "prior.json").read_text())["extra"] == {"steps": 5}

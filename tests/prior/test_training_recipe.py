@@ -103,7 +103,7 @@ class _Oracle:
     def eval(self) -> "_Oracle":
         return self
 
-    def sample(self, cond, *, steps, seed):
+    def sample(self, cond, *, steps, seed, method="heun"):
         cams = self.validation.events[self.index[0]]
         self.index[0] += 1
         return cams[0]["z_s"][None], cams[0]["z_d"][None]
@@ -142,7 +142,7 @@ def test_training_validates_on_a_schedule_saves_the_average_and_resumes(shards, 
                                                                       "frames", "image_size")]
     common = ["--shards", str(shards), "--out", str(out), "--batch-size", "4", "--warmup", "2", "--log-every", "2",
               "--ckpt-every", "2", "--no-progress", "--val-shards", str(shards), "--val-events", "1",
-              "--val-every", "2", "--val-steps", "2", "--tokenizer", str(tokenizer_dir), "--ema-decay", "0.9",
+              "--val-every", "2", "--val-sampler", "heun:2", "--tokenizer", str(tokenizer_dir), "--ema-decay", "0.9",
               "--set", *overrides]
     assert main(["--steps", "4", *common]) == 0
     records = [json.loads(line) for line in (out / "val.jsonl").read_text().splitlines()]

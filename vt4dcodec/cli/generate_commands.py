@@ -107,7 +107,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
                          steps=steps, method=method, guidance=guidance, start=args.start, encoding=args.encoding,
                          metadata={"conditioning": {"capture_id": cap.capture_id, "camera": camera},
                                    CAPTURE_KEY: {"fps": float(cap.fps)}},
-                         source_capture_id=cap.capture_id, runtime=args.runtime, device=args.device)
+                         source_capture_id=cap.capture_id, runtime=args.runtime, device=args.device,
+                         tokenizer=args.model or prior.tokenizer_fingerprint.model_id)
     sampled = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_path = out_dir / "scene.vt4d"
