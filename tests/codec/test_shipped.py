@@ -297,3 +297,40 @@ def test_demo_runs_twice_into_the_same_directory_and_guards_foreign_captures(tmp
     assert r.returncode == 1 and "--overwrite" in r.stderr
     r = vt4d("demo", "-o", out, "--overwrite")
     assert r.returncode == 0, r.stderr
+
+
+# The shipped prior on three held-out 10-camera scenes, as `vt4d generate` is used by default: camera 0's video, the
+# anchor at camera 0, one sample (the recorded sampler, seed 0) rendered at all 10 cameras, scored between a flat
+# image of the video's mean colour and the tokenizer's own encode of the video. Guards below the level reached,
+# by this test's own computation (the 64-event measurement is docs/co4dgen.md's): co4dgen-tiny 1.2.0 closes
+# 1.015 / 0.880 / 0.996 of the gap with own-view SSIM 0.002 / 0.004 / 0.001 below the encode's (issue 50 asks 0.7 and
+# within 0.1); the prior shipped before it, 1.0.0 (its recorded one-step sampler), fails both on all three:
+# -0.11 / -0.27 / 0.47 of the gap, own-view SSIM 0.33 / 0.27 / 0.44 below the encode's.
+GUARD_PRIOR_GAP_CLOSED = 0.8
+GUARD_PRIOR_OWN_SSIM_BELOW_ENCODE = 0.05
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_shipped_prior_draws_the_scene(seed):
+    from vt4dcodec.generate import generate
+    from vt4dcodec.model.diagnostics import video_quality
+
+    capture = generate_scene(seed, split="test", config=SynthConfig(num_cameras=10)).capture
+    names = capture.camera_names
+    cam = names[0]
+    sample = codec.SceneDecoder.open(generate(capture.frames[cam], capture.cameras[cam], "source", seed=0))
+    encode = codec.SceneDecoder.open(codec.encode(capture, "vt4d-tiny", camera=cam))
+    specs = [capture.cameras[n] for n in names]
+    got, ceiling = sample.render_many(specs, seed=0), encode.render_many(specs, seed=0)
+    truth = [capture.frames[n][: got[0].shape[0]] for n in names]
+    flat = capture.frames[cam][: got[0].shape[0]].reshape(-1, 3).mean(0).round().astype(np.uint8)
+
+    def mean_psnr(videos):
+        return float(np.mean([video_quality(v, t)[0] for v, t in zip(videos, truth)]))
+
+    floor_db = mean_psnr([np.broadcast_to(flat, t.shape) for t in truth])
+    closed = (mean_psnr(got) - floor_db) / (mean_psnr(ceiling) - floor_db)
+    own, own_encode = video_quality(got[0], truth[0])[1], video_quality(ceiling[0], truth[0])[1]
+    print(f"seed {seed}: gap closed {closed:.3f}, own-view SSIM {own:.3f} vs encode {own_encode:.3f}")
+    assert closed >= GUARD_PRIOR_GAP_CLOSED
+    assert own >= own_encode - GUARD_PRIOR_OWN_SSIM_BELOW_ENCODE
