@@ -443,12 +443,7 @@ class _PriorCondition(nn.Module):
         p = self.prior
         h = p.cond_encoder(frames, K_c, w2c_c, K_a, w2c_a)
         out = (h, p.static_mean * 1.0, p.static_std * 1.0, p.dynamic_mean * 1.0, p.dynamic_std * 1.0)  # as outputs
-        if not tokens:
-            return out
-        from .prior import relative_pose
-
-        zc_s, zc_d = p.normalize(*tokens)  # Co4DGen.token_condition without its Python-side checks
-        return (*out, p.cond_in_s(zc_s), p.cond_in_d(zc_d), p.relative_pose(relative_pose(w2c_a, w2c_c)))
+        return out if not tokens else (*out, *p.token_features(tokens[0], tokens[1], w2c_a, w2c_c))
 
 
 class _PriorVelocity(nn.Module):

@@ -203,29 +203,36 @@ class Co4DGen(ModelIdentity, nn.Module):
     # ---------------------------------------------------------------------------------------------
     def encode_condition(self, cond: PriorCondition) -> torch.Tensor:
         """h = E_cond(V_c, P_c, P_a): (B, L, D)."""
+        return self.condition_features(cond)[0]
+
+    def condition_features(self, cond: PriorCondition
+                           ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]:
+        """The checked condition as the denoiser takes it: h = E_cond(V_c, P_c, P_a) (B, L, D), and for a prior
+        with ``cond_tokens`` :meth:`token_features` of its Z^c and cameras (None otherwise)."""
         self._check_condition(cond)
         dtype = self.static_mean.dtype  # float32, or float64 for the sampler's copy
-        return self.cond_encoder(cond.frames.to(dtype), cond.K_c.to(dtype), cond.w2c_c.to(dtype), cond.K_a.to(dtype),
-                                 cond.w2c_a.to(dtype))
-
-    def token_condition(self, cond: PriorCondition) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
-        """A prior with ``cond_tokens``: the condition tokens Z^c standardised and projected to the width,
-        (B, N_s, D) and (B, N_d, D), added to the denoiser's input tokens, and the embedded relative pose of the
-        anchor to the conditioning camera (:func:`relative_pose`), (B, D), added to the modulation (it tells
-        the network whether and how far the anchor moved from the camera Z^c was encoded in).  None otherwise."""
+        h = self.cond_encoder(cond.frames.to(dtype), cond.K_c.to(dtype), cond.w2c_c.to(dtype), cond.K_a.to(dtype),
+                              cond.w2c_a.to(dtype))
         if not self.config.cond_tokens:
-            return None
-        self._check_condition(cond)
-        dtype = self.static_mean.dtype
-        zc_s, zc_d = self.normalize(cond.z_s.to(dtype), cond.z_d.to(dtype))  # type: ignore[union-attr]
-        pose = self.relative_pose(relative_pose(cond.w2c_a.to(dtype), cond.w2c_c.to(dtype)))
-        return self.cond_in_s(zc_s), self.cond_in_d(zc_d), pose
+            return h, None
+        return h, self.token_features(cond.z_s.to(dtype), cond.z_d.to(dtype),  # type: ignore[union-attr]
+                                      cond.w2c_a.to(dtype), cond.w2c_c.to(dtype))
+
+    def token_features(self, z_s: torch.Tensor, z_d: torch.Tensor, w2c_a: torch.Tensor, w2c_c: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A prior with ``cond_tokens``: the condition tokens Z^c (z_s, z_d) standardised and projected to the
+        width, (B, N_s, D) and (B, N_d, D), added to the denoiser's input tokens, and the embedded relative pose
+        of the anchor to the conditioning camera (:func:`relative_pose`), (B, D), added to the modulation (it
+        tells the network whether and how far the anchor moved from the camera Z^c was encoded in).  Unchecked:
+        :meth:`condition_features` checks a condition first (the exported graph calls this directly)."""
+        zc_s, zc_d = self.normalize(z_s, z_d)
+        return self.cond_in_s(zc_s), self.cond_in_d(zc_d), self.relative_pose(relative_pose(w2c_a, w2c_c))
 
     def velocity(self, x_s: torch.Tensor, x_d: torch.Tensor, h: torch.Tensor, tau: torch.Tensor,
                  tokens: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
         """v_omega on standardised tokens x_s (B, N_s, d), x_d (B, N_d, d), tau (B,) -> (v_s, v_d);
-        ``tokens``: :meth:`token_condition`'s output (a prior with ``cond_tokens``)."""
+        ``tokens``: :meth:`token_features` (a prior with ``cond_tokens``)."""
         c = flow_time_embedding(tau, self.config.width, self.time_mlp) + self.cond_pool(h.mean(dim=1))
         h_s = self.in_s(x_s) + self.pos_s
         h_d = self.in_d(x_d) + self.pos_d
@@ -254,8 +261,7 @@ class Co4DGen(ModelIdentity, nn.Module):
         eps_d = torch.randn(x_d.shape, generator=generator).to(x_d.device)
         tau = torch.rand((B,), generator=generator).to(x_s.device)
         t = tau.view(B, 1, 1)
-        h = self.encode_condition(cond)
-        tokens = self.token_condition(cond)
+        h, tokens = self.condition_features(cond)
         if self.config.cond_dropout > 0 and self.training:
             drop = (torch.rand((B,), generator=generator) < self.config.cond_dropout).to(h.device)
             h = torch.where(drop.view(B, 1, 1), self.null_condition.to(h.dtype).expand_as(h), h)
@@ -308,8 +314,7 @@ class Co4DGen(ModelIdentity, nn.Module):
         guidance = checked_guidance(guidance, self.config.cond_dropout)
         cfg = self.config
         net = self.sampling_network()
-        h = net.encode_condition(cond)
-        tokens = net.token_condition(cond)
+        h, tokens = net.condition_features(cond)
         B, device, dtype = h.shape[0], h.device, h.dtype
         generator = torch.Generator(device="cpu").manual_seed(int(seed))
         x_s = torch.randn((B, cfg.n_static, cfg.token_dim), generator=generator).to(device, dtype)

@@ -62,7 +62,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DEFAULT_MODEL", "DEFAULT_STEPS", "DEFAULT_ENCODING", "encode", "encode_clips", "decode", "SceneDecoder", "load_model",
-    "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder",
+    "resolve_trajectory", "model_fingerprint", "parse_camera_list", "read_clip", "scene_fit", "load_encoder", "encode_views",
     "RUNTIMES", "DEVICES", "quality_levels", "default_quality", "model_tables", "torch_available", "load_renderer",
     "torch_device", "TRAIN_EXTRA_HINT",
 ]
@@ -470,32 +470,37 @@ def encode_clips(
             for s in range(0, source.num_frames - T + 1, T)]
 
 
-def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
-                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None) -> Scene:
-    """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
+def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndarray, Trajectory, np.ndarray | None]]",
+                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The tokens of one scene seen by ``views``, each (frames (T, H, W, 3) uint8, trajectory, depth (T, H, W) or
+    None: estimated) already fitted to the model's clip, encoded by ``net`` (torch or ONNX): (Z_s (1, N_s, d),
+    Z_d (1, N_d, d)) float32; ``seed`` seeds the track sampling."""
     from .model.inputs.preprocess import prepare_source  # lazy: `import vt4dcodec` / `vt4d` load no OpenCV
     from .model.onnx_encoder import OnnxEncoder  # torch-free
 
     cfg = net.config
-    fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
-    clips, depth_sources = [], []
-    for name in names:
-        depth = fitted.depth[name] if fitted.has_depth(name) else None
-        clips.append(prepare_source(fitted.frames[name], fitted.cameras[name], depth,
-                                    latent_hw=(cfg.latent_size, cfg.latent_size), num_tracks=cfg.n_tracks,
-                                    seed=seed, motion_isolation=cfg.motion_isolation))
-        depth_sources.append("capture" if depth is not None else "estimated")
+    clips = [prepare_source(frames, trajectory, depth, latent_hw=(cfg.latent_size, cfg.latent_size),
+                            num_tracks=cfg.n_tracks, seed=seed, motion_isolation=cfg.motion_isolation)
+             for frames, trajectory, depth in views]
     if isinstance(net, OnnxEncoder):
-        z_s, z_d = net.encode(clips)
-    else:
-        import torch  # lazy: only the torch runtime loads it
+        return net.encode(clips)
+    import torch  # lazy: only the torch runtime loads it
 
-        from .model.inputs.source_inputs import SourceBatch
+    from .model.inputs.source_inputs import SourceBatch
 
-        device = next(net.parameters()).device
-        with torch.no_grad():
-            t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)).to(device))
-        z_s, z_d = t_s.cpu().numpy(), t_d.cpu().numpy()
+    with torch.no_grad():
+        t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)).to(next(net.parameters()).device))
+    return t_s.cpu().numpy(), t_d.cpu().numpy()
+
+
+def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
+                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None) -> Scene:
+    """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
+    cfg = net.config
+    fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
+    views = [(fitted.frames[n], fitted.cameras[n], fitted.depth[n] if fitted.has_depth(n) else None) for n in names]
+    depth_sources = ["capture" if depth is not None else "estimated" for _, _, depth in views]
+    z_s, z_d = encode_views(net, views, seed)
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
     if len(names) > 1:

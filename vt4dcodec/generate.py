@@ -217,27 +217,13 @@ def conditioning_tokens(prior: Any, frames: np.ndarray, cameras: Trajectory, tok
     encoder runtimes' float32 differences into whole float16 steps where a value sits at a rounding boundary,
     and the torch and ONNX generate paths would part by more than float rounding.  ModelError when the
     tokenizer is not the one the prior was trained on."""
-    from .codec import load_encoder, model_fingerprint
+    from .codec import encode_views, load_encoder, model_fingerprint
     from .model.directories import check_tokenizer  # torch-free
-    from .model.inputs.preprocess import prepare_source
-    from .model.onnx_encoder import OnnxEncoder
 
     net = load_encoder(tokenizer if tokenizer is not None else prior.tokenizer_fingerprint.model_id, runtime,
                        device=device)
     check_tokenizer(prior, model_fingerprint(net))
-    cfg = net.config
-    source = prepare_source(frames, cameras, None, latent_hw=(cfg.latent_size, cfg.latent_size),
-                            num_tracks=cfg.n_tracks, seed=0, motion_isolation=cfg.motion_isolation)
-    if isinstance(net, OnnxEncoder):
-        z_s, z_d = net.encode([source])
-    else:
-        import torch
-
-        from .model.inputs.source_inputs import SourceBatch
-
-        with torch.no_grad():
-            t_s, t_d = net.encode(SourceBatch.collate([source]).to(next(net.parameters()).device))
-        z_s, z_d = t_s.cpu().numpy(), t_d.cpu().numpy()
+    z_s, z_d = encode_views(net, [(frames, cameras, None)], seed=0)
     return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
 
 

@@ -69,10 +69,13 @@ class PriorPairDataset(Dataset):
     clips of the other cameras (``anchors="distinct"``, the paper's pairs) or of every camera including
     the anchor's own (``anchors="all"``; that pair ``source_repeats`` times, so a share of the batches is the
     ``anchor="source"`` case ``vt4d generate`` defaults to).  Item: dict with ``z_s``, ``z_d``, ``K_a``, ``w2c_a`` (tensors of
-    the anchor record), ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, ``zc_s``,
-    ``zc_d`` the conditioning camera's own token record (Z^c), and the two keys."""
+    the anchor record), ``frames`` (T, H, W, 3) uint8, ``K_c``, ``w2c_c`` of the conditioning clip, with
+    ``condition_tokens`` (for a prior with ``cond_tokens``) ``zc_s``, ``zc_d`` the conditioning camera's own token
+    record (Z^c, a second record read per item), and the two keys."""
 
-    def __init__(self, shards: Any, anchors: str = "distinct", source_repeats: int = 1) -> None:
+    def __init__(self, shards: Any, anchors: str = "distinct", source_repeats: int = 1,
+                 condition_tokens: bool = False) -> None:
+        self.condition_tokens = condition_tokens
         if anchors not in ANCHORS:
             raise ModelError(f"anchors must be one of {ANCHORS}, got {anchors!r}")
         if not isinstance(source_repeats, int) or source_repeats < 1 or (source_repeats > 1 and anchors != "all"):
@@ -112,15 +115,17 @@ class PriorPairDataset(Dataset):
         clip = self.clips.load(clip_key)
         if clip["frames"].shape[0] != anchor["K"].shape[0]:
             raise ModelError(f"clip {clip_key} and record {anchor['key']} differ in frame count")
-        own = self.index.get(clip_key)  # Z^c, the conditioning camera's own record
-        if own is None:
-            raise ModelError(f"clip {clip_key} has no token record of its own")
-        cond_tokens = anchor if own == i else self.tokens[own]
-        return {"z_s": anchor["static_tokens"].float(), "z_d": anchor["dynamic_tokens"].float(),
+        item = {"z_s": anchor["static_tokens"].float(), "z_d": anchor["dynamic_tokens"].float(),
                 "K_a": anchor["K"], "w2c_a": anchor["w2c"], "frames": clip["frames"], "K_c": clip["K"],
-                "w2c_c": clip["w2c"], "zc_s": cond_tokens["static_tokens"].float(),
-                "zc_d": cond_tokens["dynamic_tokens"].float(), "anchor_key": anchor["key"], "clip_key": clip_key,
+                "w2c_c": clip["w2c"], "anchor_key": anchor["key"], "clip_key": clip_key,
                 "fingerprint": anchor["metadata"]["fingerprint"]}
+        if self.condition_tokens:
+            own = self.index.get(clip_key)  # Z^c, the conditioning camera's own record
+            if own is None:
+                raise ModelError(f"clip {clip_key} has no token record of its own")
+            record = anchor if own == i else self.tokens[own]
+            item.update(zc_s=record["static_tokens"].float(), zc_d=record["dynamic_tokens"].float())
+        return item
 
 
 def collate_prior(items: list[dict[str, Any]]) -> PriorBatch:
@@ -131,7 +136,8 @@ def collate_prior(items: list[dict[str, Any]]) -> PriorBatch:
                           w2c_c=torch.from_numpy(np.stack([it["w2c_c"] for it in items])).float(),
                           K_a=torch.stack([it["K_a"] for it in items]).float(),
                           w2c_a=torch.stack([it["w2c_a"] for it in items]).float(),
-                          z_s=torch.stack([it["zc_s"] for it in items]), z_d=torch.stack([it["zc_d"] for it in items]))
+                          z_s=torch.stack([it["zc_s"] for it in items]) if "zc_s" in items[0] else None,
+                          z_d=torch.stack([it["zc_d"] for it in items]) if "zc_d" in items[0] else None)
     return PriorBatch(z_s=torch.stack([it["z_s"] for it in items]), z_d=torch.stack([it["z_d"] for it in items]),
                       cond=cond, keys=[it["anchor_key"] for it in items])
 
@@ -377,9 +383,10 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.ema_decay and not 0.0 < args.ema_decay < 1.0:
         raise ModelError(f"--ema-decay must lie in (0, 1) or be 0, got {args.ema_decay}")
-    dataset = PriorPairDataset(args.shards, anchors=args.anchors, source_repeats=args.source_repeats)
-    all_s, all_d, fp_dict = token_statistics(dataset)
     cfg = get_prior_config(args.config, **parse_overrides(args.set))
+    dataset = PriorPairDataset(args.shards, anchors=args.anchors, source_repeats=args.source_repeats,
+                               condition_tokens=cfg.cond_tokens)
+    all_s, all_d, fp_dict = token_statistics(dataset)
     first = dataset.tokens[0]["metadata"]  # the token state and clip sizes come from the data
     cfg = PriorConfig.from_dict({**cfg.to_dict(), "n_static": all_s.shape[1], "n_dynamic": all_d.shape[1],
                                  "token_dim": all_s.shape[2], "frames": first["frames"],

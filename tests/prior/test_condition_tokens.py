@@ -136,7 +136,7 @@ def token_prior_run(tmp_path_factory, shards, trained_prior):
 def test_training_reads_each_pair_with_the_conditioning_cameras_own_record(shards):
     from vt4dcodec.model.train.prior import PriorPairDataset, collate_prior
 
-    data = PriorPairDataset(shards, anchors="all")
+    data = PriorPairDataset(shards, anchors="all", condition_tokens=True)
     for index in range(len(data)):
         item = data[index]
         own = data.tokens[data.index[item["clip_key"]]]
@@ -146,7 +146,7 @@ def test_training_reads_each_pair_with_the_conditioning_cameras_own_record(shard
             assert torch.equal(item["zc_s"], item["z_s"])
     batch = collate_prior([data[0], data[1]])
     assert batch.cond.z_s.shape == batch.z_s.shape and batch.cond.z_d.shape == batch.z_d.shape
-    repeated = PriorPairDataset(shards, anchors="all", source_repeats=3)
+    repeated = PriorPairDataset(shards, anchors="all", source_repeats=3, condition_tokens=True)
     own = sum(1 for i, k in data.pairs if data.tokens.keys[i][1] == k)
     assert len(repeated) == len(data) + 2 * own and own == len(data.tokens)
     for bad in (0, 1.5):
