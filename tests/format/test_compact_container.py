@@ -232,6 +232,35 @@ def test_quaternion_formula_is_the_one_format_md_writes():
     assert quaternion_to_rotation(np.array([[w, x, y, z]]))[0].ravel().tolist() == spec
 
 
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.booleans(), st.sampled_from(["rotations", "any", "tiny", "huge"]))
+def test_compiled_quaternion_paths_are_numpys_bits(seed, n, continuous, kind):
+    """The compiled quaternion <-> rotation conversions (vt4dcodec.format._rans_native) give numpy's bits for
+    rotations, arbitrary matrices and quaternions of any scale, zeros and half turns included; a non-finite
+    input goes to numpy's path, so both agree there too."""
+    from vt4dcodec.format import compact_cameras as cc
+
+    assert cc._native_rotations is not None and cc._native_quaternions is not None
+    rng = np.random.default_rng(seed)
+    scale = {"rotations": 1.0, "any": 1.0, "tiny": 1e-160, "huge": 1e150}[kind]
+    q = rng.normal(size=(n, 4)) * scale
+    q[rng.random(n) < 0.15, rng.integers(0, 4)] = 0.0
+    if rng.random() < 0.1:
+        q[rng.integers(0, n)] = [np.nan, np.inf, 0.0, 0.0][rng.integers(0, 4)]
+    R = rng.normal(size=(n, 3, 3)) if kind == "any" else quaternion_to_rotation(q)
+    native = (cc._native_rotations, cc._native_quaternions)
+    results = []
+    for compiled in (True, False):
+        cc._native_rotations, cc._native_quaternions = native if compiled else (None, None)
+        try:
+            with np.errstate(all="ignore"):
+                results.append((quaternion_to_rotation(q), rotation_to_quaternion(R, continuous=continuous)))
+        finally:
+            cc._native_rotations, cc._native_quaternions = native
+    for a, b in zip(*results):  # the same bits; a NaN's payload is not the formula's (readers refuse NaN poses)
+        assert np.all((a.view(np.int64) == b.view(np.int64)) | (np.isnan(a) & np.isnan(b)))
+
+
 def test_table_crc_covers_the_18_byte_entries():
     data = bytearray(dumps(simple_scene()))
     pre = layout.parse_preamble(bytes(data))

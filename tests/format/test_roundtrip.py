@@ -208,22 +208,42 @@ def test_compiled_dequantization_is_the_formula_bit_for_bit(seed, rows, cols, bi
     """int8 / int4 dequantization through the compiled per-column table gather gives f32(offset + scale * q)
     exactly as the float64 formula does, including offsets and scales near float32's range (where a table
     value overflows, the formula path refuses the section as before)."""
-    from vt4dcodec.errors import MalformedSectionError
-    from vt4dcodec.format import encodings
 
     rng = np.random.default_rng(seed)
     codes = rng.integers(0, 1 << bits, (rows, cols), dtype=np.uint8)
     scale = (rng.random(cols) * 10.0 ** log_scale).astype(np.float32)
     offset = (rng.normal(size=cols) * 10.0 ** log_offset).astype(np.float32)
-    native = encodings._native_map
+    _assert_compiled_is_formula(codes, scale, offset, bits)
+
+
+def _assert_compiled_is_formula(codes, scale, offset, bits):
+    from vt4dcodec.errors import MalformedSectionError
+    from vt4dcodec.format import encodings
+
+    native = encodings._native_dequantize
+    assert native is not None, "the compiled extension is part of the test install"
     outcomes = []
-    for gather in (native, None):
-        encodings._native_map = gather
+    for compiled in (native, None):
+        encodings._native_dequantize = compiled
         try:
             outcomes.append(encodings.dequantize(codes, scale, offset, bits, f"int{bits}").view(np.int32))
         except MalformedSectionError:
             outcomes.append(None)
         finally:
-            encodings._native_map = native
+            encodings._native_dequantize = native
     assert (outcomes[0] is None) == (outcomes[1] is None)
     assert outcomes[0] is None or np.array_equal(outcomes[0], outcomes[1])
+
+
+@pytest.mark.parametrize("offset", [np.finfo(np.float32).max, -np.finfo(np.float32).max, 3.0e38, 0.0])
+def test_compiled_dequantization_at_float32s_edge(offset):
+    """Table values at float32's largest finite value, and just beyond it in float64 where float32 rounding
+    brings them back to it (numpy's f32 cast does; the compiled path hands those tables to the formula path):
+    the same bits or the same refusal either way."""
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    f32max = float(np.finfo(np.float32).max)
+    for scale in (0.0, 1e22, 1e29, 1e31, 1e36):
+        s = np.full(16, scale, np.float32)
+        o = np.full(16, offset, np.float32)
+        _assert_compiled_is_formula(codes, s, o, 8)
+    assert f32max + 1e29 > f32max and np.float32(f32max + 1e29) == np.float32(f32max)

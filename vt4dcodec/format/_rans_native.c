@@ -21,6 +21,8 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
+#include <math.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -712,33 +714,179 @@ done:
     return result;
 }
 
-/* map_codes(codes_u8, cols, lut_f32, out_f32): out[r, c] = lut[c * 256 + codes[r, c]] (the int8 / int4
- * dequantization of a (rows, cols) code matrix through per-column 256-entry tables the caller computed) */
-static PyObject *map_codes(PyObject *self, PyObject *args) {
-    Py_buffer cb, lb, ob;
-    Py_ssize_t cols;
-    if (!PyArg_ParseTuple(args, "y*ny*w*", &cb, &cols, &lb, &ob)) return NULL;
+/* Binary64 arithmetic exactly as written, one IEEE 754 rounding per operation: the build passes
+ * -ffp-contract=off (no fused multiply-add), and a target that evaluates in wider precision (x87,
+ * FLT_EVAL_METHOD != 0) gets no compiled float paths at all (the functions below return None and the callers
+ * use numpy). */
+#if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD == 0
+#define EXACT_BINARY64 1
+#else
+#define EXACT_BINARY64 0
+#endif
+
+/* quaternions_to_rotations(q_f64, out_f64) -> True: the rotations of n quaternions (w, x, y, z) (4 n values
+ * in, 9 n out, row-major 3 x 3), FORMAT.md I.5.2's formula operation for operation; None where the target
+ * cannot compute binary64 exactly (EXACT_BINARY64). */
+static PyObject *quaternions_to_rotations(PyObject *self, PyObject *args) {
+    Py_buffer qb, ob;
+    if (!PyArg_ParseTuple(args, "y*w*", &qb, &ob)) return NULL;
     PyObject *result = NULL;
-    if (cols < 1 || cb.len % cols || lb.len != (Py_ssize_t)sizeof(float) * 256 * cols
-        || ob.len != (Py_ssize_t)sizeof(float) * cb.len) {
-        PyErr_SetString(PyExc_ValueError, "map_codes: shapes do not match");
+    const Py_ssize_t n = qb.len / (Py_ssize_t)(4 * sizeof(double));
+    if (qb.len % (Py_ssize_t)(4 * sizeof(double)) || ob.len != n * (Py_ssize_t)(9 * sizeof(double))) {
+        PyErr_SetString(PyExc_ValueError, "quaternions_to_rotations: shapes do not match");
         goto done;
     }
-    const uint8_t *codes = (const uint8_t *)cb.buf;
-    const float *lut = (const float *)lb.buf;
-    float *out = (float *)ob.buf;
-    const Py_ssize_t rows = cb.len / cols;
-    Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t r = 0; r < rows; r++) {
-        const uint8_t *row = codes + r * cols;
-        float *dst = out + r * cols;
-        for (Py_ssize_t c = 0; c < cols; c++) dst[c] = lut[c * 256 + row[c]];
+    if (!EXACT_BINARY64) {
+        result = Py_NewRef(Py_None);
+        goto done;
     }
-    Py_END_ALLOW_THREADS
-    result = Py_NewRef(Py_None);
+    const double *q = (const double *)qb.buf;
+    double *R = (double *)ob.buf;
+    for (Py_ssize_t i = 0; i < n; i++, q += 4, R += 9) {
+        const double w = q[0], x = q[1], y = q[2], z = q[3];
+        const double s = 2.0 / (((w * w + x * x) + y * y) + z * z);
+        R[0] = 1.0 - s * (y * y + z * z);
+        R[1] = s * (x * y - w * z);
+        R[2] = s * (x * z + w * y);
+        R[3] = s * (x * y + w * z);
+        R[4] = 1.0 - s * (x * x + z * z);
+        R[5] = s * (y * z - w * x);
+        R[6] = s * (x * z - w * y);
+        R[7] = s * (y * z + w * x);
+        R[8] = 1.0 - s * (x * x + y * y);
+    }
+    result = Py_NewRef(Py_True);
 done:
+    PyBuffer_Release(&qb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
+/* rotations_to_quaternions(R_f64, continuous, out_f64) -> True: compact_cameras.rotation_to_quaternion in C,
+ * the same binary64 operations in the same order (Shepperd's method from the first largest of the trace, R00,
+ * R11, R22; normalised by the square root of ((w^2 + x^2) + y^2) + z^2; signs against (1, 0, 0, 0), or with
+ * ``continuous`` following the previous record).  None where an input value is not finite or binary64 is not
+ * exact (EXACT_BINARY64): the caller's numpy path then computes. */
+static PyObject *rotations_to_quaternions(PyObject *self, PyObject *args) {
+    Py_buffer rb, ob;
+    int continuous;
+    if (!PyArg_ParseTuple(args, "y*pw*", &rb, &continuous, &ob)) return NULL;
+    PyObject *result = NULL;
+    const Py_ssize_t n = rb.len / (Py_ssize_t)(9 * sizeof(double));
+    if (rb.len % (Py_ssize_t)(9 * sizeof(double)) || ob.len != n * (Py_ssize_t)(4 * sizeof(double))) {
+        PyErr_SetString(PyExc_ValueError, "rotations_to_quaternions: shapes do not match");
+        goto done;
+    }
+    const double *m = (const double *)rb.buf;
+    for (Py_ssize_t i = 0; i < 9 * n; i++) {
+        if (!EXACT_BINARY64 || !(m[i] - m[i] == 0.0)) {  /* inf - inf and NaN - NaN are NaN */
+            result = Py_NewRef(Py_None);
+            goto done;
+        }
+    }
+    double *out = (double *)ob.buf;
+    int prev_flip = 0;
+    double prev[4] = {0.0, 0.0, 0.0, 0.0};  /* the previous record before its sign was chosen */
+    for (Py_ssize_t i = 0; i < n; i++, m += 9) {
+        const double m00 = m[0], m01 = m[1], m02 = m[2], m10 = m[3], m11 = m[4], m12 = m[5];
+        const double m20 = m[6], m21 = m[7], m22 = m[8];
+        const double trace = (m00 + m11) + m22;
+        int k = 0;
+        double best = trace;
+        if (m00 > best) { k = 1; best = m00; }
+        if (m11 > best) { k = 2; best = m11; }
+        if (m22 > best) { k = 3; }
+        double q[4];
+        if (k == 0) {
+            const double a = 1.0 + trace, w = 0.5 * sqrt(a > 0.0 ? a : 0.0), d = 4 * w;
+            q[0] = w; q[1] = (m21 - m12) / d; q[2] = (m02 - m20) / d; q[3] = (m10 - m01) / d;
+        } else if (k == 1) {
+            const double a = ((1.0 + m00) - m11) - m22, x = 0.5 * sqrt(a > 0.0 ? a : 0.0), d = 4 * x;
+            q[0] = (m21 - m12) / d; q[1] = x; q[2] = (m01 + m10) / d; q[3] = (m02 + m20) / d;
+        } else if (k == 2) {
+            const double a = ((1.0 - m00) + m11) - m22, y = 0.5 * sqrt(a > 0.0 ? a : 0.0), d = 4 * y;
+            q[0] = (m02 - m20) / d; q[1] = (m01 + m10) / d; q[2] = y; q[3] = (m12 + m21) / d;
+        } else {
+            const double a = ((1.0 - m00) - m11) + m22, z = 0.5 * sqrt(a > 0.0 ? a : 0.0), d = 4 * z;
+            q[0] = (m10 - m01) / d; q[1] = (m02 + m20) / d; q[2] = (m12 + m21) / d; q[3] = z;
+        }
+        const double norm = sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3]);
+        double v[4];
+        for (int j = 0; j < 4; j++) v[j] = q[j] / norm;
+        int flip = v[0] < 0;
+        if (continuous && i > 0) {
+            const double dot = ((v[0] * prev[0] + v[1] * prev[1]) + v[2] * prev[2]) + v[3] * prev[3];
+            flip = (prev_flip ? -dot : dot) < 0;
+        }
+        for (int j = 0; j < 4; j++) {
+            out[4 * i + j] = flip ? -v[j] : v[j];
+            prev[j] = v[j];
+        }
+        prev_flip = flip;
+    }
+    result = Py_NewRef(Py_True);
+done:
+    PyBuffer_Release(&rb);
+    PyBuffer_Release(&ob);
+    return result;
+}
+
+/* dequantize_u8(codes_u8, cols, scale_f32, offset_f32, out_f32) -> bool: out[r, c] = f32(f64(offset[c]) +
+ * f64(scale[c]) * codes[r, c]) (the affine decoding formula, FORMAT.md "Affine encodings"): one multiply and
+ * one add in binary64, each rounded (built with -ffp-contract=off: never fused), then rounded to binary32.
+ * With scale >= 0 every column's values are non-decreasing in the code (rounding is monotone), so when its
+ * values at codes 0 and 255 lie within float32's finite range all of them do.  False, with nothing written,
+ * when some column's do not (or a scale is negative or NaN), or where binary64 is not exact (EXACT_BINARY64):
+ * the caller's checked path then decodes. */
+static PyObject *dequantize_u8(PyObject *self, PyObject *args) {
+    Py_buffer cb, sb, obuf, ob;
+    Py_ssize_t cols;
+    if (!PyArg_ParseTuple(args, "y*ny*y*w*", &cb, &cols, &sb, &obuf, &ob)) return NULL;
+    PyObject *result = NULL;
+    double *so = NULL;
+    if (cols < 1 || cb.len % cols || sb.len != (Py_ssize_t)sizeof(float) * cols
+        || obuf.len != (Py_ssize_t)sizeof(float) * cols || ob.len != (Py_ssize_t)sizeof(float) * cb.len) {
+        PyErr_SetString(PyExc_ValueError, "dequantize_u8: shapes do not match");
+        goto done;
+    }
+    if (!EXACT_BINARY64) {
+        result = Py_NewRef(Py_False);
+        goto done;
+    }
+    so = PyMem_Malloc(sizeof(double) * 2 * (size_t)cols);
+    if (!so) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    const float *scale = (const float *)sb.buf, *offset = (const float *)obuf.buf;
+    double *s = so, *o = so + cols;
+    int finite = 1;
+    for (Py_ssize_t c = 0; c < cols; c++) {
+        s[c] = (double)scale[c];
+        o[c] = (double)offset[c];
+        const double top = o[c] + s[c] * 255.0;
+        /* NaN fails every comparison; a value beyond FLT_MAX (even one a float32 cast would round down to it)
+         * goes to the caller's path, so every conversion below is of a value within float32's range */
+        if (!(s[c] >= 0.0 && o[c] >= -(double)FLT_MAX && top <= (double)FLT_MAX)) finite = 0;
+    }
+    if (finite) {
+        const uint8_t *codes = (const uint8_t *)cb.buf;
+        float *out = (float *)ob.buf;
+        const Py_ssize_t rows = cb.len / cols;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t r = 0; r < rows; r++) {
+            const uint8_t *row = codes + r * cols;
+            float *dst = out + r * cols;
+            for (Py_ssize_t c = 0; c < cols; c++) dst[c] = (float)(o[c] + s[c] * (double)row[c]);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    result = PyBool_FromLong(finite);
+done:
+    PyMem_Free(so);
     PyBuffer_Release(&cb);
-    PyBuffer_Release(&lb);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&obuf);
     PyBuffer_Release(&ob);
     return result;
 }
@@ -941,8 +1089,15 @@ static PyMethodDef methods[] = {
      " ...] for 1 or 2 streams"},
     {"column_histograms", column_histograms, METH_VARARGS,
      "column_histograms(codes_u8, cols, size, out_i64): count code v of column c into out[c * size + v]"},
-    {"map_codes", map_codes, METH_VARARGS,
-     "map_codes(codes_u8, cols, lut_f32, out_f32): out[r, c] = lut[c * 256 + codes[r, c]]"},
+    {"quaternions_to_rotations", quaternions_to_rotations, METH_VARARGS,
+     "quaternions_to_rotations(q_f64, out_f64) -> True, or None where binary64 is not exact: FORMAT.md I.5.2's "
+     "rotations of n quaternions (w, x, y, z)"},
+    {"rotations_to_quaternions", rotations_to_quaternions, METH_VARARGS,
+     "rotations_to_quaternions(R_f64, continuous, out_f64) -> True, or None (a non-finite value, or binary64 not "
+     "exact): compact_cameras.rotation_to_quaternion's quaternions, the same operations"},
+    {"dequantize_u8", dequantize_u8, METH_VARARGS,
+     "dequantize_u8(codes_u8, cols, scale_f32, offset_f32, out_f32) -> bool: out[r, c] = f32(f64(offset[c]) + "
+     "f64(scale[c]) * codes[r, c]); False (nothing written) where a table value is not a finite float32"},
     {"encode_ctx", rans_encode_ctx, METH_VARARGS,
      "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
     {"decode_ctx", rans_decode_ctx, METH_VARARGS,

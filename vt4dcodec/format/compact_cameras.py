@@ -32,8 +32,9 @@ timestamps as one exponent and predicted varints, for timestamps that are all ex
 
 from __future__ import annotations
 
+import functools
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -90,9 +91,9 @@ def _unpack_block(raw: bytes, records: int, values: int, precision: int) -> np.n
 
 def _flags(traj: Trajectory) -> int:
     flags = 0
-    if np.array_equal(traj.K, np.broadcast_to(traj.K[:1], traj.K.shape)):
+    if (traj.K == traj.K[:1]).all():  # the values are finite (a Trajectory checks), so == is array equality
         flags |= CONSTANT_INTRINSICS
-    if np.array_equal(traj.w2c, np.broadcast_to(traj.w2c[:1], traj.w2c.shape)):
+    if (traj.w2c == traj.w2c[:1]).all():
         flags |= STATIC_POSE
     return flags
 
@@ -109,9 +110,23 @@ def compact_camera_bytes(T: int, precision: int, flags: int, distortion_terms: i
         distortion_terms + (T if has_timestamps else 0))
 
 
+_native_rotations: Callable[[np.ndarray, np.ndarray], bool | None] | None
+_native_quaternions: Callable[[np.ndarray, bool, np.ndarray], bool | None] | None
+try:  # the compiled formulas (vt4dcodec.format._rans_native; absent: numpy's, the same bits)
+    from . import _rans_native as _compiled
+    _native_rotations = _compiled.quaternions_to_rotations
+    _native_quaternions = _compiled.rotations_to_quaternions
+except ImportError:  # pragma: no cover - a build without the extension
+    _native_rotations = _native_quaternions = None
+
+
 def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
     """(n, 4) quaternions (w, x, y, z), float64, any non-zero norm -> (n, 3, 3) rotations, by FORMAT.md I.5.2's
     formula, operation for operation (every step is one IEEE 754 binary64 operation, so readers agree)."""
+    if _native_rotations is not None and len(q):
+        R = np.empty((len(q), 3, 3))
+        if _native_rotations(np.ascontiguousarray(q, dtype=np.float64), R):  # the same formula in C
+            return R
     w, x, y, z = (np.ascontiguousarray(q[:, i], dtype=np.float64) for i in range(4))
     with np.errstate(all="ignore"):  # a zero or overflowing norm gives inf/NaN, rejected by the caller's checks
         s = 2.0 / (((w * w + x * x) + y * y) + z * z)
@@ -128,6 +143,11 @@ def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
     return R
 
 
+# Shepperd's branches: for the largest component (w, x, y, z), the columns of rotation_to_quaternion's values
+# whose quotients by 4 x that component are (w, x, y, z) (the component's own column is replaced by itself)
+_BRANCH_NUMERATORS = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
+
+
 def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndarray:
     """(n, 3, 3) rotations -> (n, 4) unit quaternions (w, x, y, z) (informative: any writer method will do).
     Shepperd's method, from the largest of w, x, y, z (the first of the trace, R00, R11, R22 that is largest),
@@ -136,20 +156,31 @@ def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndar
     the one before flips it), which keeps the predicted differences small; else each is signed on its own (a
     negative w flips it).  Vectorised: every value is the same binary64 operations for every rotation."""
     m = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    if _native_quaternions is not None and len(m):
+        q_out = np.empty((len(m), 4))
+        if _native_quaternions(np.ascontiguousarray(m), continuous, q_out):  # the same operations in C
+            return q_out
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = (m[:, i, j] for i in range(3) for j in range(3))
     trace = (m00 + m11) + m22
+    n = len(m)
+    rows = np.arange(n)
     k = np.argmax(np.stack([trace, m00, m11, m22], axis=1), axis=1)
     with np.errstate(all="ignore"):  # every branch is computed for every rotation; only the chosen one is kept
-        w = 0.5 * np.sqrt(np.maximum(1.0 + trace, 0.0))
-        x = 0.5 * np.sqrt(np.maximum(((1.0 + m00) - m11) - m22, 0.0))
-        y = 0.5 * np.sqrt(np.maximum(((1.0 - m00) + m11) - m22, 0.0))
-        z = 0.5 * np.sqrt(np.maximum(((1.0 - m00) - m11) + m22, 0.0))
-        branches = np.stack([
-            np.stack([w, (m21 - m12) / (4 * w), (m02 - m20) / (4 * w), (m10 - m01) / (4 * w)], axis=1),
-            np.stack([(m21 - m12) / (4 * x), x, (m01 + m10) / (4 * x), (m02 + m20) / (4 * x)], axis=1),
-            np.stack([(m02 - m20) / (4 * y), (m01 + m10) / (4 * y), y, (m12 + m21) / (4 * y)], axis=1),
-            np.stack([(m10 - m01) / (4 * z), (m02 + m20) / (4 * z), (m12 + m21) / (4 * z), z], axis=1)])
-        q = branches[k, np.arange(len(m))]
+        # columns: w, x, y, z (each the largest component of its branch) and the six numerators
+        values = np.empty((n, 10))
+        values[:, 0] = 0.5 * np.sqrt(np.maximum(1.0 + trace, 0.0))
+        values[:, 1] = 0.5 * np.sqrt(np.maximum(((1.0 + m00) - m11) - m22, 0.0))
+        values[:, 2] = 0.5 * np.sqrt(np.maximum(((1.0 - m00) + m11) - m22, 0.0))
+        values[:, 3] = 0.5 * np.sqrt(np.maximum(((1.0 - m00) - m11) + m22, 0.0))
+        values[:, 4] = m21 - m12
+        values[:, 5] = m02 - m20
+        values[:, 6] = m10 - m01
+        values[:, 7] = m01 + m10
+        values[:, 8] = m02 + m20
+        values[:, 9] = m12 + m21
+        big = values[rows, k]
+        q = values[rows[:, None], _BRANCH_NUMERATORS[k]] / (4 * big)[:, None]
+        q[rows, k] = big  # the branch's own component is the square root, not a quotient
         norm = np.sqrt(((q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]) + q[:, 2] * q[:, 2]) + q[:, 3] * q[:, 3])
         v = q / norm[:, None]
     flip = v[:, 0] < 0  # against (1, 0, 0, 0): the first record, and every record when not continuous
@@ -204,10 +235,31 @@ def canonical_float32_quaternions(R: np.ndarray) -> np.ndarray | None:
         if not found_rounded.all():
             return None
         q[~found] = q_rounded
-    for i in range(1, len(q)):  # q and -q rebuild the same rotation: keep consecutive records close
-        if float(q[i] @ q[i - 1]) < 0:
-            q[i] = -q[i] + 0.0
+    flip = _follow_signs(q)  # q and -q rebuild the same rotation: keep consecutive records close
+    q[flip] = -q[flip] + 0.0
     return q
+
+
+def _follow_signs(q: np.ndarray) -> np.ndarray:
+    """Which quaternions to negate so that each one's dot product with the (possibly negated) one before it is
+    not negative: record i is negated when ``s * (q[i] . q[i-1]) < 0``, ``s`` = -1 if record i - 1 was negated
+    (the rule of the one-at-a-time loop ``if q[i] @ q[i-1] < 0: q[i] = -q[i]``, whose bits the writer keeps).
+    Between dot products that are 0 (which reset the chain) the negations follow the parity of the negative
+    dot products; dot products within 1e-9 of 0, whose sign could hang on the summation order, are summed
+    as that loop sums them."""
+    n = len(q)
+    flip = np.zeros(n, dtype=bool)
+    if n < 2:
+        return flip
+    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+    near = np.flatnonzero(np.abs(dots) < 1e-9)
+    for i in near.tolist():
+        dots[i] = float(q[i + 1] @ q[i])
+    negative = np.concatenate([[0], np.cumsum(dots < 0)])  # negative dot products up to each record
+    reset = np.concatenate([[True], ~(dots < 0) & ~(dots > 0)])  # a 0 (or NaN) dot: that record is not negated
+    since = np.maximum.accumulate(np.where(reset, np.arange(n), 0))
+    flip[:] = (negative - negative[since]) % 2 == 1
+    return flip
 
 
 def _encode(traj: Trajectory, precision: int, quaternions: np.ndarray | None = None) -> bytes:
@@ -403,26 +455,50 @@ def _encode_fixed(traj: Trajectory, *, centre: bool = False, cubic: bool | None 
     return best
 
 
+@functools.lru_cache(maxsize=64)
+def _probe_pixels(width: int, height: int) -> np.ndarray:
+    """(3, P) homogeneous probe pixels of the 5 x 5 grid over a ``width`` x ``height`` image (read-only)."""
+    u, v = np.meshgrid(np.linspace(-0.5, width - 0.5, PROBE_GRID), np.linspace(-0.5, height - 0.5, PROBE_GRID))
+    pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    pix.setflags(write=False)
+    return pix
+
+
+def _inverse_rotations(R: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) -> their inverses, the adjugate over the determinant (exact to rounding; not ``R^T``)."""
+    a, b, c, d, e, f, g, h, i = (R[:, j, k] for j in range(3) for k in range(3))
+    with np.errstate(all="ignore"):  # a singular matrix gives inf/NaN, which the caller's finiteness test refuses
+        cof = np.stack([e * i - f * h, c * h - b * i, b * f - c * e,
+                        f * g - d * i, a * i - c * g, c * d - a * f,
+                        d * h - e * g, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
+        det = a * cof[:, 0, 0] + b * cof[:, 1, 0] + c * cof[:, 2, 0]
+        out: np.ndarray = cof / det[:, None, None]
+    return out
+
+
 def reprojection_change(a: Trajectory, b: Trajectory) -> float:
     """The largest pixel distance between where camera ``a`` and camera ``b`` (same frame) put the same
     world point, over the reference writer's probe points: a 5 x 5 grid over each frame's image
-    (corner pixels' outer edges included) lifted through ``a`` (its exact inverse) to depths 0.1, 1, 10 and
-    100 m (all depths in one batch of solves).
-    Distortion is ignored (the compact encoding stores it unchanged)."""
-    W, H, T = a.width, a.height, a.num_frames
-    u, v = np.meshgrid(np.linspace(-0.5, W - 0.5, PROBE_GRID), np.linspace(-0.5, H - 0.5, PROBE_GRID))
-    pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])                  # (3, P)
-    rays = np.linalg.solve(a.K, np.broadcast_to(pix, (T, *pix.shape)))       # (T, 3, P), z = 1
+    (corner pixels' outer edges included) lifted through ``a`` (its inverse, to rounding) to depths 0.1, 1,
+    10 and 100 m.  Distortion is ignored (the compact encoding stores it unchanged).  Vectorised over frames
+    and closed-form (the pinhole ``K`` inverts by substitution, a rotation by its adjugate): a handful of
+    array operations whatever the frame count, since every write runs this test."""
+    T = a.num_frames
+    pix = _probe_pixels(a.width, a.height)
     depths = np.asarray(PROBE_DEPTHS_M)
-    cam_a = (rays[:, :, None, :] * depths[None, None, :, None]).reshape(T, 3, -1)  # (T, 3, Z P)
-    world = np.linalg.solve(a.w2c[:, :3, :3], cam_a - a.w2c[:, :3, 3:])  # R^-1 (x - t), not R^T: a float32
-    # rotation is orthonormal only to ~1e-7, and R^T would move the points of a camera against itself
-    cam_b = np.einsum("tij,tjp->tip", b.w2c[:, :3, :3], world) + b.w2c[:, :3, 3:]
-    proj = np.einsum("tij,tjp->tip", b.K, cam_b)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    K = a.K
+    with np.errstate(all="ignore"):  # valid cameras have fx, fy > 0; anything else ends as inf, refused below
+        y = (pix[1][None] - K[:, 1, 2:3]) / K[:, 1, 1:2]                   # (T, P), z = 1
+        x = (pix[0][None] - K[:, 0, 2:3] - K[:, 0, 1:2] * y) / K[:, 0, 0:1]
+        rays = np.stack([x, y, np.ones_like(x)], axis=1)                   # (T, 3, P)
+        cam_a = (rays[:, :, None, :] * depths[None, None, :, None]).reshape(T, 3, -1)  # (T, 3, Z P)
+        world = _inverse_rotations(a.w2c[:, :3, :3]) @ (cam_a - a.w2c[:, :3, 3:])  # R^-1 (x - t): a float32
+        # rotation is orthonormal only to ~1e-7, and R^T would move the points of a camera against itself
+        proj = b.K @ (b.w2c[:, :3, :3] @ world + b.w2c[:, :3, 3:])
         uv = proj[:, :2] / proj[:, 2:]
-    d = np.abs(uv - np.tile(pix[:2], len(depths))[None])
-    return float(np.max(d)) if np.isfinite(d).all() else float("inf")
+        d = np.abs(uv - np.tile(pix[:2], len(depths))[None])
+    worst = float(d.max())
+    return worst if np.isfinite(worst) else float("inf")
 
 
 def pack_compact_cameras(traj: Trajectory, mode: str = "compact", *, quaternions: bool = False,
@@ -584,7 +660,8 @@ def _assemble(kv: np.ndarray, pv: np.ndarray, flags: int, T: int, width: int, he
         w2c[:, :3, :] = pv.reshape(n_p, 3, 4)
     w2c[:, 3, 3] = 1.0
     try:
-        return Trajectory(K=np.repeat(K, T // n_k, axis=0), w2c=np.repeat(w2c, T // n_p, axis=0), width=width,
+        # one K for every frame goes in as (3, 3): Trajectory checks it once and repeats it
+        return Trajectory(K=K[0] if n_k == 1 else K, w2c=np.repeat(w2c, T // n_p, axis=0), width=width,
                           height=height, distortion=tail[:distortion_terms] if distortion_terms else None,
                           timestamps=tail[distortion_terms:] if has_timestamps else None)
     except CameraError as exc:

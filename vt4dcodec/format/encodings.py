@@ -199,13 +199,12 @@ def decode_tokens(payload: BytesLike, quant: BytesLike | None, encoding: str, ro
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
-_CODES_256 = np.arange(256, dtype=np.float64)
-_native_map: Callable[[np.ndarray, int, np.ndarray, np.ndarray], None] | None
-try:  # the compiled gather of vt4dcodec.format._rans_native (absent: the numpy formula below)
+_native_dequantize: Callable[[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray], bool] | None
+try:  # the compiled dequantization of vt4dcodec.format._rans_native (absent: the numpy formula below)
     from . import _rans_native as _compiled  # (the import form rans.py uses: the import contracts resolve it)
-    _native_map = _compiled.map_codes
+    _native_dequantize = _compiled.dequantize_u8
 except ImportError:  # pragma: no cover - a build without the extension
-    _native_map = None
+    _native_dequantize = None
 
 
 def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: int, encoding: str) -> np.ndarray:
@@ -217,16 +216,14 @@ def dequantize(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray, bits: i
     channel's values non-decreasing in ``q`` (and rounding to float32 keeps that), so when every channel's
     top value ``q = 2^b - 1`` is finite, all are; only otherwise is every value checked.
     """
-    s64, o64 = scale.astype(np.float64), offset.astype(np.float64)
-    if _native_map is not None and codes.dtype == np.uint8 and codes.ndim == 2 and codes.shape[1] > 0:
-        # the same formula for each column's 256 possible codes, then one gather in C (~4x faster than the
-        # float64 passes over every value); only where every table value is finite
-        with np.errstate(over="ignore", invalid="ignore"):
-            lut = (o64[:, None] + s64[:, None] * _CODES_256[None, :]).astype(np.float32)
-        if np.isfinite(lut).all():
-            out = np.empty(codes.shape, np.float32)
-            _native_map(np.ascontiguousarray(codes), codes.shape[1], lut, out)
+    if _native_dequantize is not None and codes.dtype == np.uint8 and codes.ndim == 2 and codes.shape[1] > 0:
+        # the same formula for each column's 256 possible codes and one gather, in C (~10x faster than float64
+        # passes over every value); only where every table value is finite
+        out = np.empty(codes.shape, np.float32)
+        if _native_dequantize(np.ascontiguousarray(codes), codes.shape[1], np.ascontiguousarray(scale, np.float32),
+                              np.ascontiguousarray(offset, np.float32), out):
             return out
+    s64, o64 = scale.astype(np.float64), offset.astype(np.float64)
     q = codes.astype(np.float64)
     q *= s64
     q += o64

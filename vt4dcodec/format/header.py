@@ -25,6 +25,8 @@ multi-camera learned-rans files, about 60 bytes less for a 10-camera header.
 
 from __future__ import annotations
 
+import threading
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -148,9 +150,31 @@ def compress_header(raw: bytes, dictionary: int = 1) -> bytes:
     """The stored form of a compact header (FORMAT.md I.3.1): one zstd frame with a spec-fixed raw-content
     dictionary (``dictionary`` 1, or 2 in a file with required flag bit 7, I.3.2), its content size declared, no
     dictionary id and no checksum (the header CRC covers it)."""
-    cctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICTS[dictionary],
-                                    write_content_size=True, write_checksum=False, write_dict_id=False)
-    return cctx.compress(raw)
+    packed: bytes = _header_cctx(dictionary).compress(raw)
+    return packed
+
+
+_local = threading.local()
+
+
+def _header_cctx(dictionary: int) -> zstandard.ZstdCompressor:
+    """This thread's compressor with header dictionary ``dictionary``: loading a dictionary costs more than
+    compressing a header, so each thread keeps one (contexts are not thread-safe; reuse gives the same bytes)."""
+    ctx: zstandard.ZstdCompressor | None = getattr(_local, f"cctx{dictionary}", None)
+    if ctx is None:
+        ctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICTS[dictionary],
+                                       write_content_size=True, write_checksum=False, write_dict_id=False)
+        setattr(_local, f"cctx{dictionary}", ctx)
+    return ctx
+
+
+def _header_dctx(dictionary: int) -> zstandard.ZstdDecompressor:
+    """This thread's decompressor with header dictionary ``dictionary`` (as :func:`_header_cctx`)."""
+    ctx: zstandard.ZstdDecompressor | None = getattr(_local, f"dctx{dictionary}", None)
+    if ctx is None:
+        ctx = zstandard.ZstdDecompressor(dict_data=_HEADER_DICTS[dictionary])
+        setattr(_local, f"dctx{dictionary}", ctx)
+    return ctx
 
 
 def decompress_header(stored: BytesLike, dictionary: int = 1) -> bytes:
@@ -168,7 +192,7 @@ def decompress_header(stored: BytesLike, dictionary: int = 1) -> bytes:
     if stored[4] & 0x03:  # Frame_Header_Descriptor's Dictionary_ID_Flag (RFC 8878 3.1.1.1.1)
         raise MalformedHeaderError("the compact header's zstd frame carries a dictionary id; I.3.1 forbids one "
                                    "(its dictionary is fixed by the format and has none)")
-    frame = zstandard.ZstdDecompressor(dict_data=_HEADER_DICTS[dictionary]).decompressobj(read_across_frames=False)
+    frame = _header_dctx(dictionary).decompressobj(read_across_frames=False)
     try:
         out = frame.decompress(bytes(stored))  # libzstd refuses output beyond the declared content size
     except zstandard.ZstdError as exc:
@@ -210,11 +234,16 @@ def unpack_header(raw: BytesLike, *, binary_digests: bool = False) -> dict[str, 
     except (ValueError, TypeError, RecursionError, msgpack.exceptions.UnpackException) as exc:
         detail = str(exc)[:120] or "undecodable bytes"
         raise MalformedHeaderError(f"the header is not valid bounded msgpack ({type(exc).__name__}: {detail})") from None
-    _check_depth(value)
+    digests: tuple[Any, ...] = ()
+    if binary_digests and isinstance(value, dict) and isinstance(value.get("fingerprint"), dict):
+        digests = tuple(value["fingerprint"].get(key) for key in DIGEST_KEYS)  # bin allowed here (_hex_digests checks)
+    bin_elsewhere = _scan(value, digests)
     header = require_map(value, "header")
     if binary_digests:
         header = _hex_digests(header)
-    _refuse_bin(header)
+    if bin_elsewhere:
+        raise MalformedHeaderError("the header holds a msgpack bin value; bin is allowed only for the two "
+                                   "fingerprint digests of a compact header")
     return header
 
 
@@ -232,28 +261,25 @@ def _hex_digests(header: dict[str, Any]) -> dict[str, Any]:
     return dict(header, fingerprint=fp)
 
 
-def _refuse_bin(value: Any) -> None:
-    stack = [value]
-    while stack:
-        item = stack.pop()
-        if isinstance(item, bytes):
-            raise MalformedHeaderError("the header holds a msgpack bin value; bin is allowed only for the two "
-                                       "fingerprint digests of a compact header")
-        if isinstance(item, dict):
-            stack.extend(item.values())
-        elif isinstance(item, list):
-            stack.extend(item)
-
-
-def _check_depth(value: Any) -> None:
+def _scan(value: Any, digests: tuple[Any, ...]) -> bool:
+    """One walk over a decoded header: LimitExceededError where it nests deeper than MAX_HEADER_DEPTH, and
+    whether it holds a bin value other than the objects ``digests`` (the compact header's two fingerprint
+    digests, checked by :func:`_hex_digests`), which the caller refuses after the digests' own checks."""
     stack = [(value, 1)]
+    bin_elsewhere = False
     while stack:
         item, depth = stack.pop()
         if isinstance(item, (dict, list)):
             if depth > MAX_HEADER_DEPTH:
                 raise LimitExceededError(f"the header nests deeper than {MAX_HEADER_DEPTH} levels")
-            children = item.values() if isinstance(item, dict) else item
-            stack.extend((c, depth + 1) for c in children)
+            for child in item.values() if isinstance(item, dict) else item:
+                if isinstance(child, (dict, list)):
+                    stack.append((child, depth + 1))
+                elif isinstance(child, bytes) and not any(child is d for d in digests):
+                    bin_elsewhere = True
+        elif isinstance(item, bytes):  # the header itself (require_map names it)
+            bin_elsewhere = True
+    return bin_elsewhere
 
 
 def parse_header(raw: BytesLike, *, newer_minor: bool = False, compressed: bool = False,

@@ -62,7 +62,7 @@ def compress_payload(raw: bytes, level: int | None, *, min_saving: float = 0.0) 
     zero-copy arrays)."""
     if level is None or not raw:
         return COMPRESSION_RAW, raw
-    packed = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=False).compress(raw)
+    packed = _compressor(level).compress(raw)
     if len(packed) >= len(raw) or len(raw) - len(packed) < min_saving * len(raw):
         return COMPRESSION_RAW, raw
     return COMPRESSION_ZSTD, packed
@@ -80,8 +80,24 @@ def _camera_dict() -> zstandard.ZstdCompressionDict:
 def compress_with_camera_dictionary(raw: bytes) -> bytes:
     """One zstd frame of ``raw`` compressed with the camera dictionary (FORMAT.md I.4.2): its content size
     declared, no dictionary id, no checksum."""
-    return zstandard.ZstdCompressor(level=CAMERA_DICTIONARY_LEVEL, dict_data=_camera_dict(), write_content_size=True,
-                                    write_checksum=False, write_dict_id=False).compress(raw)
+    cctx = getattr(_local, "cctx_cameras", None)
+    if cctx is None:
+        cctx = zstandard.ZstdCompressor(level=CAMERA_DICTIONARY_LEVEL, dict_data=_camera_dict(),
+                                        write_content_size=True, write_checksum=False, write_dict_id=False)
+        _local.cctx_cameras = cctx
+    return cctx.compress(raw)
+
+
+def _compressor(level: int) -> zstandard.ZstdCompressor:
+    """This thread's zstd compressor at ``level`` (content size declared, no checksum): one per thread and
+    level, reused (creating one costs more than compressing a small section; reuse gives the same bytes)."""
+    cache = getattr(_local, "cctx", None)
+    if cache is None:
+        cache = _local.cctx = {}
+    cctx = cache.get(level)
+    if cctx is None:
+        cctx = cache[level] = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=False)
+    return cctx
 
 
 def section_payload(container: BytesLike, entry: SectionEntry, *, check_crc: bool = True) -> bytes | memoryview:
