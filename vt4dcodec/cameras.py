@@ -176,6 +176,18 @@ class Trajectory:
         object.__setattr__(self, "distortion", dist)
         object.__setattr__(self, "timestamps", ts)
 
+    @classmethod
+    def _checked_elsewhere(cls, K: np.ndarray, w2c: np.ndarray, width: int, height: int,
+                           timestamps: np.ndarray | None) -> "Trajectory":
+        """A trajectory of arrays a decoder has already checked against every convention above (C-contiguous
+        float64 (T, 3, 3) and (T, 4, 4), a positive integer size, (T,) timestamps or None, no distortion),
+        without checking them a second time."""
+        obj = object.__new__(cls)
+        for name, value in (("K", K), ("w2c", w2c), ("width", int(width)), ("height", int(height)),
+                            ("distortion", None), ("timestamps", timestamps)):
+            object.__setattr__(obj, name, value)
+        return obj
+
     @property
     def num_frames(self) -> int:
         return int(self.w2c.shape[0])

@@ -210,3 +210,36 @@ def test_compact_cameras_of_any_steep_camera_are_a_fixed_point(fx, fy, angle, ax
     raw = pack_compact_cameras(traj, quaternions=quaternions)
     back = unpack_compact_cameras(raw, CameraLayout(1, 1, 1, 0, False), quaternions=quaternions)
     assert pack_compact_cameras(back, quaternions=quaternions) == raw
+
+
+@settings(max_examples=120, deadline=None)
+@given(trajectories(), st.integers(0, 2**32 - 1), st.sampled_from(["compact", "exact"]), st.integers(0, 6))
+def test_compiled_camera_check_decides_as_the_trajectory_checks(traj, seed, mode, flips):
+    """A decoded trajectory that the compiled check (compact_cameras._native_valid) passes is the one the
+    Trajectory constructor builds from the same arrays, and damage it does not pass gives the constructor's
+    error: the same outcome, valid or not, with and without the compiled check."""
+    from vt4dcodec.format import compact_cameras as cc
+
+    assert cc._native_valid is not None
+    raw = bytearray(pack_compact_cameras(traj, mode, quaternions=True))
+    rng = np.random.default_rng(seed)
+    for _ in range(flips):  # damage a few bytes past the precision and layout bytes
+        if len(raw) > 2:
+            raw[int(rng.integers(2, len(raw)))] ^= 1 << int(rng.integers(0, 8))
+    layout = CameraLayout(traj.num_frames, traj.width, traj.height,
+                          0 if traj.distortion is None else len(traj.distortion), traj.timestamps is not None)
+    outcomes = []
+    native = cc._native_valid
+    for compiled in (native, None):
+        cc._native_valid = compiled
+        try:
+            t = unpack_compact_cameras(bytes(raw), layout, quaternions=True)
+            outcomes.append(("ok", t.K.tobytes(), t.w2c.tobytes(), t.width, t.height,
+                             None if t.timestamps is None else t.timestamps.tobytes(),
+                             None if t.distortion is None else t.distortion.tobytes(),
+                             t.K.flags.c_contiguous and t.w2c.flags.c_contiguous))
+        except FormatError as exc:
+            outcomes.append((type(exc).__name__, str(exc)))
+        finally:
+            cc._native_valid = native
+    assert outcomes[0] == outcomes[1]

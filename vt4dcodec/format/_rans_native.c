@@ -831,6 +831,52 @@ done:
     return result;
 }
 
+/* cameras_valid(K_f64, w2c_f64, timestamps_f64) -> bool: whether n decoded cameras (9 n intrinsics, 16 n pose
+ * values, 0 or n timestamps) plainly satisfy the camera conventions (vt4dcodec.cameras): finite values, fx and
+ * fy > 0, K's last row (0, 0, 1) and K[1, 0] = 0, a pose's last row (0, 0, 0, 1), a rotation orthonormal to
+ * half the tolerance (max |R^T R - I| <= 5e-5) with a positive determinant, non-decreasing timestamps.  True
+ * only lets the caller skip the checks that would pass; False says nothing (the caller's checks then decide
+ * and name the problem), so near the tolerance the numpy checks are the ones that decide. */
+static PyObject *cameras_valid(PyObject *self, PyObject *args) {
+    Py_buffer kb, wb, tb;
+    if (!PyArg_ParseTuple(args, "y*y*y*", &kb, &wb, &tb)) return NULL;
+    PyObject *result = NULL;
+    const Py_ssize_t n = kb.len / (Py_ssize_t)(9 * sizeof(double));
+    if (kb.len % (Py_ssize_t)(9 * sizeof(double)) || wb.len != n * (Py_ssize_t)(16 * sizeof(double))
+        || (tb.len != 0 && tb.len != n * (Py_ssize_t)sizeof(double))) {
+        PyErr_SetString(PyExc_ValueError, "cameras_valid: shapes do not match");
+        goto done;
+    }
+    int ok = 1;
+    const double *K = (const double *)kb.buf, *P = (const double *)wb.buf, *ts = (const double *)tb.buf;
+    for (Py_ssize_t i = 0; i < n && ok; i++, K += 9, P += 16) {
+        for (int j = 0; j < 9; j++) if (!(K[j] - K[j] == 0.0)) ok = 0;
+        for (int j = 0; j < 16; j++) if (!(P[j] - P[j] == 0.0)) ok = 0;
+        if (!ok || !(K[0] > 0.0 && K[4] > 0.0) || K[3] != 0.0 || K[6] != 0.0 || K[7] != 0.0 || K[8] != 1.0
+            || P[12] != 0.0 || P[13] != 0.0 || P[14] != 0.0 || P[15] != 1.0) {
+            ok = 0;
+            break;
+        }
+        const double r[9] = {P[0], P[1], P[2], P[4], P[5], P[6], P[8], P[9], P[10]};
+        for (int a = 0; a < 3 && ok; a++) {
+            for (int b = 0; b < 3; b++) {
+                const double g = (r[a] * r[b] + r[3 + a] * r[3 + b]) + r[6 + a] * r[6 + b];
+                if (!(fabs(g - (a == b ? 1.0 : 0.0)) <= 5e-5)) { ok = 0; break; }
+            }
+        }
+        const double det = r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
+                           + r[2] * (r[3] * r[7] - r[4] * r[6]);
+        if (!(det > 0.0)) ok = 0;
+        if (tb.len && !(ts[i] - ts[i] == 0.0 && (i == 0 || ts[i] >= ts[i - 1]))) ok = 0;
+    }
+    result = PyBool_FromLong(ok);
+done:
+    PyBuffer_Release(&kb);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&tb);
+    return result;
+}
+
 /* dequantize_u8(codes_u8, cols, scale_f32, offset_f32, out_f32) -> bool: out[r, c] = f32(f64(offset[c]) +
  * f64(scale[c]) * codes[r, c]) (the affine decoding formula, FORMAT.md "Affine encodings"): one multiply and
  * one add in binary64, each rounded (built with -ffp-contract=off: never fused), then rounded to binary32.
@@ -1095,6 +1141,9 @@ static PyMethodDef methods[] = {
     {"rotations_to_quaternions", rotations_to_quaternions, METH_VARARGS,
      "rotations_to_quaternions(R_f64, continuous, out_f64) -> True, or None (a non-finite value, or binary64 not "
      "exact): compact_cameras.rotation_to_quaternion's quaternions, the same operations"},
+    {"cameras_valid", cameras_valid, METH_VARARGS,
+     "cameras_valid(K_f64, w2c_f64, timestamps_f64) -> bool: True where the decoded cameras plainly satisfy the "
+     "camera conventions (False: let the numpy checks decide)"},
     {"dequantize_u8", dequantize_u8, METH_VARARGS,
      "dequantize_u8(codes_u8, cols, scale_f32, offset_f32, out_f32) -> bool: out[r, c] = f32(f64(offset[c]) + "
      "f64(scale[c]) * codes[r, c]); False (nothing written) where a table value is not a finite float32"},

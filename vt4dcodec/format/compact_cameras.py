@@ -116,8 +116,9 @@ try:  # the compiled formulas (vt4dcodec.format._rans_native; absent: numpy's, t
     from . import _rans_native as _compiled
     _native_rotations = _compiled.quaternions_to_rotations
     _native_quaternions = _compiled.rotations_to_quaternions
+    _native_valid: Callable[[np.ndarray, np.ndarray, Any], bool] | None = _compiled.cameras_valid
 except ImportError:  # pragma: no cover - a build without the extension
-    _native_rotations = _native_quaternions = None
+    _native_rotations = _native_quaternions = _native_valid = None
 
 
 def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
@@ -659,11 +660,13 @@ def _assemble(kv: np.ndarray, pv: np.ndarray, flags: int, T: int, width: int, he
     else:
         w2c[:, :3, :] = pv.reshape(n_p, 3, 4)
     w2c[:, 3, 3] = 1.0
+    K, w2c = np.repeat(K, T // n_k, axis=0), np.repeat(w2c, T // n_p, axis=0)
+    stamps = tail[distortion_terms:] if has_timestamps else None
+    if _native_valid is not None and not distortion_terms and _native_valid(K, w2c, b"" if stamps is None else stamps):
+        return Trajectory._checked_elsewhere(K, w2c, width, height, stamps)  # plainly valid: checked in C
     try:
-        # one K for every frame goes in as (3, 3): Trajectory checks it once and repeats it
-        return Trajectory(K=K[0] if n_k == 1 else K, w2c=np.repeat(w2c, T // n_p, axis=0), width=width,
-                          height=height, distortion=tail[:distortion_terms] if distortion_terms else None,
-                          timestamps=tail[distortion_terms:] if has_timestamps else None)
+        return Trajectory(K=K, w2c=w2c, width=width, height=height,
+                          distortion=tail[:distortion_terms] if distortion_terms else None, timestamps=stamps)
     except CameraError as exc:
         raise MalformedSectionError(f"cameras section breaks the camera conventions: {exc}") from None
 
