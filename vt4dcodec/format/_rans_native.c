@@ -777,9 +777,13 @@ static PyObject *rotations_to_quaternions(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "rotations_to_quaternions: shapes do not match");
         goto done;
     }
+    if (!EXACT_BINARY64) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
     const double *m = (const double *)rb.buf;
     for (Py_ssize_t i = 0; i < 9 * n; i++) {
-        if (!EXACT_BINARY64 || !(m[i] - m[i] == 0.0)) {  /* inf - inf and NaN - NaN are NaN */
+        if (!(m[i] - m[i] == 0.0)) {  /* inf - inf and NaN - NaN are NaN */
             result = Py_NewRef(Py_None);
             goto done;
         }

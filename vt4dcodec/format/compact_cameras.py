@@ -144,11 +144,6 @@ def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
     return R
 
 
-# Shepperd's branches: for the largest component (w, x, y, z), the columns of rotation_to_quaternion's values
-# whose quotients by 4 x that component are (w, x, y, z) (the component's own column is replaced by itself)
-_BRANCH_NUMERATORS = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
-
-
 def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndarray:
     """(n, 3, 3) rotations -> (n, 4) unit quaternions (w, x, y, z) (informative: any writer method will do).
     Shepperd's method, from the largest of w, x, y, z (the first of the trace, R00, R11, R22 that is largest),
@@ -163,25 +158,18 @@ def rotation_to_quaternion(R: np.ndarray, *, continuous: bool = True) -> np.ndar
             return q_out
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = (m[:, i, j] for i in range(3) for j in range(3))
     trace = (m00 + m11) + m22
-    n = len(m)
-    rows = np.arange(n)
     k = np.argmax(np.stack([trace, m00, m11, m22], axis=1), axis=1)
     with np.errstate(all="ignore"):  # every branch is computed for every rotation; only the chosen one is kept
-        # columns: w, x, y, z (each the largest component of its branch) and the six numerators
-        values = np.empty((n, 10))
-        values[:, 0] = 0.5 * np.sqrt(np.maximum(1.0 + trace, 0.0))
-        values[:, 1] = 0.5 * np.sqrt(np.maximum(((1.0 + m00) - m11) - m22, 0.0))
-        values[:, 2] = 0.5 * np.sqrt(np.maximum(((1.0 - m00) + m11) - m22, 0.0))
-        values[:, 3] = 0.5 * np.sqrt(np.maximum(((1.0 - m00) - m11) + m22, 0.0))
-        values[:, 4] = m21 - m12
-        values[:, 5] = m02 - m20
-        values[:, 6] = m10 - m01
-        values[:, 7] = m01 + m10
-        values[:, 8] = m02 + m20
-        values[:, 9] = m12 + m21
-        big = values[rows, k]
-        q = values[rows[:, None], _BRANCH_NUMERATORS[k]] / (4 * big)[:, None]
-        q[rows, k] = big  # the branch's own component is the square root, not a quotient
+        w = 0.5 * np.sqrt(np.maximum(1.0 + trace, 0.0))
+        x = 0.5 * np.sqrt(np.maximum(((1.0 + m00) - m11) - m22, 0.0))
+        y = 0.5 * np.sqrt(np.maximum(((1.0 - m00) + m11) - m22, 0.0))
+        z = 0.5 * np.sqrt(np.maximum(((1.0 - m00) - m11) + m22, 0.0))
+        branches = np.stack([
+            np.stack([w, (m21 - m12) / (4 * w), (m02 - m20) / (4 * w), (m10 - m01) / (4 * w)], axis=1),
+            np.stack([(m21 - m12) / (4 * x), x, (m01 + m10) / (4 * x), (m02 + m20) / (4 * x)], axis=1),
+            np.stack([(m02 - m20) / (4 * y), (m01 + m10) / (4 * y), y, (m12 + m21) / (4 * y)], axis=1),
+            np.stack([(m10 - m01) / (4 * z), (m02 + m20) / (4 * z), (m12 + m21) / (4 * z), z], axis=1)])
+        q = branches[k, np.arange(len(m))]
         norm = np.sqrt(((q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]) + q[:, 2] * q[:, 2]) + q[:, 3] * q[:, 3])
         v = q / norm[:, None]
     flip = v[:, 0] < 0  # against (1, 0, 0, 0): the first record, and every record when not continuous

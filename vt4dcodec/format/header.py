@@ -28,7 +28,8 @@ from __future__ import annotations
 import threading
 
 from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import msgpack
 import zstandard
@@ -150,31 +151,26 @@ def compress_header(raw: bytes, dictionary: int = 1) -> bytes:
     """The stored form of a compact header (FORMAT.md I.3.1): one zstd frame with a spec-fixed raw-content
     dictionary (``dictionary`` 1, or 2 in a file with required flag bit 7, I.3.2), its content size declared, no
     dictionary id and no checksum (the header CRC covers it)."""
-    packed: bytes = _header_cctx(dictionary).compress(raw)
+    cctx = per_thread(f"header_cctx{dictionary}", lambda: zstandard.ZstdCompressor(
+        level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICTS[dictionary], write_content_size=True, write_checksum=False,
+        write_dict_id=False))
+    packed: bytes = cctx.compress(raw)
     return packed
 
 
 _local = threading.local()
+_T = TypeVar("_T")
 
 
-def _header_cctx(dictionary: int) -> zstandard.ZstdCompressor:
-    """This thread's compressor with header dictionary ``dictionary``: loading a dictionary costs more than
-    compressing a header, so each thread keeps one (contexts are not thread-safe; reuse gives the same bytes)."""
-    ctx: zstandard.ZstdCompressor | None = getattr(_local, f"cctx{dictionary}", None)
-    if ctx is None:
-        ctx = zstandard.ZstdCompressor(level=_HEADER_ZSTD_LEVEL, dict_data=_HEADER_DICTS[dictionary],
-                                       write_content_size=True, write_checksum=False, write_dict_id=False)
-        setattr(_local, f"cctx{dictionary}", ctx)
-    return ctx
-
-
-def _header_dctx(dictionary: int) -> zstandard.ZstdDecompressor:
-    """This thread's decompressor with header dictionary ``dictionary`` (as :func:`_header_cctx`)."""
-    ctx: zstandard.ZstdDecompressor | None = getattr(_local, f"dctx{dictionary}", None)
-    if ctx is None:
-        ctx = zstandard.ZstdDecompressor(dict_data=_HEADER_DICTS[dictionary])
-        setattr(_local, f"dctx{dictionary}", ctx)
-    return ctx
+def per_thread(key: str, make: Callable[[], _T]) -> _T:
+    """This thread's object ``key``, made by ``make`` on first use: zstd contexts, whose creation (a dictionary
+    loaded, tables allocated) costs more than compressing or decompressing a header or a small section, and
+    which are not thread-safe (a reused context gives the same bytes)."""
+    obj: _T | None = getattr(_local, key, None)
+    if obj is None:
+        obj = make()
+        setattr(_local, key, obj)
+    return obj
 
 
 def decompress_header(stored: BytesLike, dictionary: int = 1) -> bytes:
@@ -192,7 +188,8 @@ def decompress_header(stored: BytesLike, dictionary: int = 1) -> bytes:
     if stored[4] & 0x03:  # Frame_Header_Descriptor's Dictionary_ID_Flag (RFC 8878 3.1.1.1.1)
         raise MalformedHeaderError("the compact header's zstd frame carries a dictionary id; I.3.1 forbids one "
                                    "(its dictionary is fixed by the format and has none)")
-    frame = _header_dctx(dictionary).decompressobj(read_across_frames=False)
+    dctx = per_thread(f"header_dctx{dictionary}", lambda: zstandard.ZstdDecompressor(dict_data=_HEADER_DICTS[dictionary]))
+    frame = dctx.decompressobj(read_across_frames=False)
     try:
         out = frame.decompress(bytes(stored))  # libzstd refuses output beyond the declared content size
     except zstandard.ZstdError as exc:
@@ -277,8 +274,6 @@ def _scan(value: Any, digests: tuple[Any, ...]) -> bool:
                     stack.append((child, depth + 1))
                 elif isinstance(child, bytes) and not any(child is d for d in digests):
                     bin_elsewhere = True
-        elif isinstance(item, bytes):  # the header itself (require_map names it)
-            bin_elsewhere = True
     return bin_elsewhere
 
 

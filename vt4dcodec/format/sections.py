@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import functools
 import io
-import threading
 
 import numpy as np
 import zstandard
 
 from ..cameras import Trajectory
 from ..errors import CameraError, ChecksumError, LimitExceededError, MalformedSectionError, UnsupportedFeatureError
-from .header import CameraLayout
+from .header import CameraLayout, per_thread
 from .camera_dictionary import CAMERA_DICTIONARY
 from .layout import COMPRESSION_RAW, COMPRESSION_ZSTD, COMPRESSION_ZSTD_CAMERAS, BytesLike, SectionEntry, crc32
 
@@ -80,24 +79,16 @@ def _camera_dict() -> zstandard.ZstdCompressionDict:
 def compress_with_camera_dictionary(raw: bytes) -> bytes:
     """One zstd frame of ``raw`` compressed with the camera dictionary (FORMAT.md I.4.2): its content size
     declared, no dictionary id, no checksum."""
-    cctx = getattr(_local, "cctx_cameras", None)
-    if cctx is None:
-        cctx = zstandard.ZstdCompressor(level=CAMERA_DICTIONARY_LEVEL, dict_data=_camera_dict(),
-                                        write_content_size=True, write_checksum=False, write_dict_id=False)
-        _local.cctx_cameras = cctx
+    cctx = per_thread("cctx_cameras", lambda: zstandard.ZstdCompressor(
+        level=CAMERA_DICTIONARY_LEVEL, dict_data=_camera_dict(), write_content_size=True, write_checksum=False,
+        write_dict_id=False))
     return cctx.compress(raw)
 
 
 def _compressor(level: int) -> zstandard.ZstdCompressor:
-    """This thread's zstd compressor at ``level`` (content size declared, no checksum): one per thread and
-    level, reused (creating one costs more than compressing a small section; reuse gives the same bytes)."""
-    cache = getattr(_local, "cctx", None)
-    if cache is None:
-        cache = _local.cctx = {}
-    cctx = cache.get(level)
-    if cctx is None:
-        cctx = cache[level] = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=False)
-    return cctx
+    """This thread's zstd compressor at ``level`` (content size declared, no checksum)."""
+    return per_thread(f"cctx{level}", lambda: zstandard.ZstdCompressor(level=level, write_content_size=True,
+                                                                       write_checksum=False))
 
 
 def section_payload(container: BytesLike, entry: SectionEntry, *, check_crc: bool = True) -> bytes | memoryview:
@@ -120,18 +111,9 @@ def section_payload(container: BytesLike, entry: SectionEntry, *, check_crc: boo
     return _bounded_zstd(stored, entry)
 
 
-_local = threading.local()
-
-
 def _decompressor(dictionary: bool) -> zstandard.ZstdDecompressor:
     """A zstd decompressor, with the camera dictionary for compression 2."""
     return zstandard.ZstdDecompressor(dict_data=_camera_dict()) if dictionary else zstandard.ZstdDecompressor()
-
-
-def _new_dctx(dictionary: bool = False) -> zstandard.ZstdDecompressor:
-    dctx = _decompressor(dictionary)
-    setattr(_local, "dctx_cameras" if dictionary else "dctx", dctx)
-    return dctx
 
 
 def _bounded_zstd(stored: memoryview, entry: SectionEntry, *, dictionary: bool = False) -> bytes:
@@ -151,7 +133,7 @@ def _bounded_zstd(stored: memoryview, entry: SectionEntry, *, dictionary: bool =
         # The frame declares exactly the table's size, so a one-shot decompression allocates no more than
         # that (libzstd refuses output that differs from the declared content size).  One decompression
         # context per thread: creating one costs more than decompressing a small section.
-        dctx = getattr(_local, "dctx_cameras" if dictionary else "dctx", None) or _new_dctx(dictionary)
+        dctx = per_thread("dctx_cameras" if dictionary else "dctx", lambda: _decompressor(dictionary))
         try:
             frame = dctx.decompressobj(read_across_frames=False)  # first frame only; the rest is unused_data
             out = frame.decompress(stored)
