@@ -34,7 +34,7 @@ def _record(seed: int) -> bytes:
     return example_record(seed, static_shape=(8, 4), dynamic_shape=(4, 4), frames=2)
 
 
-def _write(tmp: str, name: str, steps, version=(1, 0)) -> bytes:
+def _write(tmp: str, name: str, steps, version=(1, 0), record=None) -> bytes:
     """Build an archive by ``steps``: a list of commits, each a list of (key, seed, replace).
 
     The vectors of version 1.0 are kept byte for byte forever, so they are written as 1.0."""
@@ -42,7 +42,7 @@ def _write(tmp: str, name: str, steps, version=(1, 0)) -> bytes:
     w = ArchiveWriter(path, "w", durable=False, version=version)
     for batch in steps:
         for key, seed, replace in batch:
-            w.append(key, _record(seed), replace=replace)
+            w.append(key, (record or _record)(seed), replace=replace)
         w.commit()
     w.close()
     with open(path, "rb") as f:
@@ -137,6 +137,64 @@ def _segmented_invalid(seg: bytes) -> dict[str, tuple[bytes, str]]:
     return out
 
 
+def _small_record(seed: int) -> bytes:
+    return example_record(seed, static_shape=(2, 4), dynamic_shape=(1, 4), frames=1)
+
+
+def _light(tmp: str) -> bytes:
+    """Version 1.2: two full commits of 17 scenes (a manifest naming two compressed segments), then three
+    light commits (one replaces a key already replaced in the tail); records under 4 KiB store no summary."""
+    full = [[(f"scene-{i:02d}", i, False) for i in range(first, first + 17)] for first in (0, 17)]
+    light = [[("scene-40", 40, False), ("scene-03", 41, True)], [("scene-03", 42, True)], [("scene-41", 43, False)]]
+    return _write(tmp, "light.vt4da", full + light, version=(1, 2), record=_small_record)
+
+
+def _refooter(data: bytes, **fields) -> bytes:
+    """The same bytes with the tail footer's fields changed (its CRC made valid again)."""
+    from dataclasses import replace
+    c = replace(parse_footer(data[-FOOTER_SIZE:]), **fields)
+    return data[:-FOOTER_SIZE] + pack_footer(c)
+
+
+def _light_invalid(light: bytes) -> dict[str, tuple[bytes, str]]:
+    """Rejections added with version 1.2, each one defect of ``light.vt4da`` (FORMAT.md Part II 5.6, 5.7)."""
+    from vt4dcodec.archive.segments import parse_journal
+    c = parse_footer(light[-FOOTER_SIZE:])
+    tail_start = c.index_offset + c.index_length
+    last_frame = light.rfind(b"V4AR")  # the last light commit's frame (scene-41)
+    journal = light.rfind(b"V4AJ")  # its journal, right before the footer
+    out = {}
+    bad = bytearray(light)
+    bad[last_frame + 12] ^= 0x01  # the frame's payload CRC field: its meta CRC fails
+    out["light_tail_checksum"] = (bytes(bad), "IndexChecksumError")
+    out["light_tail_too_long"] = (_refooter(light, tail_length=(1 << 18) + 1), "LimitExceededError")
+    bad = bytearray(light)
+    bad[last_frame:last_frame + 4] = b"V4AX"
+    out["light_tail_garbage"] = (bytes(bad), "ArchiveError")
+    bad = bytearray(light)  # the journal's payload length of its one entry, its CRC made valid again
+    end = c.footer_offset
+    parse_journal(light[journal:end])
+    struct.pack_into("<Q", bad, end - 16, struct.unpack_from("<Q", light, end - 16)[0] + 1)
+    struct.pack_into("<I", bad, end - 4, crc32(bytes(bad[journal:end - 4])))
+    out["light_journal_mismatch"] = (bytes(bad), "ArchiveError")
+    out["light_count"] = (_refooter(light, scene_count=c.scene_count + 1), "ArchiveError")
+    assert tail_start > c.index_offset
+    # the manifest's older segment (reference 1), a V4AZ block: its raw length R changed, the reference's CRC,
+    # the index CRC and the tail footer made valid again, so only the 5.6 check is left to fail
+    ref1 = c.index_offset + 32 + 32
+    seg_off, seg_len = struct.unpack_from("<QQ", light, ref1)
+    assert light[seg_off:seg_off + 4] == b"V4AZ"
+    z = struct.unpack_from("<Q", light, seg_off + 16)[0]
+    r = struct.unpack_from("<Q", light, seg_off + 8)[0]
+    for name, new_r, error in (("compressed_ratio", 64 * z + 1, "LimitExceededError"),
+                               ("compressed_size_mismatch", r + 1, "ArchiveError")):
+        bad = bytearray(light)
+        struct.pack_into("<Q", bad, seg_off + 8, new_r)
+        struct.pack_into("<I", bad, ref1 + 24, crc32(bytes(bad[seg_off:seg_off + seg_len])))
+        out[name] = (_refooter(bytes(bad), index_crc32=crc32(bytes(bad[c.index_offset:tail_start]))), error)
+    return out
+
+
 def _tail_footer_only(data: bytes) -> bytes:
     """A valid archive whose header slots are both empty: readers find the commit at the tail."""
     out = bytearray(data)
@@ -160,6 +218,7 @@ def build() -> dict[str, bytes | dict]:
             [("scene-a", 1, False)], [("scene-b", 2, False)], [("dir/scene-c", 3, False)],
             [("scene-b", 4, True)], [("scene-d", 5, False)], [("scene-e", 6, False)],
         ], version=(1, 1))
+        files["light.vt4da"] = _light(tmp)
     files["tail_footer_only.vt4da"] = _tail_footer_only(files["two_commits.vt4da"])
     for name, data in list(files.items()):
         with open_archive(data) as ar:
@@ -168,7 +227,8 @@ def build() -> dict[str, bytes | dict]:
                 "records": {k: hashlib.sha256(v).hexdigest() for k, v in ar.iter_records()},
             }
     expected["crashed.vt4da"]["repair_recovers"] = ["complete-after-commit"]
-    invalid = _invalid(files["two_commits.vt4da"]) | _segmented_invalid(files["segmented.vt4da"])
+    invalid = (_invalid(files["two_commits.vt4da"]) | _segmented_invalid(files["segmented.vt4da"])
+               | _light_invalid(files["light.vt4da"]))
     for stem, (data, error) in invalid.items():
         files[f"invalid_{stem}.vt4da"] = data
         expected[f"invalid_{stem}.vt4da"] = {"valid": False, "error": error}

@@ -23,8 +23,10 @@ from vt4dcodec.errors import ArchiveError, FormatError, Vt4dError
 from .helpers import payload_for, scene_record
 
 
+V11 = (1, 1)  # this module tests version 1.1's segment merging; 1.2's light commits: test_light.py
+
 def _single_commits(path, n, size=2000, replace_every=0):
-    with ArchiveWriter(path, "w", durable=False) as w:
+    with ArchiveWriter(path, "w", durable=False, version=V11) as w:
         for i in range(n):
             key = f"k{(i % replace_every) if replace_every else i:05d}"
             w.append(key, payload_for(f"{key}/{i}", size), validate=False, replace=True)
@@ -63,7 +65,7 @@ def test_every_version_reads_the_same_content(tmp_path):
 
 def test_open_reads_header_footer_index_and_each_older_segment(tmp_path):
     path = tmp_path / "a.vt4da"
-    with ArchiveWriter(path, durable=False) as w:
+    with ArchiveWriter(path, durable=False, version=V11) as w:
         for i in range(500):
             w.append(f"k{i:04d}", payload_for(f"{i}", 50), validate=False)
     with open_archive(path) as ar:
@@ -181,7 +183,7 @@ def test_mixed_commit_sizes_merge_in_a_real_archive(tmp_path):
     """The issue-52 reproducer: 24 commits of 1, 2, 3, 1, 2, 3, ... scenes left 24 segments."""
     path = tmp_path / "a.vt4da"
     n = 0
-    with ArchiveWriter(path, "w", durable=False) as w:
+    with ArchiveWriter(path, "w", durable=False, version=V11) as w:
         for c in range(24):
             for _ in range(c % 3 + 1):
                 w.append(f"k{n:04d}", payload_for(f"{n}", 20), validate=False)
@@ -199,7 +201,7 @@ def test_real_writer_keeps_the_bounds_for_any_commit_sizes(tmp_path_factory, com
     path = tmp_path_factory.mktemp("prop") / "a.vt4da"
     want: dict[str, bytes] = {}
     index_bytes = entries = n = 0
-    with ArchiveWriter(path, "w", durable=False) as w:
+    with ArchiveWriter(path, "w", durable=False, version=V11) as w:
         for c, (new, replace) in enumerate(commits):
             keys = [f"k{n + i:04d}" for i in range(new)] + sorted(want)[:replace]
             n += new

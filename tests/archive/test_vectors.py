@@ -75,6 +75,11 @@ REASONS = {
     "invalid_overlapping_records.vt4da": "overlapping records", "invalid_preamble_flags.vt4da": "unknown required flags",
     "invalid_preamble_major.vt4da": "major version 2", "invalid_segment_checksum.vt4da": "segment .* checksum",
     "invalid_truncated.vt4da": "too short for an archive", "invalid_truncated_commit.vt4da": "truncated: commit generation",
+    "invalid_light_tail_checksum.vt4da": "tail fails its meta checksum", "invalid_light_tail_too_long.vt4da":
+    "tail of 262145 bytes exceeds", "invalid_light_tail_garbage.vt4da": "neither a record frame nor a footer",
+    "invalid_light_journal_mismatch.vt4da": "journal .* does not list the frames",
+    "invalid_light_count.vt4da": "hold 36 distinct scenes, the commit says 37",
+    "invalid_compressed_ratio.vt4da": "over 64x", "invalid_compressed_size_mismatch.vt4da": "declare its raw length",
 }
 
 

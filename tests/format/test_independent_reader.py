@@ -11,12 +11,14 @@ import math
 import re
 import struct
 import zlib
+from collections.abc import Callable
+from typing import Any
 
 import msgpack
 import numpy as np
 import pytest
 import zstandard
-from hypothesis import example, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from format_strategies import REPO
@@ -536,7 +538,7 @@ def test_format_md_alone_reads_the_extra_cameras_the_writer_makes(frames, count,
         assert all(a.equals(b) for a, b in zip(ours.extra_cameras, scene.extra_cameras))
 
 
-# --- Part II: archives, read from FORMAT.md alone (struct + zlib; no vt4dcodec import) ----------------
+# --- Part II: archives, read from FORMAT.md alone (struct, zlib, zstandard; no vt4dcodec import) ------
 ARCHIVES = VECTORS / "archive"
 
 
@@ -548,40 +550,68 @@ class Rejected(Exception):
         self.kind = kind
 
 
-def _commit(b: bytes, footer: bool, size: int):
-    """A footer (6) or slot (3.2) -> (generation, index offset, index length, index crc, count, flags)."""
-    if footer:
-        magic, major, _minor, flags, gen, ioff, ilen, count, icrc, end, _res, crc = struct.unpack(
-            "<8sHHIQQQQI4sII", b)  # section 6: index CRC at 48, "V4AE" at 52, reserved at 56, CRC at 60
-        if magic != b"V4AFOOT\0" or end != b"V4AE" or zlib.crc32(b[:60]) != crc:
-            return None
-        if major != 1 or flags & ~1:
-            raise Rejected("UnsupportedVersionError")
-    else:
-        magic, icrc, gen, foff, ioff, ilen, count, flags, crc = struct.unpack("<4sIQQQQQI8xI", b)
-        if magic != b"V4AP" or zlib.crc32(b[:60]) != crc or foff != ioff + ilen or flags & ~1:
-            return None
-    min_len = 96 if flags & 1 else 32 + 48 * count  # 6.1
-    if ioff < 160 or count > 2**24 or ilen < min_len or ioff + ilen + 64 > size:
+KEY = re.compile(rb"[A-Za-z0-9_][A-Za-z0-9._-]*(?:/[A-Za-z0-9_][A-Za-z0-9._-]*)*")  # 5.4
+TAIL_MAX = 262144  # 5.7, 10
+
+
+def _valid_key(key: bytes) -> bool:
+    """5.4: 1..1024 bytes of UTF-8 matching SEG(/SEG)* (ASCII by the pattern, so valid UTF-8)."""
+    return 1 <= len(key) <= 1024 and KEY.fullmatch(key) is not None
+
+
+def _field_error(ioff: int, ilen: int, count: int, flags: int, tail: int) -> str | None:
+    """6.1 field checks of a footer or slot -> None, or the class step 3 raises for a footer at the end."""
+    if count > 2**24 or tail > TAIL_MAX:
+        return "LimitExceededError"
+    min_len = 96 if flags & 1 else 32 if flags & 2 else 32 + 48 * count  # manifest / 1.2 / 1.0 and 1.1
+    if ioff < 160 or ilen < min_len or 0 < tail < 64:
+        return "ArchiveError"
+    return None
+
+
+def _end(commit: tuple[int, ...]) -> int:
+    """6.1: the commit's end, its footer offset (index offset + index length + T) + 64."""
+    _gen, ioff, ilen, _icrc, _count, _flags, tail = commit
+    return ioff + ilen + tail + 64
+
+
+def _commit(b: bytes) -> tuple[int, ...] | None:
+    """A written footer (section 6; step 3) -> (generation, index offset, index length, index crc, count,
+    flags, T), or None if it is not one (magics or CRC fail); raises if it is one that fails section 6 or 6.1."""
+    magic, major, _minor, flags, gen, ioff, ilen, count, icrc, end, tail, crc = struct.unpack(
+        "<8sHHIQQQQI4sII", b)  # section 6: index CRC at 48, "V4AE" at 52, T (1.2) at 56, CRC at 60
+    if magic != b"V4AFOOT\0" or end != b"V4AE" or zlib.crc32(b[:60]) != crc:
         return None
-    return gen, ioff, ilen, icrc, count, flags
+    if major != 1 or flags & ~3:
+        raise Rejected("UnsupportedVersionError")
+    tail = tail if flags & 2 else 0  # otherwise reserved, and T is 0
+    error = _field_error(ioff, ilen, count, flags, tail)
+    if error:
+        raise Rejected(error)
+    return gen, ioff, ilen, icrc, count, flags, tail
 
 
-def _slot_commits(data: bytes):
-    out = []
+def _slot_commits(data: bytes) -> list[tuple[int, ...]]:
+    """3.2: the valid slots (magic, CRC, footer offset relation, known flags, 6.1 field checks)."""
+    out: list[tuple[int, ...]] = []
     for off in (32, 96):
-        magic, icrc, gen, foff, ioff, ilen, count, flags, crc = struct.unpack_from("<4sIQQQQQI8xI", data, off)
-        if magic == b"V4AP" and zlib.crc32(data[off:off + 60]) == crc and foff == ioff + ilen:
-            out.append((gen, ioff, ilen, icrc, count, flags))
+        magic, icrc, gen, foff, ioff, ilen, count, flags, tail, _res, crc = struct.unpack_from(
+            "<4sIQQQQQIIII", data, off)
+        tail = tail if flags & 2 else 0  # offset 52: T when commit flag bit 1, else reserved
+        if (magic == b"V4AP" and zlib.crc32(data[off:off + 60]) == crc and not flags & ~3
+                and foff == ioff + ilen + tail and _field_error(ioff, ilen, count, flags, tail) is None):
+            out.append((gen, ioff, ilen, icrc, count, flags, tail))
     return out
 
 
-def _index(data: bytes, at: int, length: int, bound: int, segment: bool) -> dict[bytes, tuple]:
-    """Sections 5.1/5.2 (+ 5.5 prefix-coded summaries in segments): key -> (payload offset, length,
-    crc, summary bytes); payloads must end by ``bound``."""
-    block = data[at:at + length]
+def _index(block: bytes, bound: int, segment: bool, count: int | None = None) -> dict[bytes, tuple[int, int, int, bytes]]:
+    """Sections 5.1/5.2 (+ 5.5 prefix-coded summaries in segments) of one index block: key -> (payload
+    offset, length, crc, summary bytes); payloads must end by ``bound``; ``count``: the reference's entry
+    count a segment's own count must equal (5.5)."""
+    if len(block) < 32:
+        raise Rejected("ArchiveError")
     magic, esize, n, kb, sb = struct.unpack_from("<4sIQQQ", block)
-    if magic != b"V4AI" or esize != 48 or 32 + 48 * n + kb + sb != len(block):
+    if magic != b"V4AI" or esize != 48 or 32 + 48 * n + kb + sb != len(block) or count not in (None, n):
         raise Rejected("ArchiveError")
     keys, out, koff, soff, prev, spans = block[32 + 48 * n:32 + 48 * n + kb], {}, 0, 0, None, []
     blob, summary = block[32 + 48 * n + kb:], b""
@@ -598,12 +628,148 @@ def _index(data: bytes, at: int, length: int, bound: int, segment: bool) -> dict
         key = keys[ko:ko + klen]
         if prev is not None and key <= prev:
             raise Rejected("DuplicateKeyError" if key == prev else "ArchiveError")
+        if not _valid_key(key):
+            raise Rejected("ArchiveError")
         out[key], prev, koff, soff = (poff, plen, pcrc, summary), key, koff + klen, soff + slen - res
         spans.append((poff, plen))
     spans.sort()
     if any(a + n > b for (a, n), (b, _) in zip(spans, spans[1:])):
         raise Rejected("OverlappingRecordsError")
     if koff != kb or soff != sb:
+        raise Rejected("ArchiveError")
+    return out
+
+
+def _inflate(stored: bytes, count: int) -> bytes:
+    """5.6: a compressed segment (its 32 + Z stored bytes) -> the R bytes of its index block."""
+    if len(stored) < 32:
+        raise Rejected("ArchiveError")
+    magic, _res, raw, z, _res2 = struct.unpack_from("<4sIQQQ", stored)
+    if magic != b"V4AZ" or z < 1 or len(stored) != 32 + z or raw < 32 + 48 * count:
+        raise Rejected("ArchiveError")
+    if raw > 64 * z:  # checked before decompressing: no decompression bomb
+        raise Rejected("LimitExceededError")
+    frame = stored[32:]
+    try:
+        params = zstandard.get_frame_parameters(frame)
+        if params.content_size != raw or params.dict_id != 0:  # declared (CONTENTSIZE_UNKNOWN != raw), no dictionary
+            raise Rejected("ArchiveError")
+        inflater = zstandard.ZstdDecompressor().decompressobj()
+        out = inflater.decompress(frame)
+    except zstandard.ZstdError:
+        raise Rejected("ArchiveError") from None
+    if not inflater.eof or inflater.unused_data or len(out) != raw:  # the only frame, exactly R bytes
+        raise Rejected("ArchiveError")
+    return out
+
+
+def _manifest(data: bytes, ioff: int, ilen: int, cflags: int, count: int | None) -> dict[bytes, tuple[int, int, int, bytes]]:
+    """5.5 (+ 5.6): the manifest at ``ioff`` with its segment 0 and the older segments -> key -> entry of
+    the newest segment holding it. Its scene count MUST equal ``count`` (the footer's) or, with ``count``
+    None (the manifest a light commit names, 5.7), the distinct keys of its segments."""
+    block = data[ioff:ioff + ilen]
+    magic, m, total = struct.unpack_from("<4sIQ", block)
+    if magic != b"V4AM" or not 1 <= m <= 64 or 32 + 32 * m > ilen or count not in (None, total):
+        raise Rejected("ArchiveError")
+    refs, limit = [], ioff
+    for k in range(m):  # every reference is checked before any segment is read
+        off, length, n, crc, sflags = struct.unpack_from("<QQQII", block, 32 + 32 * k)
+        sflags = sflags if cflags & 2 else 0  # 5.6: without commit flag bit 1 the field is reserved, ignored
+        if sflags & ~1:  # 1.2: bit 0 = compressed, other bits MUST be 0
+            raise Rejected("ArchiveError")
+        if n > 2**24:
+            raise Rejected("LimitExceededError")
+        if k == 0 and (off, off + length) != (ioff + 32 + 32 * m, ioff + ilen):  # ends where the index block ends
+            raise Rejected("ArchiveError")
+        if k and (off < 160 or off + length > limit):
+            raise Rejected("ArchiveError")
+        if length < (33 if sflags & 1 else 32 + 48 * n):  # 5.5 for plain segments, Z >= 1 for compressed (5.6)
+            raise Rejected("ArchiveError")
+        limit = off if k else limit
+        refs.append((off, length, n, crc, sflags))
+    entries: dict[bytes, tuple[int, int, int, bytes]] = {}
+    for off, length, n, crc, sflags in refs:
+        stored = data[off:off + length]
+        if zlib.crc32(stored) != crc:
+            raise Rejected("IndexChecksumError")
+        segment = _inflate(stored, n) if sflags & 1 else stored
+        for key, value in _index(segment, off, segment=True, count=n).items():
+            entries.setdefault(key, value)  # the newest segment holding a key wins
+    if len(entries) != total:
+        raise Rejected("ArchiveError")
+    return entries
+
+
+def _journal(tail: bytes, pos: int) -> tuple[int, int, list[tuple[bytes, int, int, int]]]:
+    """5.7: the journal at ``pos`` of the tail -> (block length L, commit start, [(key, S, payload CRC, P)]).
+    Its length is found by walking its entries (an item running past the tail's end: ArchiveError); then its
+    CRC (IndexChecksumError); then its fields (n >= 1, the stored L equal to the walked one: ArchiveError)."""
+    if len(tail) - pos < 16:
+        raise Rejected("ArchiveError")
+    _magic, n, start = struct.unpack_from("<4sIQ", tail, pos)
+    at, entries = pos + 16, []
+    for _ in range(n):  # u16 K, the key, u32 S, u32 payload CRC, u64 P
+        if len(tail) - at < 2:
+            raise Rejected("ArchiveError")
+        (k,) = struct.unpack_from("<H", tail, at)
+        if len(tail) - at < 2 + k + 16:
+            raise Rejected("ArchiveError")
+        s, pcrc, p = struct.unpack_from("<IIQ", tail, at + 2 + k)
+        entries.append((tail[at + 2:at + 2 + k], s, pcrc, p))
+        at += 2 + k + 16
+    if len(tail) - at < 8:  # u32 L, u32 CRC
+        raise Rejected("ArchiveError")
+    length, crc = struct.unpack_from("<II", tail, at)
+    if zlib.crc32(tail[pos:at + 4]) != crc:  # CRC-32 of bytes 0..L-5
+        raise Rejected("IndexChecksumError")
+    if n < 1 or length != at + 8 - pos:
+        raise Rejected("ArchiveError")
+    return length, start, entries
+
+
+def _tail(data: bytes, start: int, length: int) -> list[tuple[bytes, tuple[int, int, int, bytes]]]:
+    """5.7: the tail's items (footers, record frames, journals) -> [(key, entry)] of its record frames in file
+    order. Every frame is listed by a journal: a journal lists exactly the frames since the previous footer
+    (its commit start right after that footer), no footer follows a frame, and the last item is a journal."""
+    tail, pos, out = data[start:start + length], 0, []
+    after_footer: int | None = None  # the file offset right after the previous footer in the tail
+    since: list[tuple[int, bytes, int, int, int]] = []  # frames since it: (offset, key, S, payload CRC, P)
+    last = None  # the kind of the previous item
+    while pos < length:
+        if tail[pos:pos + 8] == b"V4AFOOT\0":  # an earlier commit's footer, skipped
+            item = tail[pos:pos + 64]
+            if len(item) < 64 or item[52:56] != b"V4AE" or zlib.crc32(item[:60]) != struct.unpack_from("<I", item, 60)[0]:
+                raise Rejected("ArchiveError")
+            if last == "frame":  # a footer MUST NOT follow a frame
+                raise Rejected("ArchiveError")
+            pos += 64
+            after_footer, since, last = start + pos, [], "footer"
+        elif tail[pos:pos + 4] == b"V4AR":  # a record frame (section 4)
+            if length - pos < 32:
+                raise Rejected("ArchiveError")
+            _magic, k, flags, s, pcrc, p, meta = struct.unpack_from("<4sHHIIQI", tail, pos)
+            if not 1 <= k <= 1024 or flags or s > 65536 or p > 2**40:  # section 4's limits, flags 0
+                raise Rejected("ArchiveError")
+            if 32 + k + s + p > length - pos:  # entirely inside the tail
+                raise Rejected("ArchiveError")
+            key, summary = tail[pos + 32:pos + 32 + k], tail[pos + 32 + k:pos + 32 + k + s]
+            if not _valid_key(key):
+                raise Rejected("ArchiveError")
+            if zlib.crc32(tail[pos:pos + 24] + key + summary) != meta:
+                raise Rejected("IndexChecksumError")
+            out.append((key, (start + pos + 32 + k + s, p, pcrc, summary)))
+            since.append((start + pos, key, s, pcrc, p))
+            pos += 32 + k + s + p
+            last = "frame"
+        elif tail[pos:pos + 4] == b"V4AJ":  # a journal
+            size, commit_start, listed = _journal(tail, pos)
+            if after_footer is None or commit_start != after_footer or listed != [f[1:] for f in since]:
+                raise Rejected("ArchiveError")
+            pos += size
+            last = "journal"
+        else:
+            raise Rejected("ArchiveError")
+    if last != "journal":  # the tail's last item MUST be a journal
         raise Rejected("ArchiveError")
     return out
 
@@ -616,40 +782,27 @@ def read_archive(data: bytes) -> tuple[int, dict[str, bytes]]:
     if size < 256:
         raise Rejected("TruncatedError")
     _magic, major, _minor, flags = struct.unpack_from("<8sHHI", data)  # step 2: always
-    if major != 1 or flags & ~1:
+    if major != 1 or flags & ~3:
         raise Rejected("UnsupportedVersionError")
-    commit = _commit(data[-64:], True, size)  # step 3
-    if commit is None or commit[1] + commit[2] + 64 != size:
-        inside = [c for c in _slot_commits(data) if c[1] + c[2] + 64 <= size]
-        commit = max(inside, default=None)
-    newest = max(_slot_commits(data), default=None)  # step 4: truncation
-    if newest is not None and newest[1] + newest[2] + 64 > size and (commit is None or newest[0] > commit[0]):
+    commit = _commit(data[-64:])  # step 3
+    slots = _slot_commits(data)
+    if commit is None or _end(commit) != size:
+        commit = max((c for c in slots if _end(c) <= size), default=None)
+    if any(_end(c) > size and (commit is None or c[0] > commit[0]) for c in slots):  # step 4: truncation
         raise Rejected("ArchiveTruncatedError")
     if commit is None:
         raise Rejected("NoCommitError")  # step 5
-    gen, ioff, ilen, icrc, count, cflags = commit
+    gen, ioff, ilen, icrc, count, cflags, tail = commit
     if zlib.crc32(data[ioff:ioff + ilen]) != icrc:  # step 6
         raise Rejected("IndexChecksumError")
-    if not cflags & 1:
+    if not cflags & 1:  # a 1.0 index block (of this commit, or the one a light commit names)
         if struct.unpack_from("<Q", data, ioff + 8)[0] > 2**24:
             raise Rejected("LimitExceededError")
-        entries = _index(data, ioff, ilen, ioff, segment=False)
+        entries = _index(data[ioff:ioff + ilen], ioff, segment=False)
     else:  # section 5.5: manifest + newest segment, older segments newest first
-        magic, m, total = struct.unpack_from("<4sIQ", data, ioff)
-        if magic != b"V4AM" or not 1 <= m <= 64 or total != count:
-            raise Rejected("ArchiveError")
-        entries, limit = {}, ioff
-        for k in range(m):
-            off, length, n, crc = struct.unpack_from("<QQQI", data, ioff + 32 + 32 * k)
-            if k == 0 and (off, length) != (ioff + 32 + 32 * m, ilen - 32 - 32 * m):
-                raise Rejected("ArchiveError")
-            if k and (off < 160 or off + length > limit):
-                raise Rejected("ArchiveError")
-            limit = off if k else limit
-            if zlib.crc32(data[off:off + length]) != crc:
-                raise Rejected("IndexChecksumError")
-            for key, value in _index(data, off, length, off, segment=True).items():
-                entries.setdefault(key, value)  # the newest segment holding a key wins
+        entries = _manifest(data, ioff, ilen, cflags, None if tail else count)
+    if tail:  # 5.7: each tail frame in file order replaces the entry of its key
+        entries.update(_tail(data, ioff + ilen, tail))
     if len(entries) != count:
         raise Rejected("ArchiveError")
     out = {}
@@ -657,7 +810,7 @@ def read_archive(data: bytes) -> tuple[int, dict[str, bytes]]:
         payload = data[poff:poff + plen]
         if zlib.crc32(payload) != pcrc:
             raise Rejected("RecordChecksumError")
-        # verify (5.3, section 4): the frame before the payload holds the same key and summary bytes
+        # verify (5.3, section 4): the frame before the payload holds the same key and summary bytes (S may be 0)
         if data[poff - len(summary):poff] != summary or data[poff - len(summary) - len(key):poff - len(summary)] != key:
             raise Rejected("ArchiveError")
         out[key.decode()] = payload
@@ -681,6 +834,307 @@ def test_format_md_alone_reads_or_rejects_every_archive_vector(name):
             read_archive(data)
         # section 10.1 names the class; "ArchiveError" is the catch-all (any structural violation)
         assert info.value.kind == expected["error"] or expected["error"] == "ArchiveError", info.value.kind
+
+
+# --- hand-built 1.2 archives (FORMAT.md II 3-6 as bytes) until the 1.2 vectors exist ----------------------
+def _frame(key: bytes, payload: bytes, summary: bytes = b"") -> bytes:
+    """Section 4: a record frame."""
+    head = struct.pack("<4sHHIIQ", b"V4AR", len(key), 0, len(summary), zlib.crc32(payload), len(payload))
+    return head + struct.pack("<II", zlib.crc32(head + key + summary), 0) + key + summary + payload
+
+
+def _index_block(entries: dict[bytes, tuple[int, int, int, bytes]]) -> bytes:
+    """5.1/5.2: a plain index block of key -> (payload offset, length, crc, summary), no prefix coding."""
+    table, kb, sb = b"", b"", b""
+    for key in sorted(entries):
+        poff, plen, pcrc, summary = entries[key]
+        table += struct.pack("<QQIHHQQII", poff, plen, pcrc, len(key), 0, len(kb), len(sb), len(summary), 0)
+        kb, sb = kb + key, sb + summary
+    return struct.pack("<4sIQQQ", b"V4AI", 48, len(entries), len(kb), len(sb)) + table + kb + sb
+
+
+def _zsegment(block: bytes, raw: int | None = None, frame: bytes | None = None) -> bytes:
+    """5.6: a compressed segment (V4AZ header + one zstd frame declaring its content size)."""
+    frame = zstandard.ZstdCompressor(level=19).compress(block) if frame is None else frame
+    return struct.pack("<4sIQQQ", b"V4AZ", 0, len(block) if raw is None else raw, len(frame), 0) + frame
+
+
+JournalEntries = list[tuple[bytes, int, int, int]]  # 5.7: (key, S, payload CRC, P) per frame
+
+
+def _journal_block(start: int, frames: JournalEntries) -> bytes:
+    """5.7: a journal (V4AJ) of the frames [(key, S, payload CRC, P)] of a light commit starting at ``start``."""
+    body = struct.pack("<4sIQ", b"V4AJ", len(frames), start)
+    body += b"".join(struct.pack("<H", len(k)) + k + struct.pack("<IIQ", s, c, p) for k, s, c, p in frames)
+    body += struct.pack("<I", len(body) + 8)  # block length L, from the magic to the end of the CRC
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def _footer(gen: int, ioff: int, ilen: int, count: int, icrc: int, flags: int, tail: int = 0) -> bytes:
+    """Section 6: a footer (T at 56 with flag bit 1)."""
+    minor = 2 if flags & 2 else 1 if flags & 1 else 0
+    b = struct.pack("<8sHHIQQQQI4sI", b"V4AFOOT\0", 1, minor, flags, gen, ioff, ilen, count, icrc, b"V4AE", tail)
+    return b + struct.pack("<I", zlib.crc32(b))
+
+
+class _Writer:
+    """Appends frames and commits (plain, segmented with optional V4AZ segments, light) per FORMAT.md II."""
+
+    def __init__(self, preamble_flags: int = 3, minor: int = 2):
+        self.data = bytearray(struct.pack("<8sHHI16x", b"\x89V4A\r\n\x1a\n", 1, minor, preamble_flags) + bytes(128))
+        self.entries: dict[bytes, tuple[int, int, int, bytes]] = {}  # the current scenes
+        self.changed: set[bytes] = set()  # keys written since the last full commit
+        self.segments: list[tuple[int, ...]] = []  # (offset, length, count, crc, segment flags), newest first
+        self.full: tuple[int, int, int, int] | None = None  # the last full commit's (ioff, ilen, icrc, flags)
+        self.gen = -1
+        self.frames: dict[bytes, int] = {}  # key -> offset of its last frame
+        self.start = 0  # the offset right after the last footer: the next commit's start
+        self.pending: JournalEntries = []  # (key, S, payload CRC, P) of the frames since it
+        self.journals: list[int] = []  # offsets of the journals written
+
+    def add(self, key: bytes, payload: bytes, summary: bytes = b"") -> None:
+        self.frames[key] = off = len(self.data)
+        self.data += _frame(key, payload, summary)
+        self.entries[key] = (off + 32 + len(key) + len(summary), len(payload), zlib.crc32(payload), summary)
+        self.changed.add(key)
+        self.pending.append((key, len(summary), zlib.crc32(payload), len(payload)))
+
+    def _commit(self, ioff: int, ilen: int, icrc: int, flags: int, tail: int = 0) -> None:
+        self.gen += 1
+        self.data += _footer(self.gen, ioff, ilen, len(self.entries), icrc, flags, tail)
+        slot = struct.pack("<4sIQQQQQIII", b"V4AP", icrc, self.gen, ioff + ilen + tail, ioff, ilen,
+                           len(self.entries), flags, tail, 0)
+        at = 32 + 64 * (self.gen % 2)
+        self.data[at:at + 64] = slot + struct.pack("<I", zlib.crc32(slot))
+        self.start, self.pending = len(self.data), []
+
+    def commit_plain(self, flags: int = 0) -> None:
+        ioff, block = len(self.data), _index_block(self.entries)
+        self.data += block
+        self.full, self.changed, self.segments = (ioff, len(block), zlib.crc32(block), flags), set(), []
+        self._commit(ioff, len(block), zlib.crc32(block), flags)
+
+    def commit_segmented(self, flags: int = 3, compress: bool = False, mutate: Callable[[bytes, bytes], bytes] | None = None, sflags: int | None = None,
+                         total: int | None = None) -> None:
+        ioff, m = len(self.data), len(self.segments) + 1
+        seg_off = ioff + 32 + 32 * m
+        block = _index_block({k: self.entries[k] for k in self.changed})
+        stored = _zsegment(block) if compress else block
+        stored = mutate(block, stored) if mutate else stored
+        sflags = int(compress) if sflags is None else sflags
+        self.segments.insert(0, (seg_off, len(stored), len(self.changed), zlib.crc32(stored), sflags))
+        manifest = struct.pack("<4sIQ16x", b"V4AM", m, len(self.entries) if total is None else total)
+        manifest += b"".join(struct.pack("<QQQII", *ref) for ref in self.segments)
+        index = manifest + stored
+        self.data += index
+        self.full, self.changed = (ioff, len(index), zlib.crc32(index), flags), set()
+        self._commit(ioff, len(index), zlib.crc32(index), flags)
+
+    def commit_light(self, journal: bool = True, mutate: Callable[[int, JournalEntries], bytes] | None = None) -> None:
+        """5.7: the journal of the frames since the last footer (``mutate(start, frames)`` builds another one
+        instead; ``journal=False``: none), then the footer naming the last full commit's index block."""
+        assert self.full is not None
+        if journal:
+            self.journals.append(len(self.data))
+            self.data += mutate(self.start, self.pending) if mutate else _journal_block(self.start, self.pending)
+        ioff, ilen, icrc, flags = self.full
+        self._commit(ioff, ilen, icrc, flags | 2, len(self.data) - ioff - ilen)
+
+
+def _summary(key: bytes) -> bytes:
+    return bytes(msgpack.packb({"bytes": 9, "kind": key.decode()}))
+
+
+def _light_archive(first: dict[str, Any] | None = None, second: dict[str, Any] | None = None,
+                   third: dict[str, Any] | None = None, fourth: dict[str, Any] | None = None) -> _Writer:
+    """gen 0 empty; gen 1 a, b in a segment (compressed unless ``first`` says); gen 2 c in a plain segment 0
+    over it (``second``: commit_segmented arguments); gen 3 light: a replaced without summary; gen 4 light: d
+    without summary (``third``, ``fourth``: commit_light arguments)."""
+    w = _Writer()
+    w.commit_plain()
+    w.add(b"a", b"payload-a", _summary(b"a"))
+    w.add(b"dir/b", b"payload-b", _summary(b"b"))
+    w.commit_segmented(**{"compress": True, **(first or {})})
+    w.add(b"c", b"payload-c", _summary(b"c"))
+    w.commit_segmented(**(second or {}))
+    w.add(b"a", b"payload-a2")
+    w.commit_light(**(third or {}))
+    w.add(b"d", b"payload-d")
+    w.commit_light(**(fourth or {}))
+    return w
+
+
+LIGHT_RECORDS = {"a": b"payload-a2", "dir/b": b"payload-b", "c": b"payload-c", "d": b"payload-d"}
+
+
+def _resign_footer(data: bytes, **fields: int) -> bytes:
+    """The last footer with ``fields`` (count, flags, tail) changed and its CRC made to hold again."""
+    foot = bytearray(data[-64:])
+    for name, (fmt, at) in {"count": ("<Q", 40), "flags": ("<I", 12), "tail": ("<I", 56)}.items():
+        if name in fields:
+            struct.pack_into(fmt, foot, at, fields[name])
+    struct.pack_into("<I", foot, 60, zlib.crc32(foot[:60]))
+    return data[:-64] + bytes(foot)
+
+
+def _reject(data: bytes | bytearray) -> str:
+    with pytest.raises(Rejected) as info:
+        read_archive(bytes(data))
+    return info.value.kind
+
+
+def test_format_md_alone_reads_hand_built_1_2_archives() -> None:
+    """II 5.6/5.7 (1.2): light commits over a manifest with a compressed older segment, a replace in the tail,
+    records without summaries; the commit is found at the end, through a slot (uncommitted bytes follow), and a
+    cut-off commit is ArchiveTruncatedError."""
+    w = _light_archive()
+    data, want = bytes(w.data), LIGHT_RECORDS
+    assert read_archive(data) == (4, want)
+    # 5.7: each light commit's journal ends where its footer starts, and its commit start follows the last footer
+    assert [data[j:j + 4] for j in w.journals] == [b"V4AJ"] * 2
+    assert [data[j + 8:j + 16] for j in w.journals] == [struct.pack("<Q", w.frames[k]) for k in (b"a", b"d")]
+    assert read_archive(data + _frame(b"e", b"uncommitted")[:40]) == (4, want)  # slot A: gen 4 with its T
+    assert _reject(data[:-10]) == "ArchiveTruncatedError"
+    # the state after the first light commit: slot B holds gen 3; gen 4's bytes cut and slot A cleared
+    gen3 = bytearray(data[:w.frames[b"d"]])
+    gen3[32:96] = bytes(64)
+    assert read_archive(bytes(gen3)) == (3, {k: v for k, v in want.items() if k != "d"})
+    # a light commit naming a plain (1.0) index block: the generation-0 empty index, flags 2 only
+    p = _Writer()
+    p.commit_plain(flags=2)
+    p.add(b"x", b"payload-x")
+    p.commit_light()
+    assert read_archive(bytes(p.data)) == (1, {"x": b"payload-x"})
+    p.add(b"y", b"payload-y", _summary(b"y"))
+    p.add(b"x", b"payload-x2")  # two frames in one light commit, the second replacing an earlier tail frame
+    p.commit_light()
+    assert read_archive(bytes(p.data)) == (2, {"x": b"payload-x2", "y": b"payload-y"})
+    # a full 1.2 commit whose segment 0 is compressed
+    z = _Writer()
+    z.commit_plain()
+    z.add(b"k", b"payload-k")
+    z.commit_segmented(compress=True)
+    assert read_archive(bytes(z.data)) == (1, {"k": b"payload-k"})
+
+
+def test_format_md_alone_rejects_damaged_hand_built_1_2_archives() -> None:
+    """The 10.2 1.2 rejections (light_tail_checksum, light_tail_too_long, light_tail_garbage, light_count,
+    compressed_ratio, compressed_size_mismatch) and their neighbours, on hand-built archives."""
+    w = _light_archive()
+    data, d, a2 = bytes(w.data), w.frames[b"d"], w.frames[b"a"]
+    read_archive(data)
+    meta = bytearray(data)
+    meta[d + 24] ^= 1
+    assert _reject(meta) == "IndexChecksumError"  # light_tail_checksum
+    assert _reject(_resign_footer(data, tail=262145)) == "LimitExceededError"  # light_tail_too_long
+    assert _reject(_resign_footer(data, tail=63)) == "ArchiveError"  # T in 1..63
+    garbage = bytearray(data)
+    garbage[d:d + 4] = b"V4AX"
+    assert _reject(garbage) == "ArchiveError"  # light_tail_garbage
+    torn = bytearray(data)
+    torn[a2 - 64 + 60] ^= 1  # gen 2's footer at the start of the tail: its CRC fails
+    assert _reject(torn) == "ArchiveError"
+    long_frame = bytearray(data)
+    struct.pack_into("<Q", long_frame, d + 16, 10**6)  # payload length past the tail (meta CRC then fails too)
+    assert _reject(long_frame) == "ArchiveError"
+    bad_key = bytearray(data)
+    bad_key[d + 32] = ord(".")  # key ".": not a 5.4 key (checked before the meta CRC, in 5.7's order)
+    assert _reject(bad_key) == "ArchiveError"
+    assert _reject(_resign_footer(data, count=5)) == "ArchiveError"  # light_count
+    assert _reject(_resign_footer(data, flags=3 | 4)) == "UnsupportedVersionError"
+    # without flag bit 1 T is 0, so the footer names another end: step 3 takes slot A (gen 4, the same commit)
+    assert read_archive(_resign_footer(data, flags=1)) == (4, LIGHT_RECORDS)
+    preamble = bytearray(data)
+    preamble[12] = 7
+    assert _reject(preamble) == "UnsupportedVersionError"
+
+    def ratio(block: bytes, stored: bytes) -> bytes:  # compressed_ratio: R > 64 x Z
+        return struct.pack("<4sIQQQ", b"V4AZ", 0, 64 * (len(stored) - 32) + 1, len(stored) - 32, 0) + stored[32:]
+
+    def damaged(mutate: Callable[[bytes, bytes], bytes]) -> bytes:  # gen 1's compressed segment (ref 1 of the manifest gen 4 names)
+        return bytes(_light_archive(first={"mutate": mutate}).data)
+
+    assert _reject(damaged(ratio)) == "LimitExceededError"  # compressed_ratio
+    assert _reject(damaged(lambda b, s: _zsegment(b + b"\0", raw=len(b)))) == "ArchiveError"  # size mismatch
+    assert _reject(damaged(lambda b, s: _zsegment(b[:-1], raw=len(b)))) == "ArchiveError"  # ... the other way
+    assert _reject(damaged(lambda b, s: _zsegment(
+        b, frame=zstandard.ZstdCompressor(write_content_size=False).compress(b)))) == "ArchiveError"
+    assert _reject(damaged(lambda b, s: _zsegment(
+        b, frame=zstandard.ZstdCompressor().compress(b) + zstandard.ZstdCompressor().compress(b"")))) == "ArchiveError"
+    assert _reject(damaged(lambda b, s: b"V4AY" + s[4:])) == "ArchiveError"
+    assert _reject(damaged(lambda b, s: _zsegment(b, raw=32 + 48 * 2 - 1))) == "ArchiveError"  # R < 32 + 48 n
+    assert _reject(damaged(lambda b, s: s[:-1])) == "ArchiveError"  # stored length != 32 + Z
+    assert _reject(_light_archive(first={"sflags": 3}).data) == "ArchiveError"  # unknown segment flag bit
+    # the manifest gen 4 names says 4 scenes (the light footer's count) over 3 distinct keys
+    assert _reject(_light_archive(second={"total": 4}).data) == "ArchiveError"
+    # a 1.1 commit (no flag bit 1) whose segment reference sets the compressed bit
+    old = _Writer(preamble_flags=1, minor=1)
+    old.commit_plain()
+    old.add(b"k", b"payload-k")
+    old.commit_segmented(flags=1, compress=True)
+    assert _reject(old.data) == "ArchiveError"  # 5.6: the field is reserved there, so a V4AZ is read as a V4AI
+    # ... and a plain segment in a 1.1 commit whose reserved segment-flags field is not zero: ignored (5.6)
+    old = _Writer(preamble_flags=1, minor=1)
+    old.commit_plain()
+    old.add(b"k", b"payload-k")
+    old.commit_segmented(flags=1, sflags=0xFFFFFFFF)
+    assert read_archive(bytes(old.data)) == (1, {"k": b"payload-k"})
+    # 5.6: the segment CRC is checked first: a damaged magic or R of a compressed segment is IndexChecksumError
+    seg = w.segments[-1][0]  # gen 1's compressed segment (the oldest the manifest names)
+    assert data[seg:seg + 4] == b"V4AZ"
+    for at, value in ((seg, b"V4AY"), (seg + 8, struct.pack("<Q", 2**40))):
+        bad = bytearray(data)
+        bad[at:at + len(value)] = value
+        assert _reject(bad) == "IndexChecksumError"
+
+
+def test_format_md_alone_rejects_hand_built_1_2_archive_journals() -> None:
+    """5.7 journals (light_journal_mismatch and its neighbours): a journal whose CRC fails, one listing a wrong
+    frame or commit start, a tail ending with a frame, a footer right after a frame."""
+    w = _light_archive()
+    data, j4 = bytes(w.data), w.journals[-1]
+    for at in (j4 + 16 + 2 + 1 + 4, len(data) - 64 - 4, len(data) - 64 - 8):  # payload CRC of d, the CRC, L
+        bad = bytearray(data)
+        bad[at] ^= 1
+        assert _reject(bad) == "IndexChecksumError"
+    bad = bytearray(data)
+    bad[w.journals[0] + 8] ^= 1  # gen 3's journal (its commit start), inside gen 4's tail: its CRC fails too
+    assert _reject(bad) == "IndexChecksumError"
+
+    def listing(change: Callable[[int, JournalEntries], tuple[int, JournalEntries]]) -> bytes:  # gen 4's journal
+        return bytes(_light_archive(fourth={"mutate": lambda start, f: _journal_block(*change(start, f))}).data)
+
+    assert read_archive(listing(lambda start, f: (start, f))) == (4, LIGHT_RECORDS)  # the builder's own journal
+    wrong = {  # light_journal_mismatch: each one lists a wrong frame, or the frames from a wrong start
+        "payload crc": lambda start, f: (start, [(k, s, c ^ 1, p) for k, s, c, p in f]),
+        "payload length": lambda start, f: (start, [(k, s, c, p + 1) for k, s, c, p in f]),
+        "summary length": lambda start, f: (start, [(k, s + 1, c, p) for k, s, c, p in f]),
+        "key": lambda start, f: (start, [(b"e", s, c, p) for k, s, c, p in f]),
+        "extra frame": lambda start, f: (start, f + f),
+        "commit start": lambda start, f: (start - 64, f),
+        "gen 3's frame": lambda start, f: (start, [(b"a", 0, zlib.crc32(b"payload-a2"), 10)]),
+    }
+    for name, change in wrong.items():
+        assert _reject(listing(change)) == "ArchiveError", name
+    assert _reject(listing(lambda start, f: (start, []))) == "ArchiveError"  # n = 0 (at least 1)
+    stored_length = bytearray(data)  # the stored L is not the walked length; the CRC made to hold again
+    struct.pack_into("<I", stored_length, len(data) - 64 - 8, struct.unpack_from("<I", data, len(data) - 72)[0] + 1)
+    struct.pack_into("<I", stored_length, len(data) - 68, zlib.crc32(stored_length[j4:len(data) - 68]))
+    assert _reject(stored_length) == "ArchiveError"
+    past = bytearray(data)  # an entry count the tail cannot hold: the walk runs past the tail's end
+    struct.pack_into("<I", past, j4 + 4, 1000)
+    assert _reject(past) == "ArchiveError"
+    # a tail ending with a frame: gen 4 writes no journal
+    assert _reject(_light_archive(fourth={"journal": False}).data) == "ArchiveError"
+    # a footer right after a frame: gen 3 writes no journal, gen 4 does
+    assert _reject(_light_archive(third={"journal": False}).data) == "ArchiveError"
+    # swapped entries of a two-frame light commit over a plain (1.0) empty index
+    p = _Writer()
+    p.commit_plain(flags=2)
+    p.add(b"x", b"payload-x")
+    p.add(b"y", b"payload-y")
+    p.commit_light(mutate=lambda start, f: _journal_block(start, f[::-1]))
+    assert _reject(p.data) == "ArchiveError"
 
 
 @settings(max_examples=40, deadline=None)
@@ -779,3 +1233,41 @@ def test_format_md_alone_reads_the_fixed_point_cameras_the_writer_makes(frames, 
         assert not np.signbit(np.array(got["w2c"])[:, :3, 3][np.array(got["w2c"])[:, :3, 3] == 0]).any()
     if fps is not None:
         assert read_cameras(mine)["timestamps"] == ours.cameras.timestamps.tolist() == scene.cameras.timestamps.tolist()
+
+
+ARCHIVE_KEYS = ["a", "b", "c", "dir/d", "dir/e.1", "F_2", "g-3", "h"]
+
+
+@pytest.mark.parametrize("version", [(1, 2), (1, 1)], ids=["1.2", "1.1"])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.lists(st.tuples(st.sampled_from(ARCHIVE_KEYS), st.integers(1, 3000), st.booleans()),
+                         min_size=1, max_size=20), min_size=1, max_size=16),
+       st.integers(0, 2**32 - 1))
+def test_format_md_alone_reads_what_the_archive_writer_makes(tmp_path_factory, version, commits, seed):
+    """The library's archive writer, used only as a black box to make files (random commits of 1-20 appends of
+    random payloads, replaces among them; light commits, journals and full ones as the writer chooses): the
+    spec-only reader above returns the last commit's generation and exactly the last committed payload of
+    every key."""
+    import random
+
+    from vt4dcodec.archive import ArchiveWriter
+
+    rng = random.Random(seed)
+    path = tmp_path_factory.mktemp("archive") / "a.vt4da"
+    want: dict[str, bytes] = {}
+    writer = ArchiveWriter(path, "w", durable=False, version=version)
+    try:
+        for batch in commits:
+            pending: dict[str, bytes] = {}
+            for key, size, replace in batch:
+                payload = rng.randbytes(size)
+                writer.append(key, payload, validate=False, replace=replace or key in want or key in pending)
+                pending[key] = payload
+            generation = writer.commit()
+            want.update(pending)
+            assert read_archive(path.read_bytes()) == (generation, want)
+    finally:
+        writer.close(commit=False)
+    data = path.read_bytes()
+    assert struct.unpack_from("<HH", data, 8) == version
+    assert read_archive(data) == (generation, want)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ArchiveError
+from .index import IndexEntry, encode_summary, shared_first
 from .layout import MAX_GENERATION, VERSION_MINOR
 from .lock import WriterLock
 from .reader import open_archive
@@ -53,7 +54,13 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
                                            "run `vt4d repair` first")
             old_generation = reader.generation
             entries = sorted(reader.entries(), key=lambda e: e.offset)
-            records = ((e.key, reader.read_entry(e), e.summary_bytes) for e in entries)  # CRC-checked copies
+            def summary(e: IndexEntry) -> bytes:  # 1.0 and 1.1 store a summary with every record (5.3)
+                if e.has_summary or version >= (1, 2):
+                    return e.summary_bytes
+                return encode_summary(shared_first(reader.entry_summary(e)) if version >= (1, 1)
+                                      else reader.entry_summary(e))
+
+            records = ((e.key, reader.read_entry(e), summary(e)) for e in entries)  # CRC-checked copies
             commit = replace_with_new_archive(
                 path, records, generation=old_generation + 1 if old_generation < MAX_GENERATION else 1,
                 version=version, durable=durable, suffix="compact")

@@ -120,7 +120,13 @@ class IndexEntry:
 
     @property
     def summary(self) -> dict[str, Any]:
-        return decode_summary(self.summary_bytes)
+        """The stored summary; ``{}`` when the record stores none (FORMAT.md Part II 5.3: its fields are
+        then in the record's own header, see ``ArchiveReader.summary``)."""
+        return decode_summary(self.summary_bytes) if self.summary_bytes else {}
+
+    @property
+    def has_summary(self) -> bool:
+        return bool(self.summary_bytes)
 
     @property
     def frame_offset(self) -> int:

@@ -28,7 +28,7 @@ __all__ = [
     "PREAMBLE_SIZE", "SLOT_SIZE", "SLOT_OFFSETS", "HEADER_SIZE", "FRAME_HEADER_SIZE",
     "INDEX_HEADER_SIZE", "INDEX_ENTRY_SIZE", "FOOTER_SIZE",
     "MAX_KEY_BYTES", "MAX_SUMMARY_BYTES", "MAX_SCENES", "MAX_RECORD_BYTES", "MAX_GENERATION",
-    "FLAG_SEGMENTED", "KNOWN_FLAGS", "MANIFEST_HEADER_SIZE", "SEGMENT_REF_SIZE", "MAX_SEGMENTS",
+    "FLAG_SEGMENTED", "FLAG_V12", "KNOWN_FLAGS", "MAX_TAIL_BYTES", "MIN_TAIL_BYTES", "MANIFEST_HEADER_SIZE", "SEGMENT_REF_SIZE", "MAX_SEGMENTS",
     "Commit", "FrameHeader", "crc32", "check_key",
     "pack_preamble", "parse_preamble", "pack_slot", "parse_slot", "pack_footer", "parse_footer", "is_footer",
     "pack_frame_header", "parse_frame_header",
@@ -38,11 +38,17 @@ __all__ = [
 # --- constants ------------------------------------------------------------------------------------
 ARCHIVE_MAGIC = b"\x89V4A\r\n\x1a\n"  #: 8 bytes, PNG-style: high bit, name, CRLF, ^Z, LF
 ARCHIVE_EXTENSION = ".vt4da"
-VERSION_MAJOR, VERSION_MINOR = 1, 1  #: what this implementation writes (it reads every 1.x)
+VERSION_MAJOR, VERSION_MINOR = 1, 2  #: what this implementation writes by default (it reads every 1.x)
 #: required flag bit 0 (preamble, footer, slot): the commit's index block is a segment manifest
 #: (FORMAT.md Part II section 5.5, version 1.1).  In the preamble it says commits may use it.
 FLAG_SEGMENTED = 0x1
-KNOWN_FLAGS = FLAG_SEGMENTED
+#: required flag bit 1 (version 1.2): in a footer or slot, the commit's tail length ``T`` is stored (a light
+#: commit when ``T`` > 0, FORMAT.md Part II 5.7) and its index segments may be compressed (5.6); in the
+#: preamble, commits may use both
+FLAG_V12 = 0x2
+KNOWN_FLAGS = FLAG_SEGMENTED | FLAG_V12
+MAX_TAIL_BYTES = 1 << 18  #: the tail of a light commit (262,144 bytes)
+MIN_TAIL_BYTES = 64  #: a tail holds at least the footer of the full commit it follows
 MANIFEST_HEADER_SIZE = 32
 SEGMENT_REF_SIZE = 32
 MAX_SEGMENTS = 64  #: index segments one commit may name
@@ -101,8 +107,10 @@ _PREAMBLE = struct.Struct("<8sHHI16x")  # magic, major, minor, flags, reserved
 
 
 def pack_preamble(minor: int = VERSION_MINOR) -> bytes:
-    """Version 1.1 archives set required flag bit 0 (commits may use segmented indexes); 1.0: none."""
-    return _PREAMBLE.pack(ARCHIVE_MAGIC, VERSION_MAJOR, minor, FLAG_SEGMENTED if minor >= 1 else 0)
+    """Version 1.1 archives set required flag bit 0 (commits may use segmented indexes), 1.2 also bit 1
+    (light commits, compressed segments); 1.0: none."""
+    flags = (FLAG_SEGMENTED if minor >= 1 else 0) | (FLAG_V12 if minor >= 2 else 0)
+    return _PREAMBLE.pack(ARCHIVE_MAGIC, VERSION_MAJOR, minor, flags)
 
 
 def preamble_minor(data: bytes) -> int:
@@ -132,7 +140,9 @@ class Commit:
     """One committed state: where its index lives and how to check it.
 
     ``footer_offset`` is where the 64-byte footer of this commit starts; the committed file content
-    ends at ``footer_offset + FOOTER_SIZE``.
+    ends at ``footer_offset + FOOTER_SIZE``.  A light commit (version 1.2, ``tail_length`` > 0) names an
+    earlier full commit's index block; the ``tail_length`` bytes between that block and its own footer
+    hold the frames committed since (FORMAT.md Part II 5.7).
     """
 
     generation: int
@@ -140,15 +150,25 @@ class Commit:
     index_length: int
     index_crc32: int
     scene_count: int
-    flags: int = 0  #: FLAG_SEGMENTED: the index block is a segment manifest (version 1.1)
+    flags: int = 0  #: FLAG_SEGMENTED: the index block is a segment manifest (1.1); FLAG_V12: a 1.2 commit
+    tail_length: int = 0  #: ``T`` (1.2): bytes from the end of the index block to this footer
 
     @property
     def segmented(self) -> bool:
         return bool(self.flags & FLAG_SEGMENTED)
 
     @property
+    def v12(self) -> bool:
+        """A version 1.2 commit: its segments may be compressed, and it may be light."""
+        return bool(self.flags & FLAG_V12)
+
+    @property
+    def light(self) -> bool:
+        return self.tail_length > 0
+
+    @property
     def footer_offset(self) -> int:
-        return self.index_offset + self.index_length
+        return self.index_offset + self.index_length + self.tail_length
 
     @property
     def end(self) -> int:
@@ -156,11 +176,11 @@ class Commit:
 
 
 # slot: magic, index crc, generation, footer offset, index offset, index length, scene count, flags
-# (1.1; reserved zero in 1.0), pad, crc
-_SLOT = struct.Struct("<4sIQQQQQI8xI")
+# (1.1; reserved zero in 1.0), tail length (1.2; reserved before), pad, crc
+_SLOT = struct.Struct("<4sIQQQQQII4xI")
 # footer: magic, major, minor, flags, generation, index offset, index length, scene count, index crc,
-# reserved, end magic, footer crc
-_FOOTER = struct.Struct("<8sHHIQQQQI4s4xI")
+# end magic, tail length (1.2; reserved before), footer crc
+_FOOTER = struct.Struct("<8sHHIQQQQI4sII")
 assert _SLOT.size == SLOT_SIZE and _FOOTER.size == FOOTER_SIZE
 
 
@@ -171,11 +191,15 @@ def _check_commit_fields(c: Commit) -> Commit:
         raise LimitExceededError(f"commit claims {c.scene_count} scenes (limit {MAX_SCENES})")
     if c.flags & ~KNOWN_FLAGS:
         raise UnsupportedVersionError(f"commit sets unknown required flags 0x{c.flags & ~KNOWN_FLAGS:08x}")
+    if c.tail_length > MAX_TAIL_BYTES:
+        raise LimitExceededError(f"light commit's tail of {c.tail_length} bytes exceeds {MAX_TAIL_BYTES}")
+    if 0 < c.tail_length < MIN_TAIL_BYTES:
+        raise ArchiveError(f"light commit's tail of {c.tail_length} bytes cannot hold the footer it follows")
     if c.segmented:  # manifest (32 + 32 m bytes, m >= 1) + the newest segment (>= 32 bytes)
         if c.index_length < MANIFEST_HEADER_SIZE + SEGMENT_REF_SIZE + INDEX_HEADER_SIZE:
             raise ArchiveError(f"segmented index block of {c.index_length} bytes is too short")
         return c
-    min_len = INDEX_HEADER_SIZE + INDEX_ENTRY_SIZE * c.scene_count
+    min_len = INDEX_HEADER_SIZE + (0 if c.v12 else INDEX_ENTRY_SIZE * c.scene_count)
     if c.index_length < min_len:
         raise ArchiveError(f"index of {c.index_length} bytes cannot hold {c.scene_count} scenes")
     return c
@@ -183,7 +207,7 @@ def _check_commit_fields(c: Commit) -> Commit:
 
 def pack_slot(c: Commit) -> bytes:
     body = _SLOT.pack(SLOT_MAGIC, c.index_crc32, c.generation, c.footer_offset, c.index_offset,
-                      c.index_length, c.scene_count, c.flags, 0)
+                      c.index_length, c.scene_count, c.flags, c.tail_length, 0)
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
 
 
@@ -191,10 +215,10 @@ def parse_slot(data: bytes) -> Commit | None:
     """A header commit slot, or None if it is empty/torn (wrong magic or checksum)."""
     if len(data) < SLOT_SIZE:
         return None
-    magic, icrc, gen, footer_off, ioff, ilen, count, flags, scrc = _SLOT.unpack_from(data)
+    magic, icrc, gen, footer_off, ioff, ilen, count, flags, tail, scrc = _SLOT.unpack_from(data)
     if magic != SLOT_MAGIC or crc32(data[: SLOT_SIZE - 4]) != scrc:
         return None
-    c = Commit(gen, ioff, ilen, icrc, count, flags)
+    c = Commit(gen, ioff, ilen, icrc, count, flags, tail if flags & FLAG_V12 else 0)
     if footer_off != c.footer_offset:
         return None
     try:
@@ -204,9 +228,9 @@ def parse_slot(data: bytes) -> Commit | None:
 
 
 def pack_footer(c: Commit) -> bytes:
-    minor = 1 if c.flags else 0  # a 1.0 reader can read an unsegmented commit
+    minor = 2 if c.flags & FLAG_V12 else 1 if c.flags else 0  # a 1.0 reader can read an unsegmented commit
     body = _FOOTER.pack(FOOTER_MAGIC, VERSION_MAJOR, minor, c.flags, c.generation, c.index_offset,
-                        c.index_length, c.scene_count, c.index_crc32, FOOTER_END_MAGIC, 0)
+                        c.index_length, c.scene_count, c.index_crc32, FOOTER_END_MAGIC, c.tail_length, 0)
     return body[:-4] + struct.pack("<I", crc32(body[:-4]))
 
 
@@ -222,7 +246,7 @@ def parse_footer(data: bytes) -> Commit:
     """Parse a 64-byte footer; raise ArchiveError (ChecksumError for a bad CRC) if it is not one."""
     if len(data) != FOOTER_SIZE:
         raise TruncatedError(f"footer must be {FOOTER_SIZE} bytes, got {len(data)}")
-    magic, major, _minor, flags, gen, ioff, ilen, count, icrc, end_magic, fcrc = _FOOTER.unpack(data)
+    magic, major, _minor, flags, gen, ioff, ilen, count, icrc, end_magic, tail, fcrc = _FOOTER.unpack(data)
     if magic != FOOTER_MAGIC or end_magic != FOOTER_END_MAGIC:
         raise ArchiveError("no archive footer at the end of the file (not committed, or not an archive)")
     if crc32(data[: FOOTER_SIZE - 4]) != fcrc:
@@ -231,7 +255,7 @@ def parse_footer(data: bytes) -> Commit:
         raise UnsupportedVersionError(f"archive footer major version {major}; this reader reads {VERSION_MAJOR}")
     if flags & ~KNOWN_FLAGS:
         raise UnsupportedVersionError(f"archive footer sets unknown required flags 0x{flags & ~KNOWN_FLAGS:08x}")
-    return _check_commit_fields(Commit(gen, ioff, ilen, icrc, count, flags))
+    return _check_commit_fields(Commit(gen, ioff, ilen, icrc, count, flags, tail if flags & FLAG_V12 else 0))
 
 
 class ArchiveFooterChecksumError(ArchiveError, ChecksumError):

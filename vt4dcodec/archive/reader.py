@@ -11,10 +11,11 @@ from __future__ import annotations
 import os
 from typing import Any, Iterator
 
-from ..errors import ArchiveError, ChecksumError, SceneNotFoundError, TruncatedError
+from ..errors import ArchiveError, ChecksumError, FormatError, SceneNotFoundError, TruncatedError
 from ..format import Scene, SceneFile, loads, open_scene
 from ..format.sections import DEFAULT_MAX_DECODED_BYTES, decoded_budget
 from .index import IndexEntry
+from .records import summarize_payload
 from .layout import (FOOTER_SIZE, HEADER_SIZE, INDEX_HEADER_SIZE, SLOT_OFFSETS, SLOT_SIZE, Commit, crc32,
                      is_footer, parse_footer, parse_preamble, parse_slot)
 from .segments import load_index
@@ -172,8 +173,19 @@ class ArchiveReader:
         return self.index.entries()
 
     def summary(self, key: str) -> dict[str, Any]:
-        """The summary stored in the index (frames, shapes, encoding, fingerprint... as packed)."""
-        return self.entry(key).summary
+        """The record's summary (frames, shapes, encoding, fingerprint...): as stored in the index, or, for
+        a record that stores none (FORMAT.md Part II 5.3), read from the record's own header."""
+        return self.entry_summary(self.entry(key))
+
+    def entry_summary(self, entry: IndexEntry) -> dict[str, Any]:
+        """:meth:`summary` of an entry (one read of the record when it stores no summary)."""
+        if entry.has_summary:
+            return entry.summary
+        payload = self.read_entry(entry)
+        try:
+            return summarize_payload(payload)
+        except FormatError:  # stored without validation and not a scene: its size is what is known
+            return {"bytes": len(payload)}
 
     # -- records -----------------------------------------------------------------------------------
     def read_entry(self, entry: IndexEntry, *, check: bool = True) -> bytes:

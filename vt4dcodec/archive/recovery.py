@@ -31,16 +31,18 @@ from __future__ import annotations
 import struct
 import zlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 from ..errors import ArchiveError, FormatError
 from .index import ArchiveIndex, IndexEntry, decode_summary
 from .layout import (FOOTER_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, HEADER_SIZE, INDEX_ENTRY_SIZE,
-                     INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
+                     INDEX_HEADER_SIZE, INDEX_MAGIC, FLAG_SEGMENTED, FLAG_V12, MAX_TAIL_BYTES, MANIFEST_HEADER_SIZE, MANIFEST_MAGIC, MAX_GENERATION,
                      MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
                      check_key, crc32, frame_meta_crc, is_footer, parse_footer, parse_frame_header, parse_preamble,
                      parse_slot)
-from .segments import IndexView, load_index, manifest_length, parse_manifest
+from .segments import (COMPRESSED_MAGIC, JOURNAL_MAGIC, IndexView, compressed_length, journal_frames_end,
+                       journal_length_at_end, len_of_journal, load_index, load_named, manifest_length, parse_journal,
+                       parse_manifest, segment_block)
 from .source import ByteSource
 
 __all__ = ["ScanResult", "scan_records", "Claim", "find_claims", "RepairPlan", "plan_repair", "RepairReport",
@@ -98,7 +100,8 @@ def _try_frame(source: ByteSource, pos: int, size: int) -> IndexEntry | None:
     try:
         key = key_raw.decode("utf-8")
         check_key(key)
-        decode_summary(summary)
+        if summary:  # length 0: the record stores no summary (FORMAT.md Part II 5.3)
+            decode_summary(summary)
     except (FormatError, UnicodeDecodeError):
         return None
     payload_offset = pos + fh.payload_start
@@ -135,11 +138,34 @@ def _try_commit(source: ByteSource, pos: int, size: int) -> Commit | None:
     return commit
 
 
+def _try_light(source: ByteSource, pos: int, size: int) -> Commit | None:
+    """The light commit (version 1.2) whose intact footer is at ``pos`` and whose named index block verifies."""
+    if size - pos < FOOTER_SIZE:
+        return None
+    raw = source.read(pos, FOOTER_SIZE)
+    if not is_footer(raw):
+        return None
+    try:
+        commit = parse_footer(raw)
+    except FormatError:
+        return None
+    if not commit.light or commit.footer_offset != pos:
+        return None
+    if _payload_crc(source, commit.index_offset, commit.index_length) != commit.index_crc32:
+        return None
+    return commit
+
+
 def _segment_length(source: ByteSource, pos: int, size: int) -> int | None:
-    """The length an index block at ``pos`` declares (segments of 1.1 commits have no footer)."""
+    """The length an index block at ``pos`` declares (segments of 1.1 commits have no footer; a 1.2
+    segment may be a compressed ``V4AZ`` block)."""
     if size - pos < INDEX_HEADER_SIZE:
         return None
-    magic, esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", source.read(pos, INDEX_HEADER_SIZE))
+    head = source.read(pos, INDEX_HEADER_SIZE)
+    stored = compressed_length(head)
+    if stored is not None:
+        return stored
+    magic, esize, count, keys_len, summ_len = struct.unpack("<4sIQQQ", head)
     if magic != INDEX_MAGIC or esize != INDEX_ENTRY_SIZE or count > MAX_SCENES:
         return None
     return int(INDEX_HEADER_SIZE + count * INDEX_ENTRY_SIZE + keys_len + summ_len)
@@ -149,7 +175,9 @@ def _next_magic(source: ByteSource, pos: int, size: int) -> int | None:
     """The first offset >= ``pos`` where a frame or index magic starts, or None."""
     while pos < size:
         block = source.read(pos, min(_SCAN_CHUNK + 3, size - pos))  # +3: a magic across chunks
-        hits = [i for i in (block.find(FRAME_MAGIC), block.find(INDEX_MAGIC), block.find(MANIFEST_MAGIC)) if i >= 0]
+        hits = [i for i in (block.find(FRAME_MAGIC), block.find(INDEX_MAGIC), block.find(MANIFEST_MAGIC),
+                            block.find(COMPRESSED_MAGIC), block.find(FOOTER_MAGIC), block.find(JOURNAL_MAGIC))
+                if i >= 0]
         if hits:
             return pos + min(hits)
         pos += _SCAN_CHUNK
@@ -174,19 +202,29 @@ def scan_records(source: ByteSource, start: int, *, resync: bool = False) -> Sca
                 result.records.append(entry)
                 pos = result.end = entry.offset + entry.length
                 continue
-        elif magic in (INDEX_MAGIC, MANIFEST_MAGIC):
-            commit = _try_commit(source, pos, size)
+        elif magic in (INDEX_MAGIC, MANIFEST_MAGIC, FOOTER_MAGIC[:4]):  # a commit; a light one (1.2) is its footer
+            commit = _try_commit(source, pos, size) if magic != FOOTER_MAGIC[:4] else _try_light(source, pos, size)
             if commit is not None:
                 result.commits.append(commit)
                 result.commits_skipped += 1
                 pos = result.end = commit.end
                 continue
+        elif magic == JOURNAL_MAGIC:  # a light commit's journal (1.2): not damage
+            head = source.read(pos, min(size - pos, 1 << 20))
+            length = len_of_journal(head, 0) if len(head) >= 16 else None
+            if length is not None and length <= len(head):
+                try:
+                    parse_journal(head[:length])
+                    pos = result.end = pos + length
+                    continue
+                except FormatError:
+                    pass
         if not resync:
             break
         nxt = _next_magic(source, pos + 1, size)
         if nxt is None:
             break
-        if not (magic == INDEX_MAGIC and _segment_length(source, pos, size) == nxt - pos):
+        if not (magic in (INDEX_MAGIC, COMPRESSED_MAGIC) and _segment_length(source, pos, size) == nxt - pos):
             result.damaged.append((pos, nxt))  # (an index segment of a 1.1 commit is not damage)
         pos = nxt
     return result
@@ -262,6 +300,8 @@ def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
     even the commit's own index block verifies."""
     c, size = claim.commit, source.size()
     best: ClaimedKeys | None = None
+    if c.light:
+        return _read_light_claim(source, claim)
     for delta in dict.fromkeys((0, claim.at - c.footer_offset)):
         start = c.index_offset + delta
         if start < HEADER_SIZE or start + c.index_length > size:
@@ -274,8 +314,8 @@ def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
                 view = IndexView([ArchiveIndex.parse(block, c)])
             else:
                 refs = parse_manifest(block, c)
-                segments = [ArchiveIndex.parse_unchecked(block[manifest_length(len(refs)):], refs[0].offset,
-                                                         refs[0].count, prefix=True)]
+                segments = [ArchiveIndex.parse_unchecked(segment_block(block[manifest_length(len(refs)):], refs[0]),
+                                                         refs[0].offset, refs[0].count, prefix=True)]
                 where = [(r.offset + d, r.end + d) for r in refs[1:] for d in dict.fromkeys((0, delta))]
                 for r in refs[1:]:  # an older segment may lie before or after the shift
                     raw = next((b for d in dict.fromkeys((0, delta)) if r.offset + d >= HEADER_SIZE
@@ -283,7 +323,7 @@ def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
                                 and crc32(b := source.read(r.offset + d, r.length)) == r.crc32), None)
                     if raw is None:
                         break
-                    segments.append(ArchiveIndex.parse_unchecked(raw, r.offset, r.count, prefix=True))
+                    segments.append(ArchiveIndex.parse_unchecked(segment_block(raw, r), r.offset, r.count, prefix=True))
                 view = IndexView(segments)
         except FormatError:
             continue
@@ -293,6 +333,84 @@ def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
         if found.complete:
             break
     return best
+
+
+class _Chain(list[tuple[int, int]]):
+    """[start, end) of each journal read; ``entries``: their frames, newest journal first."""
+
+    entries: list[list[IndexEntry]]
+
+
+def _journal_chain(read: Callable[[int, int], bytes], tail_start: int, footer: int
+                   ) -> tuple[list[list[IndexEntry]] | None, _Chain]:
+    """Walk a light commit's journals back from its footer (each ends right before its commit's footer
+    and names where its commit's frames start, right after the previous footer).  Returns (the entries of
+    every journal, newest first, when the walk reaches the full commit's footer, else None; the chain
+    read, whose ``entries`` hold the journals read before a damaged one: entries certain to be this
+    commit's, since no newer journal is missing)."""
+    chain = _Chain()
+    chain.entries = []
+    end = footer
+    for _ in range(MAX_TAIL_BYTES // 32 + 1):
+        length = journal_length_at_end(read(end - 8, 8)) if end - 8 >= tail_start else None
+        if length is None or length > end - tail_start:
+            return None, chain
+        try:
+            start_of_commit, entries = parse_journal(read(end - length, length))
+        except FormatError:
+            return None, chain
+        if journal_frames_end(start_of_commit, entries) != end - length:
+            return None, chain
+        chain.append((end - length, end))
+        chain.entries.append(entries)
+        if start_of_commit == tail_start + FOOTER_SIZE:  # the first light commit after the full one
+            return list(chain.entries), chain
+        end = start_of_commit - FOOTER_SIZE  # the previous light commit's journal ends at its footer
+        if end <= tail_start:
+            return None, chain
+    return None, chain
+
+
+def _read_light_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
+    """What a light commit (1.2) names: the full commit's index it names and its tail, read where they are
+    or moved with its footer.  When the tail does not parse (a damaged frame header, bytes inserted into a
+    record), its journals, walked back from the footer, name the records committed there, each with its
+    payload's offset, length and CRC; the index it names may lie where it says while the tail moved."""
+    c, size = claim.commit, source.size()
+    deltas = list(dict.fromkeys((0, claim.at - c.footer_offset)))
+
+    def reader(d: int) -> Callable[[int, int], bytes]:
+        return lambda off, n: source.read(off + d, n) if off + d >= HEADER_SIZE and off + d + n <= size else b""
+
+    def index_bytes(d: int, view: IndexView) -> list[tuple[int, int]]:  # the index block and older segments
+        return [(c.index_offset + d, c.index_offset + c.index_length + d)] + [
+            (r.offset + e, r.end + e) for r in view.refs for e in deltas]
+
+    named: IndexView | None = None
+    where: list[tuple[int, int]] = []
+    for load in (load_index, load_named):  # the whole commit, else the index it names (its tail damaged)
+        for d in deltas:
+            try:
+                view = load(reader(d), c)
+            except FormatError:
+                continue
+            if load is load_index:
+                return ClaimedKeys(claim, list(view.entries()), len(view) == c.scene_count, index_bytes(d, view))
+            named, where = view, index_bytes(d, view)
+            break
+    tail_start = c.index_offset + c.index_length
+    best: ClaimedKeys | None = None
+    for d in reversed(deltas):  # the journals lie before the footer: moved with it first
+        journaled, chained = _journal_chain(reader(d), tail_start, c.footer_offset)
+        found = {e.key: e for e in named.entries()} if journaled is not None and named is not None else {}
+        for entries in reversed(journaled if journaled is not None else chained.entries):
+            found.update((e.key, e) for e in entries)
+        complete = journaled is not None and named is not None and len(found) == c.scene_count
+        told = ClaimedKeys(claim, sorted(found.values(), key=lambda e: e.key.encode()), complete,
+                           where + [(a + d, b + d) for a, b in chained])
+        if best is None or (told.complete, len(told.entries)) > (best.complete, len(best.entries)):
+            best = told
+    return best if best is not None and (best.entries or best.complete) else None
 
 
 # --- planning ---------------------------------------------------------------------------------------
@@ -320,6 +438,7 @@ class RepairPlan:
     reindexed: list[str] = field(default_factory=list)  # base entries pointing at the wrong bytes, found elsewhere
     scan_reason: str | None = None  # why a repair not asked for a full scan made one
     rewrite: bool = False  # the generation counter is spent: the repaired archive is written as a new file
+    v12: bool = False  # the preamble says commits may be light and segments compressed (version 1.2)
 
     @property
     def needs_commit(self) -> bool:
@@ -408,10 +527,11 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
     size = source.size()
     header = source.read(0, min(size, HEADER_SIZE))
     try:
-        segmented = bool(parse_preamble(header) & FLAG_SEGMENTED)
+        flags = parse_preamble(header)
+        segmented, v12 = bool(flags & FLAG_SEGMENTED), bool(flags & FLAG_V12)
         preamble_ok = len(header) == HEADER_SIZE
     except FormatError:
-        preamble_ok = segmented = False
+        preamble_ok = segmented = v12 = False
     claims = find_claims(source, header) if verify_committed or full_scan or base is None else []
     if not full_scan and base is not None:
         index = _load_index(source, base, size)
@@ -425,9 +545,11 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
         if why is not None:
             return plan_repair(source, full_scan=True, verify_committed=True, scan_reason=why)
         assert index is not None
-        return _plan(source, size, base, index, {e.key: e for e in index.entries()}, {}, [], [],
+        plan = _plan(source, size, base, index, {e.key: e for e in index.entries()}, {}, [], [],
                      scan_records(source, base.end, resync=True), claims, preamble_ok, segmented, full_scan=False,
                      scan_reason=None, known=[ClaimedKeys(Claim(base, base.footer_offset), [], True)])
+        plan.v12 = v12
+        return plan
     scan = scan_records(source, HEADER_SIZE, resync=True)
     base, index = None, None
     known: list[ClaimedKeys] = []  # newest first, down to the newest commit whose index is read whole
@@ -458,8 +580,15 @@ def plan_repair(source: ByteSource, *, full_scan: bool, base: Commit | None = No
             reindexed.append(e.key)
         else:
             lost.append(e.key)
-    return _plan(source, size, base, index, entries, copies, lost, reindexed, scan, claims, preamble_ok, segmented,
+    plan = _plan(source, size, base, index, entries, copies, lost, reindexed, scan, claims, preamble_ok, segmented,
                  full_scan=True, scan_reason=scan_reason, known=known, frames=frames)
+    plan.v12 = v12
+    return plan
+
+
+def _own_index(c: Commit) -> int:
+    """Bytes of index a commit wrote right before its footer (a light commit writes none)."""
+    return 0 if c.light else c.index_length
 
 
 def _plan(source: ByteSource, size: int, base: Commit | None, index: IndexView | None,
@@ -511,9 +640,9 @@ def _plan(source: ByteSource, size: int, base: Commit | None, index: IndexView |
     lost_unnamed = max([cl.commit.scene_count - len(keys) for cl in unread] + [0])
     uncertain = False
     if unread:  # their records lie between that commit and the newest one's index: are any damaged?
-        index_bytes = [(cl.at - cl.commit.index_length, cl.at + FOOTER_SIZE) for cl in claims]
+        index_bytes = [(cl.at - _own_index(cl.commit), cl.at + FOOTER_SIZE) for cl in claims]
         index_bytes += [r for told in known for r in told.segments]
-        uncertain = _records_damaged(scan, whole_end, unread[0].at - unread[0].commit.index_length, index_bytes)
+        uncertain = _records_damaged(scan, whole_end, unread[0].at - _own_index(unread[0].commit), index_bytes)
     base_generation = -1 if base is None else base.generation
     lost_commit = next((cl.commit for cl in claims if cl.commit.generation > base_generation), None)
     generations = [cl.commit.generation for cl in claims] + [c.generation for c in scan.commits] + [base_generation]

@@ -10,6 +10,9 @@ Write protocol (normative text in FORMAT.md, Part II):
    fsync is the commit point**; then write the other header slot to point at it, fsync.  In a
    version 1.1 archive the index block is a manifest + one segment holding only the keys this commit
    changed (plus the small segments it merges, see ``segments.py``), so a commit costs what changed.
+   In a version 1.2 archive a commit whose frames since the last full commit fit in 256 KiB writes no
+   index at all: its footer names that full commit's index and the frames after it (a *light* commit);
+   segments are stored zstd-compressed, and small records store no summary.
 
 A writer killed at any instant leaves the file readable at its last commit: either the tail is that
 commit's footer, or it is not and a header slot points at it (step 2).  Torn frames after the last
@@ -24,20 +27,28 @@ from typing import Any, Iterable, Iterator, Literal
 
 from ..errors import ArchiveError, FormatError, LimitExceededError
 from .index import ArchiveIndex, DuplicateKeyError, IndexEntry, encode_summary, shared_first
-from .layout import (ARCHIVE_MAGIC, FLAG_SEGMENTED, HEADER_SIZE, MAX_GENERATION, PREAMBLE_SIZE, SLOT_OFFSETS, SLOT_SIZE,
-                     VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header, pack_preamble, pack_slot,
-                     parse_preamble, parse_slot)
+from .layout import (ARCHIVE_MAGIC, FLAG_SEGMENTED, FLAG_V12, HEADER_SIZE, MAX_GENERATION, MAX_TAIL_BYTES, PREAMBLE_SIZE,
+                     SLOT_OFFSETS, SLOT_SIZE, VERSION_MINOR, Commit, check_key, crc32, pack_footer, pack_frame_header,
+                     pack_preamble, pack_slot, parse_preamble, parse_slot)
 from .lock import WriterLock
 from .reader import ArchiveTruncatedError, NoCommitError, best_slot, find_commit
 from .recovery import SCENE_MAGIC_PREFIX, ArchiveNotFoundError, RepairPlan, RepairReport, plan_repair
 from .records import record_from, summarize_payload
 from ..format.sections import DEFAULT_MAX_DECODED_BYTES
-from .segments import IndexView, SegmentRef, load_index, manifest_length, pack_manifest, plan_merge
+from .segments import (IndexView, SegmentRef, compress_segment, load_index, manifest_length, pack_journal, pack_manifest,
+                       plan_merge)
 from .source import LocalSource
 
 __all__ = ["ArchiveWriter", "UncommittedDataError", "create_archive", "repair_archive", "replace_with_new_archive"]
 
 Policy = Literal["error", "recover", "discard"]
+
+#: a version 1.2 writer stores no summary for a record smaller than this (FORMAT.md Part II 5.3): readers
+#: read the fields from the record's own header, which costs one read of under 4 KiB
+SUMMARY_MIN_RECORD = 4096
+#: a version 1.2 commit of at most this many records is light when its tail fits (FORMAT.md Part II 5.7);
+#: a larger one (a pack) writes an index, which readers open faster than they parse a tail
+LIGHT_MAX_RECORDS = 16
 
 
 class UncommittedDataError(ArchiveError):
@@ -68,16 +79,16 @@ def _empty_archive_bytes(minor: int = VERSION_MINOR) -> bytes:
 
 
 def _check_version(version: tuple[int, int]) -> int:
-    if tuple(version) not in ((1, 0), (1, 1)):
-        raise ArchiveError(f"this writer writes archive versions 1.0 and 1.1, not {version!r}")
+    if tuple(version) not in ((1, 0), (1, 1), (1, 2)):
+        raise ArchiveError(f"this writer writes archive versions 1.0, 1.1 and 1.2, not {version!r}")
     return version[1]
 
 
 def create_archive(path: str | os.PathLike[str], *, exist_ok: bool = False, version: tuple[int, int] = (1, VERSION_MINOR)) -> None:
     """Create an empty archive (generation 0) atomically: write a temp file, fsync, rename.
 
-    ``version`` (1, 1) (default) lets commits use segmented indexes; (1, 0) writes a whole index per
-    commit, readable by 1.0 readers."""
+    ``version`` (1, 2) (default) lets commits be light and segments compressed, (1, 1) lets commits use
+    segmented indexes; (1, 0) writes a whole index per commit, readable by 1.0 readers."""
     path = os.fspath(path)
     minor = _check_version(version)
     if os.path.exists(path) and not exist_ok:
@@ -125,8 +136,12 @@ class ArchiveWriter:
         self._next_generation: int | None = None
         self._commit: Commit | None = None
         self._pending: dict[str, IndexEntry] = {}
+        self._written: list[IndexEntry] = []  # every frame appended since the last commit, in file order
         self._segments: list[tuple[SegmentRef, list[str]]] = []  # newest first (version 1.1)
         self._segmented = False
+        self._v12 = False  # the preamble allows light commits and compressed segments (version 1.2)
+        self._tail: dict[str, IndexEntry] = {}  # committed by light commits since the last full commit
+        self._full_next = False  # the next commit writes an index (repairs and rewrites)
         self._consolidate = False
         _check_version(version)
         exists = os.path.exists(self.path)
@@ -191,8 +206,9 @@ class ArchiveWriter:
                         view = load_index(source.read, commit)
                         self._entries = {e.key: e for e in view.entries()}
                         self._commit, self._end, self._pending = commit, commit.end, {}
-                        self._segmented = bool(parse_preamble(source.read(0, PREAMBLE_SIZE)) & FLAG_SEGMENTED)
+                        self._set_version(parse_preamble(source.read(0, PREAMBLE_SIZE)))
                         self._segments = self._segments_of(commit, view)
+                        self._tail = {e.key: e for e in view.tail or ()}
                         discarded = size - commit.end
                 except UncommittedDataError:
                     raise
@@ -213,6 +229,7 @@ class ArchiveWriter:
                 return
             if discarded:
                 os.ftruncate(self._handle, self._end)
+                self._mend_footer(commit)
             self._ensure_slot(commit)
             return
         self._apply_plan(plan, copy_payloads, dry_run)
@@ -229,13 +246,16 @@ class ArchiveWriter:
             scan_reason=plan.scan_reason, rewritten=plan.rewrite and plan.needs_commit)
         self._commit, self._entries, self._pending, self._end = base, {}, {}, plan.cut
         self._segmented = plan.segmented or not plan.preamble_ok
+        self._v12 = plan.v12 or not plan.preamble_ok
         self._segments = []  # the repaired commit is one new segment (or one whole index)
+        self._tail, self._full_next = {}, True
         if dry_run:
             self._dry_run = True
             return
         # a plain writer over the intact base (a plan needs no commit only where it has a base, with its index)
         if not plan.needs_commit and base is not None and plan.view is not None:
             self._segments = self._segments_of(base, plan.view)
+            self._tail, self._full_next = {e.key: e for e in plan.view.tail or ()}, False
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
             return
@@ -270,22 +290,29 @@ class ArchiveWriter:
                 yield key, copy_payloads[key], entry.summary_bytes
 
         commit = replace_with_new_archive(self.path, records(), generation=1,
-                                          version=(1, 1 if self._segmented else 0), durable=self.durable,
-                                          suffix="repair")
+                                          version=(1, 2 if self._v12 else 1 if self._segmented else 0),
+                                          durable=self.durable, suffix="repair")
         self._close_fd()
         self._fd = os.open(self.path, os.O_RDWR)
         view = load_index(lambda off, n: os.pread(self._handle, n, off), commit)
         self._entries = {e.key: e for e in view.entries()}
         self._commit, self._end, self._pending = commit, commit.end, {}
         self._segments = self._segments_of(commit, view)
+        self._tail, self._full_next = {e.key: e for e in view.tail or ()}, False
         return commit.generation
 
+    def _set_version(self, preamble_flags: int) -> None:
+        self._segmented = bool(preamble_flags & FLAG_SEGMENTED)
+        self._v12 = bool(preamble_flags & FLAG_V12)
+
     def _segments_of(self, commit: Commit, view: IndexView) -> list[tuple[SegmentRef, list[str]]]:
-        """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment)."""
+        """The live segments a 1.1 writer continues from (a whole 1.0-style index is one segment; a light
+        commit's tail is not a segment)."""
+        stored = view.index_segments
         if commit.segmented:
-            return [(r, seg.keys()) for r, seg in zip(view.refs, view.segments)]
-        if self._segmented and commit.scene_count:
-            seg = view.segments[0]
+            return [(r, seg.keys()) for r, seg in zip(view.refs, stored)]
+        if self._segmented and stored and len(stored[0]):
+            seg = stored[0]
             return [(SegmentRef(commit.index_offset, commit.index_length, len(seg), commit.index_crc32), seg.keys())]
         return []
 
@@ -295,6 +322,14 @@ class ArchiveWriter:
             os.pwrite(self._handle, pack_footer(commit), commit.footer_offset)
             self._sync()
         return commit
+
+    def _mend_footer(self, commit: Commit) -> None:
+        """Rewrite the last commit's footer if its bytes differ (found through a slot, the tail cut off):
+        the frames of the next light commit follow it and its tail must parse (FORMAT.md Part II 5.7)."""
+        footer = pack_footer(commit)
+        if os.pread(self._handle, len(footer), commit.footer_offset) != footer:
+            os.pwrite(self._handle, footer, commit.footer_offset)
+            self._sync()
 
     def _check_generation(self) -> None:
         if self._commit is not None and self._commit.generation >= MAX_GENERATION:
@@ -366,6 +401,8 @@ class ArchiveWriter:
             payload = record_from(record, validate=validate, max_decoded_bytes=max_decoded_bytes)
         else:
             payload = bytes(record)
+        if summary is None and self._v12 and len(payload) < SUMMARY_MIN_RECORD:
+            return self._append_raw(key, payload, b"")  # readers take the fields from the record's header
         if summary is None:
             summary = summarize_payload(payload) if validate else {"bytes": len(payload)}
         if self._segmented:  # per-scene fields last: index segments prefix-code the shared rest
@@ -381,6 +418,7 @@ class ArchiveWriter:
         self._end = start + len(frame) + len(payload)
         entry = IndexEntry(key, start + len(frame), len(payload), pcrc, summary_raw)
         self._pending[key] = entry
+        self._written.append(entry)
         return entry
 
     def _pwrite_all(self, data: bytes, offset: int) -> None:
@@ -409,8 +447,24 @@ class ArchiveWriter:
         if generation > MAX_GENERATION:
             raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
                                      "copy the scenes to a new archive with `vt4d compact`")
-        if self._segmented:  # version 1.1: write what changed (plus the segments it merges)
-            keys = set(pending)
+        base = self._commit
+        tail_start = None if base is None else base.index_offset + base.index_length
+        journal = b""
+        if self._v12 and self._written and base is not None:
+            journal = pack_journal(base.end, self._written)  # the frames follow the last commit's footer
+        if (self._v12 and base is not None and tail_start is not None and not self._full_next and journal
+                and len(self._written) <= LIGHT_MAX_RECORDS and self._end + len(journal) - tail_start <= MAX_TAIL_BYTES):
+            # version 1.2 light commit: a journal of its frames, and a footer naming the last full commit's
+            # index and everything after it (the tail)
+            self._pwrite_all(journal, self._end)
+            self._end += len(journal)
+            index = b""
+            new = Commit(generation, base.index_offset, base.index_length, base.index_crc32, total,
+                         (base.flags & FLAG_SEGMENTED) | FLAG_V12, self._end - tail_start)
+            segments = self._segments
+            self._tail.update(pending)
+        elif self._segmented:  # version 1.1: write what changed (plus the segments it merges)
+            keys = set(pending) | set(self._tail)
             folded: set[int] = set()
 
             def merged_count(chosen: list[int]) -> int:  # distinct keys once ``chosen`` are folded in
@@ -420,27 +474,34 @@ class ArchiveWriter:
                         folded.add(i)
                 return len(keys)
 
-            merge = set(plan_merge([r.count for r, _ in self._segments], len(pending), merged_count))
+            merge = set(plan_merge([r.count for r, _ in self._segments], len(keys), merged_count))
             merged_count(sorted(merge))
             # the folded segments may be any older ones: the new segment holds each key's current entry
             segment = ArchiveIndex.build([pending[k] if k in pending else committed[k] for k in keys], prefix=True)
+            sflags = 0
+            if self._v12:  # 1.2: stored zstd-compressed where that is smaller
+                segment, sflags = compress_segment(segment)
             kept = [s for i, s in enumerate(self._segments) if i not in merge]
-            ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment))
+            ref = SegmentRef(self._end + manifest_length(1 + len(kept)), len(segment), len(keys), crc32(segment),
+                             sflags)
             segments = [(ref, list(keys))] + kept
             index = pack_manifest([r for r, _ in segments], total) + segment  # one block, one read
-            new = Commit(generation, self._end, len(index), crc32(index), total, FLAG_SEGMENTED)
+            new = Commit(generation, self._end, len(index), crc32(index), total,
+                         FLAG_SEGMENTED | (FLAG_V12 if self._v12 else 0))
+            self._tail = {}
         else:  # version 1.0: the whole index, every commit
             index = ArchiveIndex.build(list({**committed, **pending}.values()))
             new = Commit(generation, self._end, len(index), crc32(index), total)
             segments = []
-        self._pwrite_all(index, self._end)
+        if index:
+            self._pwrite_all(index, self._end)
         self._sync()  # records + index durable before the footer can be
         os.pwrite(self._handle, pack_footer(new), new.footer_offset)
         self._sync()  # <- the commit point
         committed.update(pending)
-        self._pending, self._commit, self._end = {}, new, new.end
+        self._pending, self._commit, self._end, self._written = {}, new, new.end, []
         self._segments = segments
-        self._next_generation = None
+        self._next_generation, self._full_next = None, False
         self._write_slot(new)
         return new.generation
 
@@ -450,7 +511,7 @@ class ArchiveWriter:
                 self._pending or os.fstat(self._handle).st_size > self._commit.end):
             os.ftruncate(self._handle, self._commit.end)
             self._end = self._commit.end
-        self._pending = {}
+        self._pending, self._written = {}, []
 
     # -- lifetime ---------------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -499,7 +560,7 @@ def replace_with_new_archive(path: str, records: Iterable[tuple[str, bytes, byte
         try:
             for key, payload, summary in records:
                 w._append_raw(key, payload, summary)
-            w._next_generation = generation
+            w._next_generation, w._full_next = generation, True  # one index holding every scene
             w._write_commit()
             commit = w._commit
         except BaseException:

@@ -137,7 +137,7 @@ def _ls_row(key: str, s: dict[str, Any]) -> list[str]:
 def cmd_ls(args: argparse.Namespace) -> int:
     with open_archive(args.archive, allow_truncated=args.allow_truncated,
                       **storage_options(args.storage_option)) as reader:
-        rows = [(e.key, e.summary, e.length, e.offset) for e in reader.entries()]
+        rows = [(e.key, reader.entry_summary(e), e.length, e.offset) for e in reader.entries()]
         info = {"archive": reader.name, "generation": reader.generation, "scenes": len(reader),
                 "uncommitted_bytes": reader.uncommitted_bytes}
     if args.json:
@@ -340,6 +340,7 @@ def register(subparsers: Any) -> None:
                     examples=["vt4d compact scenes.vt4da",
                               "vt4d compact scenes.vt4da --format-version 1.0   readable by 1.0 readers"])
     p.add_argument("archive", help="local archive path")
-    p.add_argument("--format-version", default="1.1", choices=["1.0", "1.1"],
-                   help="1.1 (default: segmented indexes) or 1.0 (readable by 1.0 readers)")
+    p.add_argument("--format-version", default="1.2", choices=["1.0", "1.1", "1.2"],
+                   help="1.2 (default: light commits, compressed segments), 1.1 (segmented indexes, readable by "
+                   "1.1 readers) or 1.0 (readable by 1.0 readers)")
     p.set_defaults(func=cmd_compact)
