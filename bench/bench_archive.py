@@ -14,12 +14,14 @@
 2. Sequential training read of 1,000 scenes: archive (open_scene + dequantize both token sets per
    scene, in file order) vs the same scenes as 1,000 separate ``.vt4d`` files.
 
-3. ``--growth N``: N single-scene commits (one ``append`` + ``commit`` each, the same records) into a
-   version 1.1 archive, and ``--growth-v10`` commits into a version 1.0 archive (whole index per
-   commit) for comparison: file size against the payload and one index, commit time per 1,000
+3. ``--growth N``: N single-scene commits (one ``append`` + ``commit`` each, the same records) into an
+   archive of each version in ``--versions`` (default 1.2, the writer's default; ``1.2,1.1`` compares
+   side by side), and ``--growth-v10`` commits into a version 1.0 archive (whole index per commit) for
+   comparison: file size against the payload and one index, commit time per 1,000
    commits (median, mean, p99, max), open time of the result, and the size after ``compact``.
    ``--commit-sizes 1-2`` makes each commit hold 1 or 2 scenes at random (seeded) instead of one;
-   ``--scene small`` uses records of 400-900 bytes (4x8 static + 2x8 dynamic int4-rans tokens, 1 frame),
+   ``--scene small`` uses records of ~407 bytes (4x8 static + 2x8 dynamic int4-rans tokens, 1 frame, the
+   current container; issue 52's 396-byte scenes), which a 1.2 writer stores without summaries,
    ``--scene medium`` ~6.6 KB ones (48x64 + 24x64 int8, 4 frames), instead of the ~11 KB ones.  Size targets (issue 52): 10,000 commits of 1-2 scenes at random
    <= 1.3x the payload, opening <= 20 segments.
 
@@ -46,11 +48,12 @@ import time
 import numpy as np
 
 from vt4dcodec.archive import ArchiveWriter, open_archive
-from vt4dcodec.archive.examples import example_record
+from vt4dcodec.archive.examples import example_record, example_scene
 from vt4dcodec.archive import compact_archive
 from vt4dcodec.archive.layout import FOOTER_SIZE, HEADER_SIZE
 from vt4dcodec.archive.records import summarize_payload
-from vt4dcodec.format import open_scene
+from vt4dcodec.archive.writer import SUMMARY_MIN_RECORD
+from vt4dcodec.format import dumps, open_scene
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 POOL = 64
@@ -63,7 +66,7 @@ def _pool(scene: str = "default") -> list[tuple[bytes, dict]]:
     out = []
     for seed in range(POOL):
         if scene == "small":
-            rec = example_record(seed, static_shape=(4, 8), dynamic_shape=(2, 8), frames=1, encoding="int4-rans")
+            rec = dumps(example_scene(seed, static_shape=(4, 8), dynamic_shape=(2, 8), frames=1, encoding="int4-rans"))
         elif scene == "medium":  # the ~6.6 KB scenes of issue 52's growth measurements
             rec = example_record(seed, static_shape=(48, 64), dynamic_shape=(24, 64))
         else:
@@ -185,7 +188,9 @@ def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, 
             t = time.perf_counter()
             for _ in range(rng.randint(*sizes)):
                 rec, summary = pool[scenes % POOL]
-                w.append(f"scene-{scenes:07d}", rec, summary=summary, validate=False)
+                # the summary the writer stores by default (precomputed: validation is not what is timed)
+                keep = version < (1, 2) or len(rec) >= SUMMARY_MIN_RECORD
+                w.append(f"scene-{scenes:07d}", rec, summary=summary if keep else None, validate=False)
                 payload += len(rec)
                 scenes += 1
             w.commit()
@@ -200,7 +205,8 @@ def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, 
     file_bytes = os.path.getsize(path)
     open_ms, open_reads, open_median = _open_ms(path)
     with open_archive(path) as ar:
-        segments = len(ar.index.segments)
+        segments = len(ar.index.index_segments)
+        tail_bytes = ar.commit.tail_length
     report = compact_archive(path, version=version, durable=False)
     with open_archive(path) as ar:  # one index: what the compacted archive's single index holds
         one_index = ar.commit.index_length
@@ -211,7 +217,7 @@ def growth(path: str, n: int, version: tuple[int, int], pool: list[tuple[bytes, 
             "file_over_payload_plus_one_index": file_bytes / (payload + one_index),
             "bound_1_5x_payload_plus_one_index": 1.5 * payload + one_index,
             "within_bound": file_bytes <= 1.5 * payload + one_index,
-            "segments_at_end": segments, "segments_max_over_commits": most, "open_ms_best_of_7": open_ms, "open_ms_median_of_7": open_median,
+            "segments_at_end": segments, "tail_bytes_at_end": tail_bytes, "segments_max_over_commits": most, "open_ms_best_of_7": open_ms, "open_ms_median_of_7": open_median,
             "open_reads": open_reads,
             "compacted_bytes": report.bytes_after, "commit_time_per_1000": buckets,
             "commit_ms_total": sum(times) * 1e3}
@@ -224,7 +230,8 @@ def main_growth(args: argparse.Namespace, pool: list[tuple[bytes, dict]]) -> Non
                "machine": platform.machine(), "cpus": os.cpu_count(), "durable": False,
                "command": "python bench/bench_archive.py " + " ".join(sys.argv[1:]), "runs": []}
     try:
-        for n, version in ((args.growth, (1, 1)), (args.growth_v10, (1, 0))):
+        versions = [(1, int(v.split(".")[1])) for v in args.versions.split(",")]
+        for n, version in [(args.growth, v) for v in versions] + [(args.growth_v10, (1, 0))]:
             if n:
                 r = growth(os.path.join(args.workdir, f"g{version[1]}.vt4da"), n, version, pool, sizes)
                 results["runs"].append(r)
@@ -240,7 +247,8 @@ def main_growth(args: argparse.Namespace, pool: list[tuple[bytes, dict]]) -> Non
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
-    ap.add_argument("--growth", type=int, default=0, metavar="N", help="N single-scene commits (version 1.1)")
+    ap.add_argument("--growth", type=int, default=0, metavar="N", help="N commits into each of --versions")
+    ap.add_argument("--versions", default="1.2", help="archive versions --growth writes, e.g. 1.2,1.1")
     ap.add_argument("--growth-v10", type=int, default=0, metavar="N", help="N single-scene commits (version 1.0)")
     ap.add_argument("--reads", type=int, default=2000)
     ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
