@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""A fuzz campaign over the scene (`.vt4d`, formats 1.0-1.6) and archive (`.vt4da`, 1.0-1.1) readers.
+"""A fuzz campaign over the scene (`.vt4d`, formats 1.0-1.6) and archive (`.vt4da`, 1.0-1.2) readers.
 
     python bench/fuzz_campaign.py --inputs 1000000 --workers 2    # the recorded campaign (~1 h on 2 cores)
     python bench/fuzz_campaign.py --inputs 20000                   # a quick look (~1 min)
@@ -67,7 +67,7 @@ def _alarm(signum: int, frame: Any) -> None:
 
 # --- seeds ----------------------------------------------------------------------------------------------
 def _writer_archives() -> list[bytes]:
-    """Small archives of real scenes as the writer makes them: 1.0 and 1.1, two and five commits."""
+    """Small archives of real scenes as the writer makes them: 1.0, 1.1 and 1.2, two, five and five commits."""
     import tempfile
 
     from format_strategies import rig_scene, simple_scene
@@ -80,7 +80,7 @@ def _writer_archives() -> list[bytes]:
               dumps(rig_scene(2, frames=2, ns=3, nd=2, d=3, encoding="int8"))]
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        for version, commits in (((1, 0), 2), ((1, 1), 5)):
+        for version, commits in (((1, 0), 2), ((1, 1), 5), ((1, 2), 5)):  # 1.2: light commits with journals
             path = Path(tmp) / f"a{version[1]}.vt4da"
             with ArchiveWriter(path, durable=False, version=version) as w:
                 for c in range(commits):
