@@ -65,7 +65,9 @@ COLD_FLUSH_BYTES = 64 << 20
 def _pool(scene: str = "default") -> list[tuple[bytes, dict]]:
     out = []
     for seed in range(POOL):
-        if scene == "small":
+        if scene == "tiny":  # 4x4 + 2x4 tokens: 396 bytes on average, issue 52's scene size
+            rec = dumps(example_scene(seed, static_shape=(4, 4), dynamic_shape=(2, 4), frames=1, encoding="int4-rans"))
+        elif scene == "small":
             rec = dumps(example_scene(seed, static_shape=(4, 8), dynamic_shape=(2, 8), frames=1, encoding="int4-rans"))
         elif scene == "medium":  # the ~6.6 KB scenes of issue 52's growth measurements
             rec = example_record(seed, static_shape=(48, 64), dynamic_shape=(24, 64))
@@ -254,8 +256,8 @@ def main() -> None:
     ap.add_argument("--workdir", default="/tmp/vt4d-bench-archive")
     ap.add_argument("--commit-sizes", default="1", metavar="A[-B]",
                     help="--growth: scenes per commit, drawn uniformly from A..B (seeded)")
-    ap.add_argument("--scene", choices=["default", "medium", "small"], default="default",
-                    help="records: ~11 KB (default), ~6.6 KB (medium) or ~400-900 bytes (small)")
+    ap.add_argument("--scene", choices=["default", "medium", "small", "tiny"], default="default",
+                    help="records: ~11 KB (default), ~6.6 KB (medium), ~414 bytes (small) or ~396 bytes (tiny)")
     ap.add_argument("--out", default=None, help="result JSON (default bench/results/archive.json, "
                     "or archive_growth.json with --growth)")
     args = ap.parse_args()
