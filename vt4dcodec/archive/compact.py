@@ -54,13 +54,14 @@ def compact_archive(path: str | os.PathLike[str], *, version: tuple[int, int] = 
                                            "run `vt4d repair` first")
             old_generation = reader.generation
             entries = sorted(reader.entries(), key=lambda e: e.offset)
-            def summary(e: IndexEntry) -> bytes:  # 1.0 and 1.1 store a summary with every record (5.3)
+            def record(e: IndexEntry) -> tuple[str, bytes, bytes]:  # a CRC-checked copy
+                payload = reader.read_entry(e)
                 if e.has_summary or version >= (1, 2):
-                    return e.summary_bytes
-                return encode_summary(shared_first(reader.entry_summary(e)) if version >= (1, 1)
-                                      else reader.entry_summary(e))
+                    return e.key, payload, e.summary_bytes
+                summary = reader.entry_summary(e, payload)  # 1.0 and 1.1 store one with every record (5.3)
+                return e.key, payload, encode_summary(shared_first(summary) if version >= (1, 1) else summary)
 
-            records = ((e.key, reader.read_entry(e), summary(e)) for e in entries)  # CRC-checked copies
+            records = (record(e) for e in entries)
             commit = replace_with_new_archive(
                 path, records, generation=old_generation + 1 if old_generation < MAX_GENERATION else 1,
                 version=version, durable=durable, suffix="compact")

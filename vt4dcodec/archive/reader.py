@@ -177,11 +177,13 @@ class ArchiveReader:
         a record that stores none (FORMAT.md Part II 5.3), read from the record's own header."""
         return self.entry_summary(self.entry(key))
 
-    def entry_summary(self, entry: IndexEntry) -> dict[str, Any]:
-        """:meth:`summary` of an entry (one read of the record when it stores no summary)."""
+    def entry_summary(self, entry: IndexEntry, payload: bytes | None = None) -> dict[str, Any]:
+        """:meth:`summary` of an entry (one read of the record when it stores no summary, unless the caller
+        has read its ``payload`` already)."""
         if entry.has_summary:
             return entry.summary
-        payload = self.read_entry(entry)
+        if payload is None:
+            payload = self.read_entry(entry)
         try:
             return summarize_payload(payload)
         except FormatError:  # stored without validation and not a scene: its size is what is known

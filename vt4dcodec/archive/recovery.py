@@ -40,8 +40,8 @@ from .layout import (FOOTER_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, 
                      MAX_SEGMENTS, SEGMENT_REF_SIZE, MAX_SCENES, SLOT_OFFSETS, SLOT_SIZE, Commit,
                      check_key, crc32, frame_meta_crc, is_footer, parse_footer, parse_frame_header, parse_preamble,
                      parse_slot)
-from .segments import (COMPRESSED_MAGIC, JOURNAL_MAGIC, IndexView, compressed_length, journal_frames_end,
-                       journal_length_at_end, len_of_journal, load_index, load_named, manifest_length, parse_journal,
+from .segments import (COMPRESSED_MAGIC, JOURNAL_MAGIC, IndexView, compressed_length, journal_length_at_end,
+                       len_of_journal, load_index, load_named, manifest_length, max_journal_length, parse_journal,
                        parse_manifest, segment_block)
 from .source import ByteSource
 
@@ -210,8 +210,9 @@ def scan_records(source: ByteSource, start: int, *, resync: bool = False) -> Sca
                 pos = result.end = commit.end
                 continue
         elif magic == JOURNAL_MAGIC:  # a light commit's journal (1.2): not damage
-            head = source.read(pos, min(size - pos, 1 << 20))
-            length = len_of_journal(head, 0) if len(head) >= 16 else None
+            count = struct.unpack("<I", source.read(pos + 4, 4))[0] if size - pos >= 16 else 0
+            head = source.read(pos, min(size - pos, max_journal_length(count), MAX_TAIL_BYTES)) if count else b""
+            length = len_of_journal(head, 0) if head else None
             if length is not None and length <= len(head):
                 try:
                     parse_journal(head[:length])
@@ -335,40 +336,32 @@ def read_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
     return best
 
 
-class _Chain(list[tuple[int, int]]):
-    """[start, end) of each journal read; ``entries``: their frames, newest journal first."""
-
-    entries: list[list[IndexEntry]]
-
-
 def _journal_chain(read: Callable[[int, int], bytes], tail_start: int, footer: int
-                   ) -> tuple[list[list[IndexEntry]] | None, _Chain]:
+                   ) -> tuple[list[list[IndexEntry]], list[tuple[int, int]], bool]:
     """Walk a light commit's journals back from its footer (each ends right before its commit's footer
-    and names where its commit's frames start, right after the previous footer).  Returns (the entries of
-    every journal, newest first, when the walk reaches the full commit's footer, else None; the chain
-    read, whose ``entries`` hold the journals read before a damaged one: entries certain to be this
-    commit's, since no newer journal is missing)."""
-    chain = _Chain()
-    chain.entries = []
+    and names where its commit's frames start, right after the previous footer), stopping at the first
+    that does not verify.  Returns (their entries, newest journal first: certain to be this commit's, since
+    no newer journal is missing; the [start, end) of each; whether the walk reached the full commit's
+    footer, so that every journal of the tail was read)."""
+    entries_read: list[list[IndexEntry]] = []
+    spans: list[tuple[int, int]] = []
     end = footer
-    for _ in range(MAX_TAIL_BYTES // 32 + 1):
-        length = journal_length_at_end(read(end - 8, 8)) if end - 8 >= tail_start else None
+    while end - 8 >= tail_start:
+        length = journal_length_at_end(read(end - 8, 8))
         if length is None or length > end - tail_start:
-            return None, chain
+            break
         try:
             start_of_commit, entries = parse_journal(read(end - length, length))
         except FormatError:
-            return None, chain
-        if journal_frames_end(start_of_commit, entries) != end - length:
-            return None, chain
-        chain.append((end - length, end))
-        chain.entries.append(entries)
+            break
+        if entries[-1].offset + entries[-1].length != end - length:  # its frames end where it starts
+            break
+        spans.append((end - length, end))
+        entries_read.append(entries)
         if start_of_commit == tail_start + FOOTER_SIZE:  # the first light commit after the full one
-            return list(chain.entries), chain
+            return entries_read, spans, True
         end = start_of_commit - FOOTER_SIZE  # the previous light commit's journal ends at its footer
-        if end <= tail_start:
-            return None, chain
-    return None, chain
+    return entries_read, spans, False
 
 
 def _read_light_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
@@ -401,13 +394,13 @@ def _read_light_claim(source: ByteSource, claim: Claim) -> ClaimedKeys | None:
     tail_start = c.index_offset + c.index_length
     best: ClaimedKeys | None = None
     for d in reversed(deltas):  # the journals lie before the footer: moved with it first
-        journaled, chained = _journal_chain(reader(d), tail_start, c.footer_offset)
-        found = {e.key: e for e in named.entries()} if journaled is not None and named is not None else {}
-        for entries in reversed(journaled if journaled is not None else chained.entries):
+        journaled, spans, whole = _journal_chain(reader(d), tail_start, c.footer_offset)
+        whole = whole and named is not None  # every journal and the index they follow were read
+        found = {e.key: e for e in named.entries()} if whole and named is not None else {}
+        for entries in reversed(journaled):
             found.update((e.key, e) for e in entries)
-        complete = journaled is not None and named is not None and len(found) == c.scene_count
-        told = ClaimedKeys(claim, sorted(found.values(), key=lambda e: e.key.encode()), complete,
-                           where + [(a + d, b + d) for a, b in chained])
+        told = ClaimedKeys(claim, sorted(found.values(), key=lambda e: e.key.encode()),
+                           whole and len(found) == c.scene_count, where + [(a + d, b + d) for a, b in spans])
         if best is None or (told.complete, len(told.entries)) > (best.complete, len(best.entries)):
             best = told
     return best if best is not None and (best.entries or best.complete) else None

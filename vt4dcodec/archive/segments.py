@@ -48,7 +48,8 @@ from .layout import (FOOTER_MAGIC, FOOTER_SIZE, FRAME_HEADER_SIZE, FRAME_MAGIC, 
 
 __all__ = ["SegmentRef", "IndexView", "manifest_length", "pack_manifest", "parse_manifest", "load_index", "plan_merge",
            "size_class", "FANOUT", "compress_segment", "segment_block", "parse_tail", "COMPRESSED_MAGIC",
-           "SEGMENT_COMPRESSED", "MAX_COMPRESSION", "JOURNAL_MAGIC", "pack_journal", "parse_journal", "journal_frames_end", "journal_length_at_end", "load_named"]
+           "SEGMENT_COMPRESSED", "MAX_COMPRESSION", "JOURNAL_MAGIC", "pack_journal", "parse_journal", "journal_length_at_end", "len_of_journal",
+           "load_named", "max_journal_length"]
 
 FANOUT = 4
 _MANIFEST = struct.Struct("<4sIQ16x")
@@ -139,9 +140,9 @@ def pack_journal(commit_start: int, frames: list[IndexEntry]) -> bytes:
     found, and the journals of a tail chain back to the full commit (FORMAT.md Part II 5.7)."""
     body = b"".join(struct.pack("<H", len(k := e.key.encode())) + k
                     + _JENTRY.pack(len(e.summary_bytes), e.crc32, e.length) for e in frames)
-    head = _JHEAD.pack(JOURNAL_MAGIC, len(frames), commit_start) + body
-    length = len(head) + _JEND.size
-    return head + struct.pack("<I", length) + struct.pack("<I", crc32(head + struct.pack("<I", length)))
+    block = _JHEAD.pack(JOURNAL_MAGIC, len(frames), commit_start) + body
+    block += struct.pack("<I", len(block) + _JEND.size)
+    return block + struct.pack("<I", crc32(block))
 
 
 def parse_journal(block: bytes) -> tuple[int, list[IndexEntry]]:
@@ -179,28 +180,14 @@ def parse_journal(block: bytes) -> tuple[int, list[IndexEntry]]:
     return commit_start, out
 
 
-def journal_frames_end(commit_start: int, entries: list[IndexEntry]) -> int:
-    """Where the frames a journal lists end (the journal itself starts there)."""
-    return entries[-1].offset + entries[-1].length if entries else commit_start
-
-
 def journal_length_at_end(trailer: bytes) -> int | None:
     """The block length stored in the last 8 bytes of a journal (``trailer``)."""
     return int(_JEND.unpack_from(trailer)[0]) if len(trailer) == _JEND.size else None
 
 
-def _journal_at(data: bytes, pos: int, end: int, start: int) -> tuple[int, list[IndexEntry]]:
-    """The journal whose block starts at ``pos`` of a tail (it must fit before ``end``)."""
-    n = _JHEAD.unpack_from(data, pos)[1]
-    length = len_of_journal(data, pos)
-    if length < MIN_JOURNAL or length > end - pos:
-        raise ArchiveError(f"light commit journal at offset {start + pos} runs past its tail")
-    del n
-    return parse_journal(data[pos:pos + length])
-
-
 def len_of_journal(data: bytes, pos: int) -> int:
-    """A journal's length, found by walking its entries from its header (FORMAT.md Part II 5.7)."""
+    """A journal's length, found by walking its entries from its header at ``pos`` (FORMAT.md Part II 5.7);
+    more than ``len(data) - pos`` when it runs past ``data``."""
     n = _JHEAD.unpack_from(data, pos)[1]
     q = pos + _JHEAD.size
     for _ in range(n):
@@ -208,6 +195,11 @@ def len_of_journal(data: bytes, pos: int) -> int:
             return len(data) - pos + 1  # runs past: the caller rejects it
         q += 2 + struct.unpack_from("<H", data, q)[0] + _JENTRY.size
     return q + _JEND.size - pos
+
+
+def max_journal_length(count: int) -> int:
+    """The most bytes a journal of ``count`` entries can take (keys of 1,024 bytes)."""
+    return _JHEAD.size + count * (2 + 1024 + _JENTRY.size) + _JEND.size
 
 
 def parse_tail(data: bytes, start: int) -> list[IndexEntry]:
@@ -232,13 +224,16 @@ def parse_tail(data: bytes, start: int) -> list[IndexEntry]:
         if data[pos:pos + 4] == JOURNAL_MAGIC:
             if end - pos < _JHEAD.size + _JEND.size:
                 raise ArchiveError(f"light commit journal at offset {start + pos} runs past its tail")
-            commit_start, listed = _journal_at(data, pos, end, start)
+            length = len_of_journal(data, pos)
+            if length < MIN_JOURNAL or length > end - pos:
+                raise ArchiveError(f"light commit journal at offset {start + pos} runs past its tail")
+            commit_start, listed = parse_journal(data[pos:pos + length])
             if commit_start != start + after_footer or \
                     [(e.key, e.offset, e.length, e.crc32) for e in listed] != \
                     [(e.key, e.offset, e.length, e.crc32) for e in since]:
                 raise ArchiveError(f"light commit journal at offset {start + pos} does not list the frames before it")
             since, last_journal = [], True
-            pos += len_of_journal(data, pos)
+            pos += length
             continue
         if data[pos:pos + 4] != FRAME_MAGIC:
             raise ArchiveError(f"light commit's tail holds neither a record frame nor a footer at offset {start + pos}")

@@ -140,7 +140,7 @@ class ArchiveWriter:
         self._segments: list[tuple[SegmentRef, list[str]]] = []  # newest first (version 1.1)
         self._segmented = False
         self._v12 = False  # the preamble allows light commits and compressed segments (version 1.2)
-        self._tail: dict[str, IndexEntry] = {}  # committed by light commits since the last full commit
+        self._tail: set[str] = set()  # keys committed by light commits since the last full commit
         self._full_next = False  # the next commit writes an index (repairs and rewrites)
         self._consolidate = False
         _check_version(version)
@@ -208,7 +208,7 @@ class ArchiveWriter:
                         self._commit, self._end, self._pending = commit, commit.end, {}
                         self._set_version(parse_preamble(source.read(0, PREAMBLE_SIZE)))
                         self._segments = self._segments_of(commit, view)
-                        self._tail = {e.key: e for e in view.tail or ()}
+                        self._tail = {e.key for e in view.tail or ()}
                         discarded = size - commit.end
                 except UncommittedDataError:
                     raise
@@ -248,14 +248,14 @@ class ArchiveWriter:
         self._segmented = plan.segmented or not plan.preamble_ok
         self._v12 = plan.v12 or not plan.preamble_ok
         self._segments = []  # the repaired commit is one new segment (or one whole index)
-        self._tail, self._full_next = {}, True
+        self._tail, self._full_next = set(), True
         if dry_run:
             self._dry_run = True
             return
         # a plain writer over the intact base (a plan needs no commit only where it has a base, with its index)
         if not plan.needs_commit and base is not None and plan.view is not None:
             self._segments = self._segments_of(base, plan.view)
-            self._tail, self._full_next = {e.key: e for e in plan.view.tail or ()}, False
+            self._tail, self._full_next = {e.key for e in plan.view.tail or ()}, False
             self._entries = dict(plan.entries)
             self._ensure_slot(base)
             return
@@ -298,7 +298,7 @@ class ArchiveWriter:
         self._entries = {e.key: e for e in view.entries()}
         self._commit, self._end, self._pending = commit, commit.end, {}
         self._segments = self._segments_of(commit, view)
-        self._tail, self._full_next = {e.key: e for e in view.tail or ()}, False
+        self._tail, self._full_next = {e.key for e in view.tail or ()}, False
         return commit.generation
 
     def _set_version(self, preamble_flags: int) -> None:
@@ -447,22 +447,18 @@ class ArchiveWriter:
         if generation > MAX_GENERATION:
             raise LimitExceededError(f"{self.path}: the 64-bit generation counter is exhausted; "
                                      "copy the scenes to a new archive with `vt4d compact`")
-        base = self._commit
-        tail_start = None if base is None else base.index_offset + base.index_length
-        journal = b""
-        if self._v12 and self._written and base is not None:
-            journal = pack_journal(base.end, self._written)  # the frames follow the last commit's footer
-        if (self._v12 and base is not None and tail_start is not None and not self._full_next and journal
-                and len(self._written) <= LIGHT_MAX_RECORDS and self._end + len(journal) - tail_start <= MAX_TAIL_BYTES):
+        base, journal = self._commit, self._light_journal()
+        if base is not None and journal is not None:
             # version 1.2 light commit: a journal of its frames, and a footer naming the last full commit's
             # index and everything after it (the tail)
+            tail_start = base.index_offset + base.index_length
             self._pwrite_all(journal, self._end)
             self._end += len(journal)
             index = b""
             new = Commit(generation, base.index_offset, base.index_length, base.index_crc32, total,
                          (base.flags & FLAG_SEGMENTED) | FLAG_V12, self._end - tail_start)
             segments = self._segments
-            self._tail.update(pending)
+            self._tail.update(pending)  # (its keys)
         elif self._segmented:  # version 1.1: write what changed (plus the segments it merges)
             keys = set(pending) | set(self._tail)
             folded: set[int] = set()
@@ -488,7 +484,7 @@ class ArchiveWriter:
             index = pack_manifest([r for r, _ in segments], total) + segment  # one block, one read
             new = Commit(generation, self._end, len(index), crc32(index), total,
                          FLAG_SEGMENTED | (FLAG_V12 if self._v12 else 0))
-            self._tail = {}
+            self._tail = set()
         else:  # version 1.0: the whole index, every commit
             index = ArchiveIndex.build(list({**committed, **pending}.values()))
             new = Commit(generation, self._end, len(index), crc32(index), total)
@@ -504,6 +500,16 @@ class ArchiveWriter:
         self._next_generation, self._full_next = None, False
         self._write_slot(new)
         return new.generation
+
+    def _light_journal(self) -> bytes | None:
+        """The journal of this commit's frames when it can be light (version 1.2, at most 16 records, the tail
+        within 256 KiB; FORMAT.md Part II 5.7), or None when it writes an index."""
+        base = self._commit
+        if not self._v12 or base is None or self._full_next or not 0 < len(self._written) <= LIGHT_MAX_RECORDS:
+            return None
+        journal = pack_journal(base.end, self._written)  # the frames follow the last commit's footer
+        fits = self._end + len(journal) - (base.index_offset + base.index_length) <= MAX_TAIL_BYTES
+        return journal if fits else None
 
     def abort(self) -> None:
         """Drop pending scenes: truncate the file back to the last commit (with any frame an error tore)."""
