@@ -7,6 +7,11 @@ Checkpoint layout (``<out>/checkpoint/``): ``model.safetensors`` (the module's s
 ``torch.load(weights_only=True)``, which refuses arbitrary objects), ``ema.safetensors`` (the moving
 average, for runs that keep one) and ``state.json`` (step, args, RNG seed) written last, so a checkpoint
 without ``state.json`` is ignored as incomplete.
+
+A run that trains a subset of a saved model's weights (``train.tokenizer --train-only``) can be committed
+slim (:func:`slim_checkpoint`): ``model.safetensors`` then holds only the tensors that differ from the model
+it started from, and ``state.json`` names that model under ``"base"`` with a SHA-256 of the tensors taken from
+it, so a checkpoint restores only onto the same base weights.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "shard_model_arguments", "cycle",
     "parse_overrides", "lr_at", "train_loop", "WeightAverage", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
+    "slim_checkpoint",
 ]
 
 
@@ -217,6 +223,61 @@ def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
 
 
+def _base_digest(tensors: dict[str, torch.Tensor]) -> str:
+    """SHA-256 over names, dtypes, shapes and bytes of ``tensors`` (sorted by name)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for key in sorted(tensors):
+        t = tensors[key].detach().cpu().contiguous()
+        h.update(f"{key}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
+
+
+def _on_base(base: dict[str, Any], tensors: dict[str, torch.Tensor], expected: dict[str, torch.Tensor],
+             directory: Path) -> dict[str, torch.Tensor]:
+    """A slim checkpoint's ``tensors`` completed from its base model: every tensor of ``expected`` (the module's
+    state) that the checkpoint lacks comes from the base, whose taken tensors must hash to ``base["sha256"]``."""
+    from ..weights_io import from_pretrained
+
+    try:
+        source = from_pretrained(base["model"]).state_dict()
+    except ModelError as exc:
+        raise ModelError(f"{directory}: its base model {base.get('model')!r} cannot be loaded: {exc}") from None
+    taken = {k: source[k].to(v.dtype) for k, v in expected.items() if k not in tensors and k in source}
+    if set(taken) | set(tensors) != set(expected) or _base_digest(taken) != base.get("sha256"):
+        raise ModelError(f"{directory}: a slim checkpoint on {base.get('model')!r}, but that model's weights are "
+                         "not the ones the run started from (install or point \"base\" at that model)")
+    return {**taken, **tensors}
+
+
+def slim_checkpoint(run: Path, base: str, out: Path) -> tuple[int, int]:
+    """Write ``run``'s latest checkpoint to ``out/checkpoint`` keeping only the tensors that differ from the
+    saved model ``base`` (id or directory), with ``state.json`` naming it; copies the run's ``log.jsonl`` and
+    ``summary.json``. Returns (tensors kept, tensors taken from the base)."""
+    import shutil
+
+    from ..weights_io import from_pretrained
+
+    src = Path(run) / "checkpoint"
+    state = json.loads((src / "state.json").read_text())
+    tensors = load_file(str(src / "model.safetensors"))
+    reference = from_pretrained(base).state_dict()
+    taken = {k: v for k, v in tensors.items()
+             if k in reference and reference[k].shape == v.shape and torch.equal(reference[k].to(v.dtype), v)}
+    kept = {k: v for k, v in tensors.items() if k not in taken}
+    dest = Path(out) / "checkpoint"
+    dest.mkdir(parents=True, exist_ok=True)
+    save_file(kept, str(dest / "model.safetensors"))
+    state["base"] = {"model": str(base), "sha256": _base_digest(taken)}
+    (dest / "state.json").write_text(json.dumps(state, indent=2, sort_keys=True))
+    for name in ("log.jsonl", "summary.json"):
+        if (Path(run) / name).is_file():
+            shutil.copyfile(Path(run) / name, Path(out) / name)
+    return len(kept), len(taken)
+
+
 def trained_decode_steps(train_args: dict[str, Any]) -> int:
     """The sampler steps a tokenizer run's renderer was trained for, from the run's arguments: one when
     every sample was trained at tau = 1 (``--tau-one 1``: the renderer never saw another flow time, so a
@@ -259,7 +320,10 @@ def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
         return None
     try:
         state = json.loads(state_json.read_text())
-        module.load_state_dict(load_file(str(directory / "model.safetensors")), strict=True)
+        tensors = load_file(str(directory / "model.safetensors"))
+        if state.get("base") is not None:
+            tensors = _on_base(state["base"], tensors, module.state_dict(), directory)
+        module.load_state_dict(tensors, strict=True)
         if optimizer is not None:
             if (directory / "optimizer.pt").exists():
                 optimizer.load_state_dict(torch.load(directory / "optimizer.pt", weights_only=True))

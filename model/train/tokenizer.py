@@ -234,11 +234,13 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
     return model
 
 
-def parameter_groups(model: VideoTok4D, spec: str) -> list[dict]:
+def parameter_groups(model: VideoTok4D, spec: str, train_only: str = "") -> list[dict]:
     """The optimizer's parameter groups for ``--lr-scale PREFIX=F,...``: each parameter of
     ``model.tokenizer_parameters()`` whose name starts with a PREFIX (the first that matches) gets
-    ``lr_scale`` F (train_loop multiplies the scheduled rate by it), the rest 1. ModelError for a bad spec or a
-    prefix that names no trained parameter."""
+    ``lr_scale`` F (train_loop multiplies the scheduled rate by it), the rest 1. With ``train_only``
+    (``--train-only PREFIX,...``) every other parameter is frozen (``requires_grad`` off, not in a group):
+    gradients still flow through it to the parameters trained. ModelError for a bad spec or a prefix that names
+    no trained parameter."""
     scales: list[tuple[str, float]] = []
     for item in filter(None, (part.strip() for part in spec.split(","))):
         prefix, _, value = item.partition("=")
@@ -250,6 +252,17 @@ def parameter_groups(model: VideoTok4D, spec: str) -> list[dict]:
             raise ModelError(f"--lr-scale {item!r}: give PREFIX=F with F > 0")
         scales.append((prefix, scale))
     trained = {id(p) for p in model.tokenizer_parameters()}
+    only = [prefix for prefix in (part.strip() for part in train_only.split(",")) if prefix]
+    if only:
+        named = dict(model.named_parameters())
+        missing = [prefix for prefix in only if not any(n.startswith(prefix) and id(p) in trained
+                                                            for n, p in named.items())]
+        if missing:
+            raise ModelError(f"--train-only: no trained parameter starts with {', '.join(missing)}")
+        for name, param in named.items():
+            if id(param) in trained and not any(name.startswith(prefix) for prefix in only):
+                param.requires_grad_(False)
+                trained.discard(id(param))
     groups: dict[float, list] = {}
     used: set[str] = set()
     for name, param in model.named_parameters():
@@ -339,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lr-scale", default="", metavar="PREFIX=F,...",
                         help="learning rate x F for the trained parameters whose names start with PREFIX (e.g. new "
                              "zero-initialised maps in a warm start, which Adam grows by about lr a step)")
+    parser.add_argument("--train-only", default="", metavar="PREFIX,...",
+                        help="train only the parameters whose names start with one of these prefixes (e.g. "
+                             "'entropy.' to fit a model's quantizer steps and densities to its frozen encoder and "
+                             "renderer with the rate-distortion loss); the rest are frozen")
     recipe.add_argument("--track-weight", type=float, default=0.0, metavar="W",
                         help="weight of the track loss (config dynamic_splat): each dynamic token must decode where "
                              "its track goes, supervised by the synthetic scenes' depth")
@@ -413,7 +430,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         model = fresh_on_saved_autoencoder(cfg, args.autoencoder_from)
     model.to(device)
-    optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale), lr=args.lr, weight_decay=0.01)
+    optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale, args.train_only), lr=args.lr,
+                                  weight_decay=0.01)
     module = DistributedDataParallel(model) if info.distributed else model
     pool, seeds = scene_pool_and_seeds(args, cfg, info)
     if args.prefill_workers:

@@ -345,6 +345,52 @@ def test_lr_scale_puts_the_named_parameters_in_their_own_group_and_the_loop_scal
             parameter_groups(net, bad)
 
 
+def test_train_only_freezes_every_other_parameter_and_gradients_still_reach_the_trained_ones():
+    from vt4dcodec.model import VideoTok4D, get_config
+    from vt4dcodec.model.train.tokenizer import parameter_groups
+
+    net = VideoTok4D(get_config("tiny", frames=4, image_size=32, width=32, heads=2, ae_width=8, n_static=8,
+                                n_dynamic=4, token_dim=8, n_tracks=8, entropy_levels=2))
+    net.freeze_autoencoder()
+    groups = parameter_groups(net, "entropy.=20", "entropy.")
+    trained = [p for g in groups for p in g["params"]]
+    assert [g["lr_scale"] for g in groups] == [20.0]
+    assert {id(p) for p in trained} == {id(net.entropy.logits), id(net.entropy.log_step)}
+    assert all(p.requires_grad == (id(p) in {id(q) for q in trained}) for p in net.tokenizer_parameters())
+    for bad in ("renderer.nothing", "autoencoder."):
+        with pytest.raises(ModelError, match="--train-only"):
+            parameter_groups(net, "", bad)
+
+
+def test_slim_checkpoint_keeps_what_changed_and_restores_only_on_its_base(tmp_path):
+    """slim_checkpoint: a run that changed part of a saved model is committed as the changed tensors plus the
+    base's name and digest; it restores to the same weights, and onto other weights it is refused."""
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+    from vt4dcodec.model.train.common import load_checkpoint, save_checkpoint, slim_checkpoint
+
+    cfg = get_config("tiny", frames=4, image_size=32, width=32, heads=2, ae_width=8, n_static=8, n_dynamic=4,
+                     token_dim=8, n_tracks=8, entropy_levels=2)
+    torch.manual_seed(0)
+    base = VideoTok4D(cfg)
+    save_pretrained(base, tmp_path / "base", model_id="t", model_version="0")
+    run = VideoTok4D(cfg)
+    run.load_state_dict(from_pretrained(tmp_path / "base").state_dict())
+    with torch.no_grad():
+        run.entropy.log_step.add_(0.25)
+    opt = torch.optim.SGD([run.entropy.log_step], lr=0.1)
+    save_checkpoint(tmp_path / "run" / "checkpoint", run, opt, 7, {"config": cfg.to_dict()})
+    kept, taken = slim_checkpoint(tmp_path / "run", str(tmp_path / "base"), tmp_path / "slim")
+    assert kept >= 1 and taken > 50
+    restored = VideoTok4D(cfg)
+    assert load_checkpoint(tmp_path / "slim" / "checkpoint", restored, None)["step"] == 7
+    for key, value in run.state_dict().items():
+        assert torch.equal(restored.state_dict()[key], value), key
+    torch.manual_seed(1)
+    save_pretrained(VideoTok4D(cfg), tmp_path / "base", model_id="t", model_version="0")  # other weights
+    with pytest.raises(ModelError, match="not the ones the run started from"):
+        load_checkpoint(tmp_path / "slim" / "checkpoint", VideoTok4D(cfg), None)
+
+
 def test_time_budget_stops_checkpoints_and_a_rerun_continues_to_steps(runs, tmp_path):
     """``--time-budget`` (a lent accelerator's fixed wall clock): the loop stops at the first step past
     the budget with a complete checkpoint and a saved model, and the same command without it resumes."""
