@@ -20,7 +20,7 @@ from .configs import ModelConfig
 
 __all__ = [
     "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler", "checked_guidance",
-    "prior_sampler",
+    "prior_sampler", "same_networks", "meta_networks",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -207,16 +207,44 @@ def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:
                             token_dtype="float32")
 
 
-def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = False) -> None:
+def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any) -> bool:
+    """True when fingerprint ``stored`` (of a file, or the tokenizer a prior was trained on) names a model whose
+    networks are exactly those of the model ``have`` (its fingerprint) with ``networks`` (its
+    :func:`~.identity.network_digests`): same id, token shapes and dtype, and the stored config and weights digests equal
+    the networks' own. Such a model differs at most by an entropy model, which changes how tokens are stored,
+    never what they mean."""
+    return (networks is not None and have is not None and stored is not None
+            and (stored.config_sha256, stored.weights_sha256) == tuple(networks)
+            and (stored.model_id, stored.static_shape, stored.dynamic_shape, stored.token_dtype)
+            == (have.model_id, have.static_shape, have.dynamic_shape, have.token_dtype))
+
+
+def meta_networks(meta: dict[str, Any]) -> tuple[str, str] | None:
+    """(config, weights) SHA-256 of a model's networks alone, from its parsed ``config.json``: its recorded
+    ``networks`` (a model with an entropy model), or its own digests (a model without one); None when a model
+    with an entropy model records none."""
+    nets = meta.get("networks")
+    if isinstance(nets, dict) and isinstance(nets.get("config_sha256"), str) and isinstance(nets.get("weights_sha256"), str):
+        return nets["config_sha256"], nets["weights_sha256"]
+    config = meta.get("config")
+    if getattr(config, "entropy_levels", 0) == 0 and nets is None:
+        return meta["config_sha256"], meta["weights_sha256"]
+    return None
+
+
+def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = False,
+                    networks: tuple[str, str] | None = None) -> None:
     """Refuse (ModelMismatchError) a tokenizer other than the one the prior (a Co4DGen or an OnnxPrior, with its
-    ``tokenizer_fingerprint``) was trained on.
+    ``tokenizer_fingerprint``) was trained on. ``networks``: the tokenizer's
+    :func:`~.identity.network_digests`; a tokenizer whose networks are exactly the recorded one's (an entropy
+    model added, :func:`~.identity.same_networks`) makes the same tokens and is accepted.
 
     With ``force`` only the token shapes must agree.
     """
     recorded = prior.tokenizer_fingerprint
     if recorded is None:
         raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
-    if recorded.matches(tokenizer_fingerprint):
+    if recorded.matches(tokenizer_fingerprint) or same_networks(networks, tokenizer_fingerprint, recorded):
         return
     shapes_agree = (recorded.static_shape, recorded.dynamic_shape) == (
         tokenizer_fingerprint.static_shape, tokenizer_fingerprint.dynamic_shape)

@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["ModelIdentity", "weights_sha256", "fingerprint_fields"]
+__all__ = ["ModelIdentity", "weights_sha256", "fingerprint_fields", "network_digests"]
 
 
 def weights_sha256(state: dict[str, torch.Tensor]) -> str:
@@ -38,6 +38,21 @@ def fingerprint_fields(model: torch.nn.Module, model_id: str, model_version: str
                 dynamic_shape=tuple(cfg.dynamic_shape), token_dtype="float32")
 
 
+def network_digests(model: torch.nn.Module, state: dict[str, torch.Tensor] | None = None) -> tuple[str, str]:
+    """(config_sha256, weights_sha256) of ``model``'s networks alone: its config with every entropy-model field
+    (``entropy_*``) at its default and its weights (``state``, default the model's) without the entropy model's
+    tensors (``entropy.*``). These are the fingerprint fields the same networks had before an entropy model was
+    added to them, so a file that model wrote holds tokens these networks read exactly the same way."""
+    import dataclasses
+
+    cfg = model.config
+    defaults = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
+                for f in dataclasses.fields(cfg) if f.name.startswith("entropy_")}
+    weights = {k: v for k, v in (model.state_dict() if state is None else state).items()
+               if not k.startswith("entropy.")}
+    return dataclasses.replace(cfg, **defaults).sha256(), weights_sha256(weights)
+
+
 class ModelIdentity:
     """The identity attributes of a model class (a mixin of VideoTok4D and Co4DGen), never part of its
     config hash.
@@ -51,6 +66,7 @@ class ModelIdentity:
     model_id: str | None = None
     model_version: str | None = None
     training_step: int | None = None
+    network_digests: tuple[str, str] | None = None  # (config, weights) SHA-256 of the networks alone, when loaded
     _stored_fingerprint: Any = None  # the fingerprint computed for the current identity, if any
 
     def set_identity(self, model_id: str | None, model_version: str | None, *,

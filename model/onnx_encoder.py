@@ -31,7 +31,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import meta_fingerprint, model_directory, read_model_meta
+from .directories import meta_fingerprint, meta_networks, model_directory, read_model_meta
 from .inputs.source_inputs import SourceInputs, stack_inputs
 from .onnx_session import MAX_ONNX_BYTES, onnx_available, open_checked  # noqa: F401  (MAX_ONNX_BYTES: as before)
 
@@ -67,6 +67,7 @@ class OnnxEncoder:
         self.model_id: str = meta["model_id"]
         self.model_version: str = meta["model_version"]
         self._fingerprint = meta_fingerprint(meta)
+        self.network_digests = meta_networks(meta)
 
     @classmethod
     def open(cls, model: str | os.PathLike[str], *, views: int = 1, threads: int | None = None,

@@ -26,7 +26,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import CONFIG_FILE, meta_fingerprint, model_directory, read_model_meta
+from .directories import CONFIG_FILE, meta_fingerprint, meta_networks, model_directory, read_model_meta
 from .onnx_session import open_checked
 
 __all__ = ["OnnxRenderer", "RENDERER_FILE", "RENDERER_FORMAT", "RENDERER_INPUTS", "RENDERER_OUTPUTS",
@@ -99,6 +99,7 @@ class OnnxRenderer:
             raise ModelError(f"{directory / CONFIG_FILE}: decode_steps must be an integer 1 .. {MAX_DECODE_STEPS}")
         self.decode_steps: int = steps
         self._fingerprint = meta_fingerprint(meta)
+        self.network_digests = meta_networks(meta)
 
     @property
     def needs_source(self) -> bool:

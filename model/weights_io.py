@@ -13,7 +13,10 @@ A tokenizer directory holds
   "config_sha256", "weights_sha256", "decode_steps", "default_quality"}`` (``decode_steps``: the sampler
   steps the codec uses by default for this model, chosen by measurement; optional, 8 when absent; not
   hashed; ``default_quality``: for a model with quality levels, the level the codec stores tokens at when
-  none is asked for, chosen by measurement, or null; absent for other models; not hashed);
+  none is asked for, chosen by measurement, or null; absent for other models; not hashed; ``networks``: for
+  a model with an entropy model, ``{"config_sha256", "weights_sha256"}`` of its networks alone
+  (:func:`~.identity.network_digests`), checked on load: files of the model those networks came from decode
+  with this one);
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
@@ -52,7 +55,7 @@ from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE,
                           MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
                           model_directory, prior_sampler, read_model_meta, read_weights_meta, shipped_model_ids,
                           shipped_prior_ids)
-from .identity import weights_sha256
+from .identity import network_digests, weights_sha256
 from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
 
@@ -112,6 +115,8 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
             "config": model.config.to_dict(), "config_sha256": model.config.sha256(), "weights_sha256": digest,
             "decode_steps": steps}
     if model.config.entropy_levels:
+        nets = network_digests(model, state)
+        meta["networks"] = {"config_sha256": nets[0], "weights_sha256": nets[1]}
         meta["default_quality"] = checked_default_quality(
             model.default_quality if default_quality is None else default_quality, model.config.entropy_levels, out)
     elif default_quality is not None:
@@ -172,6 +177,11 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
     model.set_identity(meta["model_id"], meta["model_version"])
+    model.network_digests = network_digests(model, state)
+    recorded = meta.get("networks")
+    if recorded is not None and (not isinstance(recorded, dict) or (recorded.get("config_sha256"),
+                                                                    recorded.get("weights_sha256")) != model.network_digests):
+        raise ModelError(f"{directory / CONFIG_FILE}: 'networks' does not match the networks in {WEIGHTS_FILE}")
     model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
     model.default_quality = checked_default_quality(meta.get("default_quality"), model.config.entropy_levels,
                                                     directory / CONFIG_FILE)

@@ -596,8 +596,10 @@ class SceneDecoder:
             net = load_renderer(stored.model_id if model is None else model, runtime, device=device)
         except ModelNotFoundError as exc:
             raise ModelNotFoundError(f"the scene was made by {stored.short()}: {exc}") from None
+        from .model.directories import same_networks  # torch-free
+
         have = model_fingerprint(net)
-        if not have.matches(stored):
+        if not have.matches(stored) and not same_networks(getattr(net, "network_digests", None), have, stored):
             if not force:
                 raise ModelMismatchError(
                     f"the scene was encoded by {stored.short()} but the model given is {have.short()}; "

@@ -65,7 +65,8 @@ def _pairs_text(args: dict) -> str:
 
 def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fingerprint: dict, notes: str,
                decoder_run: Path | None = None, shipped_set: dict | None = None,
-               stage1_lines: list[str] | None = None) -> str:
+               stage1_lines: list[str] | None = None, config: dict | None = None,
+               graphs: list[str] | None = None) -> str:
     """The card's text. ``ae_run`` None: the stage-1 lines are ``stage1_lines``, taken from the card of the
     shipped predecessor whose autoencoder this model kept (:func:`inherited_stage1_lines`)."""
     state = json.loads((run / "checkpoint" / "state.json").read_text())
@@ -81,7 +82,15 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
                   "frames"]
     else:
         stage1 = list(stage1_lines or [])
-    params = ", ".join(f"{k}={v}" for k, v in sorted(cfg.items()))
+    params = ", ".join(f"{k}={v}" for k, v in sorted((config if config is not None else cfg).items()))
+    names = sorted(graphs or ["encoder.onnx"], key=lambda n: (not n.startswith("encoder"), len(n), n))
+    encoders = [n for n in names if n.startswith("encoder")]
+    most = max([int(n[len("encoder-v"):-len(".onnx")]) for n in encoders if n.startswith("encoder-v")] or [1])
+    onnx_line = (f"- `{encoders[0]}`" + (f" ... `{encoders[-1]}`: the encoders for scenes of 1 to {most} cameras"
+                                          if len(encoders) > 1 else ": the encoder for one camera per scene")
+                 + (", and `renderer.onnx`: the renderer and the autoencoder's decoder" if "renderer.onnx" in names else "")
+                 + ", exported for onnxruntime from these weights (`vt4d encode` and `vt4d decode` run them without "
+                   "torch; same fingerprint, tokens equal to float rounding)")
     lines = [
         f"# {model_id} {version}",
         "",
@@ -94,8 +103,7 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
         f"- tokens: Z_s {fingerprint['static_shape'][0]}x{fingerprint['static_shape'][1]}, "
         f"Z_d {fingerprint['dynamic_shape'][0]}x{fingerprint['dynamic_shape'][1]}, bounded in (-1, 1)",
         f"- config: {params}",
-        "- `encoder.onnx`: the encoder for one camera per scene, exported for onnxruntime from these weights "
-        "(`vt4d encode` runs it without torch; same fingerprint, tokens equal to float rounding)",
+        onnx_line,
         "",
         "## Training (reproduce with the commands in docs/training.md)",
         *stage1,
@@ -103,6 +111,8 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
         f"(warm-up {args['warmup']}, cosine), bf16 autocast={args['bf16']}, {tok['wall_seconds'] / 60:.0f} min "
         f"wall on the 2-core CPU machine shared with other jobs; training loss "
         f"{tok['first_loss']:.3f} -> {tok['last_loss']:.3f}",
+        *([f"- trained only the parameters named {args['train_only']!r} (`--train-only`); every other tensor "
+            "stayed the warm start's"] if args.get("train_only") else []),
         f"- data: {args['scenes']} synthetic training scenes (seeds {args['scene_seed']}..."
         f"{args['scene_seed'] + args['scenes'] - 1}, split 'train'), {args['cameras']} cameras each, 8 frames at "
         "64x64; " + _pairs_text(args),
@@ -231,7 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     graphs = export_model(model, out)
     fp = model.fingerprint(args.id, args.version).to_dict()
     (out / "MODEL_CARD.md").write_text(model_card(args.id, args.version, args.run, args.autoencoder_run, fp, notes,
-                                                        args.decoder_from, overrides, stage1))
+                                                        args.decoder_from, overrides, stage1,
+                                                        config=model.config.to_dict(), graphs=[g.name for g in graphs]))
     size, onnx_size = (out / "model.safetensors").stat().st_size, sum(g.stat().st_size for g in graphs)
     print(f"shipped {args.id} {args.version} -> {out} ({size / 1e6:.1f} MB; {len(graphs)} ONNX graphs "
           f"{onnx_size / 1e6:.1f} MB)")

@@ -29,7 +29,7 @@ def _stand_in_prior(monkeypatch):
         model_id="p", model_version="1", tokenizer_fingerprint=fp, sampler=DEFAULT_SAMPLER,
         config=SimpleNamespace(cond_dropout=0.0)))
     monkeypatch.setattr(generate_commands, "load_renderer", lambda name, *runtime, **where: SimpleNamespace(decode_steps=1))
-    monkeypatch.setattr(prior_module, "check_tokenizer", lambda prior, fingerprint: None)
+    monkeypatch.setattr(prior_module, "check_tokenizer", lambda prior, fingerprint, **_: None)
     monkeypatch.setattr(generate_commands, "model_fingerprint", lambda model: fp)
     monkeypatch.setattr(generate_commands, "generate", lambda *a, metadata=None, **k: make_scene(metadata=metadata))
     monkeypatch.setattr(generate_commands, "SceneDecoder", lambda scene, model: decoder)

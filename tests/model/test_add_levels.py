@@ -129,3 +129,33 @@ def test_entropy_from_a_donor_keeps_the_networks():
     other = VideoTok4D(get_config("tiny", patch_size=4, entropy_levels=2, n_static=32))
     with pytest.raises(ModelError, match="differs"):
         with_entropy_of(plain, other)
+
+
+def test_an_entropy_model_keeps_the_network_digests_and_load_checks_them(tmp_path):
+    """network_digests: a model given an entropy model has the config and weights digests of its networks
+    alone, equal to the fingerprint of the model without it; save_pretrained records them as ``networks`` and
+    from_pretrained recomputes and checks them (a tampered record is refused)."""
+    import json
+
+    from vt4dcodec.model import save_pretrained
+    from vt4dcodec.model.directories import meta_networks, read_model_meta
+    from vt4dcodec.model.identity import network_digests
+    from vt4dcodec.model.train.add_levels import with_entropy_of
+
+    torch.manual_seed(3)
+    plain = VideoTok4D(get_config("tiny", patch_size=4)).eval()
+    grown = with_entropy_of(plain, _levels_model(2))
+    fp = plain.fingerprint("t", "1")
+    assert network_digests(grown) == network_digests(plain) == (fp.config_sha256, fp.weights_sha256)
+    assert grown.fingerprint("t", "2").weights_sha256 != fp.weights_sha256
+    d = save_pretrained(grown, tmp_path / "g", model_id="t", model_version="2")
+    meta = read_model_meta(d)
+    assert meta_networks(meta) == network_digests(grown) == from_pretrained(d).network_digests
+    p = save_pretrained(plain, tmp_path / "p", model_id="t", model_version="1")
+    assert "networks" not in json.loads((p / "config.json").read_text())
+    assert meta_networks(read_model_meta(p)) == (fp.config_sha256, fp.weights_sha256)
+    raw = json.loads((d / "config.json").read_text())
+    raw["networks"]["weights_sha256"] = "0" * 64
+    (d / "config.json").write_text(json.dumps(raw))
+    with pytest.raises(ModelError, match="networks"):
+        from_pretrained(d)

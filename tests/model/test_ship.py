@@ -105,3 +105,16 @@ def test_ship_writes_float16_weights_and_a_matching_encoder_onnx_replacing_a_sta
     encoder = OnnxEncoder.open(dest / "t")
     assert encoder.model_version == "2.0.0" and encoder.stored_fingerprint().model_id == "t"
     assert "2.0.0" in (dest / "t" / "MODEL_CARD.md").read_text()
+
+
+def test_card_names_the_shipped_config_its_graphs_and_a_partial_run(tmp_path):
+    """The config line is the shipped model's (levels added after the run show), the ONNX line lists the graphs
+    written beside it, and a run that trained only some parameters says so."""
+    card = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok", train_only="entropy."), _run(tmp_path, "ae"),
+                      FINGERPRINT, "", config={"prediction": "x0", "entropy_levels": 9},
+                      graphs=["renderer.onnx", "encoder-v10.onnx", "encoder.onnx", "encoder-v2.onnx"])
+    assert "entropy_levels=9" in card
+    assert "`encoder.onnx` ... `encoder-v10.onnx`: the encoders for scenes of 1 to 10 cameras" in card
+    assert "`renderer.onnx`" in card and "trained only the parameters named 'entropy.'" in card
+    plain = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok2"), _run(tmp_path, "ae2"), FINGERPRINT, "")
+    assert "the encoder for one camera per scene" in plain and "trained only" not in plain

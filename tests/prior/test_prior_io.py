@@ -81,6 +81,16 @@ def test_a_prior_is_only_used_with_its_tokenizer(tmp_path):
         check_tokenizer(prior, wrong_shape, force=True)
     with pytest.raises(ModelMismatchError):
         check_tokenizer(small_prior(), FP)  # never loaded: no recorded tokenizer
+    # a tokenizer whose networks are exactly the recorded one's (an entropy model added: other digests and
+    # version) makes the same tokens: accepted when its network digests say so, refused when they do not
+    grown = ModelFingerprint(**{**FP.to_dict(), "model_version": "2", "weights_sha256": "d" * 64,
+                                "config_sha256": "e" * 64})
+    check_tokenizer(prior, grown, networks=(FP.config_sha256, FP.weights_sha256))
+    with pytest.raises(ModelMismatchError, match="trained on tokens"):
+        check_tokenizer(prior, grown, networks=(FP.config_sha256, "f" * 64))
+    with pytest.raises(ModelMismatchError, match="trained on tokens"):
+        check_tokenizer(prior, ModelFingerprint(**{**grown.to_dict(), "model_id": "other"}),
+                        networks=(FP.config_sha256, FP.weights_sha256))
 
 
 def test_float16_storage_round_trips_the_same_prior(tmp_path):
