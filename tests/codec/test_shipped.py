@@ -37,9 +37,12 @@ def test_encode_save_load_decode_with_shipped_weights(tmp_path, scene):
     encoded = vt4dcodec.encode(cap, camera=cap.camera_names[0])
     path = tmp_path / "scene.vt4d"
     nbytes = vt4dcodec.save(encoded, path)
-    assert vt4dcodec.load(path).encoding == codec.DEFAULT_ENCODING
-    # tokens (int4: 11,264 four-bit values, zstd) + cameras + fingerprint: 6.7 KB for vt4d-tiny 1.0.0, 5.6-6.7 KB
-    # for 0.13.0 and 0.12.0 (0.11.0 int4-rans 5.1-5.7 KB; 0.9.0's repeated copies: about 2.8 KB); float16 would be 22 KB
+    loaded = vt4dcodec.load(path)
+    # a model with quality levels stores its default level (vt4d-tiny 2.0.0: q9 of 9), else the default encoding
+    assert (loaded.encoding, loaded.quality) == (("learned-rans", codec.default_quality()) if codec.default_quality()
+                                                 else (codec.DEFAULT_ENCODING, None))
+    # tokens + cameras + fingerprint: 2.0.0 at q9 about 5.2 KB; 1.0.0's int4 6.7 KB, 0.13.0 and 0.12.0 5.6-6.7 KB
+    # (0.11.0 int4-rans 5.1-5.7 KB; 0.9.0's repeated copies: about 2.8 KB); float16 would be 22 KB
     assert nbytes < 8192
     frames = vt4dcodec.decode(path, "source", steps=4, seed=0)
     assert frames.shape == cap.frames[cap.camera_names[0]].shape
@@ -129,19 +132,49 @@ def test_cluster_ranks_encode_disjoint_shares_into_their_own_shards(tmp_path):
 
 
 def test_every_shipped_prior_is_bound_to_a_shipped_tokenizer_and_records_its_sampler():
-    """A prior is retrained whenever its tokenizer changes: the shipped prior's recorded tokenizer fingerprint is
-    the fingerprint of the tokenizer shipped beside it, and it records the sampler setting measured for it."""
-    from vt4dcodec.model.directories import (CONFIG_FILE, PRIOR_META_FILE, meta_fingerprint, model_directory,
-                                             read_model_meta, read_prior_meta, shipped_prior_ids)
+    """A prior is retrained whenever its tokenizer's tokens change: the shipped prior's recorded tokenizer is the
+    tokenizer shipped beside it, or one with exactly its networks (the shipped one adds an entropy model: same
+    tokens, digests computed from the weights on load), and it records the sampler setting measured for it."""
+    from vt4dcodec.model.directories import (CONFIG_FILE, PRIOR_META_FILE, meta_fingerprint, meta_networks,
+                                             model_directory, read_model_meta, read_prior_meta, same_networks,
+                                             shipped_prior_ids)
 
     priors = shipped_prior_ids()
     assert "co4dgen-tiny" in priors
     for prior in priors:
         meta = read_prior_meta(model_directory(prior, PRIOR_META_FILE))
-        tokenizer = meta_fingerprint(read_model_meta(model_directory(meta["tokenizer"].model_id, CONFIG_FILE)))
-        assert tokenizer.matches(meta["tokenizer"]), (prior, tokenizer.short(), meta["tokenizer"].short())
-        assert tokenizer == codec.model_fingerprint(codec.load_model(meta["tokenizer"].model_id))
+        tokenizer_meta = read_model_meta(model_directory(meta["tokenizer"].model_id, CONFIG_FILE))
+        tokenizer = meta_fingerprint(tokenizer_meta)
+        assert tokenizer.matches(meta["tokenizer"]) or same_networks(
+            meta_networks(tokenizer_meta), tokenizer, meta["tokenizer"]), (prior, tokenizer.short(),
+                                                                            meta["tokenizer"].short())
+        model = codec.load_model(meta["tokenizer"].model_id)
+        assert tokenizer == codec.model_fingerprint(model)
+        assert model.network_digests == meta_networks(tokenizer_meta)  # from_pretrained computes them
         assert isinstance(meta["extra"].get("sampler"), dict) and meta["extra"]["sampler"].get("measured"), prior
+
+
+def test_files_of_the_same_networks_without_the_entropy_model_decode_and_others_are_refused(scene):
+    """vt4d-tiny 2.0.0 is 1.0.0's networks with an entropy model: a scene stored by a model with exactly these
+    networks (the fingerprint 1.0.0 wrote: the networks' own digests, another version) decodes without --force,
+    to the same frames; one whose weights differ is refused. Regression: 2.0.0 refused every 1.0.0 file."""
+    import dataclasses
+
+    from vt4dcodec.errors import ModelMismatchError
+    from vt4dcodec.model.directories import meta_networks, model_directory, read_model_meta
+
+    cap = scene.capture
+    encoded = vt4dcodec.encode(cap, camera=cap.camera_names[0], encoding="int8")
+    networks = meta_networks(read_model_meta(model_directory("vt4d-tiny")))
+    assert networks is not None
+    older = dataclasses.replace(encoded, fingerprint=dataclasses.replace(
+        encoded.fingerprint, model_version="1.0.0", config_sha256=networks[0], weights_sha256=networks[1]))
+    a = codec.SceneDecoder.open(encoded).render("source")
+    b = codec.SceneDecoder.open(older).render("source")
+    assert np.array_equal(a, b)
+    other = dataclasses.replace(older, fingerprint=dataclasses.replace(older.fingerprint, weights_sha256="0" * 64))
+    with pytest.raises(ModelMismatchError, match="--force"):
+        codec.SceneDecoder.open(other)
 
 
 def test_generate_with_the_shipped_prior(tmp_path, scene):
