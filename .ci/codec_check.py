@@ -31,6 +31,12 @@ def check() -> None:
         run(["encode", capture, "--cameras", "all", "-o", "all.vt4d", "-q"])
         run(["decode", "all.vt4d", "-t", "source", "-t", "camera:cam05", "-o", "views", "-q"])
         run(["info", "all.vt4d"])
+        from vt4dcodec import codec, open_scene
+
+        stored = open_scene("all.vt4d")
+        level = codec.default_quality("vt4d-tiny")
+        assert (stored.encoding, stored.quality) == (("learned-rans", level) if level else ("int4", None)), \
+            f"the torch-free encode stored {stored.encoding} at {stored.quality}, not the model's default level {level}"
         run(["demo", "-o", "demo_out", "-q"])
         run(["generate", capture, "-o", "gen", "--steps", "2", "-q"])
         assert len(list(Path("views").glob("*.mp4"))) == 2 and Path("demo_out/demo_report.json").is_file()

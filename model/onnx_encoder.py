@@ -68,6 +68,13 @@ class OnnxEncoder:
         self.model_version: str = meta["model_version"]
         self._fingerprint = meta_fingerprint(meta)
         self.network_digests = meta_networks(meta)
+        # the quality level the codec stores tokens at when none is asked for, as from_pretrained reads it
+        level = meta.get("default_quality")
+        levels = getattr(self.config, "entropy_levels", 0)
+        if level is not None and (isinstance(level, bool) or not isinstance(level, int) or not 1 <= level <= levels):
+            raise ModelError(f"{directory / 'config.json'}: default_quality must be a quality level 1 .. {levels} "
+                             f"or null, got {level!r}")
+        self.default_quality: int | None = level
 
     @classmethod
     def open(cls, model: str | os.PathLike[str], *, views: int = 1, threads: int | None = None,

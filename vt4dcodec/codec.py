@@ -429,6 +429,10 @@ def _quality_encoding(net: "VideoTok4D | OnnxEncoder", encoding: str | None, qua
         from .model.tables import tables_from_directory
 
         tables = tables_from_directory(model_directory(source), model_fingerprint(net))
+    elif not hasattr(net, "entropy") and isinstance(getattr(net, "directory", None), Path):
+        from .model.tables import tables_from_directory  # an exported encoder: the tables beside its graphs
+
+        tables = tables_from_directory(net.directory, model_fingerprint(net))
     else:
         found = model_tables(net) if hasattr(net, "entropy") else None
         if found is None:

@@ -154,6 +154,33 @@ def test_every_shipped_prior_is_bound_to_a_shipped_tokenizer_and_records_its_sam
         assert isinstance(meta["extra"].get("sampler"), dict) and meta["extra"]["sampler"].get("measured"), prior
 
 
+@pytest.mark.parametrize("cameras", [None, "all"])
+def test_the_exported_encoder_stores_the_default_quality_level_like_the_torch_one(scene, cameras):
+    """Regression: `vt4d encode` on onnxruntime (the torch-free install) stored int4 where the torch encoder
+    stored the model's default level (learned-rans q9 for vt4d-tiny 2.0.0): the exported encoder did not read
+    default_quality from config.json."""
+    from vt4dcodec.model.onnx_encoder import OnnxEncoder
+
+    assert OnnxEncoder.open("vt4d-tiny").default_quality == codec.default_quality("vt4d-tiny") == 9
+    cap = scene.capture
+    kw = {"cameras": cameras} if cameras else {"camera": cap.camera_names[0]}
+    stored = {rt: codec.encode(cap, runtime=rt, **kw) for rt in ("onnx", "torch")}
+    assert {(s.encoding, s.quality) for s in stored.values()} == {("learned-rans", 9)}
+
+
+def test_cli_encode_on_onnxruntime_stores_the_default_quality_level(tmp_path):
+    """The same through `vt4d encode --runtime onnx`, which hands the codec a loaded exported encoder (the CI's
+    torch-free install check wrote int4 here)."""
+    assert vt4d("synth", "-n", "1", "--split", "test", "--seed", "5", "-o", tmp_path / "caps").returncode == 0
+    (capture,) = [p for p in (tmp_path / "caps").iterdir() if p.is_dir()]
+    for cameras in ("cam00", "all"):
+        out = tmp_path / f"{cameras}.vt4d"
+        r = vt4d("encode", capture, "--cameras", cameras, "-o", out, "--runtime", "onnx", "-q")
+        assert r.returncode == 0, r.stderr
+        info = vt4dcodec.open_scene(out)
+        assert (info.encoding, info.quality) == ("learned-rans", 9), cameras
+
+
 def test_files_of_the_same_networks_without_the_entropy_model_decode_and_others_are_refused(scene):
     """vt4d-tiny 2.0.0 is 1.0.0's networks with an entropy model: a scene stored by a model with exactly these
     networks (the fingerprint 1.0.0 wrote: the networks' own digests, another version) decodes without --force,
