@@ -60,13 +60,14 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
         f"-> {out / 'capture'}")
 
     t0 = time.perf_counter()
-    scene = codec.encode(cap, net, codec.DEFAULT_ENCODING, camera=source, seed=seed)
+    scene = codec.encode(cap, net, camera=source, seed=seed)  # the model's default level (or encoding)
     scene_path = out / "scene.vt4d"
     nbytes = save(scene, scene_path)
     encode_s = time.perf_counter() - t0
     raw_bytes = int(cap.frames[source].nbytes)
-    say(f"encoded camera {source}: {scene_path} is {nbytes} bytes ({raw_bytes / nbytes:.0f}x smaller than its "
-        f"{raw_bytes} bytes of raw RGB) in {encode_s:.1f} s")
+    stored_as = scene.encoding + ("" if scene.quality is None else f" at quality {scene.quality}")
+    say(f"encoded camera {source} ({stored_as}): {scene_path} is {nbytes} bytes ({raw_bytes / nbytes:.0f}x smaller "
+        f"than its {raw_bytes} bytes of raw RGB) in {encode_s:.1f} s")
 
     t0 = time.perf_counter()
     decoder = codec.SceneDecoder.open(scene_path)
@@ -75,6 +76,7 @@ def run_demo(output: str | Path, *, model: str = "vt4d-tiny", seed: int = 0, ste
     decode_s = time.perf_counter() - t0
 
     report: dict[str, Any] = {"scene_file": str(scene_path), "scene_bytes": nbytes, "raw_rgb_bytes": raw_bytes,
+                              "encoding": scene.encoding, "quality": scene.quality,
                               "encode_seconds": round(encode_s, 2), "decode_seconds": round(decode_s, 2),
                               "steps": decoder.model.decode_steps if steps is None else steps, "seed": seed, "model": decoder.model.model_id, "views": {}}
     source_mean = cap.frames[source].reshape(-1, 3).mean(axis=0).round().astype(np.uint8)

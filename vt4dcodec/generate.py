@@ -38,7 +38,9 @@ __all__ = ["generate", "load_prior_model", "fit_conditioning", "conditioning_tok
 
 DEFAULT_PRIOR = "co4dgen-tiny"
 DEFAULT_PRIOR_STEPS = 16  # the steps of a prior that records no sampler setting (model.directories.DEFAULT_SAMPLER)
-# Generated scenes are saved like encoded ones, in codec.DEFAULT_ENCODING (int4 for vt4d-tiny 1.0.0, 0.13.0 and 0.12.0, int4-rans
+# Generated scenes are saved in codec.DEFAULT_ENCODING, int4, also beside vt4d-tiny 2.0.0 (whose encoded scenes are learned-rans
+# at its default level): they carry the fingerprint of the tokenizer the prior was trained on (1.0.0's networks), which has no
+# entropy tables of its own.  Before 2.0.0 encoded scenes used the same default (int4 for vt4d-tiny 1.0.0, 0.13.0 and 0.12.0, int4-rans
 # for 0.11.0, int4 for 0.10.0 and 0.9.0, chosen by the rate-distortion rule on encoded scenes; int5-rans for 0.8.0, int4-rans for 0.7.0).  Measured earlier on co4dgen-tiny 0.3.0
 # samples (6 held-out test scenes, camera 0, anchor "source", seed 0, rendered by vt4d-tiny 0.3.0
 # against the conditioning video): int4-rans was within 0.07 dB of float32 tokens on every scene.

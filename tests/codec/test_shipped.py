@@ -104,6 +104,8 @@ def test_demo_writes_videos_picture_and_reports(tmp_path):
     both = read_mp4(report["views"][next(iter(report["views"]))]["side_by_side_video"])
     assert both.shape[1:] == (256, 2 * 256 + 2, 3)  # x4 for viewing: truth | decoded
     assert report["scene_bytes"] == (tmp_path / "demo" / "scene.vt4d").stat().st_size
+    # the demo stores what `vt4d encode` stores: the model's default level (it wrote int4 after 2.0.0 shipped)
+    assert (report["encoding"], report["quality"]) == ("learned-rans", codec.default_quality())
 
 
 def test_cluster_ranks_encode_disjoint_shares_into_their_own_shards(tmp_path):
