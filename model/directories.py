@@ -20,7 +20,7 @@ from .configs import ModelConfig
 
 __all__ = [
     "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler", "checked_guidance",
-    "prior_sampler", "same_networks", "meta_networks",
+    "prior_sampler", "same_networks", "meta_networks", "checked_default_quality",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -205,6 +205,15 @@ def meta_fingerprint(meta: dict[str, Any]) -> ModelFingerprint:
                             config_sha256=meta["config_sha256"], weights_sha256=meta["weights_sha256"],
                             static_shape=tuple(config.static_shape), dynamic_shape=tuple(config.dynamic_shape),
                             token_dtype="float32")
+
+
+def checked_default_quality(value: Any, levels: int, where: Path) -> int | None:
+    """``value`` when it is None or a quality level 1 .. ``levels``; else ModelError naming ``where``."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= levels:
+        raise ModelError(f"{where}: default_quality must be a quality level 1 .. {levels} or null, got {value!r}")
+    return value
 
 
 def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any) -> bool:

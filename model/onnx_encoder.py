@@ -31,7 +31,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import meta_fingerprint, meta_networks, model_directory, read_model_meta
+from .directories import checked_default_quality, meta_fingerprint, meta_networks, model_directory, read_model_meta
 from .inputs.source_inputs import SourceInputs, stack_inputs
 from .onnx_session import MAX_ONNX_BYTES, onnx_available, open_checked  # noqa: F401  (MAX_ONNX_BYTES: as before)
 
@@ -69,12 +69,8 @@ class OnnxEncoder:
         self._fingerprint = meta_fingerprint(meta)
         self.network_digests = meta_networks(meta)
         # the quality level the codec stores tokens at when none is asked for, as from_pretrained reads it
-        level = meta.get("default_quality")
-        levels = getattr(self.config, "entropy_levels", 0)
-        if level is not None and (isinstance(level, bool) or not isinstance(level, int) or not 1 <= level <= levels):
-            raise ModelError(f"{directory / 'config.json'}: default_quality must be a quality level 1 .. {levels} "
-                             f"or null, got {level!r}")
-        self.default_quality: int | None = level
+        self.default_quality = checked_default_quality(meta.get("default_quality"), self.config.entropy_levels,
+                                                       directory / "config.json")
 
     @classmethod
     def open(cls, model: str | os.PathLike[str], *, views: int = 1, threads: int | None = None,

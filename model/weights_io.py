@@ -53,8 +53,8 @@ from .configs import DenseConfig, PriorConfig
 from .dense_baseline import DenseViewDiffusion
 from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE, MODEL_FORMAT,
                           MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
-                          model_directory, prior_sampler, read_model_meta, read_weights_meta, shipped_model_ids,
-                          shipped_prior_ids)
+                          checked_default_quality, model_directory, prior_sampler, read_model_meta, read_weights_meta,
+                          shipped_model_ids, shipped_prior_ids)
 from .identity import network_digests, weights_sha256
 from .prior import Co4DGen
 from .videotok4d import DEFAULT_DECODE_STEPS, MAX_DECODE_STEPS, VideoTok4D
@@ -124,15 +124,6 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
 
 
-def checked_default_quality(value: Any, levels: int, where: Path) -> int | None:
-    """``value`` when it is None or a quality level 1 .. ``levels``; else ModelError naming ``where``."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= levels:
-        raise ModelError(f"{where}: default_quality must be a quality level 1 .. {levels} or null, got {value!r}")
-    return value
-
-
 def _checked_decode_steps(value: Any, where: Path) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DECODE_STEPS:
         raise ModelError(f"{where}: decode_steps must be an integer in [1, {MAX_DECODE_STEPS}], got {value!r}")
@@ -177,7 +168,8 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     model.load_state_dict(state, strict=True)
     model.freeze_autoencoder()
     model.set_identity(meta["model_id"], meta["model_version"])
-    model.network_digests = network_digests(model, state)
+    model.network_digests = (network_digests(model, state) if model.config.entropy_levels
+                             else (meta["config_sha256"], meta["weights_sha256"]))  # verified just above
     recorded = meta.get("networks")
     if recorded is not None and (not isinstance(recorded, dict) or (recorded.get("config_sha256"),
                                                                     recorded.get("weights_sha256")) != model.network_digests):

@@ -42,7 +42,7 @@ from ..entropy import MAX_STEP, MIN_STEP
 from ..configs import ModelConfig
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
-from .common import model_from_run
+from .common import model_from_run, model_from_run_or_saved
 
 
 def add_levels(model: VideoTok4D, ratios: list[float],
@@ -61,8 +61,9 @@ def add_levels(model: VideoTok4D, ratios: list[float],
                                  or any(len(r) != 3 or not all(0.0 <= v <= 0.5 for v in r) for r in rounding)):
         raise ModelError("rounding needs one (MEAN, CHANGE, DYNAMIC) triple in [0, 1/2] per ratio, for a model "
                          "with rounding offsets (config entropy_rounding)")
-    if any(r == 1.0 for r in ratios) and (rounding is None or any(
-            r == 1.0 and all(a >= b for a, b in zip(rounding[i], old_rounding[:3])) for i, r in enumerate(ratios))):
+    repeats = [i for i, r in enumerate(ratios) if r == 1.0]
+    if repeats and (rounding is None or any(all(a >= b for a, b in zip(rounding[i], old_rounding[:3]))
+                                            for i in repeats)):
         raise ModelError("a level at ratio 1 repeats the coarsest steps: give it a wider dead zone (rounding "
                          "offsets below the coarsest level's in some class)")
     state = _trained_state(model)
@@ -127,7 +128,7 @@ def with_entropy_of(model: VideoTok4D, donor: VideoTok4D) -> VideoTok4D:
     everything else."""
     if donor.entropy is None:
         raise ModelError("the donor has no entropy model (config entropy_levels = 0)")
-    fields = ("entropy_levels", "entropy_context", "entropy_partners", "entropy_rounding")
+    fields = [f.name for f in dataclasses.fields(model.config) if f.name.startswith("entropy_")]
     cfg = dataclasses.replace(model.config, **{f: getattr(donor.config, f) for f in fields})
     if cfg != donor.config:
         raise ModelError("the donor's config differs from the model's outside the entropy model")
@@ -185,9 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         out = model_from_run(args.run)[0] if args.run else from_pretrained(args.model)
         if args.entropy_from is not None:
-            donor = (model_from_run(args.entropy_from)[0] if (args.entropy_from / "checkpoint" / "state.json").is_file()
-                     else from_pretrained(args.entropy_from))
-            out = with_entropy_of(out, donor)
+            out = with_entropy_of(out, model_from_run_or_saved(args.entropy_from))
         if ratios:
             out = add_levels(out, ratios, rounding)
         if finer:

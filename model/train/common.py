@@ -46,7 +46,7 @@ __all__ = [
     "DistInfo", "setup_distributed", "cleanup_distributed", "save_checkpoint", "load_checkpoint",
     "JsonlLog", "plot_loss_curve", "autocast", "seed_everything", "common_arguments", "shard_model_arguments", "cycle",
     "parse_overrides", "lr_at", "train_loop", "WeightAverage", "resolve_device", "to_device", "make_loader", "scene_pool_and_seeds", "trained_decode_steps",
-    "slim_checkpoint",
+    "slim_checkpoint", "model_from_run_or_saved",
 ]
 
 
@@ -223,22 +223,11 @@ def save_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.O
     _atomic_write(state_json, lambda p: p.write_text(json.dumps(payload, indent=2, sort_keys=True)))
 
 
-def _base_digest(tensors: dict[str, torch.Tensor]) -> str:
-    """SHA-256 over names, dtypes, shapes and bytes of ``tensors`` (sorted by name)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    for key in sorted(tensors):
-        t = tensors[key].detach().cpu().contiguous()
-        h.update(f"{key}|{t.dtype}|{tuple(t.shape)}|".encode())
-        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-    return h.hexdigest()
-
-
 def _on_base(base: dict[str, Any], tensors: dict[str, torch.Tensor], expected: dict[str, torch.Tensor],
              directory: Path) -> dict[str, torch.Tensor]:
     """A slim checkpoint's ``tensors`` completed from its base model: every tensor of ``expected`` (the module's
     state) that the checkpoint lacks comes from the base, whose taken tensors must hash to ``base["sha256"]``."""
+    from ..identity import weights_sha256
     from ..weights_io import from_pretrained
 
     try:
@@ -246,7 +235,7 @@ def _on_base(base: dict[str, Any], tensors: dict[str, torch.Tensor], expected: d
     except ModelError as exc:
         raise ModelError(f"{directory}: its base model {base.get('model')!r} cannot be loaded: {exc}") from None
     taken = {k: source[k].to(v.dtype) for k, v in expected.items() if k not in tensors and k in source}
-    if set(taken) | set(tensors) != set(expected) or _base_digest(taken) != base.get("sha256"):
+    if set(taken) | set(tensors) != set(expected) or weights_sha256(taken) != base.get("sha256"):
         raise ModelError(f"{directory}: a slim checkpoint on {base.get('model')!r}, but that model's weights are "
                          "not the ones the run started from (install or point \"base\" at that model)")
     return {**taken, **tensors}
@@ -258,6 +247,7 @@ def slim_checkpoint(run: Path, base: str, out: Path) -> tuple[int, int]:
     ``summary.json``. Returns (tensors kept, tensors taken from the base)."""
     import shutil
 
+    from ..identity import weights_sha256
     from ..weights_io import from_pretrained
 
     src = Path(run) / "checkpoint"
@@ -270,7 +260,7 @@ def slim_checkpoint(run: Path, base: str, out: Path) -> tuple[int, int]:
     dest = Path(out) / "checkpoint"
     dest.mkdir(parents=True, exist_ok=True)
     save_file(kept, str(dest / "model.safetensors"))
-    state["base"] = {"model": str(base), "sha256": _base_digest(taken)}
+    state["base"] = {"model": str(base), "sha256": weights_sha256(taken)}
     (dest / "state.json").write_text(json.dumps(state, indent=2, sort_keys=True))
     for name in ("log.jsonl", "summary.json"):
         if (Path(run) / name).is_file():
@@ -304,6 +294,16 @@ def model_from_run(run: Path) -> tuple[Any, dict[str, Any]]:
     assert state is not None  # state.json was read above
     model.decode_steps = trained_decode_steps(state.get("args", {}))
     return model.eval(), state
+
+
+def model_from_run_or_saved(name_or_path: str | Path) -> Any:
+    """A training run's latest checkpoint (a directory holding ``checkpoint/state.json``, :func:`model_from_run`)
+    or else a saved model (shipped id or model directory, ``from_pretrained``)."""
+    if (Path(name_or_path) / "checkpoint" / "state.json").is_file():
+        return model_from_run(Path(name_or_path))[0]
+    from ..weights_io import from_pretrained
+
+    return from_pretrained(name_or_path)
 
 
 def load_checkpoint(directory: Path, module: nn.Module, optimizer: torch.optim.Optimizer | None,

@@ -40,7 +40,7 @@ from ..configs import ModelConfig, get_config
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
-                     model_from_run, resolve_device, scene_pool_and_seeds, seed_everything, setup_distributed, to_device,
+                     model_from_run_or_saved, resolve_device, scene_pool_and_seeds, seed_everything, setup_distributed, to_device,
                      train_loop, trained_decode_steps)
 from .data import PairBatch, PairDataset, ViewsBatchSampler, collate_pairs, precompute_latents, prefill_scenes
 
@@ -206,11 +206,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
     copied, the others keep their fresh initialisation and are listed on stdout; a static token set grown
     by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`), and
     ``frame_copies`` switched on starts from the saved cell and splat maps (:func:`frame_copy_maps`)."""
-    run = Path(name_or_path)
-    if (run / "checkpoint" / "state.json").is_file():  # a training run's latest checkpoint (e.g. under checkpoints/)
-        source = model_from_run(run)[0]
-    else:
-        source = from_pretrained(name_or_path)
+    source = model_from_run_or_saved(name_or_path)  # a run's latest checkpoint (e.g. under checkpoints/) or a model
     if source.config == cfg:
         model = source
     elif not partial:
