@@ -246,7 +246,7 @@ def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = Fal
     """Refuse (ModelMismatchError) a tokenizer other than the one the prior (a Co4DGen or an OnnxPrior, with its
     ``tokenizer_fingerprint``) was trained on. ``networks``: the tokenizer's
     :func:`~.identity.network_digests`; a tokenizer whose networks are exactly the recorded one's (an entropy
-    model added, :func:`~.identity.same_networks`) makes the same tokens and is accepted.
+    model added, :func:`same_networks`) makes the same tokens and is accepted.
 
     With ``force`` only the token shapes must agree.
     """
