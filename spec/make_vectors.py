@@ -43,7 +43,7 @@ from vt4dcodec.format.header import compress_header, decompress_header  # noqa: 
 from vt4dcodec.format.layout import (COMPRESSION_ZSTD_CAMERAS, FLAG_CAMERA_DICTIONARY,  # noqa: E402
                                      FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
-                                     FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS,
+                                     FLAG_HEADER_DICTIONARY_2, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS,
                                      FLAG_RANS_LANES, PREAMBLE_SIZE,
                                      crc32, entry_size, parse_preamble, parse_table)
 from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode, rans_encode_ctx  # noqa: E402
@@ -81,7 +81,7 @@ def dumps_1_6(*args: Any, **kw: Any) -> bytes:
     keep their bytes."""
     _cc.fixed_exponents = _fixed_exponents_1_6
     try:
-        return dumps(*args, header_dictionary=1, **kw)
+        return dumps(*args, header_dictionary=1, joint_cameras=False, **kw)
     finally:
         _cc.fixed_exponents = _fixed_exponents
 
@@ -451,6 +451,11 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
         "learned_rans_two_cameras": (
             dumps_1_6(two, quality=2, tables=tables),
             "1.6 with an extra camera (V = 2): the origins row of two cameras, every static token MEAN"),
+        "learned_rans_joint_cameras": (
+            joint_cameras_vector(tables),
+            "1.6 with required flag bit 9: the turning camera of learned_rans_moving_camera with two extra cameras in "
+            "the joint XCAM layout (I.5.5), one shifted (its first intrinsics record predicted from the camera "
+            "before) and one shifted with fx = fy = 120, every section raw"),
         "learned_rans_header_dictionary_2": (
             dictionary_2_vector(tables),
             "1.6 with required flag bit 7: the compact header compressed with header dictionary 2 (I.3.2); the "
@@ -465,10 +470,23 @@ def camera_dictionary_vector(tables: EntropyTables) -> bytes:
     scene = learned_scene(quality=1)
     scene.cameras = gliding(8)
     scene.extra_cameras = tuple(shifted(gliding(8), dx) for dx in (0.5, -0.75))
-    data = dumps(scene, tables=tables, header_dictionary=1)
+    data = dumps(scene, tables=tables, header_dictionary=1, joint_cameras=False)
     header, sections = split(data)
     assert [s[2] for s in sections] == [2, 2, 0, 0], "CAMS and XCAM with the camera dictionary, tokens raw"
     assert parse_preamble(data).required_flags & FLAG_CAMERA_DICTIONARY
+    return data
+
+
+def joint_cameras_vector(tables: EntropyTables) -> bytes:
+    """The turning camera of learned_rans_moving_camera with two shifted copies (the second with fx = fy = 120) as
+    extra cameras, their XCAM in the joint layout (FORMAT.md I.5.5), every section raw."""
+    scene = learned_scene(quality=1)
+    scene.cameras = gliding(8)
+    scene.extra_cameras = (shifted(gliding(8), 0.5), shifted(gliding(8), -0.75, fx=120.0))
+    data = dumps(scene, tables=tables, compression_level=None, header_dictionary=1, joint_cameras=True)
+    assert parse_preamble(data).required_flags & FLAG_JOINT_CAMERAS
+    xcam = bytes(open_scene(data).raw_section("XCAM"))
+    assert xcam[0] == 2 and (8 * len(xcam) - 8) % 8 == 0
     return data
 
 
@@ -479,6 +497,18 @@ def dictionary_2_vector(tables: EntropyTables) -> bytes:
     data = dumps(gliding_scene, tables=tables, compression_level=None, header_dictionary=2)
     assert parse_preamble(data).required_flags & FLAG_HEADER_DICTIONARY_2
     return data
+
+
+def joint_body_bits(data: bytes) -> int:
+    """How many bits the joint XCAM body of ``data`` holds (FORMAT.md I.5.5), by the library's reader."""
+    from vt4dcodec.format import joint_cameras
+
+    header = open_scene(data)
+    cams = header.cameras
+    xcam = bytes(header.raw_section("XCAM"))
+    reader = joint_cameras._Reader(xcam[1:])
+    joint_cameras._read_body(reader, xcam[0], cams.num_frames, cams.width, cams.height)
+    return reader.pos
 
 
 def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
@@ -592,6 +622,56 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         "MalformedHeaderError", "required flag bit 6 (fixed-point cameras) without bit 2 (compact container)")
     REPAIRED["fixed_cameras_flag_without_compact_container"] = dumps_1_2(learned_scene(quality=2), tables=tables,
                                                                          compression_level=None)
+    # joint extra cameras (required flag bit 9, I.5.5)
+    joint = joint_cameras_vector(tables)
+    j_pre = parse_preamble(joint)
+    j_header, j_sections = split(joint)
+    xcam = bytes(find(j_sections, "XCAM")[3])
+    body_bits = joint_body_bits(joint)
+    assert 8 * (len(xcam) - 1) - body_bits >= 1, "the vector's body leaves padding bits to damage"
+
+    def with_xcam(name: str, payload: bytes, error: str, why: str) -> None:
+        bad = [list(x) for x in j_sections]
+        find(bad, "XCAM")[3:5] = [payload, len(payload)]
+        out[f"joint_cameras_{name}"] = (rebuild_1_3(j_header, bad, minor=6, required_flags=j_pre.required_flags),
+                                        error, why)
+        REPAIRED[f"joint_cameras_{name}"] = joint
+
+    def bits_of(payload: bytes) -> str:
+        return "".join(f"{b:08b}" for b in payload[1:])
+
+    def from_bits(count: int, bits: str) -> bytes:
+        bits += "0" * (-len(bits) % 8)
+        return bytes([count]) + bytes(int(bits[i:i + 8], 2) for i in range(0, len(bits), 8))
+
+    body = bits_of(xcam)
+    with_xcam("count_0", bytes([0]) + xcam[1:], "MalformedSectionError", "N = 0")
+    with_xcam("count_64", bytes([64]) + xcam[1:], "LimitExceededError", "N = 64, above 63")
+    with_xcam("truncated", xcam[:-1], "MalformedSectionError", "the body lost its last byte: it ends inside a value")
+    with_xcam("trailing_byte", xcam + b"\x00", "MalformedSectionError", "a zero byte after the body's last byte")
+    padded = body[:body_bits] + "1" + body[body_bits + 1:]
+    with_xcam("padding_bit_set", from_bits(2, padded), "MalformedSectionError",
+              "the first padding bit after the body is 1")
+    at = 90 + 4  # after the 18 orders and camera 0's 4 layout bits: e_K, u(6)
+    with_xcam("exponent_53", from_bits(2, body[:at] + "110101" + body[at + 6:]), "MalformedSectionError",
+              "camera 0's e_K = 53, above 52")
+    head = body[:at + 18]  # camera 0's orders, layout bits and exponents, then its fx residual (group 0, order o[0])
+    with_xcam("prefix_59_zeros", from_bits(1, head + "0" * 59 + "1" + "0" * 59), "MalformedSectionError",
+              "camera 0's fx residual starts with 59 zero bits, above the 58 a valid record can need")
+    orders_zero = "0" * 90 + body[90:at + 18]  # every group order 0: fx is s(eg(0)) from the prediction 0
+    z = 2 * (2**53 + 1)
+    big = "0" * ((z + 1).bit_length() - 1) + format(z + 1, "b")
+    with_xcam("value_beyond_2_53", from_bits(1, orders_zero + big), "MalformedSectionError",
+              "camera 0's fx = 2^53 + 1, above 2^53")
+    out["joint_cameras_flag_clear"] = (
+        patch_preamble(joint, 16, "<Q", j_pre.required_flags & ~FLAG_JOINT_CAMERAS), "MalformedSectionError",
+        "a joint XCAM read as I.5.3: its N = 2 lengths do not add up to the rest of the payload")
+    REPAIRED["joint_cameras_flag_clear"] = joint
+    one = dumps(learned_scene(quality=2), tables=tables, compression_level=None, header_dictionary=1)
+    out["joint_cameras_flag_without_extra_cameras"] = (
+        patch_preamble(one, 16, "<Q", parse_preamble(one).required_flags | FLAG_JOINT_CAMERAS), "MalformedHeaderError",
+        "required flag bit 9 (joint extra cameras) in a file without bit 3 (no XCAM)")
+    REPAIRED["joint_cameras_flag_without_extra_cameras"] = one
     # header dictionary 2 (required flag bit 7, I.3.2)
     legacy = dumps_1_2(learned_scene(quality=2), tables=tables, compression_level=None)
     out["header_dictionary_2_without_compact_container"] = (

@@ -94,7 +94,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 512 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 1024 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
@@ -108,6 +108,8 @@ def read_scene(data: bytes) -> dict:
     assert not required & 128 or required & 4
     assert minor >= 6 or not required & 256  # I.4.2: the camera dictionary since 1.6, in compact containers
     assert not required & 256 or required & 4
+    assert minor >= 6 or not required & 512  # I.5.5: joint extra cameras since 1.6, beside bits 3 and 6
+    assert not required & 512 or (required & 72) == 72
     header_bytes = data[64:64 + header_length]
     assert zlib.crc32(header_bytes) == header_crc
     header = msgpack.unpackb(compact_header(header_bytes, bool(required & 128)) if compact else header_bytes,
@@ -251,6 +253,8 @@ def read_extra_cameras(scene: dict) -> list[dict]:
     raw = scene["sections"].get("XCAM")
     if raw is None:
         return []
+    if scene["required"] & 512:  # I.5.5: the joint layout, decoded to I.5.4 records
+        return [read_cameras(scene, record, extra=True) for record in joint_records(scene, raw)]
     count = raw[0]
     assert 1 <= count <= 63 and len(raw) >= 1 + 4 * count
     lengths = struct.unpack_from(f"<{count}I", raw, 1)
@@ -260,6 +264,88 @@ def read_extra_cameras(scene: dict) -> list[dict]:
         out.append(read_cameras(scene, raw[pos:pos + length], extra=True))
         pos += length
     return out
+
+
+def joint_records(scene: dict, raw: bytes) -> list[bytes]:
+    """FORMAT.md I.5.5: u8 N, then a bit string (most significant bit first) of 18 u(5) group orders and per
+    camera 4 layout bits, 3 exponents and the Exp-Golomb residuals of its integers; returns each camera's I.5.4
+    record (P = 0, F, exponents, zigzag LEB128 residuals of the I.5.4 prediction)."""
+    cams = scene["header"]["cameras"]
+    t, width, height = cams["num_frames"], cams["width"], cams["height"]
+    count = raw[0]
+    assert 1 <= count <= 63
+    bits = "".join(f"{b:08b}" for b in raw[1:])
+    pos = 0
+
+    def u(n: int) -> int:
+        nonlocal pos
+        assert pos + n <= len(bits)
+        value = int(bits[pos:pos + n], 2) if n else 0
+        pos += n
+        return value
+
+    def eg(k: int) -> int:
+        z0 = 0
+        while u(1) == 0:
+            z0 += 1
+            assert z0 <= 58
+        q = 2 ** z0 + u(z0) - 1
+        return q * 2 ** k + u(k)
+
+    def s(z: int) -> int:
+        return z // 2 if z % 2 == 0 else -(z + 1) // 2
+
+    def zigzag_leb128(d: int) -> bytes:
+        z, out = (2 * d if d >= 0 else -2 * d - 1), b""
+        while z >= 128:
+            out, z = out + bytes([z % 128 + 128]), z // 128
+        return out + bytes([z])
+
+    def temporal(k: list[list[int]], r: int, j: int, cubic: bool) -> int:  # I.5.4: 0, k[r-1], linear or cubic
+        weights = ([], [1], [2, -1], [3, -3, 1] if cubic else [2, -1])[min(r, 3)]
+        return sum(w * k[r - 1 - i][j] for i, w in enumerate(weights))
+
+    orders = [u(5) for _ in range(18)]
+    records: list[bytes] = []
+    before_exps: list[int] | None = None
+    before_k0: list[int] | None = None
+    for c in range(count):
+        b0, b1, b3, b4 = u(1), u(1), u(1), u(1)
+        flags = b0 + 2 * b1 + 4 + 8 * b3 + 16 * b4
+        exps = [u(6) for _ in range(3)] if c == 0 else [e + s(eg(0)) for e in before_exps]
+        assert all(0 <= e <= 52 for e in exps)
+        blocks = []
+        for block, n, m in (("K", 1 if b0 else t, 5), ("P", 1 if b1 else t, 7)):
+            k: list[list[int]] = []
+            for r in range(n):
+                row: list[int] = []
+                for j in range(m):
+                    if block == "K":
+                        g = 0 if r == 0 else 1
+                    else:
+                        g = 2 + 4 * min(r, 3) + (0 if j < 4 else j - 3)
+                    if block == "K" and r == 0:
+                        if c > 0 and before_exps[0] == exps[0]:
+                            fx_, s_, cx_, fy_, cy_ = before_k0
+                            p = [fx_, s_, cx_, None, cy_][j] if j != 3 else row[0] + fy_ - fx_
+                        else:
+                            p = [0, 0, (width - 1) * 2 ** exps[0] // 2, None, (height - 1) * 2 ** exps[0] // 2][j] \
+                                if j != 3 else row[0]
+                    else:
+                        p = temporal(k + [row], r, j, bool(b4))
+                    row.append(p + s(eg(orders[g])))
+                    assert abs(row[-1]) <= 2 ** 53
+                k.append(row)
+            blocks.append(k)
+        before_exps, before_k0 = exps, blocks[0][0]
+        body = b""
+        for k in blocks:
+            for r, row in enumerate(k):
+                for j, v in enumerate(row):
+                    body += zigzag_leb128(v - temporal(k, r, j, bool(b4)))
+        records.append(bytes([0, flags, *exps]) + body)
+    assert len(bits) - pos < 8 and not any(int(b) for b in bits[pos:])  # zero bits to the end of the last byte
+    return records
 
 
 def quaternion_pose(p: list[float]) -> list[float]:
@@ -1271,3 +1357,35 @@ def test_format_md_alone_reads_what_the_archive_writer_makes(tmp_path_factory, v
     data = path.read_bytes()
     assert struct.unpack_from("<HH", data, 8) == version
     assert read_archive(data) == (generation, want)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 10), st.integers(0, 2**32 - 1), st.integers(1, 5), st.booleans(),
+       st.sampled_from([(40.0, 32), (60.0, 64), (900.0, 640)]))
+def test_format_md_alone_reads_joint_extra_cameras(frames, seed, extras, same_lens, camera):
+    """I.5.5 as the library writes it when asked (``joint_cameras=True``): the spec-only reader decodes the joint
+    XCAM to its I.5.4 records and gets the library's trajectories bit for bit -- cameras of one lens (the first
+    intrinsics record predicted from the camera before) and of different focal lengths and image-centre
+    principal points (predicted from the image), moving and static."""
+    from format_strategies import load_vector_tool
+    from vt4dcodec.format import dumps, loads
+
+    mv = load_vector_tool()
+    rng = np.random.default_rng(seed)
+    f, size = camera
+    scene = mv.learned_scene(quality=2)
+    scene.cameras = _smooth_camera(rng, frames, f, size)
+    others = []
+    for i in range(extras):
+        cam = _smooth_camera(rng, frames, f if same_lens else f * rng.uniform(0.4, 2.5), size)
+        if i % 2:  # a static camera: one pose record
+            cam = type(cam)(K=cam.K, w2c=np.repeat(cam.w2c[:1], frames, axis=0), width=size, height=size)
+        others.append(cam)
+    scene.extra_cameras = tuple(others)
+    tables = mv.learned_tables()
+    data = dumps(scene, tables=tables, joint_cameras=True)
+    mine, ours = read_scene(data), loads(data, tables=tables)
+    assert mine["required"] & 512  # every record is fixed point, so the joint layout is used
+    for got, want in zip(read_extra_cameras(mine), ours.extra_cameras):
+        assert np.array_equal(np.array(got["K"]), want.K) and np.array_equal(np.array(got["w2c"]), want.w2c)
+    assert dumps(ours, tables=tables, joint_cameras=True) == data  # loading and saving gives the same bytes

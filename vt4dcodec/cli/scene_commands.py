@@ -121,7 +121,8 @@ def run_info(args: argparse.Namespace) -> int:
     summary = scene.summary()
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
                 "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
-                "camera_encoding": scene.camera_encoding(), "extra_cameras": scene.num_extra_cameras}
+                "camera_encoding": scene.camera_encoding(), "extra_cameras": scene.num_extra_cameras,
+                "joint_extra_cameras": scene.joint_cameras}
     # bits per pixel of what the file stores: every byte over the encoded cameras' pixels (all frames)
     pixels = (1 + summary["extra_cameras"]) * summary["frames"] * summary["width"] * summary["height"]
     summary["bits_per_pixel"] = round(8 * summary["bytes"] / pixels, 5)
@@ -142,7 +143,7 @@ def run_info(args: argparse.Namespace) -> int:
         f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "
         f"{summary['camera_encoding']}"
         + (f", {summary['extra_cameras']} extra encoded camera{'s' if summary['extra_cameras'] > 1 else ''}"
-           if summary["extra_cameras"] else ""),
+           + (" (joint layout)" if summary["joint_extra_cameras"] else "") if summary["extra_cameras"] else ""),
         f"model           {fp['model_id']} {fp['model_version']} ({fp['token_dtype']})",
         f"  config sha256 {fp['config_sha256']}",
         f"  weights sha256 {fp['weights_sha256']}",

@@ -299,14 +299,15 @@ def _fixed_block(k: list[list[int]], cubic: bool = False) -> bytes:
                     for r, row in enumerate(k) for j, v in enumerate(row))
 
 
-def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int],
-                      cubic: bool = False) -> tuple[np.ndarray, int]:
-    """Inverse of :func:`_fixed_block` and the scaling k * 2^-e; MalformedSectionError for a varint that runs
-    past the payload, is longer than 10 bytes or ends in a zero group, or a value beyond 2^53."""
+def _read_fixed_ints(raw: bytes, pos: int, records: int, values: int,
+                     cubic: bool = False) -> tuple[list[list[int]], int]:
+    """Inverse of :func:`_fixed_block`: the integers of ``records`` records of ``values`` values from ``pos``,
+    and the position after them; MalformedSectionError for a varint that runs past the payload, is longer than
+    10 bytes or ends in a zero group, or a value beyond 2^53."""
     k: list[list[int]] = []
     for r in range(records):
         row: list[int] = []
-        for j in range(len(exponents)):
+        for j in range(values):
             value = shift = 0
             while True:
                 if pos >= len(raw):
@@ -325,6 +326,13 @@ def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int],
             if abs(row[-1]) > 1 << 53:
                 raise MalformedSectionError("compact cameras: a fixed-point value exceeds 2^53")
         k.append(row)
+    return k, pos
+
+
+def _read_fixed_block(raw: bytes, pos: int, records: int, exponents: list[int],
+                      cubic: bool = False) -> tuple[np.ndarray, int]:
+    """:func:`_read_fixed_ints` and the scaling k * 2^-e of each value by the exponent of its column."""
+    k, pos = _read_fixed_ints(raw, pos, records, len(exponents), cubic)
     values = np.array([[v * 2.0 ** -e for v, e in zip(row, exponents)] for row in k], dtype=np.float64)
     return values.reshape(records, len(exponents)), pos
 

@@ -25,12 +25,13 @@ from ..cameras import Trajectory
 from ..errors import FormatError, LimitExceededError, MalformedSectionError
 from .compact_cameras import pack_compact_cameras, unpack_compact_cameras
 from .header import CameraLayout
+from .joint_cameras import pack_joint_cameras, unpack_joint_cameras
 from .layout import BytesLike
 from .limits import MAX_EXTRA_CAMERAS
 from .sections import SECTION_EXTRA_CAMERAS, pack_cameras, unpack_cameras
 
 __all__ = ["SECTION_EXTRA_CAMERAS", "pack_extra_cameras", "unpack_extra_cameras", "extra_camera_records",
-           "extra_cameras_max_raw_length"]
+           "extra_cameras_max_raw_length", "joint_extra_cameras", "extra_camera_count"]
 
 
 def extra_cameras_max_raw_length(num_frames: int) -> int:
@@ -54,6 +55,25 @@ def pack_extra_cameras(extras: Sequence[Trajectory], mode: str = "compact", *, q
         records.append(pack_cameras(bare)[1] if mode == "legacy" else
                        pack_compact_cameras(bare, mode, quaternions=quaternions, fixed=fixed))
     return bytes([len(records)]) + struct.pack(f"<{len(records)}I", *map(len, records)) + b"".join(records)
+
+
+def joint_extra_cameras(payload: bytes, num_frames: int, width: int, height: int) -> bytes | None:
+    """The joint layout (I.5.5, required flag bit 9) of an I.5.3 ``XCAM`` payload whose records are all fixed
+    point, or None when one is not."""
+    records = [bytes(payload[offset:offset + length]) for offset, length in extra_camera_records(payload)]
+    return pack_joint_cameras(records, num_frames, width, height)
+
+
+def extra_camera_count(raw: BytesLike, *, joint: bool = False) -> int:
+    """How many trajectories an ``XCAM`` payload holds: its count after checking the length table (I.5.3), or
+    with ``joint`` (required flag bit 9) the count byte of the I.5.5 layout; nothing is decoded."""
+    if not joint:
+        return len(extra_camera_records(raw))
+    if len(raw) < 1 or raw[0] == 0:
+        raise MalformedSectionError("joint extra cameras: the section holds 0 trajectories or is empty")
+    if raw[0] > MAX_EXTRA_CAMERAS:
+        raise LimitExceededError(f"extra cameras section holds {raw[0]} trajectories; the limit is {MAX_EXTRA_CAMERAS}")
+    return int(raw[0])
 
 
 def extra_camera_records(raw: BytesLike) -> list[tuple[int, int]]:
@@ -96,11 +116,19 @@ def _decode_record(record: BytesLike, index: int, layout: CameraLayout, timestam
 
 def unpack_extra_cameras(raw: BytesLike, layout: CameraLayout, timestamps: np.ndarray | None, *,
                          compact_cameras: bool, quaternions: bool = False, fixed: bool = False,
-                         index: int | None = None) -> tuple[Trajectory, ...]:
+                         joint: bool = False, index: int | None = None) -> tuple[Trajectory, ...]:
     """Decode an ``XCAM`` payload: every trajectory, or with ``index`` that one alone (after checking the
     count and length table).  ``compact_cameras``: required flag bit 1 (records are I.5.1 payloads);
     ``quaternions``: a compact container (layout flag bit 2 allowed); ``timestamps``: ``CAMS``' own, which
-    every extra camera shares.  Any problem is a MalformedSectionError (LimitExceededError for N over 63)."""
+    every extra camera shares; ``joint``: required flag bit 9, the I.5.5 layout (decoded whole, then the
+    records it gives are read as I.5.4 records).  Any problem is a MalformedSectionError (LimitExceededError for
+    N over 63)."""
+    if joint:
+        coded = unpack_joint_cameras(bytes(raw), layout.num_frames, layout.width, layout.height)
+        if index is not None and not 0 <= index < len(coded):
+            raise FormatError(f"extra camera {index} does not exist: the file holds {len(coded)}")
+        return tuple(_decode_record(coded[i], i, layout, timestamps, compact_cameras=True, quaternions=True,
+                                    fixed=True) for i in (range(len(coded)) if index is None else [index]))
     records = extra_camera_records(raw)
     view = memoryview(raw)
     chosen = range(len(records)) if index is None else [index]

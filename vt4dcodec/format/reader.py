@@ -17,10 +17,10 @@ from .rans_tokens import decode_rans_codes, decode_rans_token_pair
 from .fingerprint import ModelFingerprint, Provenance
 from .header import HeaderInfo, parse_header
 from .compact_cameras import unpack_compact_cameras
-from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_records, extra_cameras_max_raw_length,
+from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_count, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (COMPRESSION_NAMES, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_CAMERA_DICTIONARY, FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     FLAG_CAMERA_DICTIONARY, FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -187,6 +187,9 @@ class SceneFile:
         if self.fixed_cameras and not (self.compact_container and self.compact_cameras):
             raise MalformedHeaderError("required flag bit 6 (fixed-point cameras) is set without bits 1 and 2 "
                                        "(compact cameras in a compact container), which it needs")
+        if self.joint_cameras and not (self.fixed_cameras and self.has_extra_cameras):
+            raise MalformedHeaderError("required flag bit 9 (joint extra cameras) is set without bits 3 and 6 "
+                                       "(extra cameras, fixed-point cameras), which it needs")
         learned = is_learned(self._info.encoding)
         if learned != bool(self.preamble.required_flags & FLAG_LEARNED_TOKENS):
             raise MalformedHeaderError(
@@ -328,6 +331,11 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_FIXED_CAMERAS)
 
     @property
+    def joint_cameras(self) -> bool:
+        """Whether ``XCAM`` codes its fixed-point records jointly (format 1.6, required flag bit 9, FORMAT.md I.5.5)."""
+        return bool(self.preamble.required_flags & FLAG_JOINT_CAMERAS)
+
+    @property
     def has_extra_cameras(self) -> bool:
         """Whether the file holds the extra cameras section (format 1.4, required flag bit 3)."""
         return bool(self.preamble.required_flags & FLAG_EXTRA_CAMERAS)
@@ -340,7 +348,7 @@ class SceneFile:
             return 0
         if self._extra_cameras is not None:
             return len(self._extra_cameras)
-        return len(extra_camera_records(self.raw_section(SECTION_EXTRA_CAMERAS)))
+        return extra_camera_count(self.raw_section(SECTION_EXTRA_CAMERAS), joint=self.joint_cameras)
 
     @property
     def token_bytes(self) -> int:
@@ -384,11 +392,12 @@ class SceneFile:
 
     def _unpack_extra_cameras(self, index: int | None) -> tuple[Trajectory, ...]:
         raw = self.raw_section(SECTION_EXTRA_CAMERAS)
-        extras = len(extra_camera_records(raw)) * DECODED_CAMERA_BYTES_PER_FRAME * self._info.cameras.num_frames
+        count = extra_camera_count(raw, joint=self.joint_cameras)
+        extras = count * DECODED_CAMERA_BYTES_PER_FRAME * self._info.cameras.num_frames
         check_decoded_budget(self._decoded_bytes + extras, self.max_decoded_bytes)
         return unpack_extra_cameras(raw, self._info.cameras, self.cameras.timestamps,
                                     compact_cameras=self.compact_cameras, quaternions=self.compact_container,
-                                    fixed=self.fixed_cameras, index=index)
+                                    fixed=self.fixed_cameras, joint=self.joint_cameras, index=index)
 
     def quantization(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """(scale, offset) float32 (d,) of the "static" or "dynamic" tokens (affine encodings only; for
