@@ -21,7 +21,8 @@ on held-out 10-camera rigs (``--first-seed``, default 3000; ``--captures``, defa
 record without timestamps in each form (float32 quaternions; fixed point with translations or camera centres,
 linear or cubic prediction), the largest reprojection change of each, and a rig file's ``CAMS`` + ``XCAM``
 stored bytes (camera 0 with its timestamps in ``CAMS``, the other nine in ``XCAM``, each zstd-compressed when
-that is smaller, as the writer stores them).  Results: bench/results/compact_cameras_fixed.json.
+that is smaller), and the ``XCAM`` of the writer's records in each layout: I.5.3 with zstd, with the camera
+dictionary (I.4.2) where shorter, and the joint layout (I.5.5).  Results: bench/results/compact_cameras_fixed.json.
 """
 
 from __future__ import annotations
@@ -172,6 +173,8 @@ def fixed_point_records(first_seed: int, captures: int) -> dict:
     from dataclasses import replace
 
     from vt4dcodec.format import compact_cameras as cc
+    from vt4dcodec.format.extra_cameras import joint_extra_cameras, pack_extra_cameras
+    from vt4dcodec.format.sections import compress_with_camera_dictionary
     from vt4dcodec.synth.generator import SynthConfig, scene_setup
 
     def first_16(traj):  # the fixed-point record of the first 1.6 writer: translations, linear prediction
@@ -196,6 +199,8 @@ def fixed_point_records(first_seed: int, captures: int) -> dict:
     record = {name: [] for name in forms}
     worst = {name: 0.0 for name in forms}
     stored = {name: {"CAMS": [], "XCAM": [], "CAMS+XCAM": []} for name in files}
+    xcam_layouts: dict[str, list[int]] = {"I.5.3, zstd": [], "I.5.3, zstd or the camera dictionary (I.4.2)": [],
+                                          "I.5.5 joint (raw)": []}
     flags: dict[str, int] = {}
     for seed in range(first_seed, first_seed + captures):
         rig = list(scene_setup(seed, split="test", config=SynthConfig(num_cameras=10)).cameras.values())
@@ -215,6 +220,14 @@ def fixed_point_records(first_seed: int, captures: int) -> dict:
             sizes = [len(compress_payload(raw, DEFAULT_COMPRESSION_LEVEL)[1]) for raw in (cams_form(rig[0]), xcam)]
             for part, n in zip(("CAMS", "XCAM", "CAMS+XCAM"), (*sizes, sum(sizes))):
                 stored[name][part].append(n)
+        xcam = pack_extra_cameras([replace(t, timestamps=None) for t in rig[1:]], quaternions=True, fixed=True)
+        zstd = len(compress_payload(xcam, DEFAULT_COMPRESSION_LEVEL)[1])
+        joint = joint_extra_cameras(xcam, rig[0].num_frames, rig[0].width, rig[0].height)
+        assert joint is not None
+        xcam_layouts["I.5.3, zstd"].append(zstd)
+        xcam_layouts["I.5.3, zstd or the camera dictionary (I.4.2)"].append(
+            min(zstd, len(compress_with_camera_dictionary(xcam))))
+        xcam_layouts["I.5.5 joint (raw)"].append(len(joint))
     mean = lambda v: round(float(np.mean(v)), 1)  # noqa: E731
     return {
         "records": len(record[next(iter(forms))]),
@@ -226,6 +239,7 @@ def fixed_point_records(first_seed: int, captures: int) -> dict:
         "writer_layout_flags": flags,
         "rig_file_cameras_stored_bytes": {name: {part: mean(v) for part, v in parts.items()}
                                           for name, parts in stored.items()},
+        "xcam_stored_bytes_by_layout": {name: mean(v) for name, v in xcam_layouts.items()},
     }
 
 
