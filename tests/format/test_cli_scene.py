@@ -109,3 +109,20 @@ def test_info_and_verify_of_a_learned_file_need_no_model(capsys):
     text = capsys.readouterr().out
     assert "at quality 1" in text and "bits per pixel" in text
     assert main(["verify", str(path)]) == 0
+
+
+def test_info_names_the_joint_extra_cameras_layout(capsys):
+    """Format 1.6, required flag bit 9: `vt4d info` says the extra cameras are in the joint layout (I.5.5) and
+    counts them from the section's count byte; `vt4d verify` decodes them."""
+    from format_strategies import REPO
+
+    vectors = REPO / "spec" / "vectors" / "valid"
+    for name, joint in (("learned_rans_joint_cameras", True), ("learned_rans_camera_dictionary", False)):
+        assert main(["info", "--json", str(vectors / f"{name}.vt4d")]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["joint_extra_cameras"] is joint and summary["extra_cameras"] == 2
+        assert main(["info", str(vectors / f"{name}.vt4d")]) == 0
+        cams = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("cameras"))
+        assert cams.endswith("2 extra encoded cameras (joint layout)" if joint else "2 extra encoded cameras")
+        assert main(["verify", str(vectors / f"{name}.vt4d")]) == 0
+        capsys.readouterr()
