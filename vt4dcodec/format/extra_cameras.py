@@ -25,7 +25,7 @@ from ..cameras import Trajectory
 from ..errors import FormatError, LimitExceededError, MalformedSectionError
 from .compact_cameras import pack_compact_cameras, unpack_compact_cameras
 from .header import CameraLayout
-from .joint_cameras import pack_joint_cameras, unpack_joint_cameras
+from .joint_cameras import joint_camera_count, pack_joint_cameras, unpack_joint_cameras
 from .layout import BytesLike
 from .limits import MAX_EXTRA_CAMERAS
 from .sections import SECTION_EXTRA_CAMERAS, pack_cameras, unpack_cameras
@@ -67,13 +67,7 @@ def joint_extra_cameras(payload: bytes, num_frames: int, width: int, height: int
 def extra_camera_count(raw: BytesLike, *, joint: bool = False) -> int:
     """How many trajectories an ``XCAM`` payload holds: its count after checking the length table (I.5.3), or
     with ``joint`` (required flag bit 9) the count byte of the I.5.5 layout; nothing is decoded."""
-    if not joint:
-        return len(extra_camera_records(raw))
-    if len(raw) < 1 or raw[0] == 0:
-        raise MalformedSectionError("joint extra cameras: the section holds 0 trajectories or is empty")
-    if raw[0] > MAX_EXTRA_CAMERAS:
-        raise LimitExceededError(f"extra cameras section holds {raw[0]} trajectories; the limit is {MAX_EXTRA_CAMERAS}")
-    return int(raw[0])
+    return joint_camera_count(bytes(raw[:1])) if joint else len(extra_camera_records(raw))
 
 
 def extra_camera_records(raw: BytesLike) -> list[tuple[int, int]]:

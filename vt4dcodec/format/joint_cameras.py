@@ -27,7 +27,7 @@ from .compact_cameras import (CENTRE_POSES, CONSTANT_INTRINSICS, CUBIC_PREDICTIO
                               _zigzag)
 from .limits import MAX_EXTRA_CAMERAS
 
-__all__ = ["GROUPS", "pack_joint_cameras", "unpack_joint_cameras"]
+__all__ = ["GROUPS", "pack_joint_cameras", "unpack_joint_cameras", "joint_camera_count"]
 
 GROUPS = 18          # intrinsics record 0, later intrinsics records, 4 pose positions x (quaternion, x, y, z)
 ORDER_BITS = 5       # each group's Exp-Golomb order, 0..31
@@ -69,7 +69,7 @@ class _Bits:
 
     def tobytes(self) -> bytes:
         padded = self.bits + [0] * (-len(self.bits) % 8)
-        return bytes(int("".join(map(str, padded[i:i + 8])), 2) for i in range(0, len(padded), 8))
+        return int("".join(map(str, padded)) or "0", 2).to_bytes(len(padded) // 8, "big")
 
 
 def exp_golomb_bits(z: int, k: int) -> int:
@@ -149,16 +149,18 @@ def pack_joint_cameras(records: Sequence[bytes], num_frames: int, width: int, he
             return None
         cameras.append(parsed)
     residuals = _residuals(cameras, width, height)
-    orders = []
-    for g in range(GROUPS):
-        zs = [z for values in residuals for group, z in values if group == g]
-        orders.append(min(range(1 << ORDER_BITS), key=lambda k: sum(exp_golomb_bits(z, k) for z in zs)) if zs else 0)
+    by_group: list[list[int]] = [[] for _ in range(GROUPS)]
+    for values in residuals:
+        for group, z in values:
+            by_group[group].append(z)
+    orders = [min(range(1 << ORDER_BITS), key=lambda k: sum(exp_golomb_bits(z, k) for z in zs)) if zs else 0
+              for zs in by_group]
     out = _Bits()
     for k in orders:
         out.put(k, ORDER_BITS)
     previous: tuple[int, int, int] | None = None
     for (flags, exps, _, _), values in zip(cameras, residuals):
-        for i, bit in enumerate(_LAYOUT_BITS):
+        for bit in _LAYOUT_BITS:
             out.put(1 if flags & bit else 0, 1)
         for i, e in enumerate(exps):
             if previous is None:
@@ -180,12 +182,12 @@ def _read_body(bits: _Reader, count: int, num_frames: int, width: int, height: i
     for _ in range(count):
         flags = QUATERNION_POSES | sum(bit for bit in _LAYOUT_BITS if bits.get(1))
         if previous is None:
-            exps = tuple(bits.get(EXPONENT_BITS) for _ in range(3))
+            e3 = (bits.get(EXPONENT_BITS), bits.get(EXPONENT_BITS), bits.get(EXPONENT_BITS))
         else:
-            exps = tuple(previous[i] + _unzigzag(bits.exp_golomb(0)) for i in range(3))
-        if not all(0 <= e <= MAX_EXPONENT for e in exps):
+            e3 = (previous[0] + _unzigzag(bits.exp_golomb(0)), previous[1] + _unzigzag(bits.exp_golomb(0)),
+                  previous[2] + _unzigzag(bits.exp_golomb(0)))
+        if not all(0 <= e <= MAX_EXPONENT for e in e3):
             raise MalformedSectionError(f"joint extra cameras: an exponent is outside 0..{MAX_EXPONENT}")
-        e3 = (exps[0], exps[1], exps[2])
         cubic = bool(flags & CUBIC_PREDICTION)
         blocks: list[list[list[int]]] = []
         for block, n, m in (("K", 1 if flags & CONSTANT_INTRINSICS else num_frames, 5),
@@ -206,19 +208,23 @@ def _read_body(bits: _Reader, count: int, num_frames: int, width: int, height: i
     return records
 
 
+def joint_camera_count(raw: bytes) -> int:
+    """The count byte N of an I.5.5 payload, checked: MalformedSectionError for an empty payload or N = 0,
+    LimitExceededError above 63."""
+    if not raw or raw[0] == 0:
+        raise MalformedSectionError("joint extra cameras: the section holds 0 trajectories or is empty")
+    if raw[0] > MAX_EXTRA_CAMERAS:
+        raise LimitExceededError(f"joint extra cameras: the section holds {raw[0]} trajectories; the limit is "
+                                 f"{MAX_EXTRA_CAMERAS}")
+    return int(raw[0])
+
+
 def unpack_joint_cameras(raw: bytes, num_frames: int, width: int, height: int) -> list[bytes]:
     """The I.5.4 records an I.5.5 payload codes (each then read as I.5.4 says); MalformedSectionError for a
     count of 0, a bit string that ends inside a value, an exponent above 52, a prefix of more than 58 zeros, a
     value beyond 2^53, non-zero padding or bytes after it (LimitExceededError for a count above 63)."""
     raw = bytes(raw)
-    if not raw:
-        raise MalformedSectionError("joint extra cameras: the section is 0 bytes; it needs its count byte")
-    count = raw[0]
-    if count == 0:
-        raise MalformedSectionError("joint extra cameras: the section holds 0 trajectories")
-    if count > MAX_EXTRA_CAMERAS:
-        raise LimitExceededError(f"joint extra cameras: the section holds {count} trajectories; the limit is "
-                                 f"{MAX_EXTRA_CAMERAS}")
+    count = joint_camera_count(raw)
     bits = _Reader(raw[1:])
     records = _read_body(bits, count, num_frames, width, height)
     padding = bits.end - bits.pos
