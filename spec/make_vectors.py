@@ -17,6 +17,7 @@ compares zstd-bearing vectors when the versions match (their decoded content is 
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import struct
@@ -32,7 +33,7 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 
 from vt4dcodec.cameras import Trajectory  # noqa: E402
-from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene, dumps, open_scene,  # noqa: E402
+from vt4dcodec.format import (EntropyTables, ModelFingerprint, Provenance, Scene, open_scene,  # noqa: E402
                               set_tables_resolver)
 from vt4dcodec.format import learned as _learned  # noqa: E402
 from vt4dcodec.format import compact_cameras as _cc  # noqa: E402
@@ -40,7 +41,7 @@ from vt4dcodec.format.compact_cameras import fixed_exponents as _fixed_exponents
 from vt4dcodec.format.compact_cameras import pack_compact_cameras  # noqa: E402
 from vt4dcodec.format.camera_dictionary import CAMERA_DICTIONARY  # noqa: E402
 from vt4dcodec.format.header import compress_header, decompress_header  # noqa: E402
-from vt4dcodec.format.layout import (COMPRESSION_ZSTD_CAMERAS, FLAG_CAMERA_DICTIONARY,  # noqa: E402
+from vt4dcodec.format.layout import (COMPRESSION_ZSTD_CAMERAS, FLAG_ADAPTIVE_TOKENS, FLAG_CAMERA_DICTIONARY,  # noqa: E402
                                      FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER,
                                      FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS,
                                      FLAG_HEADER_DICTIONARY_2, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS,
@@ -50,6 +51,11 @@ from vt4dcodec.format.rans import STATE_LOWER, pack_table, rans_encode, rans_enc
 from vt4dcodec.format.rans import parse_table as parse_rans_table  # noqa: E402
 from vt4dcodec.format.rans_tokens import decode_rans_codes, encode_rans_tokens  # noqa: E402
 from vt4dcodec.format.writer import build_container  # noqa: E402
+from vt4dcodec.format.writer import dumps as _dumps  # noqa: E402
+
+# every vector but learned_rans_adaptive is coded with the model's fixed rows (required flag bit 10 clear), the
+# bytes of the first 1.6 text: the writer's policy would use adaptive rows where they are shorter
+dumps = functools.partial(_dumps, adaptive_tokens=False)
 
 VECTORS = ROOT / "vectors"
 
@@ -451,6 +457,10 @@ def learned_valid_vectors() -> dict[str, tuple[bytes, str]]:
         "learned_rans_two_cameras": (
             dumps_1_6(two, quality=2, tables=tables),
             "1.6 with an extra camera (V = 2): the origins row of two cameras, every static token MEAN"),
+        "learned_rans_adaptive": (
+            adaptive_vector(tables),
+            "1.6 with required flag bit 10: the scene of learned_rans_one_camera with adaptive rows (I.6.2), every "
+            "section raw"),
         "learned_rans_joint_cameras": (
             joint_cameras_vector(tables),
             "1.6 with required flag bit 9: the turning camera of learned_rans_moving_camera with two extra cameras in "
@@ -474,6 +484,15 @@ def camera_dictionary_vector(tables: EntropyTables) -> bytes:
     header, sections = split(data)
     assert [s[2] for s in sections] == [2, 2, 0, 0], "CAMS and XCAM with the camera dictionary, tokens raw"
     assert parse_preamble(data).required_flags & FLAG_CAMERA_DICTIONARY
+    return data
+
+
+def adaptive_vector(tables: EntropyTables) -> bytes:
+    """learned_rans_one_camera's scene with adaptive rows (FORMAT.md I.6.2, required flag bit 10)."""
+    data = dumps_1_6(learned_scene(quality=1), tables=tables, compression_level=None, adaptive_tokens=True)
+    fixed = dumps_1_6(learned_scene(quality=1), tables=tables, compression_level=None)
+    assert parse_preamble(data).required_flags & FLAG_ADAPTIVE_TOKENS
+    assert open_scene(data).raw_section("ZSTA") != open_scene(fixed).raw_section("ZSTA"), "the rows must adapt"
     return data
 
 
@@ -672,6 +691,22 @@ def learned_invalid_vectors() -> dict[str, tuple[bytes, str, str]]:
         patch_preamble(one, 16, "<Q", parse_preamble(one).required_flags | FLAG_JOINT_CAMERAS), "MalformedHeaderError",
         "required flag bit 9 (joint extra cameras) in a file without bit 3 (no XCAM)")
     REPAIRED["joint_cameras_flag_without_extra_cameras"] = one
+    # adaptive rows (required flag bit 10, I.6.2)
+
+    def with_flags(name: str, good: bytes, flags: int, error: str, why: str, minor: int | None = None) -> None:
+        """``good`` with its required flags (and minor version) patched, the preamble checksum redone."""
+        out[name] = (patch_preamble(good if minor is None else patch_preamble(good, 12, "<H", minor), 16, "<Q", flags),
+                     error, why)
+        REPAIRED[name] = good
+
+    adaptive = adaptive_vector(tables)
+    with_flags("learned_rans_adaptive_flag_clear", adaptive, parse_preamble(adaptive).required_flags
+               & ~FLAG_ADAPTIVE_TOKENS, "TruncatedError", "a ZSTA stream coded with adaptive rows read with the "
+               "model's fixed rows (required flag bit 10 clear): it runs out of bytes after 5 of its 6 symbols")
+    int4 = dumps(scene(2, 1, 3), encoding="int4", compression_level=None)
+    with_flags("learned_rans_adaptive_without_learned", int4, parse_preamble(int4).required_flags
+               | FLAG_ADAPTIVE_TOKENS, "MalformedHeaderError", "required flag bit 10 (adaptive rows) in an int4 "
+               "file that says 1.6, without bit 5 (learned-rans tokens)", minor=6)
     # header dictionary 2 (required flag bit 7, I.3.2)
     legacy = dumps_1_2(learned_scene(quality=2), tables=tables, compression_level=None)
     out["header_dictionary_2_without_compact_container"] = (

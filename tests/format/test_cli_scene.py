@@ -126,3 +126,16 @@ def test_info_names_the_joint_extra_cameras_layout(capsys):
         assert cams.endswith("2 extra encoded cameras (joint layout)" if joint else "2 extra encoded cameras")
         assert main(["verify", str(vectors / f"{name}.vt4d")]) == 0
         capsys.readouterr()
+
+
+def test_info_names_adaptive_rows(capsys):
+    """Format 1.6, required flag bit 10: `vt4d info` says the token streams use adaptive rows (I.6.2)."""
+    from format_strategies import REPO
+
+    vectors = REPO / "spec" / "vectors" / "valid"
+    for name, adaptive in (("learned_rans_adaptive", True), ("learned_rans_one_camera", False)):
+        assert main(["info", "--json", str(vectors / f"{name}.vt4d")]) == 0
+        assert json.loads(capsys.readouterr().out)["adaptive_rows"] is adaptive
+        assert main(["info", str(vectors / f"{name}.vt4d")]) == 0
+        tokens = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("tokens"))
+        assert tokens.endswith("at quality 1 (adaptive rows)" if adaptive else "at quality 1")

@@ -94,7 +94,7 @@ def read_scene(data: bytes) -> dict:
     major, minor = struct.unpack_from("<HH", data, 10)
     required, optional, file_length, header_length, header_crc, count, table_crc, _, pre_crc = struct.unpack_from(
         "<QQQIIIIII", data, 16)
-    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 1024 and file_length == len(data)
+    assert zlib.crc32(data[:60]) == pre_crc and major == 1 and 0 <= required < 2048 and file_length == len(data)
     compact = bool(required & 4)  # I.3.1, I.4.1: the compact container of 1.3
     assert minor >= 3 or not compact
     assert minor >= 4 or not required & 8  # I.5.3: extra cameras since 1.4
@@ -108,6 +108,8 @@ def read_scene(data: bytes) -> dict:
     assert not required & 128 or required & 4
     assert minor >= 6 or not required & 256  # I.4.2: the camera dictionary since 1.6, in compact containers
     assert not required & 256 or required & 4
+    assert minor >= 6 or not required & 1024  # I.6.2: adaptive rows since 1.6, only beside bit 5
+    assert not required & 1024 or required & 32
     assert minor >= 6 or not required & 512  # I.5.5: joint extra cameras since 1.6, beside bits 3 and 6
     assert not required & 512 or (required & 72) == 72
     header_bytes = data[64:64 + header_length]
@@ -413,10 +415,12 @@ def rans_codes(raw: bytes, bits: int, rows: int, cols: int, lanes: bool = False)
     return codes, [scale[c // width] for c in range(cols)], [offset[c // width] for c in range(cols)]
 
 
-def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, views: int) -> list[float]:
+def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, views: int,
+                   adaptive: bool = False) -> list[float]:
     """FORMAT.md I.6.2: u8 level, u8 V, one rANS chain whose symbol k = i d + c uses the frequency row of its
     class (MEAN / CHANGE by the origin of static token i for V cameras, DYNAMIC) and channel; codes from the
-    half-ranges the rows' symbol counts give; value f32(q * step)."""
+    half-ranges the rows' symbol counts give; value f32(q * step). With ``adaptive`` (required flag bit 10) each
+    row keeps a[0..n] and k, starting at 4 F(i) and 0, and moves towards each symbol it codes."""
     M, L = 1 << 14, 1 << 23
     assert len(raw) >= 6
     level, V = raw[0], raw[1]
@@ -434,6 +438,7 @@ def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, vie
     x, pos, codes = struct.unpack_from("<I", raw, 2)[0], 6, []
     assert x >= L
     previous = None  # the previous MEAN token (C = 5 or 11: context-coded MEAN tokens)
+    state: dict[tuple[int, int], tuple[list[int], list[int]]] = {}  # adaptive rows: (class, channel) -> a, [k]
 
     def sign(v: int) -> int:
         return (v > 0) - (v < 0)
@@ -449,10 +454,21 @@ def learned_values(raw: bytes, tables: dict, tok: str, rows: int, cols: int, vie
         if static and c == cols - 1 and origin[i] == i:
             previous = i
         f = freqs[cls][c]
-        cum = [sum(f[:s]) for s in range(len(f))]
         slot = x % M
-        s = max(t for t in range(len(f)) if cum[t] <= slot)
-        x = f[s] * (x // M) + slot - cum[s]
+        if adaptive:
+            n = len(f)
+            a, seen = state.setdefault((cls, c), ([4 * sum(f[:j]) for j in range(n + 1)], [0]))
+            start = [a[j] * (M - n) // 2**16 + j for j in range(n + 1)]
+            s = max(t for t in range(n) if start[t] <= slot)
+            x = (start[s + 1] - start[s]) * (x // M) + slot - start[s]
+            D = n + seen[0] + 3
+            seen[0] += 1
+            for j in range(1, n):
+                a[j] = a[j] - a[j] // D if j <= s else a[j] + (2**16 - a[j]) // D
+        else:
+            cum = [sum(f[:s]) for s in range(len(f))]
+            s = max(t for t in range(len(f)) if cum[t] <= slot)
+            x = f[s] * (x // M) + slot - cum[s]
         while x < L:
             x, pos = x * 256 + raw[pos], pos + 1
         Q = half[0 if static else 1][c]
@@ -476,7 +492,7 @@ def decode_tokens(scene: dict, tok: str, quant: str, shape: list[int]) -> list[l
         tables = [t for t in TEST_TABLES if t["fingerprint"] == scene["header"]["fingerprint"]]
         assert len(tables) == 1
         views = 1 + (struct.unpack_from("<B", scene["sections"]["XCAM"], 0)[0] if "XCAM" in scene["sections"] else 0)
-        values = learned_values(raw, tables[0], tok, rows, cols, views)
+        values = learned_values(raw, tables[0], tok, rows, cols, views, bool(scene["required"] & 1024))
     elif enc == "float32":
         values = list(struct.unpack(f"<{n}f", raw))
     elif enc == "float16":
@@ -1234,9 +1250,10 @@ def test_format_md_alone_reads_what_the_writer_makes_in_learned_rans(quality, se
     _spec_reads_the_writers_tokens(mv, mv.learned_scene(quality=quality), mv.learned_tables(), seed, two_cameras)
 
 
-def _spec_reads_the_writers_tokens(mv, scene, tables, seed: int, two_cameras: bool) -> None:
-    """Random tokens (beyond +-1: clipped to +-Q) in ``scene``, one or two cameras, written with ``tables``: the
-    spec-only decoder gives the library's own values."""
+def _spec_reads_the_writers_tokens(mv, scene, tables, seed: int, two_cameras: bool,
+                                   adaptive: bool | None = None) -> None:
+    """Random tokens (beyond +-1: clipped to +-Q) in ``scene``, one or two cameras, written with ``tables`` (and
+    ``adaptive_tokens=adaptive``): the spec-only decoder gives the library's own values."""
     from vt4dcodec.format import dumps, loads
 
     rng = np.random.default_rng(seed)
@@ -1244,9 +1261,10 @@ def _spec_reads_the_writers_tokens(mv, scene, tables, seed: int, two_cameras: bo
     scene.dynamic_tokens = rng.uniform(-1, 1, scene.dynamic_tokens.shape).astype(np.float32)
     if two_cameras:
         scene.extra_cameras = (mv.shifted(mv.cameras(2), 0.5),)
-    data = dumps(scene, tables=tables)
+    data = dumps(scene, tables=tables, adaptive_tokens=adaptive)
     mine = read_scene(data)
     ours = loads(data, tables=tables)
+    assert adaptive is None or bool(mine["required"] & 1024) == adaptive
     for tok, shape_key, want in (("ZSTA", "static", ours.static_tokens), ("ZDYN", "dynamic", ours.dynamic_tokens)):
         assert decode_tokens(mine, tok, tok, mine["header"][f"{shape_key}_shape"]) == want.tolist()
 
@@ -1272,6 +1290,20 @@ def test_format_md_alone_reads_context_coded_mean_tokens(seed, two_cameras):
 
     mv = load_vector_tool()
     _spec_reads_the_writers_tokens(mv, mv.context_scene(quality=1), mv.context_tables(), seed, two_cameras)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.sampled_from(["plain", "context", "partner"]))
+def test_format_md_alone_reads_adaptive_rows(seed, two_cameras, kind):
+    """Adaptive rows (I.6.2, required flag bit 10) with tables of 3, 5 and 11 classes, as the library writes
+    them: the spec-only decoder, which follows the text's a[i] and D rule, gives the library's own values."""
+    from format_strategies import load_vector_tool
+
+    mv = load_vector_tool()
+    scene, tables = {"plain": (mv.learned_scene(quality=1 + seed % 2), mv.learned_tables()),
+                     "context": (mv.context_scene(quality=1), mv.context_tables()),
+                     "partner": (mv.partner_scene(quality=1), mv.partner_tables())}[kind]
+    _spec_reads_the_writers_tokens(mv, scene, tables, seed, two_cameras, adaptive=True)
 
 
 def _smooth_camera(rng: np.random.Generator, frames: int, f: float, size: int,

@@ -122,7 +122,7 @@ def run_info(args: argparse.Namespace) -> int:
     summary |= {"token_bytes": scene.token_bytes, "non_token_bytes": scene.nbytes - scene.token_bytes,
                 "header_bytes": scene.preamble.header_length, "compact_container": scene.compact_container,
                 "camera_encoding": scene.camera_encoding(), "extra_cameras": scene.num_extra_cameras,
-                "joint_extra_cameras": scene.joint_cameras}
+                "joint_extra_cameras": scene.joint_cameras, "adaptive_rows": scene.adaptive_tokens}
     # bits per pixel of what the file stores: every byte over the encoded cameras' pixels (all frames)
     pixels = (1 + summary["extra_cameras"]) * summary["frames"] * summary["width"] * summary["height"]
     summary["bits_per_pixel"] = round(8 * summary["bytes"] / pixels, 5)
@@ -137,7 +137,8 @@ def run_info(args: argparse.Namespace) -> int:
         f"{summary['header_bytes']} of them the {'compressed ' if summary['compact_container'] else ''}header)",
         f"tokens          Z_s {summary['static_shape'][0]}x{summary['static_shape'][1]}, "
         f"Z_d {summary['dynamic_shape'][0]}x{summary['dynamic_shape'][1]}, encoding {summary['encoding']}"
-        + (f" at quality {summary['quality']}" if summary.get("quality") else ""),
+        + (f" at quality {summary['quality']}" if summary.get("quality") else "")
+        + (" (adaptive rows)" if summary["adaptive_rows"] else ""),
         f"rate            {summary['bits_per_pixel']:.4f} bits per pixel of the encoded camera"
         + (f"s ({1 + summary['extra_cameras']})" if summary["extra_cameras"] else "") + " (the whole file)",
         f"cameras         {summary['frames']} frames at {summary['width']}x{summary['height']} px, "

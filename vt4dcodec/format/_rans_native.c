@@ -944,14 +944,16 @@ done:
 /* Context-coded streams (format 1.6, learned-rans): one chain, symbol k coded with frequency table ctx[k]
  * of T tables of A symbols each (freqs_u32 holds T * A values, table t at t * A).  Every table must sum
  * to PROB_SCALE (checked here again); a symbol of frequency 0 cannot be encoded.
- *   encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> bytes, or None if a symbol has frequency 0 or lies
- *       outside its table
- *   decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16, offsets_i32])
+ *   encode_ctx(symbols_u16, ctx_u16, freqs_u32, A, adaptive) -> bytes, or None if a symbol has frequency 0 or
+ *       lies outside its table (with adaptive, outside its row's symbol count)
+ *   decode_ctx(stream, ctx_u16, freqs_u32, A, adaptive, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16,
+ *       offsets_i32])
  *       -> (symbols_decoded, stream_pos, final_state); with the dependency buffers (one value per symbol for
  *       dep, centre, dep2 and centre2; 9 values for offsets) symbol i is coded with table
  *       ctx[i] + offsets[3 a + b], where a is 0, 1 or 2 as out[dep[i]] is below, equal to or above centre[i]
  *       (1 when dep[i] < 0), and b likewise for dep2 and centre2; a dependency must be an earlier symbol
- *       (learned-rans tables with context-coded MEAN tokens, FORMAT.md I.6.2) */
+ *       (learned-rans tables with context-coded MEAN tokens, FORMAT.md I.6.2); with adaptive, each row adapts
+ *       to the symbols coded with it (adaptive rows, below) */
 static uint32_t *ctx_cums(Py_buffer *fb, Py_ssize_t alphabet, Py_ssize_t *tables) {
     if (alphabet < 1 || alphabet > MAX_ALPHABET || fb->len % (4 * alphabet) || fb->len == 0) {
         PyErr_SetString(PyExc_ValueError, "freqs must be T x A uint32 values");
@@ -976,13 +978,72 @@ static uint32_t *ctx_cums(Py_buffer *fb, Py_ssize_t alphabet, Py_ssize_t *tables
     return cum;
 }
 
+/* Adaptive rows (FORMAT.md I.6.2, required flag bit 10): each row t of a stream keeps its own cumulative
+ * counts at ADAPT_BITS precision, starting from the table's (cum << 2, over its symbol count n: the run of
+ * positive frequencies), and after each symbol s coded with it moves them towards s by 1 / D, D = n + k + 3
+ * for the row's k-th symbol (k from 0): cum[i] -= cum[i] / D for 1 <= i <= s, cum[i] += (2^16 - cum[i]) / D
+ * for s < i < n.  The rANS start of symbol i is ((cum[i] * (2^14 - n)) >> 16) + i, so every frequency is >= 1
+ * and they sum to 2^14. */
+#define ADAPT_BITS 16
+typedef struct {
+    uint32_t *cum;   /* tables x (alphabet + 1) */
+    uint32_t *n;     /* symbol count of each row */
+    uint32_t *count; /* symbols coded with each row so far */
+    Py_ssize_t stride;
+} adapt_state;
+
+static void adapt_free(adapt_state *a) {
+    PyMem_Free(a->cum);
+    PyMem_Free(a->n);
+    PyMem_Free(a->count);
+    a->cum = a->n = a->count = NULL;
+}
+
+/* 0 and a MemoryError when out of memory */
+static int adapt_init(adapt_state *a, const uint32_t *freqs, Py_ssize_t tables, Py_ssize_t alphabet) {
+    a->stride = alphabet + 1;
+    a->cum = PyMem_Malloc(sizeof(uint32_t) * (size_t)tables * (size_t)(alphabet + 1));
+    a->n = PyMem_Calloc((size_t)tables, sizeof(uint32_t));
+    a->count = PyMem_Calloc((size_t)tables, sizeof(uint32_t));
+    if (!a->cum || !a->n || !a->count) {
+        adapt_free(a);
+        PyErr_NoMemory();
+        return 0;
+    }
+    for (Py_ssize_t t = 0; t < tables; t++) {
+        const uint32_t *f = freqs + t * alphabet;
+        uint32_t *c = a->cum + t * a->stride, acc = 0;
+        Py_ssize_t n = 0;
+        c[0] = 0;
+        while (n < alphabet && f[n] > 0) {
+            acc += f[n++];
+            c[n] = acc << (ADAPT_BITS - PROB_BITS);
+        }
+        a->n[t] = (uint32_t)n;
+    }
+    return 1;
+}
+
+static ALWAYS_INLINE uint32_t adapt_start(const uint32_t *c, uint32_t n, uint32_t i) {
+    return ((c[i] * (PROB_SCALE - n)) >> ADAPT_BITS) + i;
+}
+
+static ALWAYS_INLINE void adapt_update(adapt_state *a, Py_ssize_t t, uint32_t s) {
+    uint32_t *c = a->cum + t * a->stride;
+    const uint32_t n = a->n[t], d = n + a->count[t]++ + 3;
+    for (uint32_t i = 1; i <= s; i++) c[i] -= c[i] / d;
+    for (uint32_t i = s + 1; i < n; i++) c[i] += ((1u << ADAPT_BITS) - c[i]) / d;
+}
+
 static PyObject *rans_encode_ctx(PyObject *self, PyObject *args) {
     Py_buffer sb, xb, fb;
     Py_ssize_t alphabet, tables;
-    if (!PyArg_ParseTuple(args, "y*y*y*n", &sb, &xb, &fb, &alphabet)) return NULL;
+    int adaptive;
+    if (!PyArg_ParseTuple(args, "y*y*y*np", &sb, &xb, &fb, &alphabet, &adaptive)) return NULL;
     PyObject *result = NULL;
     uint8_t *buf = NULL;
-    uint32_t *cum = NULL;
+    uint32_t *cum = NULL, *starts = NULL;
+    adapt_state ad = {0};
     if (sb.len % 2 || sb.len != xb.len) {
         PyErr_SetString(PyExc_ValueError, "symbols and ctx must be uint16 buffers of one length");
         goto done;
@@ -1001,14 +1062,41 @@ static PyObject *rans_encode_ctx(PyObject *self, PyObject *args) {
     uint8_t *p = buf + cap;
     uint32_t x = STATE_LOWER;
     int bad = 0;
+    if (adaptive) { /* the forward pass: each symbol's (start, frequency) under its row's state then */
+        starts = PyMem_Malloc(sizeof(uint32_t) * 2 * (size_t)(n ? n : 1));
+        if (!starts) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        if (!adapt_init(&ad, freqs, tables, alphabet)) goto done;
+        for (Py_ssize_t k = 0; k < n; k++) {
+            const Py_ssize_t t = ctx[k];
+            const uint32_t s = sym[k];
+            if (t >= tables || s >= ad.n[t]) {
+                result = Py_NewRef(Py_None);
+                goto done;
+            }
+            const uint32_t *c = ad.cum + t * ad.stride, lo = adapt_start(c, ad.n[t], s);
+            starts[2 * k] = lo;
+            starts[2 * k + 1] = adapt_start(c, ad.n[t], s + 1) - lo;
+            adapt_update(&ad, t, s);
+        }
+    }
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t k = n - 1; k >= 0; k--) {
         const Py_ssize_t t = ctx[k], s = sym[k];
-        if (t >= tables || s >= alphabet || freqs[t * alphabet + s] == 0) {
-            bad = 1;
-            break;
+        uint32_t f, c;
+        if (adaptive) {
+            c = starts[2 * k];
+            f = starts[2 * k + 1];
+        } else {
+            if (t >= tables || s >= alphabet || freqs[t * alphabet + s] == 0) {
+                bad = 1;
+                break;
+            }
+            f = freqs[t * alphabet + s];
+            c = cum[t * (alphabet + 1) + s];
         }
-        const uint32_t f = freqs[t * alphabet + s], c = cum[t * (alphabet + 1) + s];
         const uint32_t x_max = f << UPPER_SHIFT;
         while (x >= x_max) {
             *--p = (uint8_t)x;
@@ -1030,6 +1118,8 @@ static PyObject *rans_encode_ctx(PyObject *self, PyObject *args) {
 done:
     PyMem_Free(buf);
     PyMem_Free(cum);
+    PyMem_Free(starts);
+    adapt_free(&ad);
     PyBuffer_Release(&sb);
     PyBuffer_Release(&xb);
     PyBuffer_Release(&fb);
@@ -1048,10 +1138,13 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     Py_buffer sb, xb, fb, ob;
     Py_buffer db = {0}, cb = {0}, db2 = {0}, cb2 = {0}, offb = {0};
     Py_ssize_t alphabet, tables;
-    if (!PyArg_ParseTuple(args, "y*y*y*nw*|y*y*y*y*y*", &sb, &xb, &fb, &alphabet, &ob, &db, &cb, &db2, &cb2, &offb))
+    int adaptive;
+    if (!PyArg_ParseTuple(args, "y*y*y*npw*|y*y*y*y*y*", &sb, &xb, &fb, &alphabet, &adaptive, &ob, &db, &cb, &db2,
+                          &cb2, &offb))
         return NULL;
     PyObject *result = NULL;
     uint32_t *cum = NULL;
+    adapt_state ad = {0};
     const int dependent = db.buf != NULL;
     if (ob.len % 2 || ob.len != xb.len || sb.len < 4) {
         PyErr_SetString(PyExc_ValueError, "out and ctx must be uint16 buffers of one length, the stream >= 4 bytes");
@@ -1066,6 +1159,7 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
     }
     cum = ctx_cums(&fb, alphabet, &tables);
     if (!cum) goto done;
+    if (adaptive && !adapt_init(&ad, (const uint32_t *)fb.buf, tables, alphabet)) goto done;
     const uint8_t *data = (const uint8_t *)sb.buf;
     const uint16_t *ctx = (const uint16_t *)xb.buf;
     const uint32_t *freqs = (const uint32_t *)fb.buf;
@@ -1092,8 +1186,26 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
             bad_ctx = 1;
             break;
         }
-        const uint32_t *c = cum + t * (alphabet + 1);
         const uint32_t slot = x & (PROB_SCALE - 1);
+        if (adaptive) { /* the symbol s with start(s) <= slot < start(s + 1) under the row's state */
+            const uint32_t *c = ad.cum + t * ad.stride, rn = ad.n[t];
+            uint32_t lo = 0, hi = rn;
+            while (hi - lo > 1) {
+                const uint32_t mid = (lo + hi) / 2;
+                if (adapt_start(c, rn, mid) <= slot) lo = mid;
+                else hi = mid;
+            }
+            const uint32_t start = adapt_start(c, rn, lo);
+            x = (adapt_start(c, rn, lo + 1) - start) * (x >> PROB_BITS) + slot - start;
+            adapt_update(&ad, t, lo);
+            while (x < STATE_LOWER) {
+                if (pos >= end) goto stop;
+                x = (x << 8) | data[pos++];
+            }
+            out[i] = (uint16_t)lo;
+            continue;
+        }
+        const uint32_t *c = cum + t * (alphabet + 1);
         Py_ssize_t lo = 0, hi = alphabet; /* the symbol s with c[s] <= slot < c[s + 1] */
         while (hi - lo > 1) {
             const Py_ssize_t mid = (lo + hi) / 2;
@@ -1116,6 +1228,7 @@ stop:
     result = Py_BuildValue("(nnk)", i, pos, (unsigned long)x);
 done:
     PyMem_Free(cum);
+    adapt_free(&ad);
     PyBuffer_Release(&sb);
     PyBuffer_Release(&xb);
     PyBuffer_Release(&fb);
@@ -1152,10 +1265,10 @@ static PyMethodDef methods[] = {
      "dequantize_u8(codes_u8, cols, scale_f32, offset_f32, out_f32) -> bool: out[r, c] = f32(f64(offset[c]) + "
      "f64(scale[c]) * codes[r, c]); False (nothing written) where a table value is not a finite float32"},
     {"encode_ctx", rans_encode_ctx, METH_VARARGS,
-     "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A) -> stream bytes, or None if a symbol has frequency 0"},
+     "encode_ctx(symbols_u16, ctx_u16, freqs_u32, A, adaptive) -> stream bytes, or None if a symbol has frequency 0"},
     {"decode_ctx", rans_decode_ctx, METH_VARARGS,
-     "decode_ctx(stream, ctx_u16, freqs_u32, A, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16, offsets_i32])"
-     " -> (symbols_decoded, stream_pos, final_state)"},
+     "decode_ctx(stream, ctx_u16, freqs_u32, A, adaptive, out_u16[, dep_i32, centre_u16, dep2_i32, centre2_u16, "
+     "offsets_i32]) -> (symbols_decoded, stream_pos, final_state)"},
     {NULL, NULL, 0, NULL},
 };
 

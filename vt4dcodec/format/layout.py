@@ -62,7 +62,7 @@ from .limits import (MAX_HEADER_BYTES, MAX_SECTION_RAW_BYTES, MAX_SECTIONS, PREA
 __all__ = ["SCENE_MAGIC", "FORMAT_MAJOR", "FORMAT_MINOR", "KNOWN_REQUIRED_FLAGS", "Preamble", "SectionEntry",
            "crc32", "align", "pack_preamble", "parse_preamble", "pack_table", "parse_table", "FLAG_CRITICAL",
            "COMPRESSION_RAW", "COMPRESSION_ZSTD", "COMPRESSION_ZSTD_CAMERAS", "COMPRESSION_NAMES", "FLAG_CAMERA_DICTIONARY", "FLAG_ENTROPY_CODED_TOKENS", "FLAG_COMPACT_CAMERAS",
-           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_LEARNED_TOKENS", "FLAG_FIXED_CAMERAS", "FLAG_HEADER_DICTIONARY_2", "FLAG_JOINT_CAMERAS", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
+           "FLAG_COMPACT_CONTAINER", "FLAG_EXTRA_CAMERAS", "FLAG_RANS_LANES", "FLAG_LEARNED_TOKENS", "FLAG_FIXED_CAMERAS", "FLAG_HEADER_DICTIONARY_2", "FLAG_JOINT_CAMERAS", "FLAG_ADAPTIVE_TOKENS", "FLAG_ALIGNED", "COMPACT_ENTRY_SIZE", "entry_size",
            "BytesLike"]
 
 # What the parsers read from: a whole file in memory, a mapped file, or a zero-copy slice of either.
@@ -86,15 +86,17 @@ FLAG_LEARNED_TOKENS = 1 << 5  # required flag: tokens coded with the model's ent
 FLAG_HEADER_DICTIONARY_2 = 1 << 7  # required flag: the compact header uses header dictionary 2 (1.6, I.3.2)
 FLAG_CAMERA_DICTIONARY = 1 << 8  # required flag: sections may use compression 2, the camera dictionary (1.6, I.4.2)
 FLAG_JOINT_CAMERAS = 1 << 9  # required flag: XCAM codes its fixed-point records jointly (1.6, I.5.5)
+FLAG_ADAPTIVE_TOKENS = 1 << 10  # required flag: learned-rans token streams use adaptive rows (1.6, I.6.2)
 KNOWN_REQUIRED_FLAGS = (FLAG_ENTROPY_CODED_TOKENS | FLAG_COMPACT_CAMERAS | FLAG_COMPACT_CONTAINER
                         | FLAG_EXTRA_CAMERAS | FLAG_RANS_LANES | FLAG_LEARNED_TOKENS
-                        | FLAG_FIXED_CAMERAS | FLAG_HEADER_DICTIONARY_2 | FLAG_CAMERA_DICTIONARY | FLAG_JOINT_CAMERAS)
+                        | FLAG_FIXED_CAMERAS | FLAG_HEADER_DICTIONARY_2 | FLAG_CAMERA_DICTIONARY | FLAG_JOINT_CAMERAS
+                        | FLAG_ADAPTIVE_TOKENS)
 # The version that introduced each required flag: in a file that says an older minor version the flag is
 # unknown, and the file is refused as a reader of that version would (UnsupportedFeatureError).  Bit 1 keeps its
 # 1.2 rule (MalformedHeaderError in files below 1.2, checked by the reader), which its golden vectors pin.
 FLAG_SINCE_MINOR = {FLAG_COMPACT_CONTAINER: 3, FLAG_EXTRA_CAMERAS: 4, FLAG_RANS_LANES: 5, FLAG_LEARNED_TOKENS: 6,
                     FLAG_FIXED_CAMERAS: 6, FLAG_HEADER_DICTIONARY_2: 6, FLAG_CAMERA_DICTIONARY: 6,
-                    FLAG_JOINT_CAMERAS: 6}
+                    FLAG_JOINT_CAMERAS: 6, FLAG_ADAPTIVE_TOKENS: 6}
 FLAG_CRITICAL = 0x0001
 FLAG_ALIGNED = 0x0002  # compact table entries only: the payload starts at a multiple of 64
 COMPACT_ENTRY_SIZE = 18

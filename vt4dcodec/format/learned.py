@@ -271,9 +271,10 @@ def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str)
     return values
 
 
-def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int, views: int, which: str) -> bytes:
+def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int, views: int, which: str,
+                          adaptive: bool = False) -> bytes:
     """The ``ZSTA`` ("static") or ``ZDYN`` ("dynamic") payload of a token matrix at ``level`` for a scene of
-    ``views`` encoded cameras."""
+    ``views`` encoded cameras; ``adaptive``: with adaptive rows (FORMAT.md I.6.2, required flag bit 10)."""
     _check_level(tables, level)
     if not 1 <= views <= MAX_VIEWS:
         raise FormatError(f"a learned-rans scene has 1 to {MAX_VIEWS} encoded cameras, not {views}")
@@ -283,7 +284,7 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
     if not np.isfinite(x).all():
         raise FormatError("tokens must be finite")
     symbols, contexts = coded_symbols(writer_codes(x, tables, level, which, views), tables, level, views, which)
-    stream = rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]))
+    stream = rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]), adaptive)
     return bytes([level, views]) + stream
 
 
@@ -340,9 +341,10 @@ def parse_learned_payload(payload: BytesLike) -> tuple[int, int]:
 
 
 def decode_learned_tokens(payload: BytesLike, tables: EntropyTables, rows: int, cols: int, which: str,
-                          views: int | None = None) -> tuple[np.ndarray, int]:
+                          views: int | None = None, adaptive: bool = False) -> tuple[np.ndarray, int]:
     """(float32 (rows, cols) tokens, level) of a learned-rans payload. ``views``: the file's encoded camera
-    count, which the payload's must equal (None: not checked). MalformedSectionError for a level or view
+    count, which the payload's must equal (None: not checked); ``adaptive``: the file's required flag bit 10
+    (adaptive rows). MalformedSectionError for a level or view
     count the tables do not have, a code outside -Q .. Q, or a damaged stream; TruncatedError if it ends early."""
     level, stored_views = parse_learned_payload(payload)
     if level >= tables.levels:
@@ -357,7 +359,7 @@ def decode_learned_tokens(payload: BytesLike, tables: EntropyTables, rows: int, 
     freqs = tables.freqs[level].reshape(-1, tables.freqs.shape[3])
     dependency = _mean_dependency(tables, level, stored_views) if which == "static" and tables.contextual else None
     symbols = rans_decode_ctx(memoryview(payload)[2:], ctx.reshape(-1), freqs,
-                              dependency).astype(np.int64).reshape(rows, cols)
+                              dependency, adaptive).astype(np.int64).reshape(rows, cols)
     half = tables.half_range(level)[_group(which)][None, :]
     q = symbols - half
     if which == "static":

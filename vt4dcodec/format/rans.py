@@ -36,6 +36,8 @@ the C code to, byte for byte).  :data:`NATIVE` says which one :func:`rans_encode
 
 from __future__ import annotations
 
+import bisect
+
 from typing import Sequence
 
 import numpy as np
@@ -49,7 +51,7 @@ try:
 except ImportError:  # built without a C compiler: the pure-Python coder below does the work
     NATIVE = False
 
-__all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "MAX_LANES", "NATIVE", "normalize_counts", "pack_table",
+__all__ = ["PROB_BITS", "PROB_SCALE", "STATE_LOWER", "MAX_LANES", "NATIVE", "AdaptiveRows", "normalize_counts", "pack_table",
            "parse_table", "is_lane_count", "rans_encode", "rans_encode_many", "rans_decode", "rans_decode_mapped",
            "rans_encode_ctx", "rans_decode_ctx"]
 
@@ -350,9 +352,10 @@ def _ctx_args(ctx: np.ndarray, freqs: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.ascontiguousarray(ctx, dtype=np.uint16).reshape(-1), table, table.shape[1]
 
 
-def rans_encode_ctx(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> bytes:
+def rans_encode_ctx(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray, adaptive: bool = False) -> bytes:
     """The single-chain rANS stream of ``symbols`` (1-D) where symbol ``k`` is coded with row ``ctx[k]`` of
-    ``freqs`` (T, A), each row a table summing to 2^14. ValueError where a symbol has frequency 0."""
+    ``freqs`` (T, A), each row a table summing to 2^14; with ``adaptive``, each row adapts to the symbols coded
+    with it (:class:`AdaptiveRows`, FORMAT.md I.6.2). ValueError where a symbol has frequency 0."""
     ctx16, table, alphabet = _ctx_args(ctx, freqs)
     syms = np.ascontiguousarray(symbols, dtype=np.int64).reshape(-1)
     if syms.shape != ctx16.shape:
@@ -360,11 +363,61 @@ def rans_encode_ctx(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> 
     if syms.size and (syms.min() < 0 or syms.max() >= alphabet or int(ctx16.max()) >= table.shape[0]):
         raise ValueError("a symbol or context lies outside the tables")
     if NATIVE:
-        stream = _rans_native.encode_ctx(syms.astype(np.uint16), ctx16, table, alphabet)
+        stream = _rans_native.encode_ctx(syms.astype(np.uint16), ctx16, table, alphabet, bool(adaptive))
         if stream is None:
             raise ValueError("a symbol to encode has frequency 0")
         return stream
-    return _encode_ctx_py(syms, ctx16, table)
+    return _encode_ctx_py(syms, ctx16, table, adaptive)
+
+
+ADAPT_BITS = 16  # precision of an adaptive row's cumulative counts
+
+
+class AdaptiveRows:
+    """The rows of a context-coded stream with **adaptive rows** (FORMAT.md I.6.2, required flag bit 10): row
+    ``t`` starts from its table's cumulative frequencies scaled to 2^16 over its symbol count ``n`` (the run of
+    positive frequencies), and after each symbol ``s`` coded with it moves towards ``s`` by ``1 / D``,
+    ``D = n + k + 3`` for the row's ``k``-th symbol (``k`` from 0): ``cum[i] -= cum[i] // D`` for ``1 <= i <= s``,
+    ``cum[i] += (2^16 - cum[i]) // D`` for ``s < i < n``. Symbol ``i``'s rANS start is
+    ``((cum[i] * (2^14 - n)) >> 16) + i``: every frequency stays >= 1 and they sum to 2^14. A file's token
+    distribution differs from the training set's (each channel's share of zeros, above all), and a row that
+    learns it as it goes saves 4-14 % of a learned-rans file without side information."""
+
+    def __init__(self, freqs: np.ndarray) -> None:
+        self._freqs = freqs
+        self._rows: dict[int, tuple[list[int], int, list[int]]] = {}
+
+    def _row(self, t: int) -> tuple[list[int], int, list[int]]:
+        row = self._rows.get(t)
+        if row is None:
+            f = self._freqs[t].tolist()
+            n = next((i for i, v in enumerate(f) if v <= 0), len(f))
+            cum, acc = [0], 0
+            for v in f[:n]:
+                acc += int(v)
+                cum.append(acc << (ADAPT_BITS - PROB_BITS))
+            row = self._rows[t] = (cum, n, [0])
+        return row
+
+    def symbols(self, t: int) -> int:
+        """The symbol count ``n`` of row ``t``."""
+        return self._row(t)[1]
+
+    def starts(self, t: int) -> list[int]:
+        """The rANS starts of row ``t``'s symbols 0 .. n (n + 1 values, the last 2^14) in its present state."""
+        cum, n, _ = self._row(t)
+        scale = PROB_SCALE - n
+        return [((c * scale) >> ADAPT_BITS) + i for i, c in enumerate(cum)]
+
+    def update(self, t: int, s: int) -> None:
+        """Row ``t`` has just coded symbol ``s``."""
+        cum, n, count = self._row(t)
+        d = n + count[0] + 3
+        count[0] += 1
+        for i in range(1, s + 1):
+            cum[i] -= cum[i] // d
+        for i in range(s + 1, n):
+            cum[i] += ((1 << ADAPT_BITS) - cum[i]) // d
 
 
 def _rows_and_cumulative(freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -373,19 +426,29 @@ def _rows_and_cumulative(freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return table, np.concatenate([np.zeros((len(table), 1), np.int64), np.cumsum(table, axis=1)], axis=1)
 
 
-def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray) -> bytes:
+def _encode_ctx_py(symbols: np.ndarray, ctx: np.ndarray, freqs: np.ndarray, adaptive: bool = False) -> bytes:
     """Pure-Python :func:`rans_encode_ctx` (the reference)."""
     table, cums = _rows_and_cumulative(freqs)
+    sym_list, ctx_list = symbols.tolist(), ctx.tolist()
+    if adaptive:  # each symbol's (start, frequency) under its row's state when it is coded, in coding order
+        rows, intervals = AdaptiveRows(table), []
+        for s, t in zip(sym_list, ctx_list):
+            if s >= rows.symbols(t):
+                raise ValueError("a symbol to encode has frequency 0")
+            starts = rows.starts(t)
+            intervals.append((starts[s], starts[s + 1] - starts[s]))
+            rows.update(t, s)
+    else:
+        intervals = [(int(cums[t, s]), int(table[t, s])) for s, t in zip(sym_list, ctx_list)]
     x, out = STATE_LOWER, bytearray()
-    for s, t in zip(symbols.tolist()[::-1], ctx.tolist()[::-1]):
-        f = int(table[t, s])
+    for c, f in intervals[::-1]:
         if f == 0:
             raise ValueError("a symbol to encode has frequency 0")
         x_max = f << _STATE_UPPER_SHIFT
         while x >= x_max:
             out.append(x & 0xFF)
             x >>= 8
-        x = ((x // f) << PROB_BITS) + (x % f) + int(cums[t, s])
+        x = ((x // f) << PROB_BITS) + (x % f) + c
     out.reverse()
     return x.to_bytes(4, "little") + bytes(out)
 
@@ -427,13 +490,14 @@ def dependent_contexts(symbols: np.ndarray, ctx: np.ndarray, dependency: Depende
 
 
 def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray,
-                    dependency: Dependency | None = None) -> np.ndarray:
+                    dependency: Dependency | None = None, adaptive: bool = False) -> np.ndarray:
     """Decode ``len(ctx)`` symbols (uint16) of a single-chain stream, symbol ``k`` with row ``ctx[k]`` of
     ``freqs`` (T, A; every row validated to sum to 2^14 by the caller). With ``dependency`` = (dep, centre,
     dep2, centre2, offsets), one value each per symbol but the 9 offsets: symbol ``k`` takes row
     ``ctx[k] + offsets[3 a + b]``, where ``a`` is 0, 1 or 2 as the symbol decoded at ``dep[k]`` (an earlier
     symbol) is below, equal to or above ``centre[k]``, 1 where ``dep[k] < 0``, and ``b`` likewise for ``dep2``
-    and ``centre2`` (context-coded MEAN tokens, FORMAT.md I.6.2). TruncatedError if the stream ends early,
+    and ``centre2`` (context-coded MEAN tokens, FORMAT.md I.6.2). With ``adaptive``, each row adapts to the
+    symbols decoded with it (:class:`AdaptiveRows`). TruncatedError if the stream ends early,
     MalformedSectionError if bytes are left over or the final state is not ``L``."""
     ctx16, table, alphabet = _ctx_args(ctx, freqs)
     data, states = _opened(stream, 1)
@@ -441,9 +505,10 @@ def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray,
         raise ValueError("a context lies outside the tables")
     dep = None if dependency is None else _dependency_args(dependency, ctx16.size)
     if not NATIVE:
-        return _decode_ctx_py(data, states[0], ctx16, table, dep)
+        return _decode_ctx_py(data, states[0], ctx16, table, dep, adaptive)
     out = np.empty(ctx16.size, np.uint16)
-    done, pos, final = _rans_native.decode_ctx(data, ctx16, table, alphabet, out, *(() if dep is None else dep))
+    done, pos, final = _rans_native.decode_ctx(data, ctx16, table, alphabet, bool(adaptive), out,
+                                               *(() if dep is None else dep))
     if done < ctx16.size:
         raise TruncatedError(f"rANS stream ends after {done} of {ctx16.size} symbols")
     _check_end(data, pos, (final,))
@@ -451,9 +516,10 @@ def rans_decode_ctx(stream: BytesLike, ctx: np.ndarray, freqs: np.ndarray,
 
 
 def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray,
-                   dependency: Dependency | None = None) -> np.ndarray:
+                   dependency: Dependency | None = None, adaptive: bool = False) -> np.ndarray:
     """Pure-Python :func:`rans_decode_ctx` after the initial-state check (the reference)."""
     table, cums = _rows_and_cumulative(freqs)
+    adaptive_rows = AdaptiveRows(table) if adaptive else None
     mask, end, pos = PROB_SCALE - 1, len(data), 4
     rows: dict[int, tuple[list[int], list[int]]] = {}
     dep, centre, dep2, centre2, offsets = ([], [], [], [], []) if dependency is None else (a.tolist() for a in dependency)
@@ -468,14 +534,20 @@ def _decode_ctx_py(data: bytes, x: int, ctx: np.ndarray, freqs: np.ndarray,
                 v = syms[dep2[i]]
                 b = 0 if v < centre2[i] else 2 if v > centre2[i] else 1
             t += offsets[3 * a + b]
-        if t not in rows:
-            if not 0 <= t < table.shape[0]:
-                raise ValueError("a context lies outside the tables, or a dependency is not earlier")
-            rows[t] = (table[t].tolist(), cums[t].tolist())
-        f, cum = rows[t]
+        if not 0 <= t < table.shape[0]:
+            raise ValueError("a context lies outside the tables, or a dependency is not earlier")
         slot = x & mask
-        s = int(np.searchsorted(cums[t], slot, side="right")) - 1
-        x = f[s] * (x >> PROB_BITS) + slot - cum[s]
+        if adaptive_rows is not None:
+            starts = adaptive_rows.starts(t)
+            s = bisect.bisect_right(starts, slot) - 1
+            x = (starts[s + 1] - starts[s]) * (x >> PROB_BITS) + slot - starts[s]
+            adaptive_rows.update(t, s)
+        else:
+            if t not in rows:
+                rows[t] = (table[t].tolist(), cums[t].tolist())
+            f, cum = rows[t]
+            s = bisect.bisect_right(cum, slot) - 1
+            x = f[s] * (x >> PROB_BITS) + slot - cum[s]
         while x < STATE_LOWER:
             if pos >= end:
                 raise TruncatedError(f"rANS stream ends after {i} of {len(ctx)} symbols")

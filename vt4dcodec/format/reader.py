@@ -20,7 +20,7 @@ from .compact_cameras import unpack_compact_cameras
 from .extra_cameras import (SECTION_EXTRA_CAMERAS, extra_camera_count, extra_cameras_max_raw_length,
                             unpack_extra_cameras)
 from .layout import (COMPRESSION_NAMES, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS, FLAG_EXTRA_CAMERAS,
-                     FLAG_CAMERA_DICTIONARY, FLAG_FIXED_CAMERAS, FLAG_HEADER_DICTIONARY_2, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
+                     FLAG_CAMERA_DICTIONARY, FLAG_FIXED_CAMERAS, FLAG_ADAPTIVE_TOKENS, FLAG_HEADER_DICTIONARY_2, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MINOR, BytesLike, Preamble, SectionEntry, crc32, entry_size,
                      parse_preamble, parse_table)
 from .rans_tokens import MAX_LANES
 from .limits import PREAMBLE_SIZE
@@ -195,6 +195,9 @@ class SceneFile:
             raise MalformedHeaderError(
                 f"encoding {self._info.encoding} {'requires' if learned else 'must not set'} required feature flag "
                 "bit 5 (learned-rans tokens)")
+        if self.adaptive_tokens and not learned:
+            raise MalformedHeaderError("required flag bit 10 (adaptive rows) is set without bit 5 (learned-rans "
+                                       "tokens), which it needs")
 
     def _check_section_set(self) -> None:
         required = {SECTION_CAMERAS, SECTION_STATIC, SECTION_DYNAMIC}
@@ -336,6 +339,12 @@ class SceneFile:
         return bool(self.preamble.required_flags & FLAG_JOINT_CAMERAS)
 
     @property
+    def adaptive_tokens(self) -> bool:
+        """Whether the learned-rans token streams use adaptive rows (format 1.6, required flag bit 10,
+        FORMAT.md I.6.2)."""
+        return bool(self.preamble.required_flags & FLAG_ADAPTIVE_TOKENS)
+
+    @property
     def has_extra_cameras(self) -> bool:
         """Whether the file holds the extra cameras section (format 1.4, required flag bit 3)."""
         return bool(self.preamble.required_flags & FLAG_EXTRA_CAMERAS)
@@ -433,7 +442,7 @@ class SceneFile:
         payload = self.raw_section(tok_name)
         if is_learned(self.encoding):
             tokens, _ = decode_learned_tokens(payload, self.entropy_tables(), rows, cols, which,
-                                              views=1 + self.num_extra_cameras)
+                                              views=1 + self.num_extra_cameras, adaptive=self.adaptive_tokens)
             return tokens
         if not dequantize:
             return codes_from_payload(payload, self.encoding, rows, cols, lanes=self.rans_lanes)

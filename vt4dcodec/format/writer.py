@@ -18,7 +18,7 @@ from .compact_cameras import CAMERA_MODES, pack_compact_cameras
 from .extra_cameras import SECTION_EXTRA_CAMERAS, joint_extra_cameras, pack_extra_cameras
 from .layout import (COMPRESSION_RAW, COMPRESSION_ZSTD_CAMERAS, FLAG_CAMERA_DICTIONARY, FLAG_COMPACT_CAMERAS, FLAG_COMPACT_CONTAINER, FLAG_ENTROPY_CODED_TOKENS,
                      FLAG_HEADER_DICTIONARY_2,
-                     FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
+                     FLAG_ADAPTIVE_TOKENS, FLAG_EXTRA_CAMERAS, FLAG_FIXED_CAMERAS, FLAG_JOINT_CAMERAS, FLAG_LEARNED_TOKENS, FLAG_RANS_LANES, FORMAT_MAJOR, Preamble, SectionEntry, align, crc32,
                      entry_size, pack_preamble, pack_table)
 from .rans_tokens import check_lanes, policy_lanes
 from .limits import PREAMBLE_SIZE
@@ -92,7 +92,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
           cameras: str = "compact", header: str = "compact", rans_lanes: int | None = None,
           quality: int | None = None, tables: EntropyTables | None = None,
           header_dictionary: int | None = None, camera_dictionary: bool | None = None,
-          joint_cameras: bool | None = None) -> bytes:
+          joint_cameras: bool | None = None, adaptive_tokens: bool | None = None) -> bytes:
     """The complete ``.vt4d`` bytes of ``scene``.
 
     The file says the lowest format version that describes it: 1.5 with required flag bit 4 when its
@@ -147,6 +147,10 @@ def dumps(scene: Scene, *, encoding: str | None = None,
             policy: where every extra camera is fixed point and it makes the section shorter; ``True``: wherever
             every extra camera is fixed point; ``False``: never (the I.5.3 layout).  Fixed-point cameras are
             the writer's choice for ``learned-rans`` files in a compact container with ``cameras="compact"``.
+        adaptive_tokens: whether the ``learned-rans`` token streams use adaptive rows (format 1.6, required flag
+            bit 10, FORMAT.md I.6.2): each (class, channel) row of the model's tables learns the file's symbols as
+            it codes them, a file 4-14 % shorter.  ``None``, the writer's policy: where it makes the two token
+            sections shorter together; ``True``: always; ``False``: never.  ``learned-rans`` only.
     """
     if not isinstance(scene, Scene):
         raise FormatError(f"expected a Scene, got {type(scene).__name__}")
@@ -166,6 +170,8 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         raise FormatError(f"camera_dictionary must be None, True or False, got {camera_dictionary!r}")
     if joint_cameras is not None and not isinstance(joint_cameras, bool):
         raise FormatError(f"joint_cameras must be None, True or False, got {joint_cameras!r}")
+    if adaptive_tokens is not None and not isinstance(adaptive_tokens, bool):
+        raise FormatError(f"adaptive_tokens must be None, True or False, got {adaptive_tokens!r}")
     if camera_dictionary and header != "compact":
         raise FormatError("the camera dictionary (compression 2) exists only in compact containers: header='compact'")
     learned = is_learned(encoding)
@@ -204,12 +210,17 @@ def dumps(scene: Scene, *, encoding: str | None = None,
     extras = normalize_extra_cameras(scene.cameras, scene.extra_cameras)
     if extras:
         parts.append((SECTION_EXTRA_CAMERAS, pack_extra_cameras(extras, cameras, quaternions=compact, fixed=fixed)))
+    adaptive = False
+    if learned:
+        assert tables is not None and quality is not None
+        choices = (False, True) if adaptive_tokens is None else (adaptive_tokens,)
+        coded = {a: [encode_learned_tokens(tokens, tables, quality - 1, 1 + len(extras), which, a)
+                     for tokens, which in zip(matrices, ("static", "dynamic"))] for a in choices}
+        adaptive = choices[-1] if len(choices) == 1 else sum(map(len, coded[True])) < sum(map(len, coded[False]))
+        parts += [(SECTION_STATIC, coded[adaptive][0]), (SECTION_DYNAMIC, coded[adaptive][1])]
     for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
                                             (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, lanes[1])):
         if learned:
-            assert tables is not None and quality is not None
-            which = "static" if tok_name == SECTION_STATIC else "dynamic"
-            parts.append((tok_name, encode_learned_tokens(tokens, tables, quality - 1, 1 + len(extras), which)))
             continue
         enc = encode_tokens(tokens, encoding, groups=groups, lanes=k)
         if enc.quant is not None:
@@ -244,7 +255,7 @@ def dumps(scene: Scene, *, encoding: str | None = None,
              | (FLAG_RANS_LANES if lanes[0] is not None else 0) | (FLAG_LEARNED_TOKENS if learned else 0)
              | (FLAG_FIXED_CAMERAS if fixed else 0) | (FLAG_HEADER_DICTIONARY_2 if dictionary_2 else 0)
              | (FLAG_CAMERA_DICTIONARY if any(part[2] == COMPRESSION_ZSTD_CAMERAS for part in sections) else 0)
-             | (FLAG_JOINT_CAMERAS if joint else 0))
+             | (FLAG_JOINT_CAMERAS if joint else 0) | (FLAG_ADAPTIVE_TOKENS if adaptive else 0))
     minor = (6 if learned or dictionary_2 or flags & FLAG_CAMERA_DICTIONARY else 5 if flags & FLAG_RANS_LANES else 4 if flags & FLAG_EXTRA_CAMERAS else 3 if compact
              else 2 if flags & FLAG_COMPACT_CAMERAS else 1 if flags else 0)
     return build_container(head, sections, minor=minor, required_flags=flags)
@@ -254,7 +265,8 @@ def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encod
          compression_level: int | None = DEFAULT_COMPRESSION_LEVEL, groups: int = 1, cameras: str = "compact",
          header: str = "compact", rans_lanes: int | None = None, quality: int | None = None,
          tables: EntropyTables | None = None, header_dictionary: int | None = None,
-         camera_dictionary: bool | None = None, joint_cameras: bool | None = None) -> int:
+         camera_dictionary: bool | None = None, joint_cameras: bool | None = None,
+         adaptive_tokens: bool | None = None) -> int:
     """Write ``scene`` to a path (atomically: temp file + rename) or a binary file object.
 
     Returns the number of bytes written.  See :func:`dumps` for the options.
@@ -262,7 +274,7 @@ def save(scene: Scene, path_or_file: str | os.PathLike[str] | BinaryIO, *, encod
     data = dumps(scene, encoding=encoding, compression_level=compression_level, groups=groups, cameras=cameras,
                  header=header, rans_lanes=rans_lanes, quality=quality, tables=tables,
                  header_dictionary=header_dictionary, camera_dictionary=camera_dictionary,
-                 joint_cameras=joint_cameras)
+                 joint_cameras=joint_cameras, adaptive_tokens=adaptive_tokens)
     if hasattr(path_or_file, "write"):
         path_or_file.write(data)
         return len(data)
