@@ -12,7 +12,7 @@ Preamble (64 bytes)::
      12    2 minor            u16 = 0 .. 6 (the lowest that describes the file)
      14    2 reserved         u16 = 0
      16    8 required_flags   u64 (bit 0 since 1.1, bit 1 since 1.2, bit 2 since 1.3, bit 3 since 1.4, bit 4
-                                  since 1.5, bits 5 to 9 since 1.6: a reader refuses any set bit it does not know)
+                                  since 1.5, bits 5 to 10 since 1.6: a reader refuses any set bit it does not know)
      24    8 optional_flags   u64 (none defined in 1.0: unknown bits are ignored)
      32    8 file_length      u64, total container bytes
      40    4 header_length    u32, msgpack header bytes (starts at offset 64)

@@ -10,7 +10,8 @@ still opens, verifies checksums and reads shapes, cameras and metadata; the toke
 
 Decoding is integers only (the context rANS coder of ``rans.py``) up to the last step, ``f32(q * step)``.
 
-Payload of ``ZSTA`` / ``ZDYN``: ``u8 level``, ``u8 views``, then one rANS chain of ``N * d`` symbols.
+Payload of ``ZSTA`` / ``ZDYN``: ``u8 level``, ``u8 views``, then one rANS chain of ``N * d`` symbols. In a
+file with required flag bit 10 the chain's rows adapt to the symbols they code (``rans.AdaptiveRows``).
 """
 
 from __future__ import annotations
