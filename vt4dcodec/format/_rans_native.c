@@ -1187,32 +1187,30 @@ static PyObject *rans_decode_ctx(PyObject *self, PyObject *args) {
             break;
         }
         const uint32_t slot = x & (PROB_SCALE - 1);
-        if (adaptive) { /* the symbol s with start(s) <= slot < start(s + 1) under the row's state */
+        uint32_t lo = 0, start, f; /* the symbol lo with start <= slot < start + f */
+        if (adaptive) { /* under the row's present state */
             const uint32_t *c = ad.cum + t * ad.stride, rn = ad.n[t];
-            uint32_t lo = 0, hi = rn;
+            uint32_t hi = rn;
             while (hi - lo > 1) {
                 const uint32_t mid = (lo + hi) / 2;
                 if (adapt_start(c, rn, mid) <= slot) lo = mid;
                 else hi = mid;
             }
-            const uint32_t start = adapt_start(c, rn, lo);
-            x = (adapt_start(c, rn, lo + 1) - start) * (x >> PROB_BITS) + slot - start;
+            start = adapt_start(c, rn, lo);
+            f = adapt_start(c, rn, lo + 1) - start;
             adapt_update(&ad, t, lo);
-            while (x < STATE_LOWER) {
-                if (pos >= end) goto stop;
-                x = (x << 8) | data[pos++];
+        } else {
+            const uint32_t *c = cum + t * (alphabet + 1);
+            uint32_t hi = (uint32_t)alphabet;
+            while (hi - lo > 1) {
+                const uint32_t mid = (lo + hi) / 2;
+                if (c[mid] <= slot) lo = mid;
+                else hi = mid;
             }
-            out[i] = (uint16_t)lo;
-            continue;
+            start = c[lo];
+            f = freqs[t * alphabet + lo];
         }
-        const uint32_t *c = cum + t * (alphabet + 1);
-        Py_ssize_t lo = 0, hi = alphabet; /* the symbol s with c[s] <= slot < c[s + 1] */
-        while (hi - lo > 1) {
-            const Py_ssize_t mid = (lo + hi) / 2;
-            if (c[mid] <= slot) lo = mid;
-            else hi = mid;
-        }
-        x = freqs[t * alphabet + lo] * (x >> PROB_BITS) + slot - c[lo];
+        x = f * (x >> PROB_BITS) + slot - start;
         while (x < STATE_LOWER) {
             if (pos >= end) goto stop;
             x = (x << 8) | data[pos++];

@@ -216,16 +216,18 @@ def dumps(scene: Scene, *, encoding: str | None = None,
         choices = (False, True) if adaptive_tokens is None else (adaptive_tokens,)
         coded = {a: [encode_learned_tokens(tokens, tables, quality - 1, 1 + len(extras), which, a)
                      for tokens, which in zip(matrices, ("static", "dynamic"))] for a in choices}
-        adaptive = choices[-1] if len(choices) == 1 else sum(map(len, coded[True])) < sum(map(len, coded[False]))
+        # the policy (None): adaptive rows where the two streams are shorter together
+        adaptive = adaptive_tokens if adaptive_tokens is not None else (
+            sum(map(len, coded[True])) < sum(map(len, coded[False])))
         parts += [(SECTION_STATIC, coded[adaptive][0]), (SECTION_DYNAMIC, coded[adaptive][1])]
-    for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
-                                            (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT, lanes[1])):
-        if learned:
-            continue
-        enc = encode_tokens(tokens, encoding, groups=groups, lanes=k)
-        if enc.quant is not None:
-            parts.append((quant_name, enc.quant))
-        parts.append((tok_name, enc.tokens))
+    else:
+        for tokens, tok_name, quant_name, k in ((scene.static_tokens, SECTION_STATIC, SECTION_STATIC_QUANT, lanes[0]),
+                                                (scene.dynamic_tokens, SECTION_DYNAMIC, SECTION_DYNAMIC_QUANT,
+                                                 lanes[1])):
+            enc = encode_tokens(tokens, encoding, groups=groups, lanes=k)
+            if enc.quant is not None:
+                parts.append((quant_name, enc.quant))
+            parts.append((tok_name, enc.tokens))
     sections: list[SectionParts] = []
     joint = False
     for name, raw in parts:
