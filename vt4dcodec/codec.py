@@ -82,6 +82,7 @@ DEFAULT_ENCODING = "int4"
 # Quality levels of models with an entropy model (config entropy_levels): 1 = the coarsest. encode(quality=Q)
 # stores the tokens as learned-rans at that level (format 1.6). codec.QUALITY_LEVELS is quality_levels() of the
 # default model, read from its config on first access (module __getattr__): () while the shipped model has none.
+MAX_REFINE = 1000  # encoder-side refinement iterations one encode accepts (model.refine.MAX_REFINE)
 RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
@@ -316,6 +317,7 @@ def encode(
     runtime: str = "auto",
     quality: int | None = None,
     device: str = "cpu",
+    refine: int = 0,
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -350,6 +352,11 @@ def encode(
         quality: a quality level of the model's entropy model (:func:`quality_levels`; 1 = the fewest bytes):
             the scene is stored as ``learned-rans`` at that level (``encoding`` is then ignored). ModelError for
             a model without quality levels.
+        refine: iterations of encoder-side token refinement (:mod:`vt4dcodec.model.refine`): the tokens are moved
+            so that the encoded cameras' renders from the stored values match their frames at a rate cost --
+            fewer bytes and sharper encoded views for encode time (each iteration renders every encoded
+            camera once, forward and backward). Needs a quality level and torch (the refinement runs on the
+            torch model whatever runs the encoder). 0 (default): the encoder's tokens as they are.
     Returns:
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
@@ -359,8 +366,9 @@ def encode(
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
+    refiner = _refiner(net, model, refine, quality, device)
     clip = read_clip(source, names, start, net.config.frames)
-    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality)
+    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality, refine, refiner)
 
 
 def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL) -> tuple[int, ...]:
@@ -456,6 +464,7 @@ def encode_clips(
     runtime: str = "auto",
     quality: int | None = None,
     device: str = "cpu",
+    refine: int = 0,
 ) -> list[Scene]:
     """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
     (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
@@ -467,11 +476,36 @@ def encode_clips(
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
+    refiner = _refiner(net, model, refine, quality, device)
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")
-    return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit, quality)
+    return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit, quality,
+                         refine, refiner)
             for s in range(0, source.num_frames - T + 1, T)]
+
+
+def _refiner(net: "VideoTok4D | OnnxEncoder", model: "str | os.PathLike | VideoTok4D | OnnxEncoder", refine: int,
+             quality: int | None, device: str) -> "VideoTok4D | None":
+    """The torch model that refines the tokens of ``net``'s scenes (``refine`` iterations; None for 0): ``net``
+    itself when it runs on torch, else the torch model of the same directory. ModelError without a quality level,
+    MissingExtraError without torch."""
+    from .model.onnx_encoder import OnnxEncoder  # torch-free
+
+    if isinstance(refine, bool) or not isinstance(refine, int) or not 0 <= refine <= MAX_REFINE:
+        raise ModelError(f"--refine must be an integer from 0 to {MAX_REFINE} (iterations), got {refine!r}")
+    if refine == 0:
+        return None
+    if quality is None:
+        raise ModelError("--refine works on the stored values of a quality level: give --quality (or leave "
+                         "--encoding out for the model's default level)")
+    _require_torch("--refine (encoder-side refinement)")
+    if not isinstance(net, OnnxEncoder):
+        return net
+    if not isinstance(model, (str, os.PathLike)):
+        raise ModelError("--refine needs the torch model: pass a model id or directory (or a loaded VideoTok4D), "
+                         "not an OnnxEncoder")
+    return load_model(model, device=device)
 
 
 def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndarray, Trajectory, np.ndarray | None]]",
@@ -498,8 +532,10 @@ def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndar
 
 
 def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
-                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None) -> Scene:
-    """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``)."""
+                 seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None,
+                 refine: int = 0, refiner: "VideoTok4D | None" = None) -> Scene:
+    """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``); with ``refiner``,
+    refine the tokens ``refine`` iterations for ``quality``."""
     cfg = net.config
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     views = [(fitted.frames[n], fitted.cameras[n], fitted.depth[n] if fitted.has_depth(n) else None) for n in names]
@@ -507,6 +543,15 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     z_s, z_d = encode_views(net, views, seed)
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
+    if refiner is not None and refine and quality is not None:
+        from .model.refine import refine_tokens
+
+        tables = model_tables(refiner)
+        assert tables is not None  # _quality_encoding checked the model's tables
+        s, d = refine_tokens(refiner, z_s[0], z_d[0], np.stack([v[0] for v in views]),
+                             np.stack([v[1].K for v in views]), np.stack([v[1].w2c for v in views]),
+                             tables=tables, quality=quality, iterations=refine, seed=seed)
+        z_s, z_d = s[None], d[None]
     if len(names) > 1:
         info["source_cameras"] = list(names)
     if fit != "crop":

@@ -17,7 +17,7 @@ from ..capture.trajectories import check_trajectory_spec, describe_spec_presets
 from ..codec import (DEFAULT_ENCODING, DEFAULT_MODEL, DEFAULT_STEPS, SceneDecoder, iter_capture_dirs, model_fingerprint,
                      parse_camera_list)
 from ..demo import run_demo
-from ..errors import ArchiveError, CaptureError
+from ..errors import ArchiveError, CaptureError, MissingExtraError, ModelError
 from ..format import ENCODINGS, dumps, load, save
 from ..media import CAPTURE_KEY, VIDEO_FORMATS, scene_fps, write_frames
 from . import (EXIT_INTERRUPTED, add_budget_option, add_command, add_deprecated_flag, add_device_option,
@@ -165,6 +165,23 @@ def _save_keeping_mode(scene: Any, path: str) -> int:
     return n
 
 
+def _refine_runtime(args: argparse.Namespace) -> str:
+    """The encoder runtime of ``vt4d encode``: --runtime, or torch where --refine asks for the torch model
+    (checked before any work: a quality level, torch installed, not --runtime onnx)."""
+    if not args.refine:
+        return str(args.runtime)
+    if args.encoding is not None and args.quality is None:
+        raise ModelError("--refine refines the stored values of a quality level: give --quality Q instead of "
+                         "--encoding (or leave both out for the model's default level)")
+    if args.runtime == "onnx":
+        raise ModelError("--refine runs the torch networks: leave --runtime out (or give --runtime torch), or drop "
+                         "--refine to encode on onnxruntime")
+    if not codec.torch_available():
+        raise MissingExtraError(f"--refine needs torch, which is not installed: {codec.TRAIN_EXTRA_HINT}; or drop "
+                                "--refine")
+    return "torch"
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
     if args.output is None and args.archive is None:
         raise CaptureError("give -o FILE.vt4d (one scene) or --archive FILE.vt4da (many scenes)")
@@ -185,6 +202,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     else:
         check_output_file("--archive", args.archive, ".vt4da", "an archive",
                           "-o FILE.vt4d writes one scene" if args.archive.lower().endswith(".vt4d") else "")
+    runtime = _refine_runtime(args)
     captures = _captures(args.captures)
     if args.archive is None and (len(captures) > 1 or args.split):
         raise CaptureError("several captures or --split make several scenes: write them with --archive FILE.vt4da")
@@ -199,7 +217,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
             _check_keys_free(args, mine, set(reader.keys()), 0, reader.name)
     loading = time.perf_counter()
     with working(args, f"loading {args.model or codec.DEFAULT_MODEL}"):
-        model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, args.runtime, cameras=views, device=args.device)
+        model = codec.load_encoder(args.model or codec.DEFAULT_MODEL, runtime, cameras=views, device=args.device)
     started = time.perf_counter()
     results: list[dict[str, Any]] = []
     writer = None
@@ -225,11 +243,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
             recorded = {CAPTURE_KEY: {"fps": float(cap.fps)}}  # decoded videos play at the capture's rate
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
-                                            seed=args.seed, fit=args.fit, metadata=recorded, quality=args.quality)
+                                            seed=args.seed, fit=args.fit, metadata=recorded, quality=args.quality,
+                                            refine=args.refine)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
                                        start=args.start, seed=args.seed, fit=args.fit, metadata=recorded,
-                                       quality=args.quality)]
+                                       quality=args.quality, refine=args.refine)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -267,7 +286,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
                "model": fp.to_dict(), "encoding": "learned-rans" if quality else args.encoding or DEFAULT_ENCODING,
-               "quality": quality, "rank": rank, "world_size": world,
+               "quality": quality, "refine": args.refine, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
     if skipped:
@@ -415,6 +434,12 @@ def register(subparsers: Any) -> None:
                         "levels (models trained with a rate term; codec.quality_levels): stores the tokens as "
                         "learned-rans at that level (format 1.6) instead of --encoding (vt4d info shows the level and "
                         "bits per pixel)")
+    p.add_argument("--refine", type=nonneg_int, default=0, metavar="N",
+                   help="encoder-side refinement: N iterations that move the tokens so the encoded cameras' renders "
+                        "from the stored values match their frames, at a rate cost (fewer bytes, sharper encoded "
+                        "views; each iteration renders every encoded camera once, forward and backward: about 0.13 s "
+                        "per camera for vt4d-tiny on 2 CPU threads). Needs a quality level and torch (the train "
+                        "extra); 10 is a good start (docs/benchmarks/codecs.md). Default 0: the encoder's tokens")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
                         "(1 .. 10 cameras per scene, ~4x less memory), 'torch' the networks (the train extra); 'auto' "
