@@ -6,13 +6,13 @@ error that its own renderer could remove. Refinement, as in learned image compre
 "Content adaptive optimization for neural image compression"; Yang et al. 2020, "Improving inference for
 neural image compression"), starts from the encoder's tokens and runs Adam on
 
-    D + RATE_WEIGHT x R
+    D + w_l x R
 
 D: pixel MSE between the encoded cameras' frames (V, T, H, W) and the renders of the tokens *as the file stores
 them* -- the writer's codes at the quality level times the step (``vt4dcodec.format.learned.writer_codes``),
 with a straight-through gradient -- at the model's decode steps and seed 0, the decoder's defaults.
 R: the entropy model's bits of the token set (its additive-noise proxy, :meth:`TokenEntropyModel.noisy`) per
-encoded pixel. Only the encoder's choice of tokens changes: the file format, the decoder and every reader are
+encoded pixel, weighted by the level's w_l (:func:`rate_weight_of`). Only the encoder's choice of tokens changes: the file format, the decoder and every reader are
 untouched, and a refined scene decodes on any runtime.
 
 Cost: one render and its backward pass over the encoded cameras per iteration (vt4d-tiny on 2 CPU threads:
@@ -29,10 +29,16 @@ from vt4dcodec.format.learned import EntropyTables, dequantize, writer_codes
 
 from .videotok4d import VideoTok4D
 
-__all__ = ["refine_tokens", "REFINE_LR", "RATE_WEIGHT", "MAX_REFINE"]
+__all__ = ["refine_tokens", "rate_weight_of", "REFINE_LR", "RATE_WEIGHT", "RATE_SLOPE", "MAX_REFINE"]
 
 REFINE_LR = 0.01      # Adam step on the tokens (values in (-1, 1)); 0.02 lowers the bytes faster but gains less
-RATE_WEIGHT = 0.05    # weight of bits per encoded pixel beside pixel MSE: the files of the probe shrink, not grow
+# Weight of bits per encoded pixel beside pixel MSE at a level of mean static step s: min(RATE_WEIGHT,
+# RATE_SLOPE x s^2). A quantiser's distortion, and so the slope dD/dR of its operating point, scales with its step
+# squared; at the fine levels a fixed weight outweighs the pixel error (vt4d-tiny q9, one camera: at 0.05 the
+# refined files are 23 % smaller and 0.45 dB worse on caliscope; at 0.005 7.6 % smaller and 0.92 dB better on
+# synthetic captures). 0.05 was tuned at q1 and q7 (bench/probes/probe_token_refinement.py), where the rule gives 0.05.
+RATE_WEIGHT = 0.05
+RATE_SLOPE = 0.55
 MAX_REFINE = 1000     # iterations one call accepts
 TOKEN_BOUND = 0.999   # tokens stay inside the bottleneck's open range (-1, 1)
 
@@ -44,15 +50,22 @@ def _stored(z: torch.Tensor, tables: EntropyTables, level: int, which: str, view
     return z + (values - z).detach()
 
 
+def rate_weight_of(tables: EntropyTables, quality: int) -> float:
+    """The rate weight of quality level ``quality`` (1-based): min(RATE_WEIGHT, RATE_SLOPE x s^2), s the level's
+    mean static step."""
+    step = float(np.mean(tables.steps[int(quality) - 1, 0].astype(np.float64)))
+    return min(RATE_WEIGHT, RATE_SLOPE * step * step)
+
+
 def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   w2c: np.ndarray, *, tables: EntropyTables, quality: int, iterations: int,
-                  lr: float = REFINE_LR, rate_weight: float = RATE_WEIGHT, seed: int = 0
+                  lr: float = REFINE_LR, rate_weight: float | None = None, seed: int = 0
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Refined tokens of one scene for storage at quality level ``quality`` (1-based).
 
     z_s (N_s, d), z_d (N_d, d) float32: the encoder's tokens; frames (V, T, H, W, 3) uint8: the encoded cameras'
     clips fitted to the model's image (encoding order); K (V, T, 3, 3) px and w2c (V, T, 4, 4): their cameras;
-    tables: the model's frozen entropy tables; ``seed`` seeds the rate proxy's noise (the same inputs and seed
+    tables: the model's frozen entropy tables; ``rate_weight``: None for the level's (:func:`rate_weight_of`); ``seed`` seeds the rate proxy's noise (the same inputs and seed
     give the same tokens; the caller's random state is left as it was). Returns (z_s, z_d) float32 of the same
     shapes, in (-1, 1). ``iterations`` 0 returns the tokens unchanged.
     """
@@ -68,6 +81,8 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
         raise ModelError(f"refinement: {V} clips of {T} frames but cameras {K.shape[:2]} / {w2c.shape[:2]}")
     if iterations == 0:
         return z_s.astype(np.float32), z_d.astype(np.float32)
+    if rate_weight is None:
+        rate_weight = rate_weight_of(tables, quality)
     device = next(net.parameters()).device
     was_training = net.training
     net.eval()

@@ -27,7 +27,7 @@ from bench_codecs import quality  # noqa: E402
 
 from vt4dcodec import codec  # noqa: E402
 from vt4dcodec.format import dumps  # noqa: E402
-from vt4dcodec.model.refine import RATE_WEIGHT, REFINE_LR, refine_tokens  # noqa: E402
+from vt4dcodec.model.refine import REFINE_LR, refine_tokens  # noqa: E402
 from vt4dcodec.synth import SynthConfig, generate_scene  # noqa: E402
 
 
@@ -40,7 +40,8 @@ def main() -> int:
     p.add_argument("--setting", default="half", choices=["half", "all", "single"])
     p.add_argument("--iters", default="0,10,30")
     p.add_argument("--lr", type=float, default=REFINE_LR)
-    p.add_argument("--lam", type=float, default=RATE_WEIGHT, help="weight of the rate (bits per stored pixel)")
+    p.add_argument("--lam", type=float, default=None, help="weight of the rate (bits per stored pixel; default: the "
+                   "level's, vt4dcodec.model.refine.rate_weight_of)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--figure", type=Path, default=None, help="PNG of the first capture's middle frame: truth, then "
