@@ -12,8 +12,9 @@ D: pixel MSE between the encoded cameras' frames (V, T, H, W) and the renders of
 them* -- the writer's codes at the quality level times the step (``vt4dcodec.format.learned.writer_codes``),
 with a straight-through gradient -- at the model's decode steps and seed 0, the decoder's defaults.
 R: the entropy model's bits of the token set (its additive-noise proxy, :meth:`TokenEntropyModel.noisy`) per
-encoded pixel, weighted by the level's w_l (:func:`rate_weight_of`). Only the encoder's choice of tokens changes: the file format, the decoder and every reader are
-untouched, and a refined scene decodes on any runtime.
+encoded pixel, weighted by the level's w_l (:func:`rate_weight_of`). Only the encoder's choice of tokens
+changes: the file format, the decoder and every reader are untouched, and a refined scene decodes on any
+runtime.
 
 Cost: one render and its backward pass over the encoded cameras per iteration (vt4d-tiny on 2 CPU threads:
 about 0.13 s per encoded camera). Measured effect: docs/benchmarks/codecs.md ("Encoder refinement").
@@ -65,8 +66,9 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
 
     z_s (N_s, d), z_d (N_d, d) float32: the encoder's tokens; frames (V, T, H, W, 3) uint8: the encoded cameras'
     clips fitted to the model's image (encoding order); K (V, T, 3, 3) px and w2c (V, T, 4, 4): their cameras;
-    tables: the model's frozen entropy tables; ``rate_weight``: None for the level's (:func:`rate_weight_of`); ``seed`` seeds the rate proxy's noise (the same inputs and seed
-    give the same tokens; the caller's random state is left as it was). Returns (z_s, z_d) float32 of the same
+    tables: the model's frozen entropy tables; ``rate_weight``: None for the level's (:func:`rate_weight_of`);
+    ``seed`` seeds the rate proxy's noise (the same inputs and seed give the same tokens; the caller's random
+    state is left as it was). Returns (z_s, z_d) float32 of the same
     shapes, in (-1, 1). ``iterations`` 0 returns the tokens unchanged.
     """
     if isinstance(iterations, bool) or not isinstance(iterations, int) or not 0 <= iterations <= MAX_REFINE:

@@ -543,11 +543,11 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     z_s, z_d = encode_views(net, views, seed)
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
-    if refiner is not None and refine and quality is not None:
+    if refiner is not None:  # _refiner gave one: refine > 0 and a quality level
         from .model.refine import refine_tokens
 
         tables = model_tables(refiner)
-        assert tables is not None  # _quality_encoding checked the model's tables
+        assert tables is not None and quality is not None  # _quality_encoding checked the level and its tables
         s, d = refine_tokens(refiner, z_s[0], z_d[0], np.stack([v[0] for v in views]),
                              np.stack([v[1].K for v in views]), np.stack([v[1].w2c for v in views]),
                              tables=tables, quality=quality, iterations=refine, seed=seed)
