@@ -290,7 +290,7 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
     """Every setting of one clip: vt4d per encoding and each codec per quality step, each as
     {bytes, psnr, ssim} (bytes of the stored cameras, PSNR / SSIM averaged over the evaluated views).
     An encoding ``qNrM`` stores the tokens of ``codec.encode(..., quality=N, refine=M)`` (refined for that
-    level); every other encoding stores the encoder's tokens."""
+    level), ``qNrMs`` those refined with ``tune="ssim"``; every other encoding stores the encoder's tokens."""
     from vt4dcodec import codec
     from vt4dcodec.eval.baselines import mean_colour
     from vt4dcodec.format import dumps
@@ -311,10 +311,10 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
         rendered[set_name], file_bytes[set_name] = {}, {}
         targets = [n for n in names if any(n in views_of(names, stored, k) for k in ("captured", "novel"))]
         for enc in encodings:
-            refined = re.fullmatch(r"q(\d+)r(\d+)", enc)
+            refined = re.fullmatch(r"q(\d+)r(\d+)(s?)", enc)
             data = vt4d_bytes(scene, enc, net) if refined is None else dumps(codec.encode(
                 capture, net, cameras=stored, start=start, seed=seed, quality=int(refined.group(1)),
-                refine=int(refined.group(2))))
+                refine=int(refined.group(2)), tune="ssim" if refined.group(3) else "psnr"))
             file_bytes[set_name][enc] = len(data)
             videos = codec.SceneDecoder.open(data, model=net).render_many([trajs[n] for n in targets], seed=seed)
             rendered[set_name][enc] = {n: quality(v, truth[n]) for n, v in zip(targets, videos)}
@@ -617,10 +617,10 @@ def run(args: argparse.Namespace, argv: Sequence[str]) -> dict[str, Any]:
     encodings = ENCODINGS + levels if args.encodings == "all" else levels if args.encodings == "levels" else \
         tuple(e.strip() for e in args.encodings.split(","))
     bad = [e for e in encodings if e not in ENCODINGS + levels
-           and not (re.fullmatch(r"q\d+r\d+", e) and e[:e.index("r")] in levels)]
+           and not (re.fullmatch(r"q\d+r\d+s?", e) and e[:e.index("r")] in levels)]
     if bad:
         raise SystemExit(f"--encodings: unknown {bad}; the model's quality levels are {list(levels) or 'none'} "
-                         "(qNrM: level N refined M iterations)")
+                         "(qNrM: level N refined M iterations; qNrMs: for SSIM)")
     reference = args.reference or (codec.DEFAULT_ENCODING if codec.DEFAULT_ENCODING in encodings else encodings[0])
     codecs = available_codecs([c.strip() for c in args.codecs.split(",")])
     fp = codec.model_fingerprint(net)
@@ -729,7 +729,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--real-clips", type=int, default=-1, help="clips of --capture (-1: all, 0: skip real footage)")
     p.add_argument("--encodings", default="all",
                    help="token encodings and quality levels (q1, q2, ... of a model with an entropy model: learned-rans "
-                        "at that level; qNrM: level N refined M iterations at encode), comma-separated; 'levels' (every quality level) or 'all' (every encoding and level)")
+                        "at that level; qNrM: level N refined M iterations at encode; qNrMs: refined with --tune ssim), comma-separated; 'levels' (every quality level) or 'all' (every encoding and level)")
     p.add_argument("--reference", default=None,
                    help="the encoding or level whose point the equal-quality tables compare (default: the codec's "
                         "default encoding when measured, else the first)")

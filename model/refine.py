@@ -8,7 +8,7 @@ neural image compression"), starts from the encoder's tokens and runs Adam on
 
     D + w_l x R
 
-D: pixel MSE between the encoded cameras' frames (V, T, H, W) and the renders of the tokens *as the file stores
+D: pixel MSE (plus ``ssim_weight`` x (1 - SSIM), the "ssim" tune) between the encoded cameras' frames (V, T, H, W) and the renders of the tokens *as the file stores
 them* -- the writer's codes at the quality level times the step (``vt4dcodec.format.learned.writer_codes``),
 with a straight-through gradient -- at the model's decode steps and seed 0, the decoder's defaults.
 R: the entropy model's bits of the token set (its additive-noise proxy, :meth:`TokenEntropyModel.noisy`) per
@@ -22,6 +22,7 @@ about 0.13 s per encoded camera). Measured effect: docs/benchmarks/codecs.md ("E
 
 from __future__ import annotations
 
+import kornia
 import numpy as np
 import torch
 
@@ -30,7 +31,8 @@ from vt4dcodec.format.learned import EntropyTables, dequantize, writer_codes
 
 from .videotok4d import VideoTok4D
 
-__all__ = ["refine_tokens", "rate_weight_of", "REFINE_LR", "RATE_WEIGHT", "RATE_SLOPE", "MAX_REFINE"]
+__all__ = ["refine_tokens", "rate_weight_of", "REFINE_LR", "RATE_WEIGHT", "RATE_SLOPE", "MAX_REFINE",
+           "TUNE_SSIM_WEIGHT"]
 
 REFINE_LR = 0.01      # Adam step on the tokens (values in (-1, 1)); 0.02 lowers the bytes faster but gains less
 # Weight of bits per encoded pixel beside pixel MSE at a level of mean static step s: min(RATE_WEIGHT,
@@ -40,6 +42,11 @@ REFINE_LR = 0.01      # Adam step on the tokens (values in (-1, 1)); 0.02 lowers
 # synthetic captures). 0.05 was tuned at q1 and q7 (bench/probes/probe_token_refinement.py), where the rule gives 0.05.
 RATE_WEIGHT = 0.05
 RATE_SLOPE = 0.55
+# Weight of 1 - SSIM (kornia's, 11x11 Gaussian window, as the evaluation) beside pixel MSE, per tune
+# (codec.encode(tune=...)). 0.02 was chosen on synthetic tuning captures (seeds 2000-2011, probe_token_refinement.py
+# --ssim): at q7 with five cameras stored, 10 iterations, +0.021 SSIM and +0.11 dB on the stored views for +5 % bytes
+# against "psnr"; 0.1 gains little more SSIM for twice the bytes.
+TUNE_SSIM_WEIGHT = {"psnr": 0.0, "ssim": 0.02}
 MAX_REFINE = 1000     # iterations one call accepts
 TOKEN_BOUND = 0.999   # tokens stay inside the bottleneck's open range (-1, 1)
 
@@ -60,13 +67,15 @@ def rate_weight_of(tables: EntropyTables, quality: int) -> float:
 
 def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   w2c: np.ndarray, *, tables: EntropyTables, quality: int, iterations: int,
-                  lr: float = REFINE_LR, rate_weight: float | None = None, seed: int = 0
+                  lr: float = REFINE_LR, rate_weight: float | None = None,
+                  ssim_weight: float | None = None, seed: int = 0
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Refined tokens of one scene for storage at quality level ``quality`` (1-based).
 
     z_s (N_s, d), z_d (N_d, d) float32: the encoder's tokens; frames (V, T, H, W, 3) uint8: the encoded cameras'
     clips fitted to the model's image (encoding order); K (V, T, 3, 3) px and w2c (V, T, 4, 4): their cameras;
     tables: the model's frozen entropy tables; ``rate_weight``: None for the level's (:func:`rate_weight_of`);
+    ``ssim_weight``: weight of 1 - SSIM beside the pixel MSE (None: 0, the "psnr" tune; see TUNE_SSIM_WEIGHT);
     ``seed`` seeds the rate proxy's noise (the same inputs and seed give the same tokens; the caller's random
     state is left as it was). Returns (z_s, z_d) float32 of the same
     shapes, in (-1, 1). ``iterations`` 0 returns the tokens unchanged.
@@ -85,6 +94,8 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
         return z_s.astype(np.float32), z_d.astype(np.float32)
     if rate_weight is None:
         rate_weight = rate_weight_of(tables, quality)
+    if ssim_weight is None:
+        ssim_weight = TUNE_SSIM_WEIGHT["psnr"]
     device = next(net.parameters()).device
     was_training = net.training
     net.eval()
@@ -110,6 +121,8 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
                 latents = render_latents(net, s, d, Kt, wt, seed=0, source=source)
                 out = torch.cat([net.autoencoder.decode(x) for x in latents.split(1)]).float().clamp(0.0, 1.0)
                 loss = torch.nn.functional.mse_loss(out, truth)
+                if ssim_weight:
+                    loss = loss + ssim_weight * (1.0 - kornia.metrics.ssim(out.flatten(0, 1), truth.flatten(0, 1), 11).mean())
                 if rate_weight:
                     bits = net.entropy.noisy(zs[None], zd[None], level, origin)[2].sum()
                     loss = loss + rate_weight * bits / pixels

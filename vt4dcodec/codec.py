@@ -83,6 +83,7 @@ DEFAULT_ENCODING = "int4"
 # stores the tokens as learned-rans at that level (format 1.6). codec.QUALITY_LEVELS is quality_levels() of the
 # default model, read from its config on first access (module __getattr__): () while the shipped model has none.
 MAX_REFINE = 1000  # encoder-side refinement iterations one encode accepts (model.refine.MAX_REFINE)
+TUNES = ("psnr", "ssim")  # what encoder-side refinement optimises (model.refine.TUNE_SSIM_WEIGHT)
 RENDER_BATCH = 8  # views rendered in one forward pass by SceneDecoder.render_many (bounds its memory)
 
 
@@ -318,6 +319,7 @@ def encode(
     quality: int | None = None,
     device: str = "cpu",
     refine: int = 0,
+    tune: str = "psnr",
 ) -> Scene:
     """Compress one clip of a capture -- one camera or several synchronized ones -- into a
     :class:`~vt4dcodec.format.Scene`.
@@ -357,6 +359,9 @@ def encode(
             fewer bytes and sharper encoded views for encode time (each iteration renders every encoded
             camera once, forward and backward). Needs a quality level and torch (the refinement runs on the
             torch model whatever runs the encoder). 0 (default): the encoder's tokens as they are.
+        tune: what refinement optimises beside the rate: ``"psnr"`` (default; pixel MSE) or ``"ssim"`` (pixel MSE
+            plus a small 1 - SSIM term: sharper structure and a higher SSIM for a few per cent more bytes and a
+            PSNR about equal; docs/benchmarks/codecs.md). Only with ``refine`` > 0.
     Returns:
         The scene: tokens (float32, rounded to ``encoding`` only when saved), the fitted source
         cameras, the model fingerprint, metadata and provenance ("encoded").
@@ -366,9 +371,9 @@ def encode(
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
-    refiner = _refiner(net, model, refine, quality, device)
+    refiner = _refiner(net, model, refine, quality, device, tune)
     clip = read_clip(source, names, start, net.config.frames)
-    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality, refine, refiner)
+    return _encode_clip(clip, net, encoding, names, int(start), seed, metadata, fit, quality, refine, refiner, tune)
 
 
 def quality_levels(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFAULT_MODEL) -> tuple[int, ...]:
@@ -465,6 +470,7 @@ def encode_clips(
     quality: int | None = None,
     device: str = "cpu",
     refine: int = 0,
+    tune: str = "psnr",
 ) -> list[Scene]:
     """Split a long capture into consecutive clips of ``model.config.frames`` frames and encode each
     (from a directory, one clip is read at a time); the arguments are :func:`encode`'s.
@@ -476,17 +482,17 @@ def encode_clips(
     names = _pick_cameras(source, camera, cameras)
     net = load_encoder(model, runtime, cameras=len(names), device=device)
     encoding, quality = _quality_encoding(net, encoding, quality, model)
-    refiner = _refiner(net, model, refine, quality, device)
+    refiner = _refiner(net, model, refine, quality, device, tune)
     T = net.config.frames
     if source.num_frames < T:
         raise CaptureError(f"capture has {source.num_frames} frames; model clips are {T} frames")
     return [_encode_clip(read_clip(source, names, s, T), net, encoding, names, s, seed, metadata, fit, quality,
-                         refine, refiner)
+                         refine, refiner, tune)
             for s in range(0, source.num_frames - T + 1, T)]
 
 
 def _refiner(net: "VideoTok4D | OnnxEncoder", model: "str | os.PathLike | VideoTok4D | OnnxEncoder", refine: int,
-             quality: int | None, device: str) -> "VideoTok4D | None":
+             quality: int | None, device: str, tune: str = "psnr") -> "VideoTok4D | None":
     """The torch model that refines the tokens of ``net``'s scenes (``refine`` iterations; None for 0): ``net``
     itself when it runs on torch, else the torch model of the same directory. ModelError without a quality level,
     MissingExtraError without torch."""
@@ -494,7 +500,11 @@ def _refiner(net: "VideoTok4D | OnnxEncoder", model: "str | os.PathLike | VideoT
 
     if isinstance(refine, bool) or not isinstance(refine, int) or not 0 <= refine <= MAX_REFINE:
         raise ModelError(f"--refine must be an integer from 0 to {MAX_REFINE} (iterations), got {refine!r}")
+    if tune not in TUNES:
+        raise ModelError(f"--tune must be one of {', '.join(TUNES)}, got {tune!r}")
     if refine == 0:
+        if tune != "psnr":
+            raise ModelError(f"--tune {tune} sets what refinement optimises: give --refine N (N > 0) with it")
         return None
     if quality is None:
         raise ModelError("--refine works on the stored values of a quality level: give --quality (or leave "
@@ -533,9 +543,9 @@ def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndar
 
 def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, names: list[str], start: int,
                  seed: int, metadata: dict[str, Any] | None, fit: str = "crop", quality: int | None = None,
-                 refine: int = 0, refiner: "VideoTok4D | None" = None) -> Scene:
+                 refine: int = 0, refiner: "VideoTok4D | None" = None, tune: str = "psnr") -> Scene:
     """Encode ``clip`` (exactly the model's frame count; frame 0 is capture frame ``start``); with ``refiner``,
-    refine the tokens ``refine`` iterations for ``quality``."""
+    refine the tokens ``refine`` iterations for ``quality``, optimising ``tune``."""
     cfg = net.config
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     views = [(fitted.frames[n], fitted.cameras[n], fitted.depth[n] if fitted.has_depth(n) else None) for n in names]
@@ -544,13 +554,14 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
     if refiner is not None:  # _refiner gave one: refine > 0 and a quality level
-        from .model.refine import refine_tokens
+        from .model.refine import TUNE_SSIM_WEIGHT, refine_tokens
 
         tables = model_tables(refiner)
         assert tables is not None and quality is not None  # _quality_encoding checked the level and its tables
         s, d = refine_tokens(refiner, z_s[0], z_d[0], np.stack([v[0] for v in views]),
                              np.stack([v[1].K for v in views]), np.stack([v[1].w2c for v in views]),
-                             tables=tables, quality=quality, iterations=refine, seed=seed)
+                             tables=tables, quality=quality, iterations=refine, seed=seed,
+                             ssim_weight=TUNE_SSIM_WEIGHT[tune])
         z_s, z_d = s[None], d[None]
     if len(names) > 1:
         info["source_cameras"] = list(names)

@@ -42,6 +42,8 @@ def main() -> int:
     p.add_argument("--lr", type=float, default=REFINE_LR)
     p.add_argument("--lam", type=float, default=None, help="weight of the rate (bits per stored pixel; default: the "
                    "level's, vt4dcodec.model.refine.rate_weight_of)")
+    p.add_argument("--ssim", type=float, default=None, help="weight of 1 - SSIM beside pixel MSE (default 0, the "
+                   "'psnr' tune; vt4dcodec.model.refine.TUNE_SSIM_WEIGHT)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--figure", type=Path, default=None, help="PNG of the first capture's middle frame: truth, then "
@@ -69,13 +71,14 @@ def main() -> int:
             t0 = time.perf_counter()
             scene.static_tokens, scene.dynamic_tokens = refine_tokens(
                 net, z_s, z_d, clips, K, w2c, tables=tables, quality=args.level, iterations=it, lr=args.lr,
-                rate_weight=args.lam)
+                rate_weight=args.lam, ssim_weight=args.ssim)
             seconds = time.perf_counter() - t0
             blob = dumps(scene, encoding="learned-rans", quality=args.level, tables=tables)
             d = codec.SceneDecoder.open(blob, model=net)
             own = d.render_many([cap.cameras[n][:frames] for n in stored], seed=0)
+            sq = [quality(v, cap.frames[n][:frames]) for n, v in zip(stored, own)]
             row = {"seed": seed, "bytes": len(blob), "seconds": seconds,
-                   "stored_psnr": float(np.mean([quality(v, cap.frames[n][:frames])[0] for n, v in zip(stored, own)]))}
+                   "stored_psnr": float(np.mean([a for a, _ in sq])), "stored_ssim": float(np.mean([b for _, b in sq]))}
             if held:
                 nov = d.render_many([cap.cameras[n][:frames] for n in held], seed=0)
                 q = [quality(v, cap.frames[n][:frames]) for n, v in zip(held, nov)]
@@ -99,10 +102,12 @@ def main() -> int:
     for n, rs in rows.items():
         s = {"bytes": float(np.mean([r["bytes"] for r in rs])),
              "stored_psnr": float(np.mean([r["stored_psnr"] for r in rs])),
+             "stored_ssim": float(np.mean([r["stored_ssim"] for r in rs])),
              "seconds": float(np.mean([r["seconds"] for r in rs]))}
         if held:
             diff = [r["held_psnr"] - b["held_psnr"] for r, b in zip(rs, base)]
             s.update(held_psnr=float(np.mean([r["held_psnr"] for r in rs])),
+                     held_ssim=float(np.mean([r["held_ssim"] for r in rs])),
                      held_gain=float(np.mean(diff)),
                      held_gain_se=float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None)
         summary[n] = s

@@ -169,6 +169,8 @@ def _refine_runtime(args: argparse.Namespace) -> str:
     """The encoder runtime of ``vt4d encode``: --runtime, or torch where --refine asks for the torch model
     (checked before any work: a quality level, torch installed, not --runtime onnx)."""
     if not args.refine:
+        if args.tune != "psnr":
+            raise ModelError(f"--tune {args.tune} sets what refinement optimises: give --refine N with it")
         return str(args.runtime)
     if args.encoding is not None and args.quality is None:
         raise ModelError("--refine refines the stored values of a quality level: give --quality Q instead of "
@@ -244,11 +246,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
             if args.split:
                 scenes = codec.encode_clips(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
                                             seed=args.seed, fit=args.fit, metadata=recorded, quality=args.quality,
-                                            refine=args.refine)
+                                            refine=args.refine, tune=args.tune)
             else:
                 scenes = [codec.encode(cap, model, args.encoding, camera=args.camera, cameras=args.cameras,
                                        start=args.start, seed=args.seed, fit=args.fit, metadata=recorded,
-                                       quality=args.quality, refine=args.refine)]
+                                       quality=args.quality, refine=args.refine, tune=args.tune)]
             for scene in scenes:
                 info = scene.metadata["vt4d"]
                 if writer is not None:
@@ -286,7 +288,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     load_s = started - loading
     summary = {"scenes": results, "seconds": round(elapsed, 3), "load_seconds": round(load_s, 3),
                "model": fp.to_dict(), "encoding": "learned-rans" if quality else args.encoding or DEFAULT_ENCODING,
-               "quality": quality, "refine": args.refine, "rank": rank, "world_size": world,
+               "quality": quality, "refine": args.refine, "tune": args.tune, "rank": rank, "world_size": world,
                "archive": _shard_path(args.archive, rank, world) if args.archive else None, "skipped": skipped}
     lines = [f"{r.get('key') or r['file']}: {r['bytes']} bytes  (from {r['capture']})" for r in results]
     if skipped:
@@ -440,6 +442,9 @@ def register(subparsers: Any) -> None:
                         "views; each iteration renders every encoded camera once, forward and backward: about 0.13 s "
                         "per camera for vt4d-tiny on 2 CPU threads). Needs a quality level and torch (the train "
                         "extra); 10 is a good start (docs/benchmarks/codecs.md). Default 0: the encoder's tokens")
+    p.add_argument("--tune", choices=codec.TUNES, default="psnr",
+                   help="what --refine optimises beside the bytes: 'psnr' (default: pixel error) or 'ssim' (pixel "
+                        "error and structure: a higher SSIM, sharper edges, for a few per cent more bytes)")
     p.add_argument("--runtime", choices=codec.RUNTIMES, default="auto",
                    help="encoder runtime: 'onnx' runs the model's exported encoder on onnxruntime without torch "
                         "(1 .. 10 cameras per scene, ~4x less memory), 'torch' the networks (the train extra); 'auto' "

@@ -118,11 +118,11 @@ def _joined(trajs: list[Trajectory]) -> Trajectory:
 
 def evaluate_cameras(capture: "Capture | CaptureManifest", net: Any, sources: Sequence[str], targets: Sequence[str],
                      *, steps: int | None = None, seed: int = 0, fit: str = "crop", max_clips: int | None = None,
-                     quality: int | None = None, refine: int = 0
+                     quality: int | None = None, refine: int = 0, tune: str = "psnr"
                      ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Encode every clip of ``sources`` (one token set), render each of ``targets``; returns (rows, clips).
     The tokens are stored as int8, or with ``quality`` = N (a model with quality levels) as learned-rans at
-    level N, refined ``refine`` iterations at encode (``codec.encode(refine=...)``).
+    level N, refined ``refine`` iterations at encode for ``tune`` (``codec.encode(refine=..., tune=...)``).
 
     Rows: ``method``, ``camera``, ``clip_start``, ``psnr``, ``ssim`` (and ``bytes``, ``seconds`` for ours;
     hole fraction and depth for the warp).  Clips: ``start``, ``source`` (the first source camera's
@@ -138,7 +138,7 @@ def evaluate_cameras(capture: "Capture | CaptureManifest", net: Any, sources: Se
     for start in starts:
         t0 = time.perf_counter()
         scene = codec.encode(capture, net, ENCODING, cameras=sources, start=start, seed=seed, fit=fit, quality=quality,
-                             refine=refine)
+                             refine=refine, tune=tune)
         blob = dumps(scene)  # a learned-rans scene's tables: registered by codec.encode
         decoder = codec.SceneDecoder.open(blob, model=net)
         clip = fit_capture(codec.read_clip(capture, names, start, T), height=size, width=size, fit=fit)
@@ -281,6 +281,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="store the tokens as learned-rans at quality level N of the model (default: int8)")
     p.add_argument("--refine", type=int, default=0, metavar="N",
                    help="with --quality: refine the tokens N iterations at encode (vt4d encode --refine)")
+    p.add_argument("--tune", choices=codec.TUNES, default="psnr",
+                   help="what --refine optimises (vt4d encode --tune)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", default="docs/results/real_caliscope.json")
     p.add_argument("--figure", default=None, help="PNG of the first target: source | real | ours | references")
@@ -315,7 +317,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
                                f"source / all; the capture has {available}")
     steps = int(net.decode_steps if args.steps is None else args.steps)
     rows, clips = evaluate_cameras(capture, net, sources, targets, steps=steps, seed=args.seed, fit=args.fit,
-                                   quality=args.quality, max_clips=args.max_clips, refine=args.refine)
+                                   quality=args.quality, max_clips=args.max_clips, refine=args.refine,
+                                   tune=args.tune)
     wall = time.perf_counter() - t0
     source, target = sources[0], targets[0] if len(targets) == 1 else "all"
     results = {
@@ -327,7 +330,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "frames": capture.num_frames, "fps": capture.fps, "fit": args.fit,
         "image_size": size, "clip_frames": net.config.frames, "clips": len(clips), "steps": steps,
         "decode_steps": int(net.decode_steps), "seed": args.seed,
-        "encoding": stored_encoding(net, args.quality), "refine": args.refine,
+        "encoding": stored_encoding(net, args.quality), "refine": args.refine, "tune": args.tune,
         "model": codec.model_fingerprint(net).short(), "training_step": net.training_step,
         "wall_s": round(wall, 1), "summary": summarize_real(rows), "summary_by_camera": summarize_by_camera(rows),
         "rows": rows,
