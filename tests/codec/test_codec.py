@@ -7,7 +7,7 @@ from vt4dcodec import codec
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.capture import Capture
 from vt4dcodec.errors import CaptureError, ModelMismatchError, ModelNotFoundError, TrajectoryError, Vt4dError
-from vt4dcodec.format import load, save
+from vt4dcodec.format import dumps, load, open_scene, save
 from vt4dcodec.format.compact_cameras import REPROJECTION_TOLERANCE_PX, reprojection_change
 
 
@@ -80,6 +80,13 @@ def test_encode_is_deterministic(synth_scene, model_dir, encoded):
     again = codec.encode(synth_scene.capture, model=model_dir, seed=0)
     assert np.array_equal(again.static_tokens, encoded.static_tokens)
     assert np.array_equal(again.dynamic_tokens, encoded.dynamic_tokens)
+
+
+def test_source_date_epoch_makes_encoded_files_byte_identical(synth_scene, model_dir, monkeypatch):
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1767225600")
+    a = dumps(codec.encode(synth_scene.capture, model=model_dir, seed=0))
+    b = dumps(codec.encode(synth_scene.capture, model=model_dir, seed=0))
+    assert a == b and open_scene(a).provenance.created_utc == "2026-01-01T00:00:00Z"
 
 
 def test_model_mismatch_is_refused_naming_both_fingerprints(tmp_path, encoded, other_model_dir):

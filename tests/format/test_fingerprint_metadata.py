@@ -48,6 +48,20 @@ def test_provenance_validation_and_now():
             Provenance(**dict(p.to_dict(), **bad))
 
 
+def test_provenance_honours_source_date_epoch(monkeypatch):
+    # reproducible files: the same input encoded twice writes the same bytes when SOURCE_DATE_EPOCH is set
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1767225600")
+    assert Provenance.now("cap").created_utc == "2026-01-01T00:00:00Z"
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")
+    assert Provenance.now(None).created_utc == "1970-01-01T00:00:00Z"
+    for bad in ("-1", "1.5", "soon", " 12", "1" * 13, "999999999999"):
+        monkeypatch.setenv("SOURCE_DATE_EPOCH", bad)
+        with pytest.raises(MalformedHeaderError, match="SOURCE_DATE_EPOCH"):
+            Provenance.now("cap")
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "")  # empty: unset
+    assert Provenance.now("cap").created_utc.endswith("Z")
+
+
 def test_metadata_types_depth_and_size():
     assert normalize_metadata({"t": (1, 2), "n": np.int64(3), "f": np.float32(0.5), "b": np.bool_(True)}) == {
         "t": [1, 2], "n": 3, "f": 0.5, "b": True}

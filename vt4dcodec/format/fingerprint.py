@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import os
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -32,6 +33,23 @@ def _check_calendar(stamp: str) -> None:
 _DTYPE = re.compile(r"[a-z][a-z0-9_]{0,31}")
 _FINGERPRINT_KEYS = {"model_id", "model_version", "config_sha256", "weights_sha256", "static_shape",
                      "dynamic_shape", "token_dtype"}
+def _stamp() -> str:
+    """The creation time to record: SOURCE_DATE_EPOCH where set, else now (UTC, whole seconds)."""
+    fixed = os.environ.get("SOURCE_DATE_EPOCH", "")
+    if not fixed:
+        when = datetime.datetime.now(datetime.timezone.utc)
+    else:
+        if not (fixed.isascii() and fixed.isdigit()) or len(fixed) > 12:
+            raise MalformedHeaderError(f"SOURCE_DATE_EPOCH must be whole seconds since 1970-01-01 UTC (digits "
+                                       f"only), got {fixed!r:.40}; unset it to stamp the current time")
+        try:
+            when = datetime.datetime.fromtimestamp(int(fixed), datetime.timezone.utc)
+        except (OverflowError, OSError, ValueError):
+            raise MalformedHeaderError(f"SOURCE_DATE_EPOCH {fixed} is past the year 9999; unset it to stamp the "
+                                       "current time") from None
+    return when.strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
 _PROVENANCE_KEYS = {"library_version", "created_utc", "source_capture_id", "kind"}
 
 
@@ -129,9 +147,10 @@ class Provenance:
 
     @classmethod
     def now(cls, source_capture_id: str | None, kind: str = "encoded") -> "Provenance":
-        """Provenance stamped with this library's version and the current UTC time (whole seconds)."""
-        created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-        return cls(__version__, created, source_capture_id, kind)
+        """Provenance stamped with this library's version and the current UTC time (whole seconds), or the time
+        ``SOURCE_DATE_EPOCH`` gives where it is set (reproducible-builds.org's convention: whole seconds since
+        1970-01-01 UTC), so that the same input writes the same bytes."""
+        return cls(__version__, _stamp(), source_capture_id, kind)
 
     def to_dict(self) -> dict[str, Any]:
         return {"library_version": self.library_version, "created_utc": self.created_utc,
