@@ -8,9 +8,10 @@ neural image compression"), starts from the encoder's tokens and runs Adam on
 
     D + w_l x R
 
-D: pixel MSE (plus ``ssim_weight`` x (1 - SSIM), the "ssim" tune) between the encoded cameras' frames (V, T, H, W) and the renders of the tokens *as the file stores
-them* -- the writer's codes at the quality level times the step (``vt4dcodec.format.learned.writer_codes``),
-with a straight-through gradient -- at the model's decode steps and seed 0, the decoder's defaults.
+D: pixel MSE (plus ``ssim_weight`` x (1 - SSIM), the "ssim" tune) between the encoded cameras' frames
+(V, T, H, W) and the renders of the tokens *as the file stores them* -- the writer's codes at the quality level
+times the step (``vt4dcodec.format.learned.writer_codes``), with a straight-through gradient -- at the model's
+decode steps and seed 0, the decoder's defaults.
 R: the entropy model's bits of the token set (its additive-noise proxy, :meth:`TokenEntropyModel.noisy`) per
 encoded pixel, weighted by the level's w_l (:func:`rate_weight_of`). Only the encoder's choice of tokens
 changes: the file format, the decoder and every reader are untouched, and a refined scene decodes on any
@@ -68,14 +69,14 @@ def rate_weight_of(tables: EntropyTables, quality: int) -> float:
 def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   w2c: np.ndarray, *, tables: EntropyTables, quality: int, iterations: int,
                   lr: float = REFINE_LR, rate_weight: float | None = None,
-                  ssim_weight: float | None = None, seed: int = 0
+                  ssim_weight: float = 0.0, seed: int = 0
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Refined tokens of one scene for storage at quality level ``quality`` (1-based).
 
     z_s (N_s, d), z_d (N_d, d) float32: the encoder's tokens; frames (V, T, H, W, 3) uint8: the encoded cameras'
     clips fitted to the model's image (encoding order); K (V, T, 3, 3) px and w2c (V, T, 4, 4): their cameras;
     tables: the model's frozen entropy tables; ``rate_weight``: None for the level's (:func:`rate_weight_of`);
-    ``ssim_weight``: weight of 1 - SSIM beside the pixel MSE (None: 0, the "psnr" tune; see TUNE_SSIM_WEIGHT);
+    ``ssim_weight``: weight of 1 - SSIM beside the pixel MSE (0: the "psnr" tune; see TUNE_SSIM_WEIGHT);
     ``seed`` seeds the rate proxy's noise (the same inputs and seed give the same tokens; the caller's random
     state is left as it was). Returns (z_s, z_d) float32 of the same
     shapes, in (-1, 1). ``iterations`` 0 returns the tokens unchanged.
@@ -94,8 +95,6 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
         return z_s.astype(np.float32), z_d.astype(np.float32)
     if rate_weight is None:
         rate_weight = rate_weight_of(tables, quality)
-    if ssim_weight is None:
-        ssim_weight = TUNE_SSIM_WEIGHT["psnr"]
     device = next(net.parameters()).device
     was_training = net.training
     net.eval()
@@ -122,7 +121,8 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
                 out = torch.cat([net.autoencoder.decode(x) for x in latents.split(1)]).float().clamp(0.0, 1.0)
                 loss = torch.nn.functional.mse_loss(out, truth)
                 if ssim_weight:
-                    loss = loss + ssim_weight * (1.0 - kornia.metrics.ssim(out.flatten(0, 1), truth.flatten(0, 1), 11).mean())
+                    ssim = kornia.metrics.ssim(out.flatten(0, 1), truth.flatten(0, 1), 11).mean()
+                    loss = loss + ssim_weight * (1.0 - ssim)
                 if rate_weight:
                     bits = net.entropy.noisy(zs[None], zd[None], level, origin)[2].sum()
                     loss = loss + rate_weight * bits / pixels

@@ -42,7 +42,7 @@ def main() -> int:
     p.add_argument("--lr", type=float, default=REFINE_LR)
     p.add_argument("--lam", type=float, default=None, help="weight of the rate (bits per stored pixel; default: the "
                    "level's, vt4dcodec.model.refine.rate_weight_of)")
-    p.add_argument("--ssim", type=float, default=None, help="weight of 1 - SSIM beside pixel MSE (default 0, the "
+    p.add_argument("--ssim", type=float, default=0.0, help="weight of 1 - SSIM beside pixel MSE (default 0, the "
                    "'psnr' tune; vt4dcodec.model.refine.TUNE_SSIM_WEIGHT)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None)

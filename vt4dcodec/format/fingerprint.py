@@ -33,6 +33,9 @@ def _check_calendar(stamp: str) -> None:
 _DTYPE = re.compile(r"[a-z][a-z0-9_]{0,31}")
 _FINGERPRINT_KEYS = {"model_id", "model_version", "config_sha256", "weights_sha256", "static_shape",
                      "dynamic_shape", "token_dtype"}
+_PROVENANCE_KEYS = {"library_version", "created_utc", "source_capture_id", "kind"}
+
+
 def _stamp() -> str:
     """The creation time to record: SOURCE_DATE_EPOCH where set, else now (UTC, whole seconds)."""
     fixed = os.environ.get("SOURCE_DATE_EPOCH", "")
@@ -48,9 +51,6 @@ def _stamp() -> str:
             raise MalformedHeaderError(f"SOURCE_DATE_EPOCH {fixed} is past the year 9999; unset it to stamp the "
                                        "current time") from None
     return when.strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-_PROVENANCE_KEYS = {"library_version", "created_utc", "source_capture_id", "kind"}
 
 
 def _shape(value: Any, what: str) -> tuple[int, int]:
