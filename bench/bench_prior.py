@@ -104,7 +104,8 @@ def condition_tokens(prior: Any, tokenizer: Any, cam_c: dict[str, Any], mode: st
 
 def load_models(prior_spec: str, tokenizer_spec: str | None) -> tuple[Any, Any, Any]:
     """(prior, tokenizer, tokenizer fingerprint): the tokenizer defaults to the prior's, and a tokenizer
-    other than the one the prior was trained on is refused."""
+    other than the one the prior was trained on is refused, unless its networks are exactly that one's (an
+    entropy model added: the same tokens, as ``vt4d generate`` accepts it)."""
     from vt4dcodec.codec import load_model, model_fingerprint
     from vt4dcodec.generate import load_prior_model
     from vt4dcodec.model.prior import check_tokenizer
@@ -112,7 +113,7 @@ def load_models(prior_spec: str, tokenizer_spec: str | None) -> tuple[Any, Any, 
     prior = load_prior_model(prior_spec)
     tokenizer = load_model(tokenizer_spec or prior.tokenizer_fingerprint.model_id)
     fp = model_fingerprint(tokenizer)
-    check_tokenizer(prior, fp)
+    check_tokenizer(prior, fp, networks=getattr(tokenizer, "network_digests", None))
     return prior, tokenizer, fp
 
 

@@ -45,3 +45,25 @@ def test_bench_prior_refuses_bad_sampler_settings():
     for bad in ("rk4:2", "euler:0", "heun", "euler:x", "heun:4:x", "heun:4:-1", "heun:4:2:1"):
         with pytest.raises(SystemExit, match="--samplers"):
             bench.parse_samplers(bad)
+
+
+def test_bench_prior_loads_the_shipped_prior_with_the_shipped_tokenizer():
+    """Regression: the benches refused the shipped pair. co4dgen-tiny records vt4d-tiny 1.0.0, the shipped
+    vt4d-tiny 2.0.0 adds an entropy model to exactly its networks (same tokens), which ``vt4d generate`` accepts;
+    ``load_models`` checked the fingerprint alone and stopped with ModelMismatchError."""
+    import pytest
+
+    from vt4dcodec.errors import ModelMismatchError
+
+    spec = importlib.util.spec_from_file_location("bench_prior", BENCH)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    prior, tokenizer, fp = bench.load_models("co4dgen-tiny", None)
+    assert fp.model_id == "vt4d-tiny" and not prior.tokenizer_fingerprint.matches(fp)  # accepted by its networks
+    assert tokenizer.network_digests is not None
+    # a tokenizer with other networks is still refused
+    tokenizer.network_digests = ("0" * 64, "0" * 64)
+    with pytest.raises(ModelMismatchError):
+        from vt4dcodec.model.prior import check_tokenizer
+
+        check_tokenizer(prior, fp, networks=tokenizer.network_digests)
