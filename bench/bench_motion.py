@@ -12,11 +12,13 @@ Measures on synthetic test-split scenes (vt4dcodec.synth, 64x64, 8 frames, 3 cam
   * timings per 8-frame 64x64 clip (single-threaded torch and OpenCV, as in a DataLoader worker).
 
 Run:  python bench/bench_motion.py            (about 3-6 minutes on 2 shared cores)
-Writes bench/results/motion.json.
+Writes bench/results/motion.json.  ``--timing-only`` skips the accuracy part and writes the timings alone to
+``--out`` (default bench/results/motion_timing.json; under 1 minute).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -95,7 +97,13 @@ def timed(fn, repeats: int = 5) -> float:
     return float(np.median(times) * 1e3)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--timing-only", action="store_true", help="measure the timings alone")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results file (default: bench/results/motion.json, or motion_timing.json with "
+                             "--timing-only)")
+    args = parser.parse_args(argv)
     torch.set_num_threads(1)
     cv2.setNumThreads(1)  # single-threaded throughout, as in a DataLoader worker
     out: dict = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
@@ -103,7 +111,7 @@ def main() -> int:
     rng = np.random.default_rng(0)
     groups = (("tuning_seeds_0_5", TUNING_SEEDS), ("held_out_seeds_6_11", HELD_OUT_SEEDS),
               ("fresh_seeds_12_17", FRESH_SEEDS))
-    for label, seeds in groups:
+    for label, seeds in () if args.timing_only else groups:
         ious_cap, ious_est, abs_rel, delta, drift, per_clip = [], [], [], [], [], []
         for seed, name, scene, traj in clips(seeds, static=False):
             frames, gt = scene.capture.frames[name], scene.dynamic_mask[name]
@@ -140,10 +148,11 @@ def main() -> int:
         }
         print(label, json.dumps({k: v for k, v in out[label].items() if not k.startswith("per_clip")}, indent=1),
               flush=True)
-    dynamic = [c["iou_capture_depth"] for label, _ in groups for c in out[label]["per_clip"]]
-    static = [c["masked_share"] for label, _ in groups for c in out[label]["per_clip_static"]]
-    out["all_seeds"] = {"mask_iou_capture_depth": summary(dynamic), "static_scene_masked_share": summary(static)}
-    print("all_seeds", json.dumps(out["all_seeds"], indent=1), flush=True)
+    if not args.timing_only:
+        dynamic = [c["iou_capture_depth"] for label, _ in groups for c in out[label]["per_clip"]]
+        static = [c["masked_share"] for label, _ in groups for c in out[label]["per_clip_static"]]
+        out["all_seeds"] = {"mask_iou_capture_depth": summary(dynamic), "static_scene_masked_share": summary(static)}
+        print("all_seeds", json.dumps(out["all_seeds"], indent=1), flush=True)
 
     scene = generate_scene(0, split="test", config=SynthConfig(num_cameras=1))
     name = next(iter(scene.capture.cameras))
@@ -153,11 +162,13 @@ def main() -> int:
         "isolate_motion_capture_depth": timed(lambda: isolate_motion(frames, traj.K, traj.w2c, depth)),
         "prepare_source_capture_depth_64_tracks": timed(lambda: prepare_source(frames, traj, depth)),
         "estimate_depth_plane_sweep": timed(lambda: estimate_depth(frames, traj.K, traj.w2c, near=1.0, far=25.0), 2),
+        # what `vt4d encode` runs on footage without depth: the plane sweep, then motion isolation on it
+        "prepare_source_estimated_depth_64_tracks": timed(lambda: prepare_source(frames, traj, None), 3),
         "prepare_source_no_motion_isolation": timed(lambda: prepare_source(frames, traj, None, motion_isolation=False)),
     }
     out["machine"]["loadavg_end"] = os.getloadavg()
     print(json.dumps(out["timing_ms_per_clip"], indent=1))
-    path = Path(__file__).parent / "results" / "motion.json"
+    path = args.out or Path(__file__).parent / "results" / ("motion_timing.json" if args.timing_only else "motion.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1) + "\n")
     print("wrote", path)
