@@ -1,7 +1,7 @@
 """Table 2 at this scale: Co4DGen (one token-state sample, every view rendered from it) against the dense
 per-view baseline (one latent video-diffusion run per view), quality and wall time for 9 views, in one run.
 
-    python bench/bench_table2.py --shards data/co4dgen-1.0.0-test --dense checkpoints/dense-tiny/dense \
+    python bench/bench_table2.py --shards data/co4dgen-2.0.0-test64 --dense checkpoints/dense-tiny-2k/dense \
         --prior co4dgen-tiny --events 16 --prior-steps 16,4,1 --dense-steps 1,2,4,8,16,32 --threads 1 \
         --results docs/results/table2.json --figure docs/figures/table2.png
 

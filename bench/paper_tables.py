@@ -1,6 +1,6 @@
 """The paper's orderings (Tables 2-5) checked against this project's measurements, with a figure per table.
 
-    python bench/paper_tables.py [--eval docs/results/eval.json] [--table2 docs/results/table2_1.2.0.json] \
+    python bench/paper_tables.py [--eval docs/results/eval.json] [--table2 docs/results/table2_dense-2.0.0.json] \
         [--table3 docs/results/table3_tracks.json] [--table5 docs/results/table5.json] [--figures docs/figures] \
         [--out docs/results/paper_tables.json]
 
@@ -147,7 +147,7 @@ def table3_orderings(t3: dict[str, Any]) -> list[dict[str, Any]]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--eval", type=Path, default=ROOT / "docs" / "results" / "eval.json")
-    parser.add_argument("--table2", type=Path, default=ROOT / "docs" / "results" / "table2_1.2.0.json")
+    parser.add_argument("--table2", type=Path, default=ROOT / "docs" / "results" / "table2_dense-2.0.0.json")
     parser.add_argument("--table3", type=Path, default=ROOT / "docs" / "results" / "table3_tracks.json")
     parser.add_argument("--table5", type=Path, default=ROOT / "docs" / "results" / "table5.json")
     parser.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures")
