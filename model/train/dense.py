@@ -122,6 +122,9 @@ def arguments() -> argparse.ArgumentParser:
     shard_model_arguments(parser, what="dense", config="dense-tiny", model_id="dense-tiny", model_version="1.0.0",
                           ckpt_every=100)
     parser.add_argument("--tokenizer", default="vt4d-tiny", help="tokenizer whose autoencoder is the latent space")
+    parser.add_argument("--storage-dtype", choices=("float32", "float16"), default="float32",
+                        help="dtype of the exported dense.safetensors (float16 halves the file; the weights are "
+                             "rounded first, so what is stored is what is measured)")
     return parser
 
 
@@ -155,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                     "trainable_parameters": dense.trainable_parameters()}
         card = model_card(args.model_id, args.model_version, dense, fingerprint, training)
         directory = save_dense(dense, args.out / "dense", model_id=args.model_id, model_version=args.model_version,
-                               tokenizer=fingerprint, card=card, extra={"training": training})
+                               tokenizer=fingerprint, card=card, extra={"training": training},
+                               storage_dtype=args.storage_dtype)
         (args.out / "summary.json").write_text(json.dumps({"config": cfg.to_dict(), **training}, indent=2) + "\n")
         print(f"dense baseline: loss {training['first_loss']} -> {training['final_loss']} at step {done} on "
               f"{len(dataset)} pairs; model -> {directory}")

@@ -191,3 +191,23 @@ def test_bench_table2_reports_both_methods_paired_and_timed(shards, trained_prio
         assert (match["dense"] is None) == (not better)
     assert all(v["wall_s"] > 0 for v in out["speedup"].values())
     assert out["table"]["dense"]["sequence_per_run"] == 4 * 16 and figure.stat().st_size > 1000
+
+
+def test_training_exports_float16_when_asked(tmp_path, shards, tokenizer_dir):
+    """``--storage-dtype float16`` (the committed dense-tiny 2.0.0) stores half-width tensors that load back as
+    the float32 model they were rounded to."""
+    import json as _json
+    import struct
+
+    from vt4dcodec.model.train.dense import main
+
+    overrides = [f"{k}={v}" for k, v in SMALL_DENSE.items()]
+    assert main(["--shards", str(shards), "--out", str(tmp_path), "--tokenizer", str(tokenizer_dir), "--steps", "2",
+                 "--batch-size", "4", "--warmup", "1", "--log-every", "1", "--ckpt-every", "2", "--no-progress",
+                 "--storage-dtype", "float16", "--set", *overrides]) == 0
+    raw = (tmp_path / "dense" / "dense.safetensors").read_bytes()
+    header = _json.loads(raw[8:8 + struct.unpack("<Q", raw[:8])[0]])
+    dtypes = {v["dtype"] for k, v in header.items() if k != "__metadata__"}
+    assert "F16" in dtypes and "F32" not in dtypes
+    dense = load_dense(tmp_path / "dense")
+    assert all(p.dtype == torch.float32 for p in dense.parameters())
