@@ -43,13 +43,15 @@ class DepthInputError(Vt4dError, ValueError):
     """Frames, cameras or depth range given to the depth estimator are invalid."""
 
 
-def plane_homography(K_ref: np.ndarray, K_nbr: np.ndarray, R: np.ndarray, t: np.ndarray, depth: float) -> np.ndarray:
+def plane_homography(K_ref: np.ndarray, K_nbr: np.ndarray, R: np.ndarray, t: np.ndarray, depth: float, *,
+                     K_ref_inv: np.ndarray | None = None) -> np.ndarray:
     """Homography (3, 3) mapping reference pixels to neighbour pixels for the plane z_ref = depth.
 
     ``R, t`` take reference-camera points to neighbour-camera points (``X_n = R X_r + t``), metres.
+    ``K_ref_inv``: ``K_ref``'s inverse where the caller already has it (a sweep over many planes).
     """
     n = np.array([0.0, 0.0, 1.0])
-    return K_nbr @ (R + np.outer(t, n) / depth) @ np.linalg.inv(K_ref)
+    return K_nbr @ (R + np.outer(t, n) / depth) @ (np.linalg.inv(K_ref) if K_ref_inv is None else K_ref_inv)
 
 
 def _check_inputs(frames: np.ndarray, K: np.ndarray, w2c: np.ndarray, near: float, far: float, num_planes: int) -> None:
@@ -131,16 +133,14 @@ def _cost_volume(
     H, W = images.shape[1:3]
     D = len(inv_depths)
     ref_c = [np.ascontiguousarray(images[r][..., c]) for c in range(3)]
-    normal = np.array([0.0, 0.0, 1.0])
     K_ref_inv = np.linalg.inv(K[r])
     per_nbr = np.empty((len(nbrs), D, H, W), dtype=np.float32)
     seen = np.empty_like(per_nbr, dtype=bool)
     warped = np.empty((D, H, W, 4), dtype=np.float32)
     for j, (n, M) in enumerate(zip(nbrs, rel)):
         src = np.concatenate([images[n], np.ones((H, W, 1), np.float32)], axis=2)
-        R, t = M[:3, :3], M[:3, 3]
-        for d, inv in enumerate(inv_depths):  # plane_homography's product, with K_ref's inverse computed once
-            Hmat = K[n] @ (R + np.outer(t, normal) / (1.0 / inv)) @ K_ref_inv
+        for d, inv in enumerate(inv_depths):
+            Hmat = plane_homography(K[r], K[n], M[:3, :3], M[:3, 3], 1.0 / inv, K_ref_inv=K_ref_inv)
             cv2.warpPerspective(src, Hmat, (W, H), dst=warped[d], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
         # mean |RGB difference| over the channels, summed in the order numpy's mean sums three values

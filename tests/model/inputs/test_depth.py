@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -104,8 +105,6 @@ def _reference_cost_volume(images, K, r, nbrs, rel, inv_depths, patch):
     """The cost volume written plane by plane as the module docstring states it (the implementation before it
     was vectorised): per plane a warp, the channel-mean truncated difference, the box filter; then the sorted
     neighbour axis and the mean of its best half."""
-    import cv2
-
     from vt4dcodec.model.inputs.depth import TRUNCATION
 
     H, W = images.shape[1:3]
@@ -149,7 +148,7 @@ def test_the_vectorised_cost_volume_equals_the_plane_by_plane_one_bit_for_bit(se
     for _ in range(nbr_count):
         a = rng.normal(0, 0.1, 3)
         M = np.eye(4)
-        M[:3, :3] = cv2_rodrigues(a)
+        M[:3, :3] = cv2.Rodrigues(a)[0]
         M[:3, 3] = rng.normal(0, 1, 3) * baseline
         rel.append(M)
     inv_depths = np.linspace(1 / 0.3, 1 / 30.0, planes)
@@ -157,9 +156,3 @@ def test_the_vectorised_cost_volume_equals_the_plane_by_plane_one_bit_for_bit(se
     fast = _cost_volume(images, K, 0, nbrs, rel, inv_depths, patch)
     slow = _reference_cost_volume(images, K, 0, nbrs, rel, inv_depths, patch)
     assert fast.dtype == slow.dtype == np.float32 and np.array_equal(fast, slow)
-
-
-def cv2_rodrigues(axis_angle: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(axis_angle, dtype=np.float64))[0]
