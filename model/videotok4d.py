@@ -14,6 +14,7 @@ with ``seed``: the same tokens and seed give the same frames.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import kornia
@@ -301,8 +302,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
                             saturation_weight: float = 0.0, pixel_weight: float = 0.0, cell_weight: float = 0.0,
                             ssim_weight: float = 0.0, diversity_weight: float = 0.0, track_weight: float = 0.0,
                             patch_weight: float = 0.0, rate_level: int | None = None,
-                            rate_lambda: float = 0.0, rate_quantized: bool = False
-                            ) -> tuple[torch.Tensor, dict[str, float]]:
+                            rate_lambda: float = 0.0, rate_quantized: bool = False,
+                            stored: Callable[[torch.Tensor, torch.Tensor, int], tuple[torch.Tensor, torch.Tensor]]
+                            | None = None) -> tuple[torch.Tensor, dict[str, float]]:
         """L_tok = E || (Y^1 - Y^0) - v_theta(Y^tau, Z_s, Z_d, P_tgt, tau) ||^2 (Eq. 2), plus optional terms.
 
         target_frames: (B, T, 3, H, W) in [0, 1]; K_tgt (B, T, 3, 3); w2c_tgt (B, T, 4, 4).
@@ -337,6 +339,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
         its rate in bits per source pixel (bits / (views x frames x H x W)): the loss D + lambda R.
         rate_quantized: the renderer reads the level's stored token values (straight-through rounding)
         instead of the noisy ones; the rate still comes from the noise.
+        stored: without ``rate_level``, a map (Z_s (S, N_s, d), Z_d (S, N_d, d), views) -> the token values a
+        file stores for them (e.g. a frozen entropy model's writer codes at one level, no gradient to the
+        encoder): the renderer is trained on exactly what it decodes.
         Returns the scalar loss and float logs (losses, tau, token health of the batch).
         """
         self._check_video(target_frames, "target frames")
@@ -356,6 +361,8 @@ class VideoTok4D(ModelIdentity, nn.Module):
                                                 self.static_origins(batch.views), quantized=rate_quantized)
         else:
             z_s, z_d = self._bound(a_s, a_d)
+            if stored is not None:
+                z_s, z_d = stored(z_s, z_d, batch.views)
         y0 = self.latents(target_frames) if target_latents is None else self._checked_latents(target_latents, B, T)
         y1 = torch.randn(y0.shape, generator=generator).to(y0.device)
         if tau is None:

@@ -387,7 +387,8 @@ def plot_loss_curve(records: list[dict[str, Any]], png: Path, title: str, key: s
 def common_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags both stages share."""
     parser.add_argument("--out", type=Path, required=True, help="run directory (checkpoint, log, PNG)")
-    parser.add_argument("--config", default="tiny", help="model config name (tiny | paper)")
+    parser.add_argument("--config", default="tiny",
+                        help="model config name (tiny | paper), or 'init' for the --init model's own config")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="config overrides, e.g. unified_tokens=true renderer_layers=3")
     parser.add_argument("--steps", type=int, required=True, help="total optimizer steps (resume continues to it)")

@@ -1,5 +1,6 @@
 """Export a training run's latest checkpoint as a model directory the codec, the benchmarks and the
-evaluation load (``--model DIR``), without shipping it: the entropy tables frozen (``update_entropy``), the
+evaluation load (``--model DIR``), without shipping it: the entropy tables frozen (``update_entropy``; a
+``--stored-levels`` run keeps the tables of the model it started from, which its renderer learned), the
 renderer's decode steps of the run kept, and config fields that add no weights changed on the way -- the
 writer's rounding offsets (``entropy_rounding``), for one.
 
@@ -36,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
             model = reconfigure(model, overrides)
     except ModelError as exc:
         parser.error(f"--run / --set: {exc}")
-    model.update_entropy()
+    if not state.get("args", {}).get("stored_levels"):  # a --stored-levels run trained on its init's frozen tables
+        model.update_entropy()
     out = save_pretrained(model, args.out, model_id=args.id, model_version=args.version)
     print(f"exported {args.run} (step {state.get('step')}) -> {out} (decode steps {model.decode_steps})")
     return 0

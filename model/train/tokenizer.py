@@ -35,8 +35,10 @@ from safetensors.torch import load_file
 from torch.nn.parallel import DistributedDataParallel
 
 from vt4dcodec.errors import ModelError
+from vt4dcodec.format.learned import EntropyTables, dequantize, writer_codes
 
 from ..configs import ModelConfig, get_config
+from ..tables import rounding_offsets
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
@@ -78,26 +80,62 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
               saturation_weight: float = 0.0, drop_static: float = 0.0, pixel_weight: float = 0.0,
               cell_weight: float = 0.0, ssim_weight: float = 0.0, diversity_weight: float = 0.0,
               track_weight: float = 0.0, patch_weight: float = 0.0, rate_lambdas: tuple[float, ...] = (),
-              level_weights: tuple[float, ...] = (), quantized_share: float = 0.0
+              level_weights: tuple[float, ...] = (), quantized_share: float = 0.0,
+              stored_tables: EntropyTables | None = None, stored_weights: tuple[float, ...] = ()
               ) -> tuple[torch.Tensor, dict[str, float]]:
     """One training loss. With ``rate_lambdas`` (one per quality level of the entropy model) each batch
     draws a level -- uniformly, or in proportion to ``level_weights`` -- and trains D + lambda_level R at
     that level's quantization; in a ``quantized_share`` of the batches the renderer reads the level's stored
-    token values (straight-through) instead of the noisy ones."""
+    token values (straight-through) instead of the noisy ones. With ``stored_tables`` (a model's frozen entropy
+    tables; no rate term, the tables stay as they are) each batch draws a level in proportion to ``stored_weights`` and the renderer reads
+    the tokens exactly as a file stores them at that level (:func:`stored_tokens`)."""
     B = batch.target_frames.shape[0]
     tau = draw_tau(B, tau_one)
     drop = torch.rand(B) < drop_static if drop_static > 0 else None
-    rate = {}
-    if rate_lambdas:
+    rate: dict[str, object] = {}
+    level = None
+    if stored_tables is not None:
+        level = int(torch.multinomial(torch.tensor(stored_weights, dtype=torch.float64), 1))
+        rate = {"stored": functools.partial(stored_tokens, stored_tables, level)}
+    elif rate_lambdas:
         level = int(torch.multinomial(torch.tensor(level_weights, dtype=torch.float64), 1)) if level_weights \
             else int(torch.randint(len(rate_lambdas), ()))
         rate = {"rate_level": level, "rate_lambda": rate_lambdas[level],
                 "rate_quantized": bool(quantized_share > 0 and float(torch.rand(())) < quantized_share)}
-    return module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
-                  saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
-                  pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
-                  diversity_weight=diversity_weight, track_weight=track_weight,
-                  patch_weight=patch_weight, **rate)
+    loss, logs = module(batch.source, batch.target_frames, batch.K_tgt, batch.w2c_tgt, tau=tau, x0_weight=x0_weight,
+                        saturation_weight=saturation_weight, target_latents=batch.target_latents, drop_static=drop,
+                        pixel_weight=pixel_weight, cell_weight=cell_weight, ssim_weight=ssim_weight,
+                        diversity_weight=diversity_weight, track_weight=track_weight,
+                        patch_weight=patch_weight, **rate)
+    if level is not None:
+        logs["level"] = float(level)
+    return loss, logs
+
+
+def frozen_tables(model: VideoTok4D) -> EntropyTables:
+    """The frozen entropy tables of ``model`` as the codec reads and writes them (steps, frequencies, origins,
+    rounding offsets, partner channels)."""
+    entropy = model.entropy
+    assert entropy is not None and entropy.frozen
+    partners = getattr(entropy, "partners", None)
+    return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(),
+                         model.fingerprint("training", "0"),
+                         rounding_offsets(model.config), None if partners is None else partners.numpy())
+
+
+def stored_tokens(tables: EntropyTables, level: int, z_s: torch.Tensor, z_d: torch.Tensor, views: int
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The values a file of these ``tables`` stores for each scene's tokens z_s (S, N_s, d), z_d (S, N_d, d) of
+    ``views`` encoded cameras at ``level`` (0-based): the reference writer's codes (dead zones and frame-copy
+    differences included) times the step, as the decoder reads them, with a straight-through gradient (identity to
+    z: an encoder trained through a frozen renderer learns the tokens it stores)."""
+    out = []
+    for z, which in ((z_s, "static"), (z_d, "dynamic")):
+        values = [dequantize(writer_codes(item, tables, level, which, views), tables, level, which)
+                  for item in z.detach().float().cpu().numpy()]
+        stored = torch.from_numpy(np.stack(values)).to(z.device)
+        out.append(z + (stored - z).detach())
+    return out[0], out[1]
 
 
 def calibrate_entropy(model: VideoTok4D, batches, count: int, iterations: int = 300, lr: float = 0.05) -> dict[str, float]:
@@ -370,6 +408,11 @@ def main(argv: list[str] | None = None) -> int:
                              "model's densities to the tokens of N batches")
     recipe.add_argument("--calibrate-iterations", type=int, default=300, metavar="N",
                         help="Adam steps of the density calibration (one batch at one level each)")
+    recipe.add_argument("--stored-levels", default="", metavar="W,W,...",
+                        help="renderer training on the tokens as files store them: each batch draws a quality level "
+                             "of the --init model's frozen entropy tables (one weight >= 0 per level, coarsest first) "
+                             "and the renderer reads the writer's stored values at it (straight-through to the "
+                             "encoder; with --config init and --train-only, e.g. renderer.; not with --rate-lambdas)")
     recipe.add_argument("--patch-weight", type=float, default=0.0, metavar="W",
                         help="weight of the patch loss (config dynamic_splat): each dynamic token's splat patch must "
                              "hold the source latent around its track")
@@ -385,7 +428,13 @@ def main(argv: list[str] | None = None) -> int:
     info = setup_distributed()
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
-    cfg = get_config(args.config, **parse_overrides(args.set))
+    if args.config == "init":  # the warm start's own config (e.g. a shipped model's entropy fields), --set on top
+        if args.init is None:
+            parser.error("--config init needs --init MODEL")
+        base = model_from_run_or_saved(args.init).config.to_dict()
+        cfg = ModelConfig.from_dict({**base, **parse_overrides(args.set)})
+    else:
+        cfg = get_config(args.config, **parse_overrides(args.set))
     if args.dynamic_diversity < 0:
         parser.error("--dynamic-diversity must be >= 0")
     if args.ssim_weight < 0:
@@ -412,6 +461,14 @@ def main(argv: list[str] | None = None) -> int:
     if level_weights and (len(level_weights) != len(rate_lambdas) or min(level_weights) < 0
                           or sum(level_weights) <= 0):
         parser.error("--level-weights needs one weight >= 0 per --rate-lambdas value, not all zero")
+    try:
+        stored_weights = tuple(float(v) for v in args.stored_levels.split(",")) if args.stored_levels else ()
+    except ValueError:
+        parser.error(f"--stored-levels takes comma-separated numbers, got {args.stored_levels!r}")
+    if stored_weights and (rate_lambdas or len(stored_weights) != cfg.entropy_levels or min(stored_weights) < 0
+                           or sum(stored_weights) <= 0):
+        parser.error(f"--stored-levels needs one weight >= 0 per quality level of the model ({cfg.entropy_levels}), "
+                     "not all zero, and no --rate-lambdas")
     args.out.mkdir(parents=True, exist_ok=True)
 
     starts = [flag for flag, value in (("--init", args.init), ("--autoencoder", args.autoencoder),
@@ -425,6 +482,11 @@ def main(argv: list[str] | None = None) -> int:
         model = build_model(cfg, args.autoencoder)
     else:
         model = fresh_on_saved_autoencoder(cfg, args.autoencoder_from)
+    stored_tables = None
+    if stored_weights:
+        if model.entropy is None or not model.entropy.frozen:
+            parser.error("--stored-levels needs an --init model with frozen entropy tables (a shipped model)")
+        stored_tables = frozen_tables(model)
     model.to(device)
     optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale, args.train_only), lr=args.lr,
                                   weight_decay=0.01)
@@ -456,7 +518,8 @@ def main(argv: list[str] | None = None) -> int:
                              ssim_weight=args.ssim_weight, diversity_weight=args.dynamic_diversity,
                              track_weight=args.track_weight, patch_weight=args.patch_weight,
                              rate_lambdas=rate_lambdas, level_weights=level_weights,
-                             quantized_share=args.quantized_share)
+                             quantized_share=args.quantized_share, stored_tables=stored_tables,
+                             stored_weights=stored_weights)
     if rate_lambdas and args.calibrate_batches > 0 and not (args.out / "checkpoint" / "state.json").is_file():
         fit = calibrate_entropy(model, batches, args.calibrate_batches, iterations=args.calibrate_iterations)
         if info.is_main:
@@ -467,7 +530,8 @@ def main(argv: list[str] | None = None) -> int:
                          device=device)
     model.cpu()  # saved and sampled on the CPU, wherever it trained
     if info.is_main:
-        model.update_entropy()  # the integer tables the codec reads, from the final densities and steps
+        if stored_tables is None:  # with --stored-levels the init model's tables, which the renderer learned, stay
+            model.update_entropy()  # the integer tables the codec reads, from the final densities and steps
         model.decode_steps = trained_decode_steps(vars(args))
         directory = save_pretrained(model, args.out / "model", model_id=args.model_id,
                                     model_version=args.model_version)

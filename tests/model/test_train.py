@@ -466,3 +466,68 @@ def test_prefill_scenes_builds_the_cache_in_worker_processes_once(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in tmp_path.iterdir()} == stamps
     with pytest.raises(ValueError):
         prefill_scenes(pool, [0], workers=0)
+
+
+def test_stored_tokens_are_the_values_a_file_stores_at_the_level():
+    """--stored-levels trains the renderer on what the decoder reads: each scene's tokens at a level are the
+    values a learned-rans payload of them decodes to (dead zones and frame-copy differences included)."""
+    from vt4dcodec.format.learned import decode_learned_tokens, encode_learned_tokens
+    from vt4dcodec.model.train.tokenizer import frozen_tables, stored_tokens
+
+    net = from_pretrained("vt4d-tiny")
+    tables = frozen_tables(net)
+    gen = torch.Generator().manual_seed(3)
+    z_s = torch.tanh(torch.randn((2, *net.config.static_shape), generator=gen))
+    z_d = torch.tanh(torch.randn((2, *net.config.dynamic_shape), generator=gen))
+    for level, views in ((0, 1), (4, 3), (tables.steps.shape[0] - 1, 5)):
+        s, d = stored_tokens(tables, level, z_s, z_d, views)
+        for values, z, which in ((s, z_s, "static"), (d, z_d, "dynamic")):
+            for item in range(2):
+                payload = encode_learned_tokens(z[item].numpy(), tables, level, views, which)
+                decoded, stored_level = decode_learned_tokens(payload, tables, *z.shape[1:], which, views)
+                assert stored_level == level
+                assert np.array_equal(values[item].detach().numpy(), decoded), (level, views, which)
+    leaf = z_s.clone().requires_grad_(True)
+    stored_tokens(tables, 0, leaf, z_d, 1)[0].sum().backward()  # straight through to the encoder's tokens
+    assert torch.equal(leaf.grad, torch.ones_like(leaf))
+
+
+def test_stored_levels_trains_the_renderer_alone_and_keeps_the_frozen_tables(tmp_path):
+    """A renderer fine-tune on stored tokens (--config init --train-only renderer. --stored-levels): the encoder,
+    autoencoder and entropy tables of the saved model come out bit for bit, only renderer tensors move, and the
+    flags refuse what they cannot do."""
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+
+    cfg = get_config("tiny", **parse_overrides(SMALL), entropy_levels=2)
+    torch.manual_seed(0)
+    base = VideoTok4D(cfg)
+    base.freeze_autoencoder()
+    base.update_entropy()
+    save_pretrained(base, tmp_path / "base", model_id="t", model_version="0", storage_dtype="float16")
+    args = ["--init", str(tmp_path / "base"), "--config", "init", "--train-only", "renderer.", "--steps", "2",
+            "--batch-size", "2", "--cache", str(tmp_path / "cache"), "--samples", "1", "--scenes", "1",
+            "--cameras", "2", "--workers", "0", "--log-every", "1", "--no-progress", "--warmup", "1",
+            "--recon-share", "0.5"]
+    assert stage2.main([*args, "--out", str(tmp_path / "run"), "--stored-levels", "1,3"]) == 0
+    before = from_pretrained(tmp_path / "base").state_dict()
+    after = from_pretrained(tmp_path / "run" / "model").state_dict()
+    moved = {k for k in before if not torch.equal(before[k], after[k])}
+    assert moved and all(k.startswith("renderer.") for k in moved), sorted(moved)[:5]
+    # exported from its checkpoint (e.g. a slim one committed), the run keeps the base's tables too
+    from vt4dcodec.model.train import export_run
+
+    assert export_run.main(["--run", str(tmp_path / "run"), "--out", str(tmp_path / "exported"), "--id", "t",
+                            "--version", "1"]) == 0
+    exported = from_pretrained(tmp_path / "exported").state_dict()
+    assert all(torch.equal(exported[k], after[k]) for k in after)
+    levels = [json.loads(line)["level"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert len(levels) == 2 and set(levels) <= {0.0, 1.0}
+    for bad in (["--stored-levels", "1"], ["--stored-levels", "0,0"], ["--stored-levels", "1,x"],
+                ["--stored-levels", "1,1", "--rate-lambdas", "1,1"]):
+        with pytest.raises(SystemExit):
+            stage2.main([*args, "--out", str(tmp_path / "bad"), *bad])
+    unfrozen = VideoTok4D(cfg)
+    save_pretrained(unfrozen, tmp_path / "unfrozen", model_id="t", model_version="0")
+    with pytest.raises(SystemExit):
+        stage2.main([*args[2:], "--init", str(tmp_path / "unfrozen"), "--out", str(tmp_path / "bad2"),
+                     "--stored-levels", "1,1"])
