@@ -113,7 +113,8 @@ def load_models(prior_spec: str, tokenizer_spec: str | None) -> tuple[Any, Any, 
     prior = load_prior_model(prior_spec)
     tokenizer = load_model(tokenizer_spec or prior.tokenizer_fingerprint.model_id)
     fp = model_fingerprint(tokenizer)
-    check_tokenizer(prior, fp, networks=getattr(tokenizer, "network_digests", None))
+    check_tokenizer(prior, fp, networks=getattr(tokenizer, "network_digests", None),
+                    sources=getattr(tokenizer, "token_sources", ()))
     return prior, tokenizer, fp
 
 

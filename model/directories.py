@@ -20,7 +20,7 @@ from .configs import ModelConfig
 
 __all__ = [
     "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler", "checked_guidance",
-    "prior_sampler", "same_networks", "meta_networks", "checked_default_quality",
+    "prior_sampler", "same_networks", "meta_networks", "meta_token_sources", "checked_default_quality",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -216,16 +216,20 @@ def checked_default_quality(value: Any, levels: int, where: Path) -> int | None:
     return value
 
 
-def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any) -> bool:
+def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any,
+                  sources: tuple[tuple[str, str], ...] = ()) -> bool:
     """True when fingerprint ``stored`` (of a file, or the tokenizer a prior was trained on) names a model whose
-    networks are exactly those of the model ``have`` (its fingerprint) with ``networks`` (its
-    :func:`~.identity.network_digests`): same id, token shapes and dtype, and the stored config and weights digests equal
-    the networks' own. Such a model differs at most by an entropy model, which changes how tokens are stored,
-    never what they mean."""
-    return (networks is not None and have is not None and stored is not None
-            and (stored.config_sha256, stored.weights_sha256) == tuple(networks)
-            and (stored.model_id, stored.static_shape, stored.dynamic_shape, stored.token_dtype)
-            == (have.model_id, have.static_shape, have.dynamic_shape, have.token_dtype))
+    tokens the model ``have`` (its fingerprint) reads exactly as that model did: same id, token shapes and dtype,
+    and the stored config and weights digests either equal ``networks`` (``have``'s
+    :func:`~.identity.network_digests`: the same networks, differing at most by an entropy model, which changes how
+    tokens are stored, never what they mean) or are one of ``sources`` (``have``'s :func:`meta_token_sources`:
+    earlier models with its encoder and entropy tables, whose renderer alone it replaced)."""
+    if have is None or stored is None:
+        return False
+    digests = (stored.config_sha256, stored.weights_sha256)
+    return ((networks is not None and digests == tuple(networks)) or digests in sources) \
+        and (stored.model_id, stored.static_shape, stored.dynamic_shape, stored.token_dtype) \
+        == (have.model_id, have.static_shape, have.dynamic_shape, have.token_dtype)
 
 
 def meta_networks(meta: dict[str, Any]) -> tuple[str, str] | None:
@@ -241,19 +245,37 @@ def meta_networks(meta: dict[str, Any]) -> tuple[str, str] | None:
     return None
 
 
+def meta_token_sources(meta: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """(config, weights) SHA-256 of the earlier models whose tokens a tokenizer reads as they did, from its parsed
+    ``config.json``'s optional ``reads`` (``[{"model_version", "config_sha256", "weights_sha256"}, ...]``, written
+    by ``train.ship --reads`` after checking that the model has that model's encoder and entropy tables); () when
+    absent. ModelError for a malformed record."""
+    reads = meta.get("reads", [])
+    if not isinstance(reads, list) or len(reads) > 64:
+        raise ModelError("config.json: 'reads' must be a list of at most 64 model fingerprints")
+    out = []
+    for item in reads:
+        pair = (item.get("config_sha256"), item.get("weights_sha256")) if isinstance(item, dict) else (None, None)
+        if not all(isinstance(v, str) and len(v) == 64 and all(c in "0123456789abcdef" for c in v) for v in pair):
+            raise ModelError("config.json: each 'reads' entry needs config_sha256 and weights_sha256 (64 hex digits)")
+        out.append((str(pair[0]), str(pair[1])))
+    return tuple(out)
+
+
 def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = False,
-                    networks: tuple[str, str] | None = None) -> None:
+                    networks: tuple[str, str] | None = None, sources: tuple[tuple[str, str], ...] = ()) -> None:
     """Refuse (ModelMismatchError) a tokenizer other than the one the prior (a Co4DGen or an OnnxPrior, with its
     ``tokenizer_fingerprint``) was trained on. ``networks``: the tokenizer's
     :func:`~.identity.network_digests`; a tokenizer whose networks are exactly the recorded one's (an entropy
-    model added, :func:`same_networks`) makes the same tokens and is accepted.
+    model added, :func:`same_networks`) makes the same tokens and is accepted, and so is one whose ``sources``
+    (:func:`meta_token_sources`) name the recorded tokenizer (a renderer replaced, the encoder kept).
 
     With ``force`` only the token shapes must agree.
     """
     recorded = prior.tokenizer_fingerprint
     if recorded is None:
         raise ModelMismatchError("this prior records no tokenizer fingerprint (load it with load_prior)")
-    if recorded.matches(tokenizer_fingerprint) or same_networks(networks, tokenizer_fingerprint, recorded):
+    if recorded.matches(tokenizer_fingerprint) or same_networks(networks, tokenizer_fingerprint, recorded, sources):
         return
     shapes_agree = (recorded.static_shape, recorded.dynamic_shape) == (
         tokenizer_fingerprint.static_shape, tokenizer_fingerprint.dynamic_shape)

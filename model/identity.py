@@ -67,6 +67,7 @@ class ModelIdentity:
     model_version: str | None = None
     training_step: int | None = None
     network_digests: tuple[str, str] | None = None  # (config, weights) SHA-256 of the networks alone, when loaded
+    token_sources: tuple[tuple[str, str], ...] = ()  # (config, weights) of earlier models whose tokens it reads
     _stored_fingerprint: Any = None  # the fingerprint computed for the current identity, if any
 
     def set_identity(self, model_id: str | None, model_version: str | None, *,

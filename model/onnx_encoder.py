@@ -31,7 +31,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import checked_default_quality, meta_fingerprint, meta_networks, model_directory, read_model_meta
+from .directories import checked_default_quality, meta_fingerprint, meta_networks, meta_token_sources, model_directory, read_model_meta
 from .inputs.source_inputs import SourceInputs, stack_inputs
 from .onnx_session import MAX_ONNX_BYTES, onnx_available, open_checked  # noqa: F401  (MAX_ONNX_BYTES: as before)
 
@@ -68,6 +68,7 @@ class OnnxEncoder:
         self.model_version: str = meta["model_version"]
         self._fingerprint = meta_fingerprint(meta)
         self.network_digests = meta_networks(meta)
+        self.token_sources = meta_token_sources(meta)
         # the quality level the codec stores tokens at when none is asked for, as from_pretrained reads it
         self.default_quality = checked_default_quality(meta.get("default_quality"), self.config.entropy_levels,
                                                        directory / "config.json")

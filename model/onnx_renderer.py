@@ -26,7 +26,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.format import ModelFingerprint
 
 from .configs import ModelConfig
-from .directories import CONFIG_FILE, meta_fingerprint, meta_networks, model_directory, read_model_meta
+from .directories import CONFIG_FILE, meta_fingerprint, meta_networks, meta_token_sources, model_directory, read_model_meta
 from .onnx_session import open_checked
 
 __all__ = ["OnnxRenderer", "RENDERER_FILE", "RENDERER_FORMAT", "RENDERER_INPUTS", "RENDERER_OUTPUTS",
@@ -100,6 +100,7 @@ class OnnxRenderer:
         self.decode_steps: int = steps
         self._fingerprint = meta_fingerprint(meta)
         self.network_digests = meta_networks(meta)
+        self.token_sources = meta_token_sources(meta)
 
     @property
     def needs_source(self) -> bool:

@@ -22,7 +22,7 @@ import numpy as np
 from vt4dcodec.errors import EntropyTablesError, ModelError
 from vt4dcodec.format import EntropyTables, ModelFingerprint
 
-from .directories import WEIGHTS_FILE, meta_fingerprint, model_directory, read_model_meta
+from .directories import WEIGHTS_FILE, meta_fingerprint, meta_token_sources, model_directory, read_model_meta
 
 __all__ = ["entropy_tables", "tables_from_directory", "read_safetensors", "rounding_offsets"]
 
@@ -78,7 +78,9 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
     fingerprint is not ``fingerprint``)."""
     meta = read_model_meta(directory)
     own = meta_fingerprint(meta)
-    if fingerprint is not None and own != fingerprint:
+    if fingerprint is not None and own != fingerprint and reads_tables_of(meta, own, fingerprint):
+        own = fingerprint  # a renderer-only update of the file's model: the same config, encoder and tables
+    elif fingerprint is not None and own != fingerprint:
         raise EntropyTablesError(f"{directory} holds model {own.model_id} {own.model_version}, not the file's "
                                  f"{fingerprint.model_id} {fingerprint.model_version}")
     if not meta["config"].entropy_levels:
@@ -92,6 +94,16 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
                                  f"were frozen (VideoTok4D.update_entropy)")
     return EntropyTables(tensors["entropy.steps"], tensors["entropy.freqs"], tensors["entropy.origins"], own,
                          rounding_offsets(meta["config"]), tensors.get("entropy.partners"))
+
+
+def reads_tables_of(meta: dict[str, Any], own: ModelFingerprint, fingerprint: ModelFingerprint) -> bool:
+    """Whether the model of ``meta`` (fingerprint ``own``) holds the entropy tables of model ``fingerprint``: one of
+    its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config -- an earlier
+    model whose renderer alone it replaced (``train.ship --reads`` checked every other tensor equal)."""
+    return ((fingerprint.config_sha256, fingerprint.weights_sha256) in meta_token_sources(meta)
+            and fingerprint.config_sha256 == own.config_sha256
+            and (fingerprint.model_id, fingerprint.static_shape, fingerprint.dynamic_shape, fingerprint.token_dtype)
+            == (own.model_id, own.static_shape, own.dynamic_shape, own.token_dtype))
 
 
 def rounding_offsets(config: Any) -> np.ndarray | None:

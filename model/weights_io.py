@@ -16,7 +16,10 @@ A tokenizer directory holds
   none is asked for, chosen by measurement, or null; absent for other models; not hashed; ``networks``: for
   a model with an entropy model, ``{"config_sha256", "weights_sha256"}`` of its networks alone
   (:func:`~.identity.network_digests`), checked on load: files of the model those networks came from decode
-  with this one);
+  with this one); ``reads``: optional, ``[{"model_version", "config_sha256", "weights_sha256"}, ...]``, the
+  fingerprints of earlier models whose tokens this one reads exactly as they did -- the same config and every
+  tensor outside ``renderer.*`` equal, checked by ``train.ship --reads`` -- so their files decode with it and
+  a prior trained on their tokens stays bound to it (:func:`~.directories.same_networks`); not hashed;
 * ``model.safetensors``: the full state dict, no pickle anywhere; floating tensors are stored as
   float32, or as float16 to halve shipped files (``storage_dtype="float16"``: the model is rounded to
   float16 values first, so what is saved, loaded and fingerprinted is the same model);
@@ -53,7 +56,8 @@ from .configs import DenseConfig, PriorConfig
 from .dense_baseline import DenseViewDiffusion
 from .directories import (CARD_FILE, CONFIG_FILE, DENSE_FORMAT, DENSE_META_FILE, DENSE_WEIGHTS_FILE, MODEL_FORMAT,
                           MODEL_PATH_ENV, PRIOR_FORMAT, PRIOR_META_FILE, PRIOR_WEIGHTS_FILE, SHIPPED_DIR, WEIGHTS_FILE,
-                          checked_default_quality, model_directory, prior_sampler, read_model_meta, read_weights_meta,
+                          checked_default_quality, meta_token_sources, model_directory, prior_sampler, read_model_meta,
+                          read_weights_meta,
                           shipped_model_ids, shipped_prior_ids)
 from .identity import network_digests, weights_sha256
 from .prior import Co4DGen
@@ -95,7 +99,7 @@ def widen_stored(state: dict[str, torch.Tensor], expected: dict[str, torch.Tenso
 
 def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, model_version: str,
                     card: str | None = None, storage_dtype: str = "float32", decode_steps: int | None = None,
-                    default_quality: int | None = None) -> Path:
+                    default_quality: int | None = None, reads: list[dict[str, str]] | None = None) -> Path:
     """Write config.json + model.safetensors (+ MODEL_CARD.md) into ``directory``; returns it.
 
     ``decode_steps`` (default: ``model.decode_steps``) is recorded as the codec's default sampler steps;
@@ -121,6 +125,9 @@ def save_pretrained(model: VideoTok4D, directory: str | Path, *, model_id: str, 
             model.default_quality if default_quality is None else default_quality, model.config.entropy_levels, out)
     elif default_quality is not None:
         raise ModelError(f"{out}: default_quality needs a model with quality levels (config entropy_levels > 0)")
+    if reads:
+        meta["reads"] = [dict(item) for item in reads]
+        meta_token_sources(meta)  # well formed
     return write_weights_directory(out, stored, meta, weights_file=WEIGHTS_FILE, meta_file=CONFIG_FILE, card=card)
 
 
@@ -174,6 +181,7 @@ def from_pretrained(name_or_path: str | Path, *, device: str | torch.device = "c
     if recorded is not None and (not isinstance(recorded, dict) or (recorded.get("config_sha256"),
                                                                     recorded.get("weights_sha256")) != model.network_digests):
         raise ModelError(f"{directory / CONFIG_FILE}: 'networks' does not match the networks in {WEIGHTS_FILE}")
+    model.token_sources = meta_token_sources(meta)
     model.decode_steps = _checked_decode_steps(meta.get("decode_steps", DEFAULT_DECODE_STEPS), directory / CONFIG_FILE)
     model.default_quality = checked_default_quality(meta.get("default_quality"), model.config.entropy_levels,
                                                     directory / CONFIG_FILE)

@@ -659,7 +659,8 @@ class SceneDecoder:
         from .model.directories import same_networks  # torch-free
 
         have = model_fingerprint(net)
-        if not have.matches(stored) and not same_networks(getattr(net, "network_digests", None), have, stored):
+        if not have.matches(stored) and not same_networks(getattr(net, "network_digests", None), have, stored,
+                                                     getattr(net, "token_sources", ())):
             if not force:
                 raise ModelMismatchError(
                     f"the scene was encoded by {stored.short()} but the model given is {have.short()}; "

@@ -224,7 +224,8 @@ def conditioning_tokens(prior: Any, frames: np.ndarray, cameras: Trajectory, tok
 
     net = load_encoder(tokenizer if tokenizer is not None else prior.tokenizer_fingerprint.model_id, runtime,
                        device=device)
-    check_tokenizer(prior, model_fingerprint(net), networks=getattr(net, "network_digests", None))
+    check_tokenizer(prior, model_fingerprint(net), networks=getattr(net, "network_digests", None),
+                    sources=getattr(net, "token_sources", ()))
     z_s, z_d = encode_views(net, [(frames, cameras, None)], seed=0)
     return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
 

@@ -31,7 +31,7 @@ from vt4dcodec.errors import ModelError
 
 from ..videotok4d import VideoTok4D
 from ..onnx_export import export_model
-from ..weights_io import SHIPPED_DIR, from_pretrained, read_model_meta, save_pretrained
+from ..weights_io import SHIPPED_DIR, from_pretrained, read_model_meta, save_pretrained, storage_state
 from .autoencoder import AE_WEIGHTS
 from .common import parse_overrides
 
@@ -201,6 +201,32 @@ def reconfigure(model: VideoTok4D, overrides: dict) -> VideoTok4D:
     return new
 
 
+def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
+    """The ``reads`` record of ``model`` as a renderer-only update of ``base_name``: the base's fingerprint, and
+    the earlier models whose tokens the base read (its networks' digests where they differ from its own, its own
+    ``reads``). ModelError unless the model has the base's config and, stored as float16, every tensor outside
+    ``renderer.*`` equal to the base's -- the same encoder, token quantizer and entropy tables, so every file of the
+    base holds tokens the model reads as the base did."""
+    base = from_pretrained(base_name)
+    if base.config != model.config:
+        raise ModelError(f"{base_name}'s config differs from the model's: a renderer-only update keeps the config")
+    ours, theirs = storage_state(model, "float16")[0], base.state_dict()
+    differ = sorted(k for k in theirs if not k.startswith("renderer.") and not torch.equal(ours[k], theirs[k]))
+    if differ:
+        raise ModelError(f"tensors outside renderer.* differ from {base_name}'s ({', '.join(differ[:4])}"
+                         f"{', ...' if len(differ) > 4 else ''}): the tokens would not be read the same way")
+    fp = base.fingerprint(str(base.model_id), str(base.model_version))
+    entries = [{"model_version": str(base.model_version), "config_sha256": fp.config_sha256,
+                "weights_sha256": fp.weights_sha256}]
+    inherited = list(base.token_sources)
+    if base.network_digests is not None and tuple(base.network_digests) != (fp.config_sha256, fp.weights_sha256):
+        inherited.insert(0, tuple(base.network_digests))
+    for config_sha, weights_sha in inherited:
+        if (config_sha, weights_sha) not in {(e["config_sha256"], e["weights_sha256"]) for e in entries}:
+            entries.append({"config_sha256": config_sha, "weights_sha256": weights_sha})
+    return entries
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.train.ship", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -222,6 +248,10 @@ def main(argv: list[str] | None = None) -> int:
                              "encoder and latent statistics must be the model's (the tokens stay valid)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="config fields to change at ship time that add no weights, e.g. spread_views=true")
+    parser.add_argument("--reads", type=str, default=None, metavar="MODEL",
+                        help="a renderer-only update of MODEL (shipped id or directory, e.g. the model it replaces): "
+                             "checked to have MODEL's config and every tensor outside renderer.* (encoder, entropy "
+                             "tables), and recorded so MODEL's files, and a prior trained on its tokens, stay readable")
     args = parser.parse_args(argv)
     overrides = parse_overrides(args.set)
     model = from_pretrained(args.run / "model")
@@ -229,13 +259,21 @@ def main(argv: list[str] | None = None) -> int:
         model = reconfigure(model, overrides)
     if args.decoder_from is not None:
         swap_decoder(model, args.decoder_from / AE_WEIGHTS)
-    model.update_entropy()  # the integer tables the codec reads (a no-op without an entropy model)
+    reads = None
+    if args.reads is None:
+        model.update_entropy()  # the integer tables the codec reads (a no-op without an entropy model)
+    else:  # a renderer-only update keeps the tables its predecessor's files were coded with (recomputing them
+        try:  # from the float16-stored densities would not give the same integers)
+            reads = token_sources_of(model, args.reads)
+        except ModelError as exc:
+            parser.error(f"--reads: {exc}")
     notes = args.notes.read_text() if args.notes else ""
     stage1 = None if args.autoencoder_run is not None else inherited_stage1_lines(model, args.dest / args.id)
     for stale in (args.dest / args.id).glob("*.onnx"):  # graphs of the old weights never stay
         stale.unlink()
     out = save_pretrained(model, args.dest / args.id, model_id=args.id, model_version=args.version,
-                          storage_dtype="float16", decode_steps=args.decode_steps, default_quality=args.default_quality)
+                          storage_dtype="float16", decode_steps=args.decode_steps, default_quality=args.default_quality,
+                          reads=reads)
     # the encoders for 1 .. 10 cameras and the renderer, so the torch-free codec encodes and decodes with the new
     # weights (save_pretrained rounded model to the stored float16 values the graphs read)
     graphs = export_model(model, out)

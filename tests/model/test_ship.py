@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -118,3 +120,66 @@ def test_card_names_the_shipped_config_its_graphs_and_a_partial_run(tmp_path):
     assert "`renderer.onnx`" in card and "trained only the parameters named 'entropy.'" in card
     plain = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok2"), _run(tmp_path, "ae2"), FINGERPRINT, "")
     assert "the encoder for one camera per scene" in plain and "trained only" not in plain
+
+
+def test_reads_records_a_renderer_only_update_whose_predecessors_files_and_prior_stay_bound(tmp_path):
+    """ship --reads: a model whose renderer alone changed records its predecessor's fingerprint (and the networks
+    that one read); the predecessor's files then find their entropy tables in it, their fingerprint is accepted
+    for decoding and by a prior trained on their tokens; anything but a renderer change is refused."""
+    from types import SimpleNamespace
+
+    from vt4dcodec.errors import EntropyTablesError, ModelMismatchError
+    from vt4dcodec.model import from_pretrained, save_pretrained
+    from vt4dcodec.model.directories import check_tokenizer, same_networks
+    from vt4dcodec.model.tables import tables_from_directory
+    from vt4dcodec.model.train.ship import token_sources_of
+
+    torch.manual_seed(0)
+    base = VideoTok4D(get_config("tiny", **SMALL, entropy_levels=2)).eval()
+    base.freeze_autoencoder()
+    base.update_entropy()
+    save_pretrained(base, tmp_path / "base", model_id="t", model_version="1", storage_dtype="float16")
+    old = from_pretrained(tmp_path / "base")
+    old_fp = old.fingerprint("t", "1")
+    new = from_pretrained(tmp_path / "base")
+    with torch.no_grad():
+        new.renderer.out.bias.add_(0.25)
+    reads = token_sources_of(new, str(tmp_path / "base"))
+    assert reads[0] == {"model_version": "1", "config_sha256": old_fp.config_sha256,
+                        "weights_sha256": old_fp.weights_sha256}
+    assert [(e["config_sha256"], e["weights_sha256"]) for e in reads[1:]] == [tuple(old.network_digests)]
+    save_pretrained(new, tmp_path / "new", model_id="t", model_version="2", storage_dtype="float16", reads=reads)
+    loaded = from_pretrained(tmp_path / "new")
+    have = loaded.fingerprint("t", "2")
+    assert not have.matches(old_fp) and loaded.token_sources == tuple((e["config_sha256"], e["weights_sha256"])
+                                                                     for e in reads)
+    assert same_networks(loaded.network_digests, have, old_fp, loaded.token_sources)
+    assert not same_networks(loaded.network_digests, have, old_fp)  # without the record: a different model
+    prior = SimpleNamespace(tokenizer_fingerprint=old_fp)
+    check_tokenizer(prior, have, networks=loaded.network_digests, sources=loaded.token_sources)
+    with pytest.raises(ModelMismatchError):
+        check_tokenizer(prior, have, networks=loaded.network_digests)
+    # the predecessor's learned-rans files read their tables from the update: the same arrays, under their fingerprint
+    tables, own = tables_from_directory(tmp_path / "new", old_fp), tables_from_directory(tmp_path / "base", old_fp)
+    assert tables.fingerprint == old_fp
+    for name in ("steps", "freqs", "origins"):
+        assert np.array_equal(getattr(tables, name), getattr(own, name))
+    networks_fp = dataclasses.replace(old_fp, config_sha256=reads[1]["config_sha256"],
+                                      weights_sha256=reads[1]["weights_sha256"])
+    with pytest.raises(EntropyTablesError):  # read, but another config: not these tables
+        tables_from_directory(tmp_path / "new", networks_fp)
+    with pytest.raises(EntropyTablesError):
+        tables_from_directory(tmp_path / "new", dataclasses.replace(old_fp, weights_sha256="0" * 64))
+    # refused: an encoder tensor changed, or the config
+    encoder = from_pretrained(tmp_path / "base")
+    with torch.no_grad():
+        encoder.static_bottleneck.proj.bias.add_(0.25)
+    with pytest.raises(ModelError, match="outside renderer"):
+        token_sources_of(encoder, str(tmp_path / "base"))
+    with pytest.raises(ModelError, match="config"):
+        token_sources_of(reconfigure(new, {"spread_views": True}), str(tmp_path / "base"))
+    meta = json.loads((tmp_path / "new" / "config.json").read_text())
+    meta["reads"] = [{"config_sha256": "x", "weights_sha256": "y"}]
+    (tmp_path / "new" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelError, match="reads"):
+        from_pretrained(tmp_path / "new")

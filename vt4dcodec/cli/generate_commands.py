@@ -95,7 +95,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
         except ModelNotFoundError as exc:
             raise ModelNotFoundError(f"{exc}; pass --prior PATH (a prior directory)") from None
         tokenizer = load_renderer(args.model or prior.tokenizer_fingerprint.model_id, args.runtime, device=args.device)
-        check_tokenizer(prior, model_fingerprint(tokenizer), networks=getattr(tokenizer, "network_digests", None))  # before sampling: the renderer must fit the tokens
+        check_tokenizer(prior, model_fingerprint(tokenizer), networks=getattr(tokenizer, "network_digests", None),
+                        sources=getattr(tokenizer, "token_sources", ()))  # before sampling: the renderer must fit the tokens
     started = time.perf_counter()
     try:
         steps, method, guidance = sampler_setting(prior, args.steps, args.sampler, args.guidance)
