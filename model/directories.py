@@ -20,7 +20,7 @@ from .configs import ModelConfig
 
 __all__ = [
     "check_tokenizer", "read_prior_meta", "SamplerSetting", "DEFAULT_SAMPLER", "parse_sampler", "checked_guidance",
-    "prior_sampler", "same_networks", "meta_networks", "meta_token_sources", "checked_default_quality",
+    "prior_sampler", "same_networks", "same_token_layout", "meta_networks", "meta_token_sources", "checked_default_quality",
     "model_directory", "read_model_meta", "meta_fingerprint", "read_weights_meta", "shipped_model_ids", "shipped_prior_ids",
     "SHIPPED_DIR", "MODEL_PATH_ENV", "MODEL_FORMAT", "PRIOR_FORMAT", "CONFIG_FILE", "WEIGHTS_FILE", "CARD_FILE",
     "PRIOR_META_FILE", "PRIOR_WEIGHTS_FILE", "MAX_CONFIG_BYTES", "DENSE_FORMAT", "DENSE_META_FILE",
@@ -227,9 +227,13 @@ def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any,
     if have is None or stored is None:
         return False
     digests = (stored.config_sha256, stored.weights_sha256)
-    return ((networks is not None and digests == tuple(networks)) or digests in sources) \
-        and (stored.model_id, stored.static_shape, stored.dynamic_shape, stored.token_dtype) \
-        == (have.model_id, have.static_shape, have.dynamic_shape, have.token_dtype)
+    return ((networks is not None and digests == tuple(networks)) or digests in sources) and same_token_layout(have, stored)
+
+
+def same_token_layout(a: Any, b: Any) -> bool:
+    """Whether fingerprints ``a`` and ``b`` name the same model id with the same token shapes and dtype."""
+    return (a.model_id, a.static_shape, a.dynamic_shape, a.token_dtype) \
+        == (b.model_id, b.static_shape, b.dynamic_shape, b.token_dtype)
 
 
 def meta_networks(meta: dict[str, Any]) -> tuple[str, str] | None:

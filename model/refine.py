@@ -32,7 +32,7 @@ from vt4dcodec.format.learned import EntropyTables, dequantize, writer_codes
 
 from .videotok4d import VideoTok4D
 
-__all__ = ["refine_tokens", "rate_weight_of", "REFINE_LR", "RATE_WEIGHT", "RATE_SLOPE", "MAX_REFINE",
+__all__ = ["refine_tokens", "stored_values", "rate_weight_of", "REFINE_LR", "RATE_WEIGHT", "RATE_SLOPE", "MAX_REFINE",
            "TUNE_SSIM_WEIGHT"]
 
 REFINE_LR = 0.01      # Adam step on the tokens (values in (-1, 1)); 0.02 lowers the bytes faster but gains less
@@ -52,7 +52,7 @@ MAX_REFINE = 1000     # iterations one call accepts
 TOKEN_BOUND = 0.999   # tokens stay inside the bottleneck's open range (-1, 1)
 
 
-def _stored(z: torch.Tensor, tables: EntropyTables, level: int, which: str, views: int) -> torch.Tensor:
+def stored_values(z: torch.Tensor, tables: EntropyTables, level: int, which: str, views: int) -> torch.Tensor:
     """The values a file stores for z (N, d) -- the writer's codes x step -- with a straight-through gradient."""
     codes = writer_codes(z.detach().cpu().numpy(), tables, level, which, views)
     values = torch.from_numpy(dequantize(codes, tables, level, which)).to(z.device)
@@ -115,8 +115,8 @@ def refine_tokens(net: VideoTok4D, z_s: np.ndarray, z_d: np.ndarray, frames: np.
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []), torch.enable_grad():
             torch.manual_seed(int(seed))
             for _ in range(iterations):
-                s = _stored(zs, tables, level, "static", V)[None].expand(V, -1, -1)
-                d = _stored(zd, tables, level, "dynamic", V)[None].expand(V, -1, -1)
+                s = stored_values(zs, tables, level, "static", V)[None].expand(V, -1, -1)
+                d = stored_values(zd, tables, level, "dynamic", V)[None].expand(V, -1, -1)
                 latents = render_latents(net, s, d, Kt, wt, seed=0, source=source)
                 out = torch.cat([net.autoencoder.decode(x) for x in latents.split(1)]).float().clamp(0.0, 1.0)
                 loss = torch.nn.functional.mse_loss(out, truth)

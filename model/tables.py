@@ -22,9 +22,10 @@ import numpy as np
 from vt4dcodec.errors import EntropyTablesError, ModelError
 from vt4dcodec.format import EntropyTables, ModelFingerprint
 
-from .directories import WEIGHTS_FILE, meta_fingerprint, meta_token_sources, model_directory, read_model_meta
+from .directories import (WEIGHTS_FILE, meta_fingerprint, meta_token_sources, model_directory, read_model_meta,
+                          same_token_layout)
 
-__all__ = ["entropy_tables", "tables_from_directory", "read_safetensors", "rounding_offsets"]
+__all__ = ["entropy_tables", "tables_from_directory", "read_safetensors", "rounding_offsets", "frozen_tables"]
 
 # safetensors dtype -> (numpy dtype as stored, the model's dtype name in weights_sha256: floats widen to float32)
 _DTYPES = {"F32": ("<f4", "float32"), "F16": ("<f2", "float32"), "I16": ("<i2", "int16"), "I32": ("<i4", "int32"),
@@ -101,9 +102,18 @@ def reads_tables_of(meta: dict[str, Any], own: ModelFingerprint, fingerprint: Mo
     its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config -- an earlier
     model whose renderer alone it replaced (``train.ship --reads`` checked every other tensor equal)."""
     return ((fingerprint.config_sha256, fingerprint.weights_sha256) in meta_token_sources(meta)
-            and fingerprint.config_sha256 == own.config_sha256
-            and (fingerprint.model_id, fingerprint.static_shape, fingerprint.dynamic_shape, fingerprint.token_dtype)
-            == (own.model_id, own.static_shape, own.dynamic_shape, own.token_dtype))
+            and fingerprint.config_sha256 == own.config_sha256 and same_token_layout(own, fingerprint))
+
+
+def frozen_tables(model: Any, fingerprint: ModelFingerprint) -> EntropyTables | None:
+    """The frozen entropy tables of a loaded VideoTok4D (None without an entropy model or before
+    ``update_entropy``) under ``fingerprint``: what a learned-rans file of the model is read and written with."""
+    entropy = getattr(model, "entropy", None)
+    if entropy is None or not entropy.frozen:
+        return None
+    partners = getattr(entropy, "partners", None)
+    return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(), fingerprint,
+                         rounding_offsets(model.config), None if partners is None else partners.numpy())
 
 
 def rounding_offsets(config: Any) -> np.ndarray | None:

@@ -400,14 +400,11 @@ def default_quality(model: "str | os.PathLike | VideoTok4D | OnnxEncoder" = DEFA
 def model_tables(model: "VideoTok4D") -> EntropyTables | None:
     """The frozen entropy tables of a loaded model (None without an entropy model or before
     ``update_entropy``): what a learned-rans file of this model is read and written with."""
-    from .model.tables import rounding_offsets  # torch-free
+    from .model.tables import frozen_tables  # torch-free
 
-    entropy = getattr(model, "entropy", None)
-    if entropy is None or not entropy.frozen:
+    if getattr(model, "entropy", None) is None:
         return None
-    partners = getattr(entropy, "partners", None)
-    return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(), model_fingerprint(model),
-                         rounding_offsets(model.config), None if partners is None else partners.numpy())
+    return frozen_tables(model, model_fingerprint(model))
 
 
 def __getattr__(name: str) -> Any:

@@ -218,12 +218,11 @@ def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
     fp = base.fingerprint(str(base.model_id), str(base.model_version))
     entries = [{"model_version": str(base.model_version), "config_sha256": fp.config_sha256,
                 "weights_sha256": fp.weights_sha256}]
-    inherited = list(base.token_sources)
-    if base.network_digests is not None and tuple(base.network_digests) != (fp.config_sha256, fp.weights_sha256):
-        inherited.insert(0, tuple(base.network_digests))
-    for config_sha, weights_sha in inherited:
-        if (config_sha, weights_sha) not in {(e["config_sha256"], e["weights_sha256"]) for e in entries}:
-            entries.append({"config_sha256": config_sha, "weights_sha256": weights_sha})
+    seen = {(fp.config_sha256, fp.weights_sha256)}
+    for pair in ([tuple(base.network_digests)] if base.network_digests else []) + list(base.token_sources):
+        if pair not in seen:
+            seen.add(pair)
+            entries.append({"config_sha256": pair[0], "weights_sha256": pair[1]})
     return entries
 
 

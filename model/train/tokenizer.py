@@ -35,10 +35,11 @@ from safetensors.torch import load_file
 from torch.nn.parallel import DistributedDataParallel
 
 from vt4dcodec.errors import ModelError
-from vt4dcodec.format.learned import EntropyTables, dequantize, writer_codes
+from vt4dcodec.format.learned import EntropyTables
 
 from ..configs import ModelConfig, get_config
-from ..tables import rounding_offsets
+from ..refine import stored_values
+from ..tables import frozen_tables
 from ..videotok4d import VideoTok4D
 from ..weights_io import from_pretrained, save_pretrained
 from .common import (cleanup_distributed, common_arguments, cycle, make_loader, parse_overrides,
@@ -112,30 +113,14 @@ def flow_step(module: torch.nn.Module, batch: PairBatch, *, tau_one: float = 0.0
     return loss, logs
 
 
-def frozen_tables(model: VideoTok4D) -> EntropyTables:
-    """The frozen entropy tables of ``model`` as the codec reads and writes them (steps, frequencies, origins,
-    rounding offsets, partner channels)."""
-    entropy = model.entropy
-    assert entropy is not None and entropy.frozen
-    partners = getattr(entropy, "partners", None)
-    return EntropyTables(entropy.steps.numpy(), entropy.freqs.numpy(), entropy.origins.numpy(),
-                         model.fingerprint("training", "0"),
-                         rounding_offsets(model.config), None if partners is None else partners.numpy())
-
-
 def stored_tokens(tables: EntropyTables, level: int, z_s: torch.Tensor, z_d: torch.Tensor, views: int
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """The values a file of these ``tables`` stores for each scene's tokens z_s (S, N_s, d), z_d (S, N_d, d) of
     ``views`` encoded cameras at ``level`` (0-based): the reference writer's codes (dead zones and frame-copy
     differences included) times the step, as the decoder reads them, with a straight-through gradient (identity to
     z: an encoder trained through a frozen renderer learns the tokens it stores)."""
-    out = []
-    for z, which in ((z_s, "static"), (z_d, "dynamic")):
-        values = [dequantize(writer_codes(item, tables, level, which, views), tables, level, which)
-                  for item in z.detach().float().cpu().numpy()]
-        stored = torch.from_numpy(np.stack(values)).to(z.device)
-        out.append(z + (stored - z).detach())
-    return out[0], out[1]
+    return (torch.stack([stored_values(item, tables, level, "static", views) for item in z_s]),
+            torch.stack([stored_values(item, tables, level, "dynamic", views) for item in z_d]))
 
 
 def calibrate_entropy(model: VideoTok4D, batches, count: int, iterations: int = 300, lr: float = 0.05) -> dict[str, float]:
@@ -486,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     if stored_weights:
         if model.entropy is None or not model.entropy.frozen:
             parser.error("--stored-levels needs an --init model with frozen entropy tables (a shipped model)")
-        stored_tables = frozen_tables(model)
+        stored_tables = frozen_tables(model, model.fingerprint("training", "0"))
     model.to(device)
     optimizer = torch.optim.AdamW(parameter_groups(model, args.lr_scale, args.train_only), lr=args.lr,
                                   weight_decay=0.01)

@@ -472,10 +472,11 @@ def test_stored_tokens_are_the_values_a_file_stores_at_the_level():
     """--stored-levels trains the renderer on what the decoder reads: each scene's tokens at a level are the
     values a learned-rans payload of them decodes to (dead zones and frame-copy differences included)."""
     from vt4dcodec.format.learned import decode_learned_tokens, encode_learned_tokens
-    from vt4dcodec.model.train.tokenizer import frozen_tables, stored_tokens
+    from vt4dcodec.codec import model_tables
+    from vt4dcodec.model.train.tokenizer import stored_tokens
 
     net = from_pretrained("vt4d-tiny")
-    tables = frozen_tables(net)
+    tables = model_tables(net)
     gen = torch.Generator().manual_seed(3)
     z_s = torch.tanh(torch.randn((2, *net.config.static_shape), generator=gen))
     z_d = torch.tanh(torch.randn((2, *net.config.dynamic_shape), generator=gen))
