@@ -247,6 +247,11 @@ class ModelConfig(_Config):
         (``vt4dcodec.format.learned.writer_codes``): f = 1/2 rounds to nearest, a smaller f is a dead zone
         that stores small values (a frame copy's small change) as 0. An encoder's choice, tuned on held-out
         scenes per level (docs/training.md); decoding does not use it. Empty: round to nearest everywhere.
+        feedback_width: > 0 gives the encoder render feedback (:class:`.feedback.RenderFeedback`, MLPs of this
+        hidden width): its first tokens are rendered at the encoded cameras as the decoder renders them, and
+        each token's pre-activation gets a zero-initialised map of the residual (source latents minus
+        rendered) around its cell or along its track. Encoder only: the decoder and the file format do not
+        change. 0: no feedback.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -302,6 +307,7 @@ class ModelConfig(_Config):
     entropy_context: bool = False
     entropy_rounding: tuple[float, ...] = ()
     entropy_partners: tuple[int, ...] = ()
+    feedback_width: int = 0
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -314,7 +320,7 @@ class ModelConfig(_Config):
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
                                                "dynamic_from_patch": False, "entropy_levels": 0,
                                                "entropy_context": False, "entropy_rounding": (),
-                                               "entropy_partners": ()}
+                                               "entropy_partners": (), "feedback_width": 0}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -400,6 +406,11 @@ class ModelConfig(_Config):
             raise ModelError(f"config entropy_partners must be empty or, with entropy_context, token_dim "
                              f"({self.token_dim}) channels each -1 or below its own index, got {partners!r}")
         object.__setattr__(self, "entropy_partners", tuple(int(v) for v in partners))
+        if isinstance(self.feedback_width, bool) or not isinstance(self.feedback_width, int) or self.feedback_width < 0:
+            raise ModelError(f"config feedback_width must be an integer >= 0, got {self.feedback_width!r}")
+        if self.feedback_width and not (self.token_from_cell and self.dynamic_splat > 0 and not self.unified_tokens):
+            raise ModelError("config feedback_width needs token_from_cell, dynamic_splat > 0 and the full model (the "
+                             "render residual reaches static tokens through their cells, dynamic ones along their tracks)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 

@@ -16,7 +16,7 @@ from torch import nn
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
     "timestep_embedding", "patchify", "unpatchify", "locality_prior", "locality_heads", "grid_positions",
-    "token_cameras", "dynamic_token_cameras",
+    "token_cameras", "dynamic_token_cameras", "render_noise",
 ]
 
 
@@ -236,3 +236,10 @@ def unpatchify(x: torch.Tensor, p: int, C: int, h: int, w: int) -> torch.Tensor:
     B, T = x.shape[:2]
     x = x.reshape(B, T, h // p, w // p, C, p, p).permute(0, 1, 4, 2, 5, 3, 6)
     return x.reshape(B, T, C, h, w)
+
+
+def render_noise(frames: int, channels: int, size: int, seed: int) -> torch.Tensor:
+    """The noise (1, frames, channels, size, size) float32 a render of ``seed`` starts from (CPU generator); its
+    first T frames are the noise of a T-frame render."""
+    generator = torch.Generator(device="cpu").manual_seed(int(seed))
+    return torch.randn((1, frames, channels, size, size), generator=generator)

@@ -271,11 +271,17 @@ class _Encode(nn.Module):
     def __init__(self, net: VideoTok4D, views: int) -> None:
         super().__init__()
         self.net, self.views = net, views
+        # render feedback renders inside the encoder: the renderer's index tables as the renderer's graph has them
+        self.render_step = _RenderStep(net) if net.feedback is not None else None
 
     def forward(self, frames: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor, motion_mask: torch.Tensor,
                 track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.encode(SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask,
-                                           track_xy=track_xy, track_valid=track_valid, views=self.views))
+        batch = SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask, track_xy=track_xy,
+                            track_valid=track_valid, views=self.views)
+        if self.render_step is None:
+            return self.net.encode(batch)
+        with self.render_step._tables(K[None, :, 0]):  # (1, V, 3, 3): the tables of V encoded cameras
+            return self.net.encode(batch)
 
 
 def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
@@ -352,6 +358,10 @@ class _RenderStep(nn.Module):
         def embed_tokens(z_s: torch.Tensor, z_d: torch.Tensor, drop_static: torch.Tensor, drop_dynamic: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
             n_s, n_d = z_s.shape[1], z_d.shape[1]
+            if not isinstance(drop_static, torch.Tensor):  # the encoder's render feedback: a flag for every item
+                drop_static = (torch.ones_like if drop_static else torch.zeros_like)(z_s[:, 0, 0], dtype=torch.bool)
+            if not isinstance(drop_dynamic, torch.Tensor):
+                drop_dynamic = (torch.ones_like if drop_dynamic else torch.zeros_like)(z_d[:, 0, 0], dtype=torch.bool)
             tokens = r.token_in(torch.cat([z_s, z_d], dim=1).to(r.token_in.weight.dtype)) + r.token_slot[None]
             types = torch.cat([torch.zeros(n_s, dtype=torch.long),
                                torch.full((n_d,), 0 if cfg.unified_tokens else 1, dtype=torch.long)])

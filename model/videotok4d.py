@@ -30,8 +30,9 @@ from .bottleneck import TokenBottleneck, centred_slot_spread, saturation_penalty
 from .configs import ModelConfig
 from .diagnostics import token_health
 from .entropy import MAX_VIEWS, TokenEntropyModel
+from .feedback import RenderFeedback
 from .identity import ModelIdentity, fingerprint_fields
-from .layers import dynamic_patch_offsets, patchify
+from .layers import dynamic_patch_offsets, patchify, render_noise
 from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
@@ -97,6 +98,9 @@ class VideoTok4D(ModelIdentity, nn.Module):
             self.patch_direct = nn.Linear(cfg.latent_channels * cfg.dynamic_splat ** 2, cfg.token_dim)
             nn.init.zeros_(self.patch_direct.weight)
             nn.init.zeros_(self.patch_direct.bias)
+        self.feedback: RenderFeedback | None = None
+        if cfg.feedback_width:  # the encoder's second look at what its first tokens render (zero at init)
+            self.feedback = RenderFeedback(cfg)
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -199,6 +203,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         x = self.latents(batch.frames) if batch.latents is None else self._checked_latents(batch.latents, B, T)
         rays = self.rays(batch.K, batch.w2c)
         static_states = self.spatial_branch(x, rays, views=V)
+        chosen = None
         if self.temporal_branch is None:  # unified ablation: Z_d is the Spatial Branch's last N_d queries
             a = self.static_bottleneck.preactivation(static_states)
             a_s, a_d = a[:, :cfg.n_static], a[:, cfg.n_static:]
@@ -222,7 +227,29 @@ class VideoTok4D(ModelIdentity, nn.Module):
             change = self.token_frame_cells(x, V)  # zero for the time-average copies
             a_s = a_s + self.cell_frames(change.to(self.cell_frames.weight.dtype)).float() \
                 * (covers.sum(1) > 0)[None, :, None]
+        if self.feedback is not None:
+            a_s, a_d = self._feedback(batch, x, a_s, a_d, chosen)
         return a_s, a_d
+
+    def _feedback(self, batch: SourceBatch, x: torch.Tensor, a_s: torch.Tensor, a_d: torch.Tensor,
+                  chosen: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """A + dA of :class:`RenderFeedback`: the first tokens rendered at the encoded cameras (the decoder's
+        steps and seed 0's noise, no gradient), the residual x - Y^0 read back around each token."""
+        V = batch.views
+        z_s, z_d = self._bound(a_s, a_d)
+        K_src, w2c_src = batch.source
+        if V > 1:  # every clip renders with its scene's encoded cameras
+            K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
+        T = x.shape[1]
+        y0 = self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
+                                 batch.K, batch.w2c, source=(K_src, w2c_src), noise=self.feedback.noise[:, :T])
+        residual = x.float() - y0
+        track = self._track_patches(batch, residual, chosen)[0].flatten(2)  # (S, N_d, q C)
+        r = self.renderer
+        d_s, d_d = self.feedback(z_s, z_d, residual, track, r.token_cameras(V),
+                                 r.copy_frames(V)[:, :x.shape[1]].to(x.device))
+        n = d_s.shape[1]
+        return torch.cat([a_s[:, :n] + d_s, a_s[:, n:]], dim=1), a_d + d_d
 
     def _check_tokens(self, z_s: torch.Tensor, z_d: torch.Tensor) -> None:
         cfg = self.config
@@ -236,13 +263,15 @@ class VideoTok4D(ModelIdentity, nn.Module):
     def render_latents(self, z_s: torch.Tensor, z_d: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                        *, steps: int | None = None, seed: int = 0, drop_static: bool = False,
                        drop_dynamic: bool = False,
-                       source: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+                       source: tuple[torch.Tensor, torch.Tensor] | None = None,
+                       noise: torch.Tensor | None = None) -> torch.Tensor:
         """Euler integration of dY/dtau = v from tau = 1 (seeded noise) to tau = 0, in ``steps`` steps
         (None: ``self.decode_steps``, the model's recorded best-fidelity setting).  Every item of the batch
         starts from the same noise (``seed``), so an item's render does not depend on its batch.
 
         K_tgt: (B, T, 3, 3) px of the H x W image; w2c_tgt: (B, T, 4, 4); source: the source trajectory
-        (:meth:`render_cameras`; needed when ``needs_source``). Returns Y^0 (B, T, C, h, w).
+        (:meth:`render_cameras`; needed when ``needs_source``); noise: the starting noise (1, T, C, h, w) in place
+        of ``seed``'s (a traced graph cannot hold a generator). Returns Y^0 (B, T, C, h, w).
         """
         self._check_tokens(z_s, z_d)
         steps = self.decode_steps if steps is None else steps
@@ -255,10 +284,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
         if not 1 <= T <= cfg.frames:
             raise ModelError(f"target trajectory has {T} frames; this model renders 1..{cfg.frames}")
         device = z_s.device
-        generator = torch.Generator(device="cpu").manual_seed(int(seed))
         h = cfg.latent_size
+        if noise is None:
+            noise = render_noise(T, cfg.latent_channels, h, seed)
         # every item starts from the same seeded noise: a view renders the same alone or in a batch
-        y = torch.randn((1, T, cfg.latent_channels, h, h), generator=generator).expand(B, -1, -1, -1, -1)
+        y = noise.expand(B, -1, -1, -1, -1)
         y = y.contiguous().to(device)
         K_tgt, w2c_tgt = K_tgt.to(device), w2c_tgt.to(device)
         rays = self.rays(K_tgt, w2c_tgt)

@@ -246,6 +246,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
             raise ModelError(f"--init-partial {name_or_path}: its autoencoder does not fit this config "
                              f"(latent_channels, ae_width, ae_downsample must match)")
         model.load_state_dict(fits, strict=False)
+        model.decode_steps, model.default_quality = source.decode_steps, source.default_quality  # renders in training
         skipped = sorted(set(fresh) - set(fits))
         print(f"--init-partial: copied {len(fits)} of {len(fresh)} tensors; fresh: {', '.join(skipped) or 'none'}")
     model.set_identity(None, None)
@@ -321,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
                              "model directory) instead of a stage-1 file")
     parser.add_argument("--model-id", default="vt4d-tiny")
     parser.add_argument("--model-version", default="0.1.0")
-    parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end")
+    parser.add_argument("--samples", type=int, default=4, help="pairs rendered into samples.png at the end (0: none)")
     parser.add_argument("--render-steps", type=int, default=1, help="Euler steps of the samples.png renders")
     parser.add_argument("--init", default=None, metavar="MODEL",
                         help="start from a saved model (shipped id or model directory, same config), its "
@@ -413,6 +414,8 @@ def main(argv: list[str] | None = None) -> int:
     info = setup_distributed()
     torch.set_num_threads(args.threads)
     seed_everything(args.seed + info.rank)
+    if args.samples < 0:
+        parser.error(f"--samples must be >= 0, got {args.samples}")
     if args.config == "init":  # the warm start's own config (e.g. a shipped model's entropy fields), --set on top
         if args.init is None:
             parser.error("--config init needs --init MODEL")
@@ -523,11 +526,12 @@ def main(argv: list[str] | None = None) -> int:
         summary = {"config": cfg.to_dict(), "steps": records[-1]["step"] if records else args.steps,
                    "final_loss": records[-1]["loss"] if records else None,
                    "first_loss": records[0]["loss"] if records else None,
-                   **render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png",
-                                     steps=args.render_steps)}
+                   **(render_samples(model, dataset, min(args.samples, len(dataset)), args.out / "samples.png",
+                                      steps=args.render_steps) if args.samples > 0 else {})}
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        print(f"tokenizer: loss {summary['first_loss']} -> {summary['final_loss']}, render PSNR "
-              f"{summary['mean_psnr_db']:.2f} dB on {len(summary['pairs'])} training pairs; model -> {directory}")
+        rendered = (f", render PSNR {summary['mean_psnr_db']:.2f} dB on {len(summary['pairs'])} training pairs"
+                    if "pairs" in summary else "")
+        print(f"tokenizer: loss {summary['first_loss']} -> {summary['final_loss']}{rendered}; model -> {directory}")
     cleanup_distributed()
     return 0
 

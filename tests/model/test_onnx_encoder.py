@@ -81,6 +81,34 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
             assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
+@pytest.mark.parametrize("views", [1, 2])
+def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int):
+    """Render feedback renders the first tokens inside the encoder: its graph holds the renderer with the index
+    tables of ``views`` cameras and the seed-0 noise as constants (a generator cannot be traced)."""
+    torch.manual_seed(0)
+    net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
+                                dynamic_gate_copies=True, feedback_width=16)).eval()
+    for layer in (net.feedback.static[2], net.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
+    net.decode_steps = 1
+    directory = save_pretrained(net, tmp_path / "fb", model_id="fb", model_version="0", storage_dtype="float16")
+    net = codec.load_model(directory)
+    export_encoder(net, directory, views=views)
+    encoder = OnnxEncoder.open(directory, views=views) if views > 1 else OnnxEncoder.open(directory)
+    for seed in (3, 4):
+        inputs = example_inputs(net, seed=seed, views=views)
+        with torch.no_grad():
+            want = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views))]
+            net.feedback, saved = None, net.feedback
+            plain = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views))]
+            net.feedback = saved
+        assert min(float(np.abs(a - b).max()) for a, b in zip(want, plain)) > 1e-3  # the feedback is in the tokens
+        got = encoder.session.run(None, {n: t.numpy() for n, t in zip(
+            ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)})
+        for a, b in zip(got, want):
+            assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
+
+
 def test_masks_of_any_size_trace_to_the_same_graph(small):
     """The Temporal Branch gathers masked pixels in torch; the graph attends over the grid with keys
     restricted to the mask. Empty and full masks must agree too (a traced length would not)."""

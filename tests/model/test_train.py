@@ -270,6 +270,25 @@ def test_stage2_from_scratch_on_a_saved_models_autoencoder(runs, tmp_path):
                      "--out", str(tmp_path / "y"), "--steps", "1", "--cache", str(runs / "cache"), *COMMON])
 
 
+def test_stage2_init_partial_keeps_the_saved_decode_steps_and_samples_0_draws_none(runs, tmp_path):
+    """Regressions: ``--samples 0`` crashed after training (an empty batch of sample pairs), and a partial warm
+    start took the fresh model's 8 decode steps where the saved model decodes in 1 (render feedback renders
+    the first tokens as the decoder does, in training too)."""
+    first = tmp_path / "first"
+    assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(first),
+                        "--steps", "1", "--batch-size", "2", "--samples", "0", "--tau-one", "1",
+                        "--cache", str(runs / "cache"), *COMMON]) == 0
+    assert not (first / "samples.png").exists() and (first / "model").is_dir()
+    assert "pairs" not in json.loads((first / "summary.json").read_text())
+    saved = from_pretrained(first / "model")
+    assert saved.decode_steps == 1
+    partial = stage2.warm_start_model(saved.config.replace(render_patch_size=2), str(first / "model"), partial=True)
+    assert partial.decode_steps == 1
+    with pytest.raises(SystemExit):
+        stage2.main(["--init", str(first / "model"), "--out", str(tmp_path / "x"), "--steps", "1",
+                     "--samples", "-1", "--cache", str(runs / "cache"), *COMMON])
+
+
 def test_stage2_init_partial_copies_what_fits_and_trains_multi_camera_batches(runs, tmp_path):
     """--init-partial: a renderer with smaller patches starts from a saved model's other tensors; with
     --multi-share 1 every batch encodes several cameras, and --pixel-weight adds the decoded-pixel loss."""

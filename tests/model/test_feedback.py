@@ -1,0 +1,102 @@
+"""Render feedback (config ``feedback_width``): the encoder renders its first tokens at the encoded cameras and
+reads the residual back around each token (model/feedback.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from vt4dcodec.errors import ModelError
+from vt4dcodec.model import VideoTok4D, get_config
+from vt4dcodec.model.feedback import RenderFeedback
+
+from network_fixtures import random_batch
+
+SMALL = dict(frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1, static_query_layers=1,
+             track_layers=1, renderer_layers=1, n_static=32, n_dynamic=4, token_dim=8, n_tracks=8, patch_size=2,
+             locality_sigma=0.35, query_from_grid=True, project_anchors=True, prediction="x0", anchor_views=True,
+             token_splat=True, token_from_cell=True, frame_copies=True, frame_gate_deg=8.0, view_gate_deg=40.0,
+             pixel_splat=True, dynamic_splat=2, dynamic_from_patch=True)
+
+
+def test_config_hash_is_kept_while_off_and_values_are_checked():
+    base = get_config("tiny", **SMALL)
+    assert get_config("tiny", **SMALL, feedback_width=0).sha256() == base.sha256()
+    assert get_config("tiny", **SMALL, feedback_width=16).sha256() != base.sha256()
+    for bad in (-1, True, 2.0, "16"):
+        with pytest.raises(ModelError, match="feedback_width must be"):
+            get_config("tiny", **SMALL, feedback_width=bad)
+    for missing in (dict(dynamic_splat=0, dynamic_from_patch=False),
+                    dict(unified_tokens=True, dynamic_from_patch=False)):
+        with pytest.raises(ModelError, match="feedback_width needs"):
+            get_config("tiny", **{**SMALL, **missing}, feedback_width=16)
+
+
+@pytest.mark.parametrize("views", [1, 2])
+def test_a_warm_start_encodes_exactly_as_before(views: int):
+    """The feedback's output layers start at zero: the model with feedback gives the same tokens."""
+    torch.manual_seed(0)
+    cfg = get_config("tiny", **SMALL)
+    old = VideoTok4D(cfg).eval()
+    new = VideoTok4D(cfg.replace(feedback_width=16)).eval()
+    new.decode_steps = old.decode_steps = 1
+    missing = new.load_state_dict(old.state_dict(), strict=False).missing_keys
+    assert missing and all(k.startswith("feedback.") for k in missing)
+    batch = dataclasses.replace(random_batch(cfg, B=2 * views, n_tracks=8), views=views)
+    with torch.no_grad():
+        a_old, a_new = old.encode_preactivations(batch), new.encode_preactivations(batch)
+        assert torch.equal(a_old[0], a_new[0]) and torch.equal(a_old[1], a_new[1])
+        for layer in (new.feedback.static[2], new.feedback.dynamic[2]):
+            layer.weight.normal_()
+        moved = new.encode_preactivations(batch)
+    assert not torch.equal(moved[0], a_old[0]) and not torch.equal(moved[1], a_old[1])
+    assert moved[0].shape == a_old[0].shape and moved[1].shape == a_old[1].shape
+
+
+def test_each_static_token_reads_the_residual_in_its_window_only():
+    """Token i of camera c reads cell (i mod P)'s 3 x 3 cell window of camera c's residual: a change outside
+    it leaves the token's update unchanged, one inside changes it."""
+    cfg = get_config("tiny", **SMALL, feedback_width=16)
+    net = VideoTok4D(cfg).eval()
+    torch.manual_seed(1)
+    for layer in (net.feedback.static[2], net.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight)
+    views, T, C, h = 2, cfg.frames, cfg.latent_channels, cfg.latent_size
+    z_s, z_d = torch.rand(1, cfg.n_static, cfg.token_dim), torch.rand(1, cfg.n_dynamic, cfg.token_dim)
+    residual = torch.randn(views, T, C, h, h)
+    track = torch.randn(1, cfg.n_dynamic, C * cfg.dynamic_splat ** 2)
+    cameras, covers = net.renderer.token_cameras(views), net.renderer.copy_frames(views)[:, :T]
+    fb: RenderFeedback = net.feedback
+    with torch.no_grad():
+        base, _ = fb(z_s, z_d, residual, track, cameras, covers)
+        per_side = h // cfg.patch_size
+        token = next(i for i in range(cfg.n_static)  # camera 1, a cell of the first row
+                     if int(cameras[i]) == 1 and (i % per_side ** 2) // per_side == 0)
+        far = residual.clone()
+        far[1, :, :, 2 * cfg.patch_size:, :] += 5.0  # camera 1, rows from cell row 2 down
+        far[0] += 5.0  # all of camera 0
+        changed, _ = fb(z_s, z_d, far, track, cameras, covers)
+        assert torch.equal(changed[0, token], base[0, token])
+        near = residual.clone()
+        col = (token % per_side) * cfg.patch_size
+        near[1, :, :, 2 * cfg.patch_size - 1, col] += 5.0  # the last latent row of cell row 1: inside the window
+        changed, _ = fb(z_s, z_d, near, track, cameras, covers)
+        assert not torch.equal(changed[0, token], base[0, token])
+
+
+def test_training_reaches_the_feedback_through_the_stored_tokens():
+    """The tokenizer loss trains the feedback (gradients reach both MLPs) while the rendered Y^0 carries none."""
+    cfg = get_config("tiny", **SMALL, feedback_width=16)
+    torch.manual_seed(2)
+    net = VideoTok4D(cfg)
+    net.decode_steps = 1
+    for layer in (net.feedback.static[2], net.feedback.dynamic[2], net.renderer.dynamic_content):
+        torch.nn.init.normal_(layer.weight, std=0.01)  # dynamic_content: zero in a fresh model, no path to Z_d
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    frames = torch.rand(2, cfg.frames, 3, cfg.image_size, cfg.image_size)
+    loss, _ = net.rectified_flow_loss(batch, frames, batch.K, batch.w2c, tau=torch.ones(2), patch_weight=1.0)
+    loss.backward()
+    for mlp in (net.feedback.static, net.feedback.dynamic):
+        assert all(p.grad is not None and float(p.grad.abs().sum()) > 0 for p in mlp.parameters())
