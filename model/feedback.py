@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .configs import ModelConfig
-from .layers import render_noise
+from .layers import frame_group_change, render_noise
 
 __all__ = ["RenderFeedback"]
 
@@ -82,9 +82,5 @@ class RenderFeedback(nn.Module):
         cells = cells.view(S, B // S, T, P, Fw).transpose(2, 3)  # (S, V, P, T, F)
         index = torch.arange(n_a, device=cells.device)
         mine = cells[:, cameras, index % P]  # (S, N_a, T, F)
-        mean = mine.mean(2)
-        count = covers.sum(1)
-        group = torch.einsum("sntf,nt->snf", mine, covers / count.clamp_min(1.0)[:, None])
-        change = (group - mean) * (count > 0)[None, :, None]
-        return (torch.cat([z_s[:, :n_a].float(), mean, change], dim=-1),
+        return (torch.cat([z_s[:, :n_a].float(), mine.mean(2), frame_group_change(mine, covers)], dim=-1),
                 torch.cat([z_d.float(), track_residual.float()], dim=-1))

@@ -16,7 +16,7 @@ from torch import nn
 __all__ = [
     "QUERY_INIT_STD", "masked_attention", "Attention", "MLP", "SelfAttentionBlock", "QueryBlock", "AdaLNBlock",
     "timestep_embedding", "patchify", "unpatchify", "locality_prior", "locality_heads", "grid_positions",
-    "token_cameras", "dynamic_token_cameras", "render_noise",
+    "token_cameras", "dynamic_token_cameras", "render_noise", "frame_group_change",
 ]
 
 
@@ -243,3 +243,12 @@ def render_noise(frames: int, channels: int, size: int, seed: int) -> torch.Tens
     first T frames are the noise of a T-frame render."""
     generator = torch.Generator(device="cpu").manual_seed(int(seed))
     return torch.randn((1, frames, channels, size, size), generator=generator)
+
+
+def frame_group_change(values: torch.Tensor, covers: torch.Tensor) -> torch.Tensor:
+    """Each anchored token's frame group's mean minus its time average: values (S, N_a, T, F) at the token's cell
+    per frame, covers (N_a, T) the frames of its group (``Renderer.copy_frames``) -> (S, N_a, F), zero for a
+    token that covers no frame."""
+    count = covers.sum(1)
+    group = torch.einsum("sntc,nt->snc", values, covers / count.clamp_min(1.0)[:, None])
+    return (group - values.mean(2)) * (count > 0)[None, :, None]

@@ -32,7 +32,7 @@ from .diagnostics import token_health
 from .entropy import MAX_VIEWS, TokenEntropyModel
 from .feedback import RenderFeedback
 from .identity import ModelIdentity, fingerprint_fields
-from .layers import dynamic_patch_offsets, patchify, render_noise
+from .layers import dynamic_patch_offsets, frame_group_change, patchify, render_noise
 from .rays import latent_rays
 from .renderer import Renderer
 from .inputs.source_inputs import SourceBatch
@@ -633,10 +633,7 @@ class VideoTok4D(ModelIdentity, nn.Module):
         cells = cells.view(B // views, views, T, P, cells.shape[-1]).transpose(2, 3)  # (S, V, P, T, C p p)
         index = torch.arange(r.n_anchored, device=cells.device)
         mine = cells[:, r.token_cameras(views), index % P]  # (S, N_a, T, C p p)
-        covers = r.copy_frames(views)[:, :T].to(cells.device)  # (N_a, T)
-        count = covers.sum(1)
-        group = torch.einsum("sntc,nt->snc", mine, covers / count.clamp_min(1.0)[:, None])
-        return (group - mine.mean(2)) * (count > 0)[None, :, None]
+        return frame_group_change(mine, r.copy_frames(views)[:, :T].to(cells.device))
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                 generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:

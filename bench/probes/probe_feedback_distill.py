@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from vt4dcodec import codec
-from vt4dcodec.model.configs import ModelConfig
 from vt4dcodec.model.feedback import RenderFeedback
 from vt4dcodec.model.inputs.preprocess import prepare_source
 from vt4dcodec.model.inputs.source_inputs import SourceBatch
@@ -49,9 +48,9 @@ def scene_data(net, tables, seed: int, split: str, level: int, iters: int, lr: f
         y0 = net.render_latents(z_s, z_d, batch.K, batch.w2c, seed=0, source=batch.source)
         residual = x - y0
         track = net._track_patches(batch, residual)[0].flatten(2)
-        probe = RenderFeedback(dataclass_with_feedback(cfg))
-        f_s, f_d = probe.features(z_s, z_d, residual, track, net.renderer.token_cameras(1),
-                                  net.renderer.copy_frames(1)[:, :cfg.frames])
+        reader = RenderFeedback(cfg.replace(feedback_width=1))  # its inputs only: no weights are used
+        f_s, f_d = reader.features(z_s, z_d, residual, track, net.renderer.token_cameras(1),
+                                   net.renderer.copy_frames(1)[:, :cfg.frames])
     r_s, r_d = refine_tokens(net, z_s[0].numpy(), z_d[0].numpy(), frames[None], traj.K[None], traj.w2c[None],
                              tables=tables, quality=level, iterations=iters, lr=lr)
     n = f_s.shape[1]
@@ -59,10 +58,6 @@ def scene_data(net, tables, seed: int, split: str, level: int, iters: int, lr: f
     t_d = np.arctanh(np.clip(r_d, -BOUND, BOUND)) - a_d[0].numpy()
     return {"f_s": f_s[0].numpy(), "f_d": f_d[0].numpy(), "t_s": t_s, "t_d": t_d, "a_s": a_s[0].numpy(),
             "a_d": a_d[0].numpy(), "frames": frames, "K": traj.K, "w2c": traj.w2c, "r_s": r_s, "r_d": r_d}
-
-
-def dataclass_with_feedback(cfg: ModelConfig) -> ModelConfig:
-    return cfg.replace(feedback_width=1)
 
 
 def ridge(f: np.ndarray, t: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
