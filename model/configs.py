@@ -252,6 +252,9 @@ class ModelConfig(_Config):
         each token's pre-activation gets a zero-initialised map of the residual (source latents minus
         rendered) around its cell or along its track. Encoder only: the decoder and the file format do not
         change. 0: no feedback.
+        feedback_passes: with feedback_width, how many times the encoder renders its tokens and reads the residual
+        back (each pass its own zero-initialised MLPs, so a model given a further pass starts as the model
+        without it). 1: one pass.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -308,6 +311,7 @@ class ModelConfig(_Config):
     entropy_rounding: tuple[float, ...] = ()
     entropy_partners: tuple[int, ...] = ()
     feedback_width: int = 0
+    feedback_passes: int = 1
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -320,7 +324,8 @@ class ModelConfig(_Config):
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
                                                "dynamic_from_patch": False, "entropy_levels": 0,
                                                "entropy_context": False, "entropy_rounding": (),
-                                               "entropy_partners": (), "feedback_width": 0}
+                                               "entropy_partners": (), "feedback_width": 0,
+                                               "feedback_passes": 1}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -411,6 +416,11 @@ class ModelConfig(_Config):
         if self.feedback_width and not (self.token_from_cell and self.dynamic_splat > 0 and not self.unified_tokens):
             raise ModelError("config feedback_width needs token_from_cell, dynamic_splat > 0 and the full model (the "
                              "render residual reaches static tokens through their cells, dynamic ones along their tracks)")
+        if isinstance(self.feedback_passes, bool) or not isinstance(self.feedback_passes, int) \
+                or not 1 <= self.feedback_passes <= 4:
+            raise ModelError(f"config feedback_passes must be an integer 1 .. 4, got {self.feedback_passes!r}")
+        if self.feedback_passes > 1 and not self.feedback_width:
+            raise ModelError("config feedback_passes > 1 needs feedback_width > 0 (the passes are render feedback)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 
@@ -452,6 +462,21 @@ class ModelConfig(_Config):
     @property
     def token_floats(self) -> int:
         return (self.n_static + self.n_dynamic) * self.token_dim
+
+    def networks(self) -> "ModelConfig":
+        """This config with every entropy-model field (``entropy_*``) at its default: the config of the networks
+        alone, as they were before an entropy model was added to them (:func:`~.identity.network_digests`)."""
+        defaults = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
+                    for f in dataclasses.fields(self) if f.name.startswith("entropy_")}
+        return dataclasses.replace(self, **defaults)
+
+    def first_pass_sha256s(self) -> tuple[str, ...]:
+        """Config hashes of a tokenizer whose tokens are this model's first pass: this config and its
+        :meth:`networks` with render feedback off. () without feedback (the tokens are the first pass)."""
+        if not self.feedback_width:
+            return ()
+        plain = dataclasses.replace(self, feedback_width=0, feedback_passes=1)
+        return plain.sha256(), plain.networks().sha256()
 
 
 _PAPER = dict(

@@ -223,7 +223,8 @@ def same_networks(networks: tuple[str, str] | None, have: Any, stored: Any,
     and the stored config and weights digests either equal ``networks`` (``have``'s
     :func:`~.identity.network_digests`: the same networks, differing at most by an entropy model, which changes how
     tokens are stored, never what they mean) or are one of ``sources`` (``have``'s :func:`meta_token_sources`:
-    earlier models with its encoder and entropy tables, whose renderer alone it replaced)."""
+    earlier models with its first-pass encoder and entropy tables, whose renderer it replaced or whose encoder it
+    gave render feedback)."""
     if have is None or stored is None:
         return False
     digests = (stored.config_sha256, stored.weights_sha256)
@@ -272,7 +273,8 @@ def check_tokenizer(prior: Any, tokenizer_fingerprint: Any, *, force: bool = Fal
     ``tokenizer_fingerprint``) was trained on. ``networks``: the tokenizer's
     :func:`~.identity.network_digests`; a tokenizer whose networks are exactly the recorded one's (an entropy
     model added, :func:`same_networks`) makes the same tokens and is accepted, and so is one whose ``sources``
-    (:func:`meta_token_sources`) name the recorded tokenizer (a renderer replaced, the encoder kept).
+    (:func:`meta_token_sources`) name the recorded tokenizer (a renderer replaced or render feedback added, the
+    first-pass encoder kept: ``generate.conditioning_tokens`` then conditions on the first pass).
 
     With ``force`` only the token shapes must agree.
     """

@@ -43,14 +43,9 @@ def network_digests(model: torch.nn.Module, state: dict[str, torch.Tensor] | Non
     (``entropy_*``) at its default and its weights (``state``, default the model's) without the entropy model's
     tensors (``entropy.*``). These are the fingerprint fields the same networks had before an entropy model was
     added to them, so a file that model wrote holds tokens these networks read exactly the same way."""
-    import dataclasses
-
-    cfg = model.config
-    defaults = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
-                for f in dataclasses.fields(cfg) if f.name.startswith("entropy_")}
     weights = {k: v for k, v in (model.state_dict() if state is None else state).items()
                if not k.startswith("entropy.")}
-    return dataclasses.replace(cfg, **defaults).sha256(), weights_sha256(weights)
+    return model.config.networks().sha256(), weights_sha256(weights)
 
 
 class ModelIdentity:

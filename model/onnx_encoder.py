@@ -3,7 +3,9 @@
 A model directory may hold ``encoder.onnx`` next to its weights (written by ``model.onnx_export`` when a
 model ships): the graph of ``VideoTok4D.encode`` for one source camera -- inputs the :func:`stack_inputs`
 arrays of one clip (B = 1), outputs the bounded tokens Z_s (1, N_s, d) and Z_d (1, N_d, d) float32 -- and
-``encoder-v{V}.onnx`` the same for one scene of V synchronized cameras (inputs of V clips, B = V). The
+``encoder-v{V}.onnx`` the same for one scene of V synchronized cameras (inputs of V clips, B = V). A model with
+render feedback (``config.feedback_width``) has two more outputs, its first pass Z_s^0 and Z_d^0 (``z_s0``,
+``z_d0``: the tokens of the same weights without feedback, which a prior trained on them is conditioned on). The
 weights are float16 where the float32 value is exactly a float16 (the shipped weights are): external tensors
 into ``model.safetensors`` (or, in older exports, stored in the graph), so the graph computes with the very
 weights ``from_pretrained`` loads.  Its metadata ties it to them:
@@ -35,13 +37,20 @@ from .directories import checked_default_quality, meta_fingerprint, meta_network
 from .inputs.source_inputs import SourceInputs, stack_inputs
 from .onnx_session import MAX_ONNX_BYTES, onnx_available, open_checked  # noqa: F401  (MAX_ONNX_BYTES: as before)
 
-__all__ = ["OnnxEncoder", "ONNX_FILE", "ONNX_FORMAT", "INPUT_NAMES", "OUTPUT_NAMES", "onnx_available",
+__all__ = ["OnnxEncoder", "ONNX_FILE", "ONNX_FORMAT", "INPUT_NAMES", "OUTPUT_NAMES", "FIRST_PASS_NAMES", "output_names",
+           "onnx_available",
            "has_onnx_encoder", "encoder_file"]
 
 ONNX_FILE = "encoder.onnx"
 ONNX_FORMAT = "vt4d-encoder-onnx/1"
 INPUT_NAMES = ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid")
 OUTPUT_NAMES = ("z_s", "z_d")
+FIRST_PASS_NAMES = ("z_s0", "z_d0")  # a model with render feedback: the tokens before it
+
+
+def output_names(config: ModelConfig) -> tuple[str, ...]:
+    """The outputs of the encoder graph of a model with ``config``."""
+    return OUTPUT_NAMES + (FIRST_PASS_NAMES if config.feedback_width else ())
 
 
 
@@ -100,7 +109,8 @@ class OnnxEncoder:
         if not onnx_available():
             raise ModelError("encoding with runtime='onnx' needs onnxruntime (pip install onnxruntime), "
                              "or use runtime='torch'")
-        session, where, props = open_checked(path, meta, fmt=ONNX_FORMAT, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
+        session, where, props = open_checked(path, meta, fmt=ONNX_FORMAT, inputs=INPUT_NAMES,
+                                             outputs=output_names(meta["config"]),
                                              what="encoder", device=device, threads=threads)
         stored = props.get("vt4d_views", "")
         if stored != str(views):
@@ -111,9 +121,9 @@ class OnnxEncoder:
         """The fingerprint a container stores for this model: the same as the torch model's."""
         return self._fingerprint
 
-    def encode(self, clips: list[SourceInputs]) -> tuple[np.ndarray, np.ndarray]:
+    def encode(self, clips: list[SourceInputs], feedback: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """One scene from ``views`` source clips (prepared as for the torch encoder) -> (Z_s (1, N_s, d),
-        Z_d (1, N_d, d)) float32 in (-1, 1)."""
+        Z_d (1, N_d, d)) float32 in (-1, 1); ``feedback=False``: the first pass of a model with render feedback."""
         if len(clips) != self.views:
             raise ModelError(f"this ONNX encoder takes {self.views} source camera(s) per scene, got {len(clips)}; "
                              f"open the graph for {len(clips)} camera(s) (OnnxEncoder.open(model, views=...))")
@@ -125,5 +135,6 @@ class OnnxEncoder:
         for name, shape in expected.items():
             if arrays[name].shape != shape:
                 raise ModelError(f"{name} must be {shape} for this model, got {arrays[name].shape}")
-        z_s, z_d = self.session.run(list(OUTPUT_NAMES), {name: arrays[name] for name in INPUT_NAMES})
+        names = FIRST_PASS_NAMES if not feedback and cfg.feedback_width else OUTPUT_NAMES
+        z_s, z_d = self.session.run(list(names), {name: arrays[name] for name in INPUT_NAMES})
         return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)

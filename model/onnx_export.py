@@ -55,7 +55,7 @@ from .directories import WEIGHTS_FILE, model_directory, read_model_meta
 from .entropy import MAX_VIEWS
 from .inputs.source_inputs import SourceBatch
 from .layers import dynamic_token_cameras, locality_heads
-from .onnx_encoder import INPUT_NAMES, ONNX_FORMAT, OUTPUT_NAMES, OnnxEncoder, encoder_file
+from .onnx_encoder import INPUT_NAMES, ONNX_FORMAT, OnnxEncoder, encoder_file, output_names
 from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, RENDERER_OUTPUTS, OnnxRenderer)
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
@@ -223,7 +223,33 @@ def _trace(module: nn.Module, inputs: tuple[torch.Tensor, ...], input_names: lis
                           output_names=output_names, dynamic_axes=dynamic_axes, do_constant_folding=False)
     model = onnx.load_from_string(buffer.getvalue())
     del model.graph.value_info[:]  # traced shapes: onnxruntime would bake the example's sizes into reshapes
+    _fill_uniform_constants(model)
     return model
+
+
+def _fill_uniform_constants(model: Any, min_elements: int = 1024) -> int:
+    """Replace every Constant node of ``model`` whose tensor (of ``min_elements`` or more) holds one value by a
+    ConstantOfShape of that value: the same tensor, built at load time instead of stored. A static-shape trace
+    stores the zero masks and biases a render expands over its batch (14 MB for the ten-camera encoder with
+    render feedback). Returns the number replaced."""
+    from onnx import helper, numpy_helper
+
+    nodes, replaced = [], 0
+    for node in model.graph.node:
+        value = next((a.t for a in node.attribute if a.name == "value"), None) if node.op_type == "Constant" else None
+        array = None if value is None else numpy_helper.to_array(value)
+        if array is None or array.size < min_elements or not (array == array.flat[0]).all():
+            nodes.append(node)
+            continue
+        shape = f"{node.output[0]}__shape"
+        nodes.append(helper.make_node("Constant", [], [shape], value=numpy_helper.from_array(
+            np.asarray(array.shape, np.int64), shape)))
+        nodes.append(helper.make_node("ConstantOfShape", [shape], list(node.output),
+                                      value=numpy_helper.from_array(array.reshape(-1)[:1].copy())))
+        replaced += 1
+    del model.graph.node[:]
+    model.graph.node.extend(nodes)
+    return replaced
 
 
 def _finish(model: Any, directory: Path, meta: dict[str, Any], fmt: str, name: str, extra: dict[str, str],
@@ -275,13 +301,13 @@ class _Encode(nn.Module):
         self.render_step = _RenderStep(net) if net.feedback is not None else None
 
     def forward(self, frames: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor, motion_mask: torch.Tensor,
-                track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, ...]:
         batch = SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask, track_xy=track_xy,
                             track_valid=track_valid, views=self.views)
         if self.render_step is None:
             return self.net.encode(batch)
         with self.render_step._tables(K[None, :, 0]):  # (1, V, 3, 3): the tables of V encoded cameras
-            return self.net.encode(batch)
+            return self.net.encode_passes(batch)  # the tokens and the first pass (FIRST_PASS_NAMES)
 
 
 def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
@@ -297,11 +323,12 @@ def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: in
     inputs = example_inputs(net, views=views)
     with torch.no_grad():
         reference = [t.numpy() for t in wrapper(*inputs)]
-    model = _trace(wrapper, inputs, list(INPUT_NAMES), list(OUTPUT_NAMES))
+    outputs = list(output_names(net.config))
+    model = _trace(wrapper, inputs, list(INPUT_NAMES), outputs)
 
     def check(path: Path) -> None:
         encoder = OnnxEncoder.from_file(path, meta, views=views)
-        _parity(encoder.session.run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)}),
+        _parity(encoder.session.run(outputs, {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)}),
                 reference, f"encoder ({views} camera(s))")
 
     return _finish(model, directory, meta, ONNX_FORMAT, encoder_file(views), {"vt4d_views": str(views)}, check)

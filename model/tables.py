@@ -80,7 +80,7 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
     meta = read_model_meta(directory)
     own = meta_fingerprint(meta)
     if fingerprint is not None and own != fingerprint and reads_tables_of(meta, own, fingerprint):
-        own = fingerprint  # a renderer-only update of the file's model: the same config, encoder and tables
+        own = fingerprint  # an update of the file's model (renderer, render feedback): the same encoder and tables
     elif fingerprint is not None and own != fingerprint:
         raise EntropyTablesError(f"{directory} holds model {own.model_id} {own.model_version}, not the file's "
                                  f"{fingerprint.model_id} {fingerprint.model_version}")
@@ -99,10 +99,12 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
 
 def reads_tables_of(meta: dict[str, Any], own: ModelFingerprint, fingerprint: ModelFingerprint) -> bool:
     """Whether the model of ``meta`` (fingerprint ``own``) holds the entropy tables of model ``fingerprint``: one of
-    its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config -- an earlier
-    model whose renderer alone it replaced (``train.ship --reads`` checked every other tensor equal)."""
+    its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config, or its
+    config without render feedback -- an earlier model whose renderer it replaced or whose encoder it gave render
+    feedback (``train.ship --reads`` checked every other tensor equal)."""
+    configs = (own.config_sha256, *meta["config"].first_pass_sha256s()[:1])
     return ((fingerprint.config_sha256, fingerprint.weights_sha256) in meta_token_sources(meta)
-            and fingerprint.config_sha256 == own.config_sha256 and same_token_layout(own, fingerprint))
+            and fingerprint.config_sha256 in configs and same_token_layout(own, fingerprint))
 
 
 def frozen_tables(model: Any, fingerprint: ModelFingerprint) -> EntropyTables | None:

@@ -99,8 +99,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             nn.init.zeros_(self.patch_direct.weight)
             nn.init.zeros_(self.patch_direct.bias)
         self.feedback: RenderFeedback | None = None
+        self.feedback_later: nn.ModuleList | None = None
         if cfg.feedback_width:  # the encoder's second look at what its first tokens render (zero at init)
             self.feedback = RenderFeedback(cfg)
+            if cfg.feedback_passes > 1:  # further looks, each at what the previous pass's tokens render
+                self.feedback_later = nn.ModuleList(RenderFeedback(cfg) for _ in range(cfg.feedback_passes - 1))
 
     # ---------------------------------------------------------------------------------------------
     def freeze_autoencoder(self) -> None:
@@ -176,17 +179,36 @@ class VideoTok4D(ModelIdentity, nn.Module):
             return self.autoencoder.encode(frames).float()
 
     # Eq. 1 ---------------------------------------------------------------------------------------
-    def encode(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
+    def encode(self, batch: SourceBatch, feedback: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """Source clips -> (Z_s (S, N_s, d), Z_d (S, N_d, d)) float32 in (-1, 1), one token set per scene:
-        S = B / batch.views scenes (one camera per scene unless the batch says otherwise)."""
-        return self._bound(*self.encode_preactivations(batch))
+        S = B / batch.views scenes (one camera per scene unless the batch says otherwise). ``feedback=False``:
+        the first pass Z^0 of a model with render feedback (the tokens of the same weights without it)."""
+        return self._bound(*self.encode_preactivations(batch, feedback))
+
+    def encode_passes(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(Z_s, Z_d, Z_s^0, Z_d^0): the tokens and the first pass (equal without render feedback), computed once."""
+        a_s, a_d, x, chosen = self._first_preactivations(batch)
+        first = self._bound(a_s, a_d)
+        if self.feedback is None:
+            return (*first, *first)
+        return (*self._bound(*self._feedback(batch, x, a_s, a_d, chosen)), *first)
 
     def _bound(self, a_s: torch.Tensor, a_d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Pre-activations -> tokens (the unified ablation bounds both groups with its one bottleneck)."""
         return self.static_bottleneck.bound(a_s), (self.dynamic_bottleneck or self.static_bottleneck).bound(a_d)
 
-    def encode_preactivations(self, batch: SourceBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """The bottleneck pre-activations (Z = tanh(A)): (A_s (S, N_s, d), A_d (S, N_d, d)) float32."""
+    def encode_preactivations(self, batch: SourceBatch, feedback: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """The bottleneck pre-activations (Z = tanh(A)): (A_s (S, N_s, d), A_d (S, N_d, d)) float32; with
+        ``feedback=False`` those of the first pass (before render feedback)."""
+        a_s, a_d, x, chosen = self._first_preactivations(batch)
+        if feedback and self.feedback is not None:
+            a_s, a_d = self._feedback(batch, x, a_s, a_d, chosen)
+        return a_s, a_d
+
+    def _first_preactivations(self, batch: SourceBatch
+                              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(A_s^0, A_d^0, the source latents x (B, T, C, h, w), the chosen tracks or None): the encoder before
+        render feedback."""
         cfg = self.config
         self._check_video(batch.frames, "source frames")
         B, T = batch.frames.shape[:2]
@@ -227,14 +249,19 @@ class VideoTok4D(ModelIdentity, nn.Module):
             change = self.token_frame_cells(x, V)  # zero for the time-average copies
             a_s = a_s + self.cell_frames(change.to(self.cell_frames.weight.dtype)).float() \
                 * (covers.sum(1) > 0)[None, :, None]
-        if self.feedback is not None:
-            a_s, a_d = self._feedback(batch, x, a_s, a_d, chosen)
-        return a_s, a_d
+        return a_s, a_d, x, chosen
 
     def _feedback(self, batch: SourceBatch, x: torch.Tensor, a_s: torch.Tensor, a_d: torch.Tensor,
                   chosen: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
-        """A + dA of :class:`RenderFeedback`: the first tokens rendered at the encoded cameras (the decoder's
-        steps and seed 0's noise, no gradient), the residual x - Y^0 read back around each token."""
+        """A + dA of :class:`RenderFeedback`, once per pass (``config.feedback_passes``): the tokens so far
+        rendered at the encoded cameras (the decoder's steps and seed 0's noise, no gradient), the residual
+        x - Y read back around each token."""
+        for module in [self.feedback, *(self.feedback_later or ())]:
+            a_s, a_d = self._feedback_pass(module, batch, x, a_s, a_d, chosen)
+        return a_s, a_d
+
+    def _feedback_pass(self, module: RenderFeedback, batch: SourceBatch, x: torch.Tensor, a_s: torch.Tensor,
+                       a_d: torch.Tensor, chosen: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         V = batch.views
         z_s, z_d = self._bound(a_s, a_d)
         K_src, w2c_src = batch.source
@@ -242,12 +269,11 @@ class VideoTok4D(ModelIdentity, nn.Module):
             K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
         T = x.shape[1]
         y0 = self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
-                                 batch.K, batch.w2c, source=(K_src, w2c_src), noise=self.feedback.noise[:, :T])
+                                 batch.K, batch.w2c, source=(K_src, w2c_src), noise=module.noise[:, :T])
         residual = x.float() - y0
         track = self._track_patches(batch, residual, chosen)[0].flatten(2)  # (S, N_d, q C)
         r = self.renderer
-        d_s, d_d = self.feedback(z_s, z_d, residual, track, r.token_cameras(V),
-                                 r.copy_frames(V)[:, :x.shape[1]].to(x.device))
+        d_s, d_d = module(z_s, z_d, residual, track, r.token_cameras(V), r.copy_frames(V)[:, :x.shape[1]].to(x.device))
         n = d_s.shape[1]
         return torch.cat([a_s[:, :n] + d_s, a_s[:, n:]], dim=1), a_d + d_d
 

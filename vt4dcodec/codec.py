@@ -516,10 +516,11 @@ def _refiner(net: "VideoTok4D | OnnxEncoder", model: "str | os.PathLike | VideoT
 
 
 def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndarray, Trajectory, np.ndarray | None]]",
-                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                 seed: int = 0, feedback: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The tokens of one scene seen by ``views``, each (frames (T, H, W, 3) uint8, trajectory, depth (T, H, W) or
     None: estimated) already fitted to the model's clip, encoded by ``net`` (torch or ONNX): (Z_s (1, N_s, d),
-    Z_d (1, N_d, d)) float32; ``seed`` seeds the track sampling."""
+    Z_d (1, N_d, d)) float32; ``seed`` seeds the track sampling; ``feedback=False``: the first pass of a model
+    with render feedback."""
     from .model.inputs.preprocess import prepare_source  # lazy: `import vt4dcodec` / `vt4d` load no OpenCV
     from .model.onnx_encoder import OnnxEncoder  # torch-free
 
@@ -528,13 +529,14 @@ def encode_views(net: "VideoTok4D | OnnxEncoder", views: "Sequence[tuple[np.ndar
                             num_tracks=cfg.n_tracks, seed=seed, motion_isolation=cfg.motion_isolation)
              for frames, trajectory, depth in views]
     if isinstance(net, OnnxEncoder):
-        return net.encode(clips)
+        return net.encode(clips, feedback=feedback)
     import torch  # lazy: only the torch runtime loads it
 
     from .model.inputs.source_inputs import SourceBatch
 
     with torch.no_grad():
-        t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)).to(next(net.parameters()).device))
+        t_s, t_d = net.encode(SourceBatch.collate(clips, views=len(clips)).to(next(net.parameters()).device),
+                              feedback=feedback)
     return t_s.cpu().numpy(), t_d.cpu().numpy()
 
 

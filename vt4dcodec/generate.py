@@ -217,8 +217,9 @@ def conditioning_tokens(prior: Any, frames: np.ndarray, cameras: Trajectory, tok
     (depth estimated, seed 0).  They are not rounded to float16 like the token records the prior was trained
     on (a difference of at most 2^-11 relative, below what the prior resolves): rounding would turn the
     encoder runtimes' float32 differences into whole float16 steps where a value sits at a rounding boundary,
-    and the torch and ONNX generate paths would part by more than float rounding.  ModelError when the
-    tokenizer is not the one the prior was trained on."""
+    and the torch and ONNX generate paths would part by more than float rounding.  A tokenizer that added render
+    feedback to the one the prior was trained on gives its first pass, which is that tokenizer's tokens exactly.
+    ModelError when the tokenizer is not the one the prior was trained on."""
     from .codec import encode_views, load_encoder, model_fingerprint
     from .model.directories import check_tokenizer  # torch-free
 
@@ -226,7 +227,8 @@ def conditioning_tokens(prior: Any, frames: np.ndarray, cameras: Trajectory, tok
                        device=device)
     check_tokenizer(prior, model_fingerprint(net), networks=getattr(net, "network_digests", None),
                     sources=getattr(net, "token_sources", ()))
-    z_s, z_d = encode_views(net, [(frames, cameras, None)], seed=0)
+    first_pass = prior.tokenizer_fingerprint.config_sha256 in net.config.first_pass_sha256s()
+    z_s, z_d = encode_views(net, [(frames, cameras, None)], seed=0, feedback=not first_pass)
     return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
 
 

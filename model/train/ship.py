@@ -202,14 +202,18 @@ def reconfigure(model: VideoTok4D, overrides: dict) -> VideoTok4D:
 
 
 def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
-    """The ``reads`` record of ``model`` as a renderer-only update of ``base_name``: the base's fingerprint, and
-    the earlier models whose tokens the base read (its networks' digests where they differ from its own, its own
-    ``reads``). ModelError unless the model has the base's config and, stored as float16, every tensor outside
-    ``renderer.*`` equal to the base's -- the same encoder, token quantizer and entropy tables, so every file of the
-    base holds tokens the model reads as the base did."""
+    """The ``reads`` record of ``model`` as an update of ``base_name`` that reads its tokens: the base's
+    fingerprint, and the earlier models whose tokens the base read (its networks' digests where they differ from
+    its own, its own ``reads``). The update may replace the renderer and may add render feedback to an encoder
+    without it. ModelError unless the model has the base's config (``feedback_width`` aside where the base has
+    none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's and no other
+    new tensor than ``feedback.*`` (the config allows no other) -- the same first-pass encoder, token quantizer and entropy tables, so every
+    file of the base holds tokens the model reads as the base did, and its first pass is the base's encode."""
     base = from_pretrained(base_name)
-    if base.config != model.config:
-        raise ModelError(f"{base_name}'s config differs from the model's: a renderer-only update keeps the config")
+    plain = model.config.replace(feedback_width=0) if not base.config.feedback_width else model.config
+    if base.config != plain:
+        raise ModelError(f"{base_name}'s config differs from the model's: an update that reads its tokens keeps the "
+                         f"config (render feedback aside)")
     ours, theirs = storage_state(model, "float16")[0], base.state_dict()
     differ = sorted(k for k in theirs if not k.startswith("renderer.") and not torch.equal(ours[k], theirs[k]))
     if differ:
@@ -248,8 +252,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="config fields to change at ship time that add no weights, e.g. spread_views=true")
     parser.add_argument("--reads", type=str, default=None, metavar="MODEL",
-                        help="a renderer-only update of MODEL (shipped id or directory, e.g. the model it replaces): "
-                             "checked to have MODEL's config and every tensor outside renderer.* (encoder, entropy "
+                        help="an update of MODEL (shipped id or directory, e.g. the model it replaces) that replaced its "
+                             "renderer or added render feedback to its encoder: checked to have MODEL's config "
+                             "(feedback_width aside) and every tensor of MODEL outside renderer.* (encoder, entropy "
                              "tables), and recorded so MODEL's files, and a prior trained on its tokens, stay readable")
     args = parser.parse_args(argv)
     overrides = parse_overrides(args.set)
@@ -261,8 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     reads = None
     if args.reads is None:
         model.update_entropy()  # the integer tables the codec reads (a no-op without an entropy model)
-    else:  # a renderer-only update keeps the tables its predecessor's files were coded with (recomputing them
-        try:  # from the float16-stored densities would not give the same integers)
+    else:  # an update that reads its predecessor's tokens keeps the tables its files were coded with (recomputing
+        try:  # them from the float16-stored densities would not give the same integers)
             reads = token_sources_of(model, args.reads)
         except ModelError as exc:
             parser.error(f"--reads: {exc}")

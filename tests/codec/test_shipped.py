@@ -135,11 +135,13 @@ def test_cluster_ranks_encode_disjoint_shares_into_their_own_shards(tmp_path):
 
 def test_every_shipped_prior_is_bound_to_a_shipped_tokenizer_and_records_its_sampler():
     """A prior is retrained whenever its tokenizer's tokens change: the shipped prior's recorded tokenizer is the
-    tokenizer shipped beside it, or one with exactly its networks (the shipped one adds an entropy model: same
-    tokens, digests computed from the weights on load), and it records the sampler setting measured for it."""
+    tokenizer shipped beside it, one with exactly its networks (the shipped one adds an entropy model: same
+    tokens, digests computed from the weights on load), or one the shipped tokenizer reads (``ship --reads``: a
+    renderer replaced, or render feedback added, whose first pass is then exactly the recorded tokenizer's encode,
+    what ``generate.conditioning_tokens`` conditions on); and it records the sampler setting measured for it."""
     from vt4dcodec.model.directories import (CONFIG_FILE, PRIOR_META_FILE, meta_fingerprint, meta_networks,
-                                             model_directory, read_model_meta, read_prior_meta, same_networks,
-                                             shipped_prior_ids)
+                                             meta_token_sources, model_directory, read_model_meta, read_prior_meta,
+                                             same_networks, shipped_prior_ids)
 
     priors = shipped_prior_ids()
     assert "co4dgen-tiny" in priors
@@ -147,9 +149,13 @@ def test_every_shipped_prior_is_bound_to_a_shipped_tokenizer_and_records_its_sam
         meta = read_prior_meta(model_directory(prior, PRIOR_META_FILE))
         tokenizer_meta = read_model_meta(model_directory(meta["tokenizer"].model_id, CONFIG_FILE))
         tokenizer = meta_fingerprint(tokenizer_meta)
-        assert tokenizer.matches(meta["tokenizer"]) or same_networks(
-            meta_networks(tokenizer_meta), tokenizer, meta["tokenizer"]), (prior, tokenizer.short(),
-                                                                            meta["tokenizer"].short())
+        recorded, sources = meta["tokenizer"], meta_token_sources(tokenizer_meta)
+        assert tokenizer.matches(recorded) or same_networks(meta_networks(tokenizer_meta), tokenizer, recorded,
+                                                            sources), (prior, tokenizer.short(), recorded.short())
+        if (recorded.config_sha256, recorded.weights_sha256) in sources:  # its encoder's first pass, or the same
+            config = tokenizer_meta["config"]
+            assert recorded.config_sha256 in (*config.first_pass_sha256s(), tokenizer.config_sha256,
+                                              config.networks().sha256()), prior
         model = codec.load_model(meta["tokenizer"].model_id)
         assert tokenizer == codec.model_fingerprint(model)
         assert model.network_digests == meta_networks(tokenizer_meta)  # from_pretrained computes them
@@ -204,6 +210,33 @@ def test_files_of_the_same_networks_without_the_entropy_model_decode_and_others_
     other = dataclasses.replace(older, fingerprint=dataclasses.replace(older.fingerprint, weights_sha256="0" * 64))
     with pytest.raises(ModelMismatchError, match="--force"):
         codec.SceneDecoder.open(other)
+
+
+def test_files_of_the_models_the_shipped_tokenizer_reads_decode_with_their_tables(scene):
+    """vt4d-tiny 2.1.0 is 2.0.0 with render feedback in the encoder (``ship --reads``): a learned-rans file 2.0.0
+    wrote (its fingerprint, config without feedback) finds its entropy tables in 2.1.0 and decodes without --force
+    to the frames of the same tokens. Regression: the tables were looked up only under an equal config hash."""
+    import dataclasses
+
+    from vt4dcodec.format import dumps, loads
+    from vt4dcodec.model.directories import meta_token_sources, model_directory, read_model_meta
+
+    meta = read_model_meta(model_directory("vt4d-tiny"))
+    sources = meta_token_sources(meta)
+    if not sources:
+        pytest.skip("the shipped vt4d-tiny reads no earlier model's files")
+    cap = scene.capture
+    encoded = vt4dcodec.encode(cap, camera=cap.camera_names[0])
+    assert encoded.encoding == "learned-rans"
+    for config_sha256, weights_sha256 in sources[:1]:  # the model it replaced (the others: its networks)
+        older = dataclasses.replace(encoded, fingerprint=dataclasses.replace(
+            encoded.fingerprint, model_version="earlier", config_sha256=config_sha256, weights_sha256=weights_sha256))
+        stored, own = loads(dumps(older)), loads(dumps(encoded))
+        assert stored.fingerprint == older.fingerprint
+        assert np.array_equal(stored.static_tokens, own.static_tokens)
+        assert np.array_equal(stored.dynamic_tokens, own.dynamic_tokens)
+        assert np.array_equal(codec.SceneDecoder.open(stored).render("source"),
+                              codec.SceneDecoder.open(own).render("source"))
 
 
 def test_generate_with_the_shipped_prior(tmp_path, scene):

@@ -28,6 +28,13 @@ def test_config_hash_is_kept_while_off_and_values_are_checked():
     for bad in (-1, True, 2.0, "16"):
         with pytest.raises(ModelError, match="feedback_width must be"):
             get_config("tiny", **SMALL, feedback_width=bad)
+    assert get_config("tiny", **SMALL, feedback_width=16, feedback_passes=1).sha256() \
+        == get_config("tiny", **SMALL, feedback_width=16).sha256()
+    for bad in (0, 5, True, 2.0):
+        with pytest.raises(ModelError, match="feedback_passes must be"):
+            get_config("tiny", **SMALL, feedback_width=16, feedback_passes=bad)
+    with pytest.raises(ModelError, match="feedback_passes > 1 needs feedback_width"):
+        get_config("tiny", **SMALL, feedback_passes=2)
     for missing in (dict(dynamic_splat=0, dynamic_from_patch=False),
                     dict(unified_tokens=True, dynamic_from_patch=False)):
         with pytest.raises(ModelError, match="feedback_width needs"):
@@ -100,3 +107,30 @@ def test_training_reaches_the_feedback_through_the_stored_tokens():
     loss.backward()
     for mlp in (net.feedback.static, net.feedback.dynamic):
         assert all(p.grad is not None and float(p.grad.abs().sum()) > 0 for p in mlp.parameters())
+
+
+def test_a_further_pass_starts_as_the_model_without_it_and_reads_what_the_previous_pass_renders():
+    """feedback_passes=2 warm-started from one pass: the same tokens until the second pass's zero-initialised
+    output layers move; the first pass (encode(feedback=False)) never changes, and gradients reach the new pass."""
+    torch.manual_seed(0)
+    cfg = get_config("tiny", **SMALL, feedback_width=16)
+    one = VideoTok4D(cfg).eval()
+    for layer in (one.feedback.static[2], one.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight, std=0.1)
+    two = VideoTok4D(cfg.replace(feedback_passes=2)).eval()
+    one.decode_steps = two.decode_steps = 1
+    missing = two.load_state_dict(one.state_dict(), strict=False).missing_keys
+    assert missing and all(k.startswith("feedback_later.0.") for k in missing)
+    batch = dataclasses.replace(random_batch(cfg, B=2, n_tracks=8), views=2)
+    with torch.no_grad():
+        assert all(torch.equal(a, b) for a, b in zip(one.encode(batch), two.encode(batch)))
+        for layer in (two.feedback_later[0].static[2], two.feedback_later[0].dynamic[2]):
+            layer.weight.normal_(std=0.1)
+        moved = two.encode(batch)
+        assert all(not torch.equal(a, b) for a, b in zip(moved, one.encode(batch)))
+        assert all(torch.equal(a, b) for a, b in zip(two.encode(batch, feedback=False),
+                                                      one.encode(batch, feedback=False)))
+    two.requires_grad_(False)
+    two.feedback_later.requires_grad_(True)
+    sum(z.square().sum() for z in two.encode(batch)).backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in two.feedback_later.parameters())

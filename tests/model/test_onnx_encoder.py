@@ -81,15 +81,17 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
             assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
-@pytest.mark.parametrize("views", [1, 2])
-def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int):
+@pytest.mark.parametrize("views,passes", [(1, 1), (2, 1), (1, 2)])
+def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int):
     """Render feedback renders the first tokens inside the encoder: its graph holds the renderer with the index
-    tables of ``views`` cameras and the seed-0 noise as constants (a generator cannot be traced)."""
+    tables of ``views`` cameras and the seed-0 noise as constants (a generator cannot be traced). It also gives
+    the first pass (z_s0, z_d0): the tokens of the same weights without the feedback."""
     torch.manual_seed(0)
     net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
-                                dynamic_gate_copies=True, feedback_width=16)).eval()
-    for layer in (net.feedback.static[2], net.feedback.dynamic[2]):
-        torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
+                                dynamic_gate_copies=True, feedback_width=16, feedback_passes=passes)).eval()
+    for module in [net.feedback, *(net.feedback_later or ())]:
+        for layer in (module.static[2], module.dynamic[2]):
+            torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
     net.decode_steps = 1
     directory = save_pretrained(net, tmp_path / "fb", model_id="fb", model_version="0", storage_dtype="float16")
     net = codec.load_model(directory)
@@ -99,13 +101,21 @@ def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path
         inputs = example_inputs(net, seed=seed, views=views)
         with torch.no_grad():
             want = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views))]
+            first = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views), feedback=False)]
             net.feedback, saved = None, net.feedback
             plain = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views))]
             net.feedback = saved
+            if passes > 1:  # the last pass is in the tokens too
+                net.feedback_later, later = None, net.feedback_later
+                one_pass = [t.numpy() for t in net.encode(SourceBatch(*inputs, views=views))]
+                net.feedback_later = later
+                assert min(float(np.abs(a - b).max()) for a, b in zip(want, one_pass)) > 1e-3
+        assert all(np.array_equal(a, b) for a, b in zip(first, plain))  # the first pass: the model without feedback
         assert min(float(np.abs(a - b).max()) for a, b in zip(want, plain)) > 1e-3  # the feedback is in the tokens
         got = encoder.session.run(None, {n: t.numpy() for n, t in zip(
             ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)})
-        for a, b in zip(got, want):
+        assert [o.name for o in encoder.session.get_outputs()] == ["z_s", "z_d", "z_s0", "z_d0"]
+        for a, b in zip(got, want + plain, strict=True):
             assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 

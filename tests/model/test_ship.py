@@ -183,3 +183,72 @@ def test_reads_records_a_renderer_only_update_whose_predecessors_files_and_prior
     (tmp_path / "new" / "config.json").write_text(json.dumps(meta))
     with pytest.raises(ModelError, match="reads"):
         from_pretrained(tmp_path / "new")
+
+
+FEEDBACK_READY = dict(SMALL, query_from_grid=True, token_splat=True, token_from_cell=True, frame_copies=True,
+                      frame_gate_deg=8.0, view_gate_deg=40.0, pixel_splat=True, dynamic_splat=2,
+                      dynamic_from_patch=True, entropy_levels=2)
+
+
+def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_conditioned_on_its_first_pass(tmp_path):
+    """ship --reads of a model that gave its predecessor's encoder render feedback: the predecessor's files find
+    their entropy tables in it, and a prior trained on the predecessor's tokens is conditioned on the first pass,
+    which is the predecessor's encode exactly (torch and ONNX), while the codec encodes with the feedback. A base
+    that has feedback must keep it; a prior trained on the update's own tokens gets them with the feedback."""
+    from types import SimpleNamespace
+
+    from network_fixtures import orbit_cameras
+    from vt4dcodec.cameras import Trajectory
+    from vt4dcodec.generate import conditioning_tokens
+    from vt4dcodec.model import from_pretrained, save_pretrained
+    from vt4dcodec.model.onnx_export import export_encoder
+    from vt4dcodec.model.tables import tables_from_directory
+    from vt4dcodec.model.train.ship import token_sources_of
+
+    torch.manual_seed(0)
+    base = VideoTok4D(get_config("tiny", **FEEDBACK_READY)).eval()
+    base.freeze_autoencoder()
+    base.update_entropy()
+    base.decode_steps = 1
+    save_pretrained(base, tmp_path / "base", model_id="t", model_version="1", storage_dtype="float16")
+    old = from_pretrained(tmp_path / "base")
+    old_fp = old.fingerprint("t", "1")
+    new = VideoTok4D(old.config.replace(feedback_width=16)).eval()
+    new.load_state_dict(old.state_dict(), strict=False)
+    new.decode_steps = 1
+    for layer in (new.feedback.static[2], new.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
+    reads = token_sources_of(new, str(tmp_path / "base"))
+    assert reads[0]["config_sha256"] == old_fp.config_sha256 and reads[0]["weights_sha256"] == old_fp.weights_sha256
+    save_pretrained(new, tmp_path / "new", model_id="t", model_version="2", storage_dtype="float16", reads=reads)
+    for directory in (tmp_path / "base", tmp_path / "new"):
+        export_encoder(from_pretrained(directory), directory)
+    tables, own = tables_from_directory(tmp_path / "new", old_fp), tables_from_directory(tmp_path / "base", old_fp)
+    assert tables.fingerprint == old_fp and all(np.array_equal(getattr(tables, n), getattr(own, n))
+                                                for n in ("steps", "freqs", "origins"))
+
+    cfg = old.config
+    K, w2c = orbit_cameras(1, cfg.frames, cfg.image_size)
+    cameras = Trajectory(K=K[0].numpy().astype(np.float64), w2c=w2c[0].numpy().astype(np.float64),
+                         width=cfg.image_size, height=cfg.image_size)
+    frames = np.random.default_rng(0).integers(0, 256, (cfg.frames, cfg.image_size, cfg.image_size, 3), np.uint8)
+    trained_on_base = SimpleNamespace(tokenizer_fingerprint=old_fp)
+    trained_on_networks = SimpleNamespace(tokenizer_fingerprint=dataclasses.replace(
+        old_fp, config_sha256=old.network_digests[0], weights_sha256=old.network_digests[1]))
+    for runtime in ("torch", "onnx"):
+        want = conditioning_tokens(trained_on_base, frames, cameras, tmp_path / "base", runtime=runtime)
+        for prior in (trained_on_base, trained_on_networks):
+            got = conditioning_tokens(prior, frames, cameras, tmp_path / "new", runtime=runtime)
+            assert all(np.abs(a - b).max() <= 2e-6 for a, b in zip(got, want))
+        trained_on_new = SimpleNamespace(tokenizer_fingerprint=from_pretrained(tmp_path / "new").fingerprint("t", "2"))
+        full = conditioning_tokens(trained_on_new, frames, cameras, tmp_path / "new", runtime=runtime)
+        assert max(float(np.abs(a - b).max()) for a, b in zip(full, want)) > 1e-3  # the feedback is in the tokens
+
+    # a base with render feedback is read only by models that keep it
+    changed = from_pretrained(tmp_path / "new")
+    with torch.no_grad():
+        changed.feedback.static[2].bias.add_(0.25)
+    with pytest.raises(ModelError, match="outside renderer"):
+        token_sources_of(changed, str(tmp_path / "new"))
+    with pytest.raises(ModelError, match="config"):  # no other config change
+        token_sources_of(reconfigure(from_pretrained(tmp_path / "new"), {"spread_views": True}), str(tmp_path / "base"))
