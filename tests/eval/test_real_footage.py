@@ -57,6 +57,7 @@ def test_several_encoded_cameras_and_one_target(models, imported, tmp_path):
     (["--source", "cam_1", "--target", "cam_1"], "--target CAM"),
     (["--max-clips", "0"], "--max-clips must be at least 1"),
     (["--frame-step", "2"], "--frame-step applies to caliscope recordings"),
+    (["--quality", "3"], "--quality must be int8 (the model has no quality levels), got '3'"),
 ])
 def test_bad_arguments_name_the_flag(models, imported, tmp_path, capsys, args, message):
     assert real_main(["--model", models[0], "--capture", str(imported), *args, "--out", str(tmp_path / "r.json")]) == 1
@@ -66,3 +67,25 @@ def test_bad_arguments_name_the_flag(models, imported, tmp_path, capsys, args, m
 def test_a_folder_that_is_no_capture_says_how_to_make_one(models, tmp_path, capsys):
     assert real_main(["--model", models[0], "--capture", str(tmp_path), "--out", str(tmp_path / "r.json")]) == 1
     assert "vt4d import" in capsys.readouterr().err
+
+
+def test_tokens_are_stored_at_the_codec_default_level_unless_asked(imported, tmp_path, capsys):
+    """The report measures what `vt4d encode` stores: the model's default quality level; --quality N or int8
+    asks for another, and a level the model lacks names the flag."""
+    import torch
+
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+
+    torch.manual_seed(0)
+    net = VideoTok4D(get_config("tiny", patch_size=4, entropy_levels=2)).eval()
+    net.update_entropy()
+    model = save_pretrained(net, tmp_path / "levels", model_id="test-levels", model_version="0", default_quality=1)
+    common = ["--model", str(model), "--capture", str(imported), "--target", "source", "--max-clips", "1",
+              "--steps", "1"]
+    for extra, encoding in (([], "learned-rans q1"), (["--quality", "2"], "learned-rans q2"),
+                            (["--quality", "int8"], "int8")):
+        out = tmp_path / f"r{len(extra)}{encoding[-1]}.json"
+        assert real_main([*common, *extra, "--out", str(out)]) == 0
+        assert json.loads(out.read_text())["encoding"] == encoding
+    assert real_main([*common, "--quality", "3", "--out", str(tmp_path / "bad.json")]) == 1
+    assert "--quality must be a level 1 .. 2 or int8, got '3'" in capsys.readouterr().err

@@ -260,6 +260,20 @@ def _camera_list(value: str, available: list[str], flag: str) -> list[str]:
     return names
 
 
+def _quality(value: str | None, net: Any) -> int | None:
+    """The quality level ``--quality`` asks for (None: int8): ``N``, ``int8``, or by default the level the codec
+    stores a model's tokens at (:func:`codec.default_quality`; int8 for a model without levels)."""
+    if value is None:
+        return codec.default_quality(net) if codec.quality_levels(net) else None
+    if value == "int8":
+        return None
+    levels = codec.quality_levels(net)
+    if not value.isdigit() or int(value) not in levels:
+        have = f"a level {levels[0]} .. {levels[-1]} or int8" if levels else "int8 (the model has no quality levels)"
+        raise CaptureError(f"--quality must be {have}, got {value!r}")
+    return int(value)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m vt4dcodec.eval.real_footage", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", default="vt4d-tiny", help="shipped id, model directory or training run directory")
@@ -277,10 +291,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model's recorded "
                    "decode_steps)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--quality", type=int, default=None, metavar="N",
-                   help="store the tokens as learned-rans at quality level N of the model (default: int8)")
+    p.add_argument("--quality", default=None, metavar="N|int8",
+                   help="how the tokens are stored: learned-rans at quality level N of the model, or int8 (default: "
+                        "the model's default level, as `vt4d encode` stores them; int8 for a model without levels)")
     p.add_argument("--refine", type=int, default=0, metavar="N",
-                   help="with --quality: refine the tokens N iterations at encode (vt4d encode --refine)")
+                   help="refine the tokens N iterations at encode for their quality level (vt4d encode --refine)")
     p.add_argument("--tune", choices=codec.TUNES, default="psnr",
                    help="what --refine optimises (vt4d encode --tune)")
     p.add_argument("--threads", type=int, default=1)
@@ -298,6 +313,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     if args.frame_step < 1:
         raise CaptureError(f"--frame-step must be at least 1, got {args.frame_step}")
     net = resolve_model(args.model).eval()
+    quality = _quality(args.quality, net)
     size = net.config.image_size
     t0 = time.perf_counter()
     capture = open_capture(args.capture, size=size, frame_step=args.frame_step, fit=args.fit)
@@ -317,7 +333,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
                                f"source / all; the capture has {available}")
     steps = int(net.decode_steps if args.steps is None else args.steps)
     rows, clips = evaluate_cameras(capture, net, sources, targets, steps=steps, seed=args.seed, fit=args.fit,
-                                   quality=args.quality, max_clips=args.max_clips, refine=args.refine,
+                                   quality=quality, max_clips=args.max_clips, refine=args.refine,
                                    tune=args.tune)
     wall = time.perf_counter() - t0
     source, target = sources[0], targets[0] if len(targets) == 1 else "all"
@@ -330,7 +346,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         "frames": capture.num_frames, "fps": capture.fps, "fit": args.fit,
         "image_size": size, "clip_frames": net.config.frames, "clips": len(clips), "steps": steps,
         "decode_steps": int(net.decode_steps), "seed": args.seed,
-        "encoding": stored_encoding(net, args.quality), "refine": args.refine, "tune": args.tune,
+        "encoding": stored_encoding(net, quality), "refine": args.refine, "tune": args.tune,
         "model": codec.model_fingerprint(net).short(), "training_step": net.training_step,
         "wall_s": round(wall, 1), "summary": summarize_real(rows), "summary_by_camera": summarize_by_camera(rows),
         "rows": rows,
