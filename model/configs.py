@@ -255,6 +255,10 @@ class ModelConfig(_Config):
         feedback_passes: with feedback_width, how many times the encoder renders its tokens and reads the residual
         back (each pass its own zero-initialised MLPs, so a model given a further pass starts as the model
         without it). 1: one pass.
+        feedback_quality: with feedback_width and quality levels, the lowest level whose files store the tokens
+        after render feedback; files of coarser levels store the first pass, where the feedback's extra bytes buy
+        less than a finer level would (an encoder's choice, measured per level: docs/training.md). Encodings
+        without a level store the feedback's tokens. 1: every level.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -312,6 +316,7 @@ class ModelConfig(_Config):
     entropy_partners: tuple[int, ...] = ()
     feedback_width: int = 0
     feedback_passes: int = 1
+    feedback_quality: int = 1
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -325,7 +330,7 @@ class ModelConfig(_Config):
                                                "dynamic_from_patch": False, "entropy_levels": 0,
                                                "entropy_context": False, "entropy_rounding": (),
                                                "entropy_partners": (), "feedback_width": 0,
-                                               "feedback_passes": 1}
+                                               "feedback_passes": 1, "feedback_quality": 1}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -421,6 +426,12 @@ class ModelConfig(_Config):
             raise ModelError(f"config feedback_passes must be an integer 1 .. 4, got {self.feedback_passes!r}")
         if self.feedback_passes > 1 and not self.feedback_width:
             raise ModelError("config feedback_passes > 1 needs feedback_width > 0 (the passes are render feedback)")
+        if isinstance(self.feedback_quality, bool) or not isinstance(self.feedback_quality, int) \
+                or not 1 <= self.feedback_quality <= max(1, self.entropy_levels):
+            raise ModelError(f"config feedback_quality must be a quality level 1 .. {max(1, self.entropy_levels)}, "
+                             f"got {self.feedback_quality!r}")
+        if self.feedback_quality > 1 and not self.feedback_width:
+            raise ModelError("config feedback_quality > 1 needs feedback_width > 0 (it says where the feedback is used)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
             raise ModelError("mlp_ratio must be > 0 and token_noise in [0, 1)")
 
@@ -464,18 +475,29 @@ class ModelConfig(_Config):
         return (self.n_static + self.n_dynamic) * self.token_dim
 
     def networks(self) -> "ModelConfig":
-        """This config with every entropy-model field (``entropy_*``) at its default: the config of the networks
-        alone, as they were before an entropy model was added to them (:func:`~.identity.network_digests`)."""
+        """This config with every entropy-model field (``entropy_*``) and the level the feedback starts at
+        (``feedback_quality``, a choice among levels) at their defaults: the config of the networks alone, as they
+        were before an entropy model was added to them (:func:`~.identity.network_digests`)."""
         defaults = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())  # type: ignore[misc]
-                    for f in dataclasses.fields(self) if f.name.startswith("entropy_")}
+                    for f in dataclasses.fields(self) if f.name.startswith("entropy_") or f.name == "feedback_quality"}
         return dataclasses.replace(self, **defaults)
+
+    def without_feedback(self) -> "ModelConfig":
+        """This config with render feedback off (every ``feedback_*`` field at its default): the config of the
+        encoder's first pass."""
+        return dataclasses.replace(self, feedback_width=0, feedback_passes=1, feedback_quality=1)
+
+    def feeds_back(self, quality: int | None) -> bool:
+        """Whether a file of quality level ``quality`` (None: an encoding without levels) stores the tokens after
+        render feedback (``feedback_quality``), rather than the first pass."""
+        return bool(self.feedback_width) and (quality is None or quality >= self.feedback_quality)
 
     def first_pass_sha256s(self) -> tuple[str, ...]:
         """Config hashes of a tokenizer whose tokens are this model's first pass: this config and its
         :meth:`networks` with render feedback off. () without feedback (the tokens are the first pass)."""
         if not self.feedback_width:
             return ()
-        plain = dataclasses.replace(self, feedback_width=0, feedback_passes=1)
+        plain = self.without_feedback()
         return plain.sha256(), plain.networks().sha256()
 
 

@@ -549,7 +549,7 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     views = [(fitted.frames[n], fitted.cameras[n], fitted.depth[n] if fitted.has_depth(n) else None) for n in names]
     depth_sources = ["capture" if depth is not None else "estimated" for _, _, depth in views]
-    z_s, z_d = encode_views(net, views, seed)
+    z_s, z_d = encode_views(net, views, seed, feedback=cfg.feeds_back(quality))  # (the level's pass)
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
     if refiner is not None:  # _refiner gave one: refine > 0 and a quality level

@@ -136,7 +136,7 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
     if shipped_set:
         lines.append("- set at ship time, no weights added (trained without them): "
                      + ", ".join(f"{k}={v}" for k, v in sorted(shipped_set.items())))
-    if summary:
+    if summary and summary.get("pairs"):  # (a run with --samples 0 renders none)
         lines.append(f"- render PSNR on {len(summary.get('pairs', []))} training pairs: "
                      f"{summary.get('mean_psnr_db', float('nan')):.2f} dB ({summary.get('render_steps')} Euler steps)")
     lines += ["", notes.strip(), ""] if notes.strip() else [""]
@@ -205,12 +205,12 @@ def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
     """The ``reads`` record of ``model`` as an update of ``base_name`` that reads its tokens: the base's
     fingerprint, and the earlier models whose tokens the base read (its networks' digests where they differ from
     its own, its own ``reads``). The update may replace the renderer and may add render feedback to an encoder
-    without it. ModelError unless the model has the base's config (``feedback_width`` aside where the base has
-    none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's and no other
+    without it. ModelError unless the model has the base's config (the ``feedback_*`` fields aside where the base
+    has none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's and no other
     new tensor than ``feedback.*`` (the config allows no other) -- the same first-pass encoder, token quantizer and entropy tables, so every
     file of the base holds tokens the model reads as the base did, and its first pass is the base's encode."""
     base = from_pretrained(base_name)
-    plain = model.config.replace(feedback_width=0) if not base.config.feedback_width else model.config
+    plain = model.config.without_feedback() if not base.config.feedback_width else model.config
     if base.config != plain:
         raise ModelError(f"{base_name}'s config differs from the model's: an update that reads its tokens keeps the "
                          f"config (render feedback aside)")

@@ -35,6 +35,17 @@ def test_config_hash_is_kept_while_off_and_values_are_checked():
             get_config("tiny", **SMALL, feedback_width=16, feedback_passes=bad)
     with pytest.raises(ModelError, match="feedback_passes > 1 needs feedback_width"):
         get_config("tiny", **SMALL, feedback_passes=2)
+    levels = dict(SMALL, feedback_width=16, entropy_levels=3)
+    assert get_config("tiny", **levels, feedback_quality=1).sha256() == get_config("tiny", **levels).sha256()
+    for bad in (0, 4, True, 2.0):
+        with pytest.raises(ModelError, match="feedback_quality must be a quality level 1 .. 3"):
+            get_config("tiny", **levels, feedback_quality=bad)
+    with pytest.raises(ModelError, match="feedback_quality > 1 needs feedback_width"):
+        get_config("tiny", **dict(levels, feedback_width=0), feedback_quality=2)
+    cfg = get_config("tiny", **levels, feedback_quality=2)
+    assert [cfg.feeds_back(q) for q in (None, 1, 2, 3)] == [True, False, True, True]
+    assert not get_config("tiny", **SMALL).feeds_back(None)
+    assert cfg.without_feedback() == get_config("tiny", **dict(levels, feedback_width=0))
     for missing in (dict(dynamic_splat=0, dynamic_from_patch=False),
                     dict(unified_tokens=True, dynamic_from_patch=False)):
         with pytest.raises(ModelError, match="feedback_width needs"):

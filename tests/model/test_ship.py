@@ -31,6 +31,17 @@ def _run(tmp_path, name, **args):
     return run
 
 
+def test_card_states_the_render_psnr_only_of_a_run_that_rendered_samples(tmp_path):
+    """Regression: a run trained with --samples 0 (summary.json without pairs) put "render PSNR on 0 training
+    pairs: nan dB (None Euler steps)" on the shipped card."""
+    ae, run = _run(tmp_path, "ae"), _run(tmp_path, "tok")
+    (run / "summary.json").write_text(json.dumps({"steps": 150}))
+    assert "render PSNR" not in model_card("vt4d-tiny", "9.9.9", run, ae, FINGERPRINT, "")
+    (run / "summary.json").write_text(json.dumps({"pairs": [{}, {}], "mean_psnr_db": 21.5, "render_steps": 1}))
+    assert "render PSNR on 2 training pairs: 21.50 dB (1 Euler steps)" in model_card(
+        "vt4d-tiny", "9.9.9", run, ae, FINGERPRINT, "")
+
+
 def test_card_states_steps_wall_time_recipe_and_warm_start(tmp_path):
     ae = _run(tmp_path, "ae")
     fresh = model_card("vt4d-tiny", "9.9.9", _run(tmp_path, "tok"), ae, FINGERPRINT, "## Notes\nhand-written")
@@ -243,6 +254,26 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
         trained_on_new = SimpleNamespace(tokenizer_fingerprint=from_pretrained(tmp_path / "new").fingerprint("t", "2"))
         full = conditioning_tokens(trained_on_new, frames, cameras, tmp_path / "new", runtime=runtime)
         assert max(float(np.abs(a - b).max()) for a, b in zip(full, want)) > 1e-3  # the feedback is in the tokens
+
+    # feedback_quality (set at ship time, no weights): files of coarser levels store the first pass -- the base's
+    # tokens, so the same bytes -- and files from that level up the feedback's
+    from vt4dcodec import codec
+    from vt4dcodec.capture import Capture
+    from vt4dcodec.format import dumps
+
+    later = reconfigure(from_pretrained(tmp_path / "new"), {"feedback_quality": 2})
+    later.decode_steps = 1
+    save_pretrained(later, tmp_path / "later", model_id="t", model_version="3", storage_dtype="float16",
+                    reads=token_sources_of(later, str(tmp_path / "base")))
+    capture = Capture(cameras={"cam0": cameras}, frames={"cam0": frames}, fps=8.0, capture_id="c")
+    for runtime in ("torch", "onnx"):
+        if runtime == "onnx":
+            export_encoder(from_pretrained(tmp_path / "later"), tmp_path / "later")
+        coarse, fine = (codec.encode(capture, tmp_path / "later", quality=q, runtime=runtime) for q in (1, 2))
+        first = [codec.encode(capture, tmp_path / d, quality=q, runtime=runtime) for d, q in (("base", 1), ("base", 2))]
+        assert np.array_equal(coarse.static_tokens, first[0].static_tokens)
+        assert len(dumps(coarse)) == len(dumps(first[0]))
+        assert float(np.abs(fine.static_tokens - first[1].static_tokens).max()) > 1e-3
 
     # a base with render feedback is read only by models that keep it
     changed = from_pretrained(tmp_path / "new")
