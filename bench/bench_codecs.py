@@ -307,12 +307,17 @@ def evaluate_clip(capture: Any, start: int, net: Any, codecs: dict[str, tuple], 
     rendered: dict[str, dict[str, dict[str, tuple[float, float]]]] = {}  # set -> encoding -> camera -> (psnr, ssim)
     file_bytes: dict[str, dict[str, int]] = {}
     for set_name, stored in sets.items():
-        scene = codec.encode(capture, net, cameras=stored, start=start, seed=seed)
-        rendered[set_name], file_bytes[set_name] = {}, {}
+        scenes: dict[bool, Any] = {}  # the encoder's tokens, per pass: a model with render feedback stores the
+        rendered[set_name], file_bytes[set_name] = {}, {}  # first pass below its feedback_quality (feeds_back)
         targets = [n for n in names if any(n in views_of(names, stored, k) for k in ("captured", "novel"))]
         for enc in encodings:
             refined = re.fullmatch(r"q(\d+)r(\d+)(s?)", enc)
-            data = vt4d_bytes(scene, enc, net) if refined is None else dumps(codec.encode(
+            level = int(enc[1:]) if re.fullmatch(r"q\d+", enc) else None
+            key = net.config.feeds_back(level)
+            if refined is None and key not in scenes:  # the tokens `vt4d encode` stores at enc
+                scenes[key] = codec.encode(capture, net, cameras=stored, start=start, seed=seed,
+                                           **({"quality": level} if level is not None else {"encoding": enc}))
+            data = vt4d_bytes(scenes[key], enc, net) if refined is None else dumps(codec.encode(
                 capture, net, cameras=stored, start=start, seed=seed, quality=int(refined.group(1)),
                 refine=int(refined.group(2)), tune="ssim" if refined.group(3) else "psnr"))
             file_bytes[set_name][enc] = len(data)

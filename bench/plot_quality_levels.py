@@ -50,10 +50,13 @@ def main(argv: list[str] | None = None) -> int:
     for seed in (int(s) for s in args.seeds.split(",")):
         cap = generate_scene(seed, split="test", config=SynthConfig(num_cameras=10, num_frames=cfg.frames,
                                                                     height=cfg.image_size, width=cfg.image_size)).capture
-        scene = codec.encode(cap, net, camera="cam00", seed=0)
-        files = {"int4": dumps(scene, encoding="int4")}
-        files.update({f"q{q}": dumps(scene, encoding="learned-rans", quality=q, tables=codec.model_tables(net))
-                      for q in levels})
+        scenes = {cfg.feeds_back(None): codec.encode(cap, net, "int4", camera="cam00", seed=0)}
+        files = {"int4": dumps(scenes[cfg.feeds_back(None)], encoding="int4")}
+        for q in levels:  # each level from the tokens `vt4d encode --quality q` stores (a pass per level: feeds_back)
+            if cfg.feeds_back(q) not in scenes:
+                scenes[cfg.feeds_back(q)] = codec.encode(cap, net, camera="cam00", seed=0, quality=q)
+            files[f"q{q}"] = dumps(scenes[cfg.feeds_back(q)], encoding="learned-rans", quality=q,
+                                   tables=codec.model_tables(net))
         for view in ("cam00", args.other):
             truth = cap.frames[view][:cfg.frames]
             tiles = [("ground truth", truth, "")]

@@ -164,3 +164,37 @@ def test_the_figure_names_the_codecs_the_study_ran(bench):
     assert bench.figure_codecs({"codecs": {"h265": {}}}) == "H.265"
     assert bench.figure_codecs({"codecs": {"h264": {}, "h265": {}, "av1": {}}}) == "H.264 / H.265 / AV1"
     assert bench.figure_codecs({"codecs": {}}) == "no codec"
+
+
+def test_each_level_is_measured_from_the_tokens_vt4d_encode_stores_at_it(bench, tmp_path):
+    """Regression: the study encoded each stored set once and wrote every level from those tokens, so a model with
+    render feedback from level 2 up (``feedback_quality``) was measured at q1 with the feedback's tokens where
+    ``vt4d encode --quality 1`` stores the first pass. Each level's file now has the bytes of the codec's file."""
+    from vt4dcodec import codec
+    from vt4dcodec.format import dumps
+    from vt4dcodec.model import VideoTok4D, get_config, save_pretrained
+    from vt4dcodec.synth import SynthConfig, generate_scene
+
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    cfg = get_config("tiny", frames=4, image_size=32, width=32, heads=2, ae_width=8, spatial_layers=1,
+                     static_query_layers=1, track_layers=1, renderer_layers=1, n_static=32, n_dynamic=4,
+                     token_dim=8, n_tracks=8, patch_size=2, locality_sigma=0.35, query_from_grid=True,
+                     project_anchors=True, prediction="x0", anchor_views=True, token_splat=True,
+                     token_from_cell=True, frame_copies=True, pixel_splat=True, dynamic_splat=2,
+                     dynamic_from_patch=True, entropy_levels=2, feedback_width=16, feedback_quality=2)
+    net = VideoTok4D(cfg).eval()
+    for layer in (net.feedback.static[2], net.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight, std=0.3)  # a feedback that moves the tokens
+    net.update_entropy()
+    net.decode_steps = 1
+    model = codec.load_model(save_pretrained(net, tmp_path / "m", model_id="test-fb", model_version="0"))
+    capture = generate_scene(3, split="test", config=SynthConfig(num_cameras=3, num_frames=4, height=32,
+                                                                 width=32)).capture
+    got = bench.evaluate_clip(capture, 0, model, {}, ["q1", "q2"], quick=True)["settings"]["single/captured"]
+    stored = got["stored"]
+    for level in (1, 2):
+        want = len(dumps(codec.encode(capture, model, cameras=stored, quality=level)))
+        assert got["vt4d"][f"q{level}"]["bytes"] == want
+    first, fed = (codec.encode(capture, model, cameras=stored, quality=q) for q in (1, 2))
+    assert not np.array_equal(first.static_tokens, fed.static_tokens)  # the two levels' tokens differ
