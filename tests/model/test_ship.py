@@ -272,7 +272,8 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
         coarse, fine = (codec.encode(capture, tmp_path / "later", quality=q, runtime=runtime) for q in (1, 2))
         first = [codec.encode(capture, tmp_path / d, quality=q, runtime=runtime) for d, q in (("base", 1), ("base", 2))]
         assert np.array_equal(coarse.static_tokens, first[0].static_tokens)
-        assert len(dumps(coarse)) == len(dumps(first[0]))
+        assert np.array_equal(coarse.dynamic_tokens, first[0].dynamic_tokens)  # the same codes: only the fingerprint
+        assert abs(len(dumps(coarse)) - len(dumps(first[0]))) <= 8  # differs (its compressed bytes by one or two)
         assert float(np.abs(fine.static_tokens - first[1].static_tokens).max()) > 1e-3
 
     # a base with render feedback is read only by models that keep it
