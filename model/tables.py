@@ -102,7 +102,7 @@ def reads_tables_of(meta: dict[str, Any], own: ModelFingerprint, fingerprint: Mo
     its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config, or its
     config without render feedback -- an earlier model whose renderer it replaced or whose encoder it gave render
     feedback (``train.ship --reads`` checked every other tensor equal)."""
-    configs = (own.config_sha256, *meta["config"].first_pass_sha256s()[:1])
+    configs = (own.config_sha256, meta["config"].without_feedback().sha256())
     return ((fingerprint.config_sha256, fingerprint.weights_sha256) in meta_token_sources(meta)
             and fingerprint.config_sha256 in configs and same_token_layout(own, fingerprint))
 

@@ -206,9 +206,10 @@ def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
     fingerprint, and the earlier models whose tokens the base read (its networks' digests where they differ from
     its own, its own ``reads``). The update may replace the renderer and may add render feedback to an encoder
     without it. ModelError unless the model has the base's config (the ``feedback_*`` fields aside where the base
-    has none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's and no other
-    new tensor than ``feedback.*`` (the config allows no other) -- the same first-pass encoder, token quantizer and entropy tables, so every
-    file of the base holds tokens the model reads as the base did, and its first pass is the base's encode."""
+    has none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's (new
+    tensors can only be ``feedback.*``: the config allows no other) -- the same first-pass encoder, token quantizer
+    and entropy tables, so every file of the base holds tokens the model reads as the base did, and its first pass
+    is the base's encode."""
     base = from_pretrained(base_name)
     plain = model.config.without_feedback() if not base.config.feedback_width else model.config
     if base.config != plain:

@@ -263,11 +263,11 @@ def _camera_list(value: str, available: list[str], flag: str) -> list[str]:
 def _quality(value: str | None, net: Any) -> int | None:
     """The quality level ``--quality`` asks for (None: int8): ``N``, ``int8``, or by default the level the codec
     stores a model's tokens at (:func:`codec.default_quality`; int8 for a model without levels)."""
+    levels = codec.quality_levels(net)
     if value is None:
-        return codec.default_quality(net) if codec.quality_levels(net) else None
+        return codec.default_quality(net) if levels else None
     if value == "int8":
         return None
-    levels = codec.quality_levels(net)
     if not value.isdigit() or int(value) not in levels:
         have = f"a level {levels[0]} .. {levels[-1]} or int8" if levels else "int8 (the model has no quality levels)"
         raise CaptureError(f"--quality must be {have}, got {value!r}")
