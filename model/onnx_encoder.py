@@ -4,11 +4,18 @@ A model directory may hold ``encoder.onnx`` next to its weights (written by ``mo
 model ships): the graph of ``VideoTok4D.encode`` for one source camera -- inputs the :func:`stack_inputs`
 arrays of one clip (B = 1), outputs the bounded tokens Z_s (1, N_s, d) and Z_d (1, N_d, d) float32 -- and
 ``encoder-v{V}.onnx`` the same for one scene of V synchronized cameras (inputs of V clips, B = V). A model with
-render feedback (``config.feedback_width``) has two more outputs, its first pass Z_s^0 and Z_d^0 (``z_s0``,
-``z_d0``: the tokens of the same weights without feedback, which a prior trained on them is conditioned on). The
-weights are float16 where the float32 value is exactly a float16 (the shipped weights are): external tensors
-into ``model.safetensors`` (or, in older exports, stored in the graph), so the graph computes with the very
-weights ``from_pretrained`` loads.  Its metadata ties it to them:
+render feedback (``config.feedback_width``) splits the encoder in three, so the renderer's graph is stored once:
+the encoder graphs output its first pass Z_s^0 and Z_d^0 (``z_s0``, ``z_d0``: the tokens of the same weights
+without feedback, which a prior trained on them is conditioned on) and what the feedback reads
+(:data:`FEEDBACK_STATE`); ``renderer.onnx`` renders Z^0 at the encoded cameras (the decoder's steps, seed 0, the
+latents ``y_next``), and ``feedback.onnx`` (:data:`FEEDBACK_INPUTS` -> :data:`FEEDBACK_OUTPUTS`, any V) adds the
+feedback; a model of several passes (``config.feedback_passes``) renders again and runs ``feedback-p{k}.onnx``
+for pass k = 2, 3, ... The renderer places splats with float64 geometry, so a render -- and the tokens the
+feedback makes of it -- agree with torch's to float rounding.
+
+The weights are float16 where the float32 value is exactly a float16 (the shipped weights are): external
+tensors into ``model.safetensors`` (or, in older exports, stored in the graph), so the graph computes with the
+very weights ``from_pretrained`` loads.  Its metadata ties it to them:
 
 * ``vt4d_format``: ``"vt4d-encoder-onnx/1"``;
 * ``vt4d_weights_sha256`` / ``vt4d_config_sha256``: the hashes in ``config.json`` of the weights and config
@@ -25,7 +32,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,7 +44,11 @@ from .directories import checked_default_quality, meta_fingerprint, meta_network
 from .inputs.source_inputs import SourceInputs, stack_inputs
 from .onnx_session import MAX_ONNX_BYTES, onnx_available, open_checked  # noqa: F401  (MAX_ONNX_BYTES: as before)
 
+if TYPE_CHECKING:
+    from .onnx_renderer import OnnxRenderer
+
 __all__ = ["OnnxEncoder", "ONNX_FILE", "ONNX_FORMAT", "INPUT_NAMES", "OUTPUT_NAMES", "FIRST_PASS_NAMES", "output_names",
+           "FEEDBACK_STATE", "FEEDBACK_INPUTS", "FEEDBACK_OUTPUTS", "FEEDBACK_FILE", "FEEDBACK_FORMAT", "feedback_file",
            "onnx_available",
            "has_onnx_encoder", "encoder_file"]
 
@@ -46,12 +57,25 @@ ONNX_FORMAT = "vt4d-encoder-onnx/1"
 INPUT_NAMES = ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid")
 OUTPUT_NAMES = ("z_s", "z_d")
 FIRST_PASS_NAMES = ("z_s0", "z_d0")  # a model with render feedback: the tokens before it
+# a model with render feedback: what its encoder graphs give the feedback graph (VideoTok4D.feedback_reads):
+# the first pass's pre-activations (1, N_s, d), (1, N_d, d), the source latents (V, T, C, h, w), the dynamic
+# tokens' track reads (clip (N_d,) int64, at (N_d, T, q, 2), weight (N_d, T)), the anchored tokens' cameras
+# (N_a,) int64 and frame groups (N_a, T)
+FEEDBACK_STATE = ("a_s0", "a_d0", "x", "track_clip", "track_at", "track_weight", "token_cameras", "covers")
+FEEDBACK_INPUTS = FEEDBACK_STATE + ("y0",)  # y0: Z^0 rendered at the encoded cameras (V, T, C, h, w) latents
+FEEDBACK_OUTPUTS = ("z_s", "z_d", "a_s", "a_d")  # the tokens after the pass and their pre-activations
+FEEDBACK_FILE = "feedback.onnx"
+FEEDBACK_FORMAT = "vt4d-feedback-onnx/1"
 
 
 def output_names(config: ModelConfig) -> tuple[str, ...]:
     """The outputs of the encoder graph of a model with ``config``."""
-    return OUTPUT_NAMES + (FIRST_PASS_NAMES if config.feedback_width else ())
+    return FIRST_PASS_NAMES + FEEDBACK_STATE if config.feedback_width else OUTPUT_NAMES
 
+
+def feedback_file(step: int = 1) -> str:
+    """The file name of the graph of render feedback pass ``step`` (1, 2, ...)."""
+    return FEEDBACK_FILE if step == 1 else f"feedback-p{int(step)}.onnx"
 
 
 def encoder_file(views: int = 1) -> str:
@@ -70,8 +94,10 @@ class OnnxEncoder:
     reads it), ``views`` the cameras per scene the graph takes, ``device`` where it runs (``"cpu"``, ``"cuda"``).
     """
 
-    def __init__(self, directory: Path, meta: dict[str, Any], session: Any, views: int, device: str = "cpu") -> None:
+    def __init__(self, directory: Path, meta: dict[str, Any], session: Any, views: int, device: str = "cpu",
+                 feedback: "tuple[list[Any], OnnxRenderer] | None" = None) -> None:
         self.directory, self.session, self.views, self.device = directory, session, views, device
+        self._feedback = feedback  # (a session per feedback pass, the renderer) of a model with render feedback
         self.config: ModelConfig = meta["config"]
         self.model_id: str = meta["model_id"]
         self.model_version: str = meta["model_version"]
@@ -115,7 +141,22 @@ class OnnxEncoder:
         stored = props.get("vt4d_views", "")
         if stored != str(views):
             raise ModelError(f"{path}: vt4d_views must be {str(views)!r}, got {stored!r}")
-        return cls(directory, meta, session, views, where)
+        feedback = None
+        if meta["config"].feedback_width:  # its second look renders with the renderer's graph
+            from .onnx_renderer import RENDERER_FILE, OnnxRenderer
+
+            passes = [feedback_file(k) for k in range(1, meta["config"].feedback_passes + 1)]
+            for name in (*passes, RENDERER_FILE):
+                if not (directory / name).is_file():
+                    raise ModelNotFoundError(f"{directory} has no {name}, which its encoder's render feedback needs "
+                                             f"(export it with `python -m vt4dcodec.model.onnx_export {directory}`, "
+                                             "or encode with runtime='torch')")
+            sessions = [open_checked(directory / name, meta, fmt=FEEDBACK_FORMAT, inputs=FEEDBACK_INPUTS,
+                                     outputs=FEEDBACK_OUTPUTS, what="render feedback", device=device,
+                                     threads=threads)[0] for name in passes]
+            feedback = (sessions, OnnxRenderer.from_file(directory / RENDERER_FILE, meta, threads=threads,
+                                                         device=device))
+        return cls(directory, meta, session, views, where, feedback)
 
     def stored_fingerprint(self) -> ModelFingerprint:
         """The fingerprint a container stores for this model: the same as the torch model's."""
@@ -127,14 +168,33 @@ class OnnxEncoder:
         if len(clips) != self.views:
             raise ModelError(f"this ONNX encoder takes {self.views} source camera(s) per scene, got {len(clips)}; "
                              f"open the graph for {len(clips)} camera(s) (OnnxEncoder.open(model, views=...))")
+        return self.encode_arrays(stack_inputs(clips), feedback)
+
+    def encode_arrays(self, arrays: dict[str, np.ndarray], feedback: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`encode` of the :func:`stack_inputs` arrays of ``views`` clips (the graph's inputs)."""
         cfg = self.config
-        arrays = stack_inputs(clips)
         T, H, h, N, V = cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks, self.views
         expected = {"frames": (V, T, 3, H, H), "K": (V, T, 3, 3), "w2c": (V, T, 4, 4), "motion_mask": (V, T, h, h),
                     "track_xy": (V, N, T, 2), "track_valid": (V, N, T)}
         for name, shape in expected.items():
             if arrays[name].shape != shape:
                 raise ModelError(f"{name} must be {shape} for this model, got {arrays[name].shape}")
-        names = FIRST_PASS_NAMES if not feedback and cfg.feedback_width else OUTPUT_NAMES
-        z_s, z_d = self.session.run(list(names), {name: arrays[name] for name in INPUT_NAMES})
+        feed = {name: arrays[name] for name in INPUT_NAMES}
+        if not cfg.feedback_width:
+            z_s, z_d = self.session.run(list(OUTPUT_NAMES), feed)
+            return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
+        if not feedback:
+            z_s, z_d = self.session.run(list(FIRST_PASS_NAMES), feed)
+            return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)
+        z_s, z_d, *state = self.session.run(list(FIRST_PASS_NAMES + FEEDBACK_STATE), feed)
+        assert self._feedback is not None  # from_file opened it for a model with render feedback
+        sessions, renderer = self._feedback
+        mid = T // 2  # each clip renders at its own trajectory, its tokens placed by the V encoded cameras
+        K_src = np.broadcast_to(arrays["K"][None, :, mid], (V, V, 3, 3))
+        w2c_src = np.broadcast_to(arrays["w2c"][None, :, mid], (V, V, 4, 4))
+        for session in sessions:  # each pass looks at what the tokens so far render
+            y = renderer.render_latents(np.repeat(z_s, V, 0), np.repeat(z_d, V, 0), arrays["K"], arrays["w2c"],
+                                        K_src, w2c_src, seed=0)
+            z_s, z_d, a_s, a_d = session.run(list(FEEDBACK_OUTPUTS), dict(zip(FEEDBACK_INPUTS, (*state, y))))
+            state[:2] = [a_s, a_d]
         return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)

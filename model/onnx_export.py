@@ -9,6 +9,10 @@ What it writes beside ``model.safetensors`` (:func:`export_model`; run when a mo
   in Python: one graph per camera count, each a few hundred kilobytes);
 * ``renderer.onnx``: one Euler step of the rectified-flow sampler plus the autoencoder's decoder, for any
   number of target views, frames and encoded cameras (``model.onnx_renderer`` runs the sampler loop);
+* for a model with render feedback, ``feedback.onnx`` (and ``feedback-p{k}.onnx`` for pass k > 1): the feedback's
+  update from the first pass and its render, for any number of encoded cameras; the encoder graphs of such a
+  model stop at the first pass and output what the feedback reads, and ``model.onnx_encoder`` renders it
+  with ``renderer.onnx``, so the renderer is stored once;
 * for a Co4DGen prior directory (:func:`export_prior`), ``prior-condition.onnx`` and ``prior-velocity.onnx``
   beside ``prior.safetensors`` (``model.onnx_prior`` runs its sampler).
 
@@ -55,12 +59,14 @@ from .directories import WEIGHTS_FILE, model_directory, read_model_meta
 from .entropy import MAX_VIEWS
 from .inputs.source_inputs import SourceBatch
 from .layers import dynamic_token_cameras, locality_heads
-from .onnx_encoder import INPUT_NAMES, ONNX_FORMAT, OnnxEncoder, encoder_file, output_names
+from .onnx_encoder import (FEEDBACK_FORMAT, FEEDBACK_INPUTS, FEEDBACK_OUTPUTS, INPUT_NAMES, ONNX_FORMAT, OnnxEncoder,
+                           encoder_file, feedback_file, output_names)
+from .onnx_session import open_checked
 from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, RENDERER_OUTPUTS, OnnxRenderer)
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
 
-__all__ = ["export_encoder", "export_renderer", "export_model", "export_prior", "example_inputs", "example_render_inputs",
+__all__ = ["export_encoder", "export_feedback", "export_renderer", "export_model", "export_prior", "example_inputs", "example_render_inputs",
            "PARITY_TOLERANCE", "EXPORT_VIEWS"]
 
 PARITY_TOLERANCE = 1e-4  # max |difference| of tokens (or frames in [0, 1]) between onnxruntime and torch
@@ -297,24 +303,85 @@ class _Encode(nn.Module):
     def __init__(self, net: VideoTok4D, views: int) -> None:
         super().__init__()
         self.net, self.views = net, views
-        # render feedback renders inside the encoder: the renderer's index tables as the renderer's graph has them
-        self.render_step = _RenderStep(net) if net.feedback is not None else None
 
     def forward(self, frames: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor, motion_mask: torch.Tensor,
                 track_xy: torch.Tensor, track_valid: torch.Tensor) -> tuple[torch.Tensor, ...]:
         batch = SourceBatch(frames=frames, K=K, w2c=w2c, motion_mask=motion_mask, track_xy=track_xy,
                             track_valid=track_valid, views=self.views)
-        if self.render_step is None:
-            return self.net.encode(batch)
-        with self.render_step._tables(K[None, :, 0]):  # (1, V, 3, 3): the tables of V encoded cameras
-            return self.net.encode_passes(batch)  # the tokens and the first pass (FIRST_PASS_NAMES)
+        net = self.net
+        if net.feedback is None:
+            return net.encode(batch)
+        a_s, a_d, x, chosen = net._first_preactivations(batch)  # the first pass and what the feedback reads
+        return (*net._bound(a_s, a_d), a_s, a_d, x.float(), *net.feedback_reads(batch, chosen))  # FEEDBACK_STATE
+
+
+def _feedback_modules(net: VideoTok4D) -> list[nn.Module]:
+    return [] if net.feedback is None else [net.feedback, *(net.feedback_later or ())]
+
+
+class _Feedback(nn.Module):
+    """``VideoTok4D.feedback_update`` of render feedback pass ``step`` (1, 2, ...) of one scene: inputs
+    :data:`FEEDBACK_INPUTS`, outputs :data:`FEEDBACK_OUTPUTS` (the bounded tokens and their pre-activations)."""
+
+    def __init__(self, net: VideoTok4D, step: int) -> None:
+        super().__init__()
+        self.net, self.module = net, _feedback_modules(net)[step - 1]
+
+    def forward(self, a_s: torch.Tensor, a_d: torch.Tensor, x: torch.Tensor, clip: torch.Tensor, at: torch.Tensor,
+                weight: torch.Tensor, cameras: torch.Tensor, covers: torch.Tensor, y0: torch.Tensor
+                ) -> tuple[torch.Tensor, ...]:
+        a_s, a_d = self.net.feedback_update(self.module, a_s, a_d, x, y0, clip, at, weight, cameras, covers)
+        return (*self.net._bound(a_s, a_d), a_s, a_d)
+
+
+def _feedback_case(net: VideoTok4D, step: int, views: int, seed: int
+                   ) -> tuple[tuple[torch.Tensor, ...], list[np.ndarray]]:
+    """(:data:`FEEDBACK_INPUTS` of pass ``step`` on example inputs for ``views`` cameras, torch's outputs)."""
+    inputs = example_inputs(net, seed=seed, views=views)
+    batch = SourceBatch(**dict(zip(INPUT_NAMES, inputs)), views=views)
+    K, w2c = batch.source
+    if views > 1:
+        K, w2c = K.repeat_interleave(views, 0), w2c.repeat_interleave(views, 0)
+    with torch.no_grad():
+        a_s, a_d, *reads = _Encode(net, views)(*inputs)[2:]
+        for k, module in enumerate(_feedback_modules(net)[:step], 1):
+            y = net.render_latents(*(t.repeat_interleave(views, 0) for t in net._bound(a_s, a_d)), batch.K,
+                                   batch.w2c, source=(K, w2c), noise=module.noise[:, :batch.frames.shape[1]])
+            case = (a_s, a_d, *reads, y)
+            a_s, a_d = net.feedback_update(module, a_s, a_d, reads[0], y, *reads[1:])
+    return case, [t.numpy() for t in (*net._bound(a_s, a_d), a_s, a_d)]
+
+
+def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: int = 1) -> Path:
+    """Write the graph of render feedback pass ``step`` (``feedback.onnx``, ``feedback-p{step}.onnx``; any number
+    of encoded cameras) for ``net`` into its model ``directory``; ModelError when ``net`` has no such pass, when the
+    directory does not describe it, or when onnxruntime's differ from torch's by more than
+    :data:`PARITY_TOLERANCE`."""
+    if not 1 <= step <= len(_feedback_modules(net)):
+        raise ModelError(f"this model has {len(_feedback_modules(net))} render feedback pass(es), not a pass {step}")
+    directory = Path(directory)
+    meta = _checked_meta(net, directory)
+    wrapper = _Feedback(net.eval(), step).eval()
+    inputs, _ = _feedback_case(net, step, 2, 0)
+    model = _trace(wrapper, inputs, list(FEEDBACK_INPUTS), list(FEEDBACK_OUTPUTS), {"x": {0: "V"}, "y0": {0: "V"}})
+
+    def check(path: Path) -> None:
+        session, _, _ = open_checked(path, meta, fmt=FEEDBACK_FORMAT, inputs=FEEDBACK_INPUTS, outputs=FEEDBACK_OUTPUTS,
+                                     what="render feedback")
+        for views, seed in ((1, 1), (3, 2)):
+            case, want = _feedback_case(net, step, views, seed)
+            _parity(session.run(list(FEEDBACK_OUTPUTS), {n: t.numpy() for n, t in zip(FEEDBACK_INPUTS, case)}), want,
+                    f"render feedback pass {step} ({views} camera(s))")
+
+    return _finish(model, directory, meta, FEEDBACK_FORMAT, feedback_file(step), {}, check)
 
 
 def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
     """Write the encoder graph for scenes of ``views`` cameras (``encoder.onnx`` for one) into ``net``'s model
     ``directory`` (whose config.json describes ``net``'s weights) and return its path; ModelError when the
     directory does not describe ``net`` or when onnxruntime's tokens differ from torch's by more than
-    :data:`PARITY_TOLERANCE`."""
+    :data:`PARITY_TOLERANCE`. A model with render feedback renders with the directory's ``renderer.onnx`` and
+    feedback graphs, written first (:func:`export_model` does)."""
     if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
         raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
     directory = Path(directory)
@@ -328,8 +395,13 @@ def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: in
 
     def check(path: Path) -> None:
         encoder = OnnxEncoder.from_file(path, meta, views=views)
-        _parity(encoder.session.run(outputs, {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)}),
-                reference, f"encoder ({views} camera(s))")
+        arrays = {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)}
+        _parity(encoder.session.run(outputs, arrays), reference, f"encoder ({views} camera(s))")
+        if net.feedback is not None:  # and the tokens after the feedback, through the renderer's graph
+            with torch.no_grad():
+                want = net.encode(SourceBatch(**dict(zip(INPUT_NAMES, inputs)), views=views))
+            _parity(list(encoder.encode_arrays(arrays)), [t.numpy() for t in want],
+                    f"encoder with render feedback ({views} camera(s))")
 
     return _finish(model, directory, meta, ONNX_FORMAT, encoder_file(views), {"vt4d_views": str(views)}, check)
 
@@ -554,9 +626,12 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
 
 
 def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: int = EXPORT_VIEWS) -> list[Path]:
-    """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras and
-    the renderer; returns their paths."""
-    return [export_encoder(net, directory, v) for v in range(1, views + 1)] + [export_renderer(net, directory)]
+    """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras,
+    the renderer and, for a model with render feedback, ``feedback.onnx``; returns their paths. The renderer is
+    written first: the encoders' parity check runs the feedback through it."""
+    paths = [export_renderer(net, directory)]
+    paths += [export_feedback(net, directory, k) for k in range(1, len(_feedback_modules(net)) + 1)]
+    return paths + [export_encoder(net, directory, v) for v in range(1, views + 1)]
 
 
 def main(argv: list[str] | None = None) -> int:

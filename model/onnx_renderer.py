@@ -142,6 +142,17 @@ class OnnxRenderer:
         d); target cameras K_tgt (B, T, 3, 3), w2c_tgt (B, T, 4, 4); the encoded cameras at their middle frame
         K_src (B, V, 3, 3), w2c_src (B, V, 4, 4) (needed when :attr:`needs_source`); ``steps`` Euler steps (None:
         :attr:`decode_steps`) from the same seeded noise for every view."""
+        return self._sample(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src, steps, seed, drop_static, drop_dynamic)[1]
+
+    def render_latents(self, z_s: np.ndarray, z_d: np.ndarray, K_tgt: np.ndarray, w2c_tgt: np.ndarray,
+                       K_src: np.ndarray | None = None, w2c_src: np.ndarray | None = None, *, steps: int | None = None,
+                       seed: int = 0) -> np.ndarray:
+        """The sampled latents Y^0 (B, T, C, h, w) float32 of :meth:`render` (``VideoTok4D.render_latents``)."""
+        return self._sample(z_s, z_d, K_tgt, w2c_tgt, K_src, w2c_src, steps, seed, False, False)[0]
+
+    def _sample(self, z_s: np.ndarray, z_d: np.ndarray, K_tgt: np.ndarray, w2c_tgt: np.ndarray,
+                K_src: np.ndarray | None, w2c_src: np.ndarray | None, steps: int | None, seed: int,
+                drop_static: bool, drop_dynamic: bool) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         steps = self.decode_steps if steps is None else steps
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
@@ -182,4 +193,4 @@ class OnnxRenderer:
             feed["y"] = y
             feed["tau"] = np.full(B, 1.0 - i / steps, np.float32)
             y, frames = self.session.run(list(RENDERER_OUTPUTS), feed)
-        return np.asarray(frames, np.float32)
+        return np.asarray(y, np.float32), np.asarray(frames, np.float32)

@@ -270,10 +270,25 @@ class VideoTok4D(ModelIdentity, nn.Module):
         T = x.shape[1]
         y0 = self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
                                  batch.K, batch.w2c, source=(K_src, w2c_src), noise=module.noise[:, :T])
+        return self.feedback_update(module, a_s, a_d, x, y0, *self.feedback_reads(batch, chosen))
+
+    def feedback_reads(self, batch: SourceBatch, chosen: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
+        """Where render feedback reads the residual, fixed by the batch before any render: each dynamic token's
+        track as (clip (S N_d,) long, at (S N_d, T, q, 2) latent px, weight (S N_d, T)) (:meth:`_track_sampling`),
+        and each anchored token's encoded camera (N_a,) long and frame group (N_a, T) (:class:`RenderFeedback`)."""
+        r, V, T = self.renderer, batch.views, batch.frames.shape[1]
+        device = batch.frames.device
+        return (*self._track_sampling(batch, chosen), r.token_cameras(V).to(device), r.copy_frames(V)[:, :T].to(device))
+
+    def feedback_update(self, module: RenderFeedback, a_s: torch.Tensor, a_d: torch.Tensor, x: torch.Tensor,
+                        y0: torch.Tensor, clip: torch.Tensor, at: torch.Tensor, weight: torch.Tensor,
+                        cameras: torch.Tensor, covers: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One feedback pass from its render: pre-activations A (S, N_s, d), (S, N_d, d), source latents x and
+        their render Y (B, T, C, h, w) at the encoded cameras, the reads of :meth:`feedback_reads` -> A + dA."""
+        z_s, z_d = self._bound(a_s, a_d)
         residual = x.float() - y0
-        track = self._track_patches(batch, residual, chosen)[0].flatten(2)  # (S, N_d, q C)
-        r = self.renderer
-        d_s, d_d = module(z_s, z_d, residual, track, r.token_cameras(V), r.copy_frames(V)[:, :x.shape[1]].to(x.device))
+        track = self._sample_tracks(residual, clip, at, weight, a_d.shape[0], a_d.shape[1])[0].flatten(2)
+        d_s, d_d = module(z_s, z_d, residual, track, cameras, covers)  # track: (S, N_d, q C)
         n = d_s.shape[1]
         return torch.cat([a_s[:, :n] + d_s, a_s[:, n:]], dim=1), a_d + d_d
 
@@ -589,12 +604,25 @@ class VideoTok4D(ModelIdentity, nn.Module):
     def _track_patches(self, batch: SourceBatch, x: torch.Tensor, chosen: torch.Tensor | None = None
                        ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`patch_targets` from the source latents x (B, T, C, h, w) and the tracks ``chosen``."""
+        clip, at, weight = self._track_sampling(batch, chosen)
+        return self._sample_tracks(x, clip, at, weight, batch.num_scenes, self.config.n_dynamic)
+
+    def _track_sampling(self, batch: SourceBatch, chosen: torch.Tensor | None = None
+                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(clip (S N_d,) long, at (S N_d, T, q, 2), weight (S N_d, T)): each dynamic token's batch item, the
+        latent pixels of its splat patch along its track (``chosen``) and the track's validity per frame."""
         cfg = self.config
-        h, S, n_d = cfg.latent_size, batch.num_scenes, cfg.n_dynamic
         clip, track = self._chosen_clip_track(batch, chosen)
         xy = batch.track_xy[clip, track].float()  # (S N_d, T, 2) latent px, centres at integers
         weight = batch.track_valid[clip, track].float()  # (S N_d, T)
-        at = (xy[:, :, None] + dynamic_patch_offsets(cfg.dynamic_splat, xy)).clamp(0.0, h - 1)  # (S N_d, T, q, 2)
+        at = (xy[:, :, None] + dynamic_patch_offsets(cfg.dynamic_splat, xy)).clamp(0.0, cfg.latent_size - 1)
+        return clip, at, weight
+
+    @staticmethod
+    def _sample_tracks(x: torch.Tensor, clip: torch.Tensor, at: torch.Tensor, weight: torch.Tensor, S: int,
+                       n_d: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """x (B, T, C, h, w) averaged over each track's valid frames at :meth:`_track_sampling`'s patch pixels:
+        ((S, N_d, q, C), valid (S, N_d))."""
         sample = sample_at_tracks(x[clip].float(), at.transpose(1, 2)).transpose(1, 2)  # (S N_d, T, q, C)
         count = weight.sum(1)
         target = (sample * weight[..., None, None]).sum(1) / count.clamp_min(1.0)[:, None, None]

@@ -23,7 +23,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.model import SourceBatch, SourceInputs, VideoTok4D, get_config, save_pretrained
 from vt4dcodec.model.inputs.source_inputs import stack_inputs
 from vt4dcodec.model.onnx_encoder import ONNX_FILE, OnnxEncoder
-from vt4dcodec.model.onnx_export import example_inputs, export_encoder
+from vt4dcodec.model.onnx_export import example_inputs, export_encoder, export_feedback, export_renderer
 from vt4dcodec.model.weights_io import SHIPPED_DIR
 from vt4dcodec.synth import SynthConfig, generate_scene
 
@@ -83,9 +83,9 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
 
 @pytest.mark.parametrize("views,passes", [(1, 1), (2, 1), (1, 2)])
 def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int):
-    """Render feedback renders the first tokens inside the encoder: its graph holds the renderer with the index
-    tables of ``views`` cameras and the seed-0 noise as constants (a generator cannot be traced). It also gives
-    the first pass (z_s0, z_d0): the tokens of the same weights without the feedback."""
+    """Render feedback in three graphs: the encoder's gives the first pass (z_s0, z_d0: the tokens of the same
+    weights without the feedback) and what the feedback reads, ``renderer.onnx`` renders it (seed-0 noise, the
+    decoder's steps), and one feedback graph per pass (any camera count) gives the tokens."""
     torch.manual_seed(0)
     net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
                                 dynamic_gate_copies=True, feedback_width=16, feedback_passes=passes)).eval()
@@ -95,6 +95,9 @@ def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path
     net.decode_steps = 1
     directory = save_pretrained(net, tmp_path / "fb", model_id="fb", model_version="0", storage_dtype="float16")
     net = codec.load_model(directory)
+    export_renderer(net, directory)
+    assert [export_feedback(net, directory, k).name for k in range(1, passes + 1)] == \
+        ["feedback.onnx", "feedback-p2.onnx"][:passes]
     export_encoder(net, directory, views=views)
     encoder = OnnxEncoder.open(directory, views=views) if views > 1 else OnnxEncoder.open(directory)
     for seed in (3, 4):
@@ -112,11 +115,11 @@ def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path
                 assert min(float(np.abs(a - b).max()) for a, b in zip(want, one_pass)) > 1e-3
         assert all(np.array_equal(a, b) for a, b in zip(first, plain))  # the first pass: the model without feedback
         assert min(float(np.abs(a - b).max()) for a, b in zip(want, plain)) > 1e-3  # the feedback is in the tokens
-        got = encoder.session.run(None, {n: t.numpy() for n, t in zip(
-            ("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)})
-        assert [o.name for o in encoder.session.get_outputs()] == ["z_s", "z_d", "z_s0", "z_d0"]
-        for a, b in zip(got, want + plain, strict=True):
-            assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
+        assert [o.name for o in encoder.session.get_outputs()][:2] == ["z_s0", "z_d0"]
+        arrays = {n: t.numpy() for n, t in zip(("frames", "K", "w2c", "motion_mask", "track_xy", "track_valid"), inputs)}
+        for got, reference in ((encoder.encode_arrays(arrays), want), (encoder.encode_arrays(arrays, False), plain)):
+            for a, b in zip(got, reference, strict=True):
+                assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
 def test_masks_of_any_size_trace_to_the_same_graph(small):

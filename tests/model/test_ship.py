@@ -212,7 +212,7 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
     from vt4dcodec.cameras import Trajectory
     from vt4dcodec.generate import conditioning_tokens
     from vt4dcodec.model import from_pretrained, save_pretrained
-    from vt4dcodec.model.onnx_export import export_encoder
+    from vt4dcodec.model.onnx_export import export_model
     from vt4dcodec.model.tables import tables_from_directory
     from vt4dcodec.model.train.ship import token_sources_of
 
@@ -233,7 +233,7 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
     assert reads[0]["config_sha256"] == old_fp.config_sha256 and reads[0]["weights_sha256"] == old_fp.weights_sha256
     save_pretrained(new, tmp_path / "new", model_id="t", model_version="2", storage_dtype="float16", reads=reads)
     for directory in (tmp_path / "base", tmp_path / "new"):
-        export_encoder(from_pretrained(directory), directory)
+        export_model(from_pretrained(directory), directory, views=1)  # (a feedback encoder renders with the renderer)
     tables, own = tables_from_directory(tmp_path / "new", old_fp), tables_from_directory(tmp_path / "base", old_fp)
     assert tables.fingerprint == old_fp and all(np.array_equal(getattr(tables, n), getattr(own, n))
                                                 for n in ("steps", "freqs", "origins"))
@@ -268,7 +268,7 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
     capture = Capture(cameras={"cam0": cameras}, frames={"cam0": frames}, fps=8.0, capture_id="c")
     for runtime in ("torch", "onnx"):
         if runtime == "onnx":
-            export_encoder(from_pretrained(tmp_path / "later"), tmp_path / "later")
+            export_model(from_pretrained(tmp_path / "later"), tmp_path / "later", views=1)
         coarse, fine = (codec.encode(capture, tmp_path / "later", quality=q, runtime=runtime) for q in (1, 2))
         first = [codec.encode(capture, tmp_path / d, quality=q, runtime=runtime) for d, q in (("base", 1), ("base", 2))]
         assert np.array_equal(coarse.static_tokens, first[0].static_tokens)
