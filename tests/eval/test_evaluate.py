@@ -44,9 +44,18 @@ def test_sizes_are_counted_like_tokens(evaluated):
     assert s["depth_warp"]["floats"] == 8 * 64 * 64 * 4
     assert s["mean_colour"]["floats"] == 3
     # int8 tokens plus header: more than one byte per float, far less than float32
-    assert 3072 < s["ours"]["bytes_int8_vt4d"] < 4 * 3072
-    assert s["nearest_frame"]["bytes_int8_vt4d"] is None
+    assert 3072 < s["ours"]["file_bytes"] < 4 * 3072
+    assert s["nearest_frame"]["file_bytes"] is None
     assert 0.0 < s["depth_warp"]["hole_fraction"] < 1.0
+
+
+def test_file_bytes_are_named_for_what_they_are_and_old_results_still_read():
+    """Regression: the mean file size was stored as "bytes_int8_vt4d" at every encoding (q9 files included)."""
+    from vt4dcodec.eval.report import file_bytes
+
+    assert file_bytes({"file_bytes": 5075.0}) == 5075.0
+    assert file_bytes({"bytes_int8_vt4d": 6700.5}) == 6700.5  # a results file written before the rename
+    assert file_bytes({"file_bytes": None}) is None and file_bytes({}) is None
 
 
 def test_token_masking_changes_the_render(evaluated):

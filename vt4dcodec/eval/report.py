@@ -20,7 +20,7 @@ from vt4dcodec.synth.generator import SynthScene
 from .metrics import mean_se, round_metric
 from .protocol import HEALTH_THRESHOLDS, METHODS, METRICS, SKIPPED_ON_SOURCE, VIEW_SETS, EvaluationError
 
-__all__ = ["summarize", "summarize_sets", "row_set", "format_tables", "format_health", "save_figure",
+__all__ = ["summarize", "summarize_sets", "file_bytes", "row_set", "format_tables", "format_health", "save_figure",
            "save_png_small", "write_json"]
 
 SET_TITLES = {
@@ -34,6 +34,12 @@ SET_TITLES = {
 
 
 # --- summary ----------------------------------------------------------------------------------------
+def file_bytes(entry: dict[str, Any]) -> float | None:
+    """A method's mean .vt4d file bytes from its summary entry, in this module's results files of any age."""
+    value = entry.get("file_bytes", entry.get("bytes_int8_vt4d"))
+    return None if value is None else float(value)
+
+
 def summarize(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[str, dict[str, Any]]:
     """Per method: mean, standard error and count of every metric, sizes, and paired comparisons
     against ``ours`` (mean of ours - method, fraction of views where ours is higher)."""
@@ -50,7 +56,9 @@ def summarize(rows: list[dict[str, Any]], floats: dict[str, int]) -> dict[str, d
             entry[m] = {"mean": round_metric(mean) if mean is not None else None,
                         "se": round_metric(se) if se is not None else None, "n": n}
         sizes = [r["bytes"] for r in rs if r["bytes"] is not None]
-        entry["bytes_int8_vt4d"] = round(float(np.mean(sizes)), 1) if sizes else None
+        # mean .vt4d file bytes at the evaluated encoding (results files before Session 48 named this
+        # "bytes_int8_vt4d", whatever the encoding; :func:`file_bytes` reads both)
+        entry["file_bytes"] = round(float(np.mean(sizes)), 1) if sizes else None
         if method == "depth_warp":
             entry["hole_fraction"] = round_metric(float(np.mean([r["hole_fraction"] for r in rs])))
             entry["surfel_hole_fraction"] = round_metric(float(np.mean([r["surfel_hole_fraction"] for r in rs])))
@@ -181,7 +189,7 @@ def _set_tables(s: dict[str, Any], view_set: str, stored: str = "int8") -> str:
         if m not in s:
             continue
         e = s[m]
-        size = f"{e['bytes_int8_vt4d']:.0f}" if e.get("bytes_int8_vt4d") else "—"
+        size = f"{file_bytes(e):.0f}" if file_bytes(e) else "—"
         lines.append(f"| {e['label']} | {e['floats']:,} | {size} | {_fmt(e['psnr'])} | {_fmt(e['ssim'], 3)} | "
                      f"{_fmt(e['psnr_dynamic'])} | {_fmt(e['psnr_static'])} | {paired(e, 'psnr')} | "
                      f"{paired(e, 'psnr_dynamic')} |")
