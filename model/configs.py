@@ -259,6 +259,8 @@ class ModelConfig(_Config):
         after render feedback; files of coarser levels store the first pass, where the feedback's extra bytes buy
         less than a finer level would (an encoder's choice, measured per level: docs/training.md). Encodings
         without a level store the feedback's tokens. 1: every level.
+        feedback_window: with feedback_width, the side in encoder cells (odd) of the window of residual each
+            anchored static token reads, centred on its cell. 3: its cell and one cell on each side.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -317,6 +319,7 @@ class ModelConfig(_Config):
     feedback_width: int = 0
     feedback_passes: int = 1
     feedback_quality: int = 1
+    feedback_window: int = 3
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -330,7 +333,7 @@ class ModelConfig(_Config):
                                                "dynamic_from_patch": False, "entropy_levels": 0,
                                                "entropy_context": False, "entropy_rounding": (),
                                                "entropy_partners": (), "feedback_width": 0,
-                                               "feedback_passes": 1, "feedback_quality": 1}
+                                               "feedback_passes": 1, "feedback_quality": 1, "feedback_window": 3}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -430,6 +433,11 @@ class ModelConfig(_Config):
                 or not 1 <= self.feedback_quality <= max(1, self.entropy_levels):
             raise ModelError(f"config feedback_quality must be a quality level 1 .. {max(1, self.entropy_levels)}, "
                              f"got {self.feedback_quality!r}")
+        if isinstance(self.feedback_window, bool) or not isinstance(self.feedback_window, int) \
+                or not 1 <= self.feedback_window <= 15 or self.feedback_window % 2 == 0:
+            raise ModelError(f"config feedback_window must be an odd integer 1 .. 15, got {self.feedback_window!r}")
+        if self.feedback_window != 3 and not self.feedback_width:
+            raise ModelError("config feedback_window other than 3 needs feedback_width > 0 (it is the feedback's window)")
         if self.feedback_quality > 1 and not self.feedback_width:
             raise ModelError("config feedback_quality > 1 needs feedback_width > 0 (it says where the feedback is used)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
@@ -485,7 +493,7 @@ class ModelConfig(_Config):
     def without_feedback(self) -> "ModelConfig":
         """This config with render feedback off (every ``feedback_*`` field at its default): the config of the
         encoder's first pass."""
-        return dataclasses.replace(self, feedback_width=0, feedback_passes=1, feedback_quality=1)
+        return dataclasses.replace(self, feedback_width=0, feedback_passes=1, feedback_quality=1, feedback_window=3)
 
     def feeds_back(self, quality: int | None) -> bool:
         """Whether a file of quality level ``quality`` (None: an encoding without levels) stores the tokens after

@@ -4,8 +4,8 @@ The encoder's tokens Z^0 = tanh(A^0) are rendered at the encoded cameras exactly
 (its recorded steps, seed 0), and the residual R = X - Y^0 -- source latents minus rendered latents, in the frozen
 autoencoder's latent space -- goes back to the tokens that drew it:
 
-- each anchored static token reads R in a window of its cell and the cells around it (3 x 3 cells of its
-  encoded camera): the time average, and its frame group's change from it (zero for the time-average copies);
+- each anchored static token reads R in a window of its cell and the cells around it (``feedback_window``
+  cells a side, 3 by default, of its encoded camera): the time average, and its frame group's change from it (zero for the time-average copies);
 - each dynamic token reads R along its track (the patch it splats, averaged over the track's valid frames).
 
 A small MLP per token group maps [Z^0, its residual] to a change of pre-activation, zero at initialisation (a
@@ -41,14 +41,15 @@ def _mlp(inputs: int, width: int, outputs: int) -> nn.Sequential:
 class RenderFeedback(nn.Module):
     """dA_s (S, N_anchored, d) and dA_d (S, N_d, d) from the first tokens and the render residual.
 
-    Config: ``feedback_width`` (the MLPs' hidden width; 0 = no feedback), with ``token_from_cell`` and
+    Config: ``feedback_width`` (the MLPs' hidden width; 0 = no feedback), ``feedback_window`` (cells a side of a
+    static token's window), with ``token_from_cell`` and
     ``dynamic_splat`` (the cells and tracks it reads through)."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         C, p, d = cfg.latent_channels, cfg.patch_size, cfg.token_dim
         self.patch_size = p
-        self.window = 3 * p  # the token's cell and one cell on each side, in latent pixels
+        self.window = cfg.feedback_window * p  # the token's cell and (feedback_window - 1) / 2 on each side, latent px
         cell = C * self.window ** 2
         self.static = _mlp(d + 2 * cell, cfg.feedback_width, d)
         self.dynamic = _mlp(d + C * cfg.dynamic_splat ** 2, cfg.feedback_width, d)
@@ -59,7 +60,7 @@ class RenderFeedback(nn.Module):
         """residual (B, T, C, h, w) -> (B, T, P, C window^2): each encoder cell's window, zero outside the image."""
         B, T = residual.shape[:2]
         p = self.patch_size
-        cols = F.unfold(residual.flatten(0, 1), self.window, padding=p, stride=p)  # (B T, C w^2, P)
+        cols = F.unfold(residual.flatten(0, 1), self.window, padding=(self.window - p) // 2, stride=p)  # (B T, C w^2, P)
         return cols.transpose(1, 2).reshape(B, T, cols.shape[2], cols.shape[1])
 
     def forward(self, z_s: torch.Tensor, z_d: torch.Tensor, residual: torch.Tensor, track_residual: torch.Tensor,

@@ -46,6 +46,14 @@ def test_config_hash_is_kept_while_off_and_values_are_checked():
     assert [cfg.feeds_back(q) for q in (None, 1, 2, 3)] == [True, False, True, True]
     assert not get_config("tiny", **SMALL).feeds_back(None)
     assert cfg.without_feedback() == get_config("tiny", **dict(levels, feedback_width=0))
+    assert get_config("tiny", **SMALL, feedback_width=16, feedback_window=3).sha256() \
+        == get_config("tiny", **SMALL, feedback_width=16).sha256()
+    for bad in (0, 2, 17, True, 3.0):
+        with pytest.raises(ModelError, match="feedback_window must be an odd integer"):
+            get_config("tiny", **SMALL, feedback_width=16, feedback_window=bad)
+    with pytest.raises(ModelError, match="feedback_window other than 3 needs feedback_width"):
+        get_config("tiny", **SMALL, feedback_window=5)
+    assert get_config("tiny", **levels, feedback_window=5).without_feedback() == cfg.without_feedback()
     for missing in (dict(dynamic_splat=0, dynamic_from_patch=False),
                     dict(unified_tokens=True, dynamic_from_patch=False)):
         with pytest.raises(ModelError, match="feedback_width needs"):
@@ -73,10 +81,12 @@ def test_a_warm_start_encodes_exactly_as_before(views: int):
     assert moved[0].shape == a_old[0].shape and moved[1].shape == a_old[1].shape
 
 
-def test_each_static_token_reads_the_residual_in_its_window_only():
-    """Token i of camera c reads cell (i mod P)'s 3 x 3 cell window of camera c's residual: a change outside
-    it leaves the token's update unchanged, one inside changes it."""
-    cfg = get_config("tiny", **SMALL, feedback_width=16)
+@pytest.mark.parametrize("window", [3, 5])
+def test_each_static_token_reads_the_residual_in_its_window_only(window: int):
+    """Token i of camera c reads cell (i mod P)'s window (``feedback_window`` cells a side) of camera c's residual:
+    a change outside it leaves the token's update unchanged, one inside changes it."""
+    cfg = get_config("tiny", **SMALL, feedback_width=16, feedback_window=window)
+    reach = window // 2  # cells on each side
     net = VideoTok4D(cfg).eval()
     torch.manual_seed(1)
     for layer in (net.feedback.static[2], net.feedback.dynamic[2]):
@@ -93,13 +103,13 @@ def test_each_static_token_reads_the_residual_in_its_window_only():
         token = next(i for i in range(cfg.n_static)  # camera 1, a cell of the first row
                      if int(cameras[i]) == 1 and (i % per_side ** 2) // per_side == 0)
         far = residual.clone()
-        far[1, :, :, 2 * cfg.patch_size:, :] += 5.0  # camera 1, rows from cell row 2 down
+        far[1, :, :, (reach + 1) * cfg.patch_size:, :] += 5.0  # camera 1, rows below the window
         far[0] += 5.0  # all of camera 0
         changed, _ = fb(z_s, z_d, far, track, cameras, covers)
         assert torch.equal(changed[0, token], base[0, token])
         near = residual.clone()
         col = (token % per_side) * cfg.patch_size
-        near[1, :, :, 2 * cfg.patch_size - 1, col] += 5.0  # the last latent row of cell row 1: inside the window
+        near[1, :, :, (reach + 1) * cfg.patch_size - 1, col] += 5.0  # the window's last latent row
         changed, _ = fb(z_s, z_d, near, track, cameras, covers)
         assert not torch.equal(changed[0, token], base[0, token])
 
