@@ -315,17 +315,13 @@ class _Encode(nn.Module):
         return (*net._bound(a_s, a_d), a_s, a_d, x.float(), *net.feedback_reads(batch, chosen))  # FEEDBACK_STATE
 
 
-def _feedback_modules(net: VideoTok4D) -> list[nn.Module]:
-    return [] if net.feedback is None else [net.feedback, *(net.feedback_later or ())]
-
-
 class _Feedback(nn.Module):
     """``VideoTok4D.feedback_update`` of render feedback pass ``step`` (1, 2, ...) of one scene: inputs
     :data:`FEEDBACK_INPUTS`, outputs :data:`FEEDBACK_OUTPUTS` (the bounded tokens and their pre-activations)."""
 
     def __init__(self, net: VideoTok4D, step: int) -> None:
         super().__init__()
-        self.net, self.module = net, _feedback_modules(net)[step - 1]
+        self.net, self.module = net, net.feedback_modules()[step - 1]
 
     def forward(self, a_s: torch.Tensor, a_d: torch.Tensor, x: torch.Tensor, clip: torch.Tensor, at: torch.Tensor,
                 weight: torch.Tensor, cameras: torch.Tensor, covers: torch.Tensor, y0: torch.Tensor
@@ -339,16 +335,12 @@ def _feedback_case(net: VideoTok4D, step: int, views: int, seed: int
     """(:data:`FEEDBACK_INPUTS` of pass ``step`` on example inputs for ``views`` cameras, torch's outputs)."""
     inputs = example_inputs(net, seed=seed, views=views)
     batch = SourceBatch(**dict(zip(INPUT_NAMES, inputs)), views=views)
-    K, w2c = batch.source
-    if views > 1:
-        K, w2c = K.repeat_interleave(views, 0), w2c.repeat_interleave(views, 0)
     with torch.no_grad():
-        a_s, a_d, *reads = _Encode(net, views)(*inputs)[2:]
-        for k, module in enumerate(_feedback_modules(net)[:step], 1):
-            y = net.render_latents(*(t.repeat_interleave(views, 0) for t in net._bound(a_s, a_d)), batch.K,
-                                   batch.w2c, source=(K, w2c), noise=module.noise[:, :batch.frames.shape[1]])
-            case = (a_s, a_d, *reads, y)
-            a_s, a_d = net.feedback_update(module, a_s, a_d, reads[0], y, *reads[1:])
+        a_s, a_d, x, *reads = _Encode(net, views)(*inputs)[2:]
+        for module in net.feedback_modules()[:step]:
+            y = net.feedback_render(module, batch, a_s, a_d)
+            case = (a_s, a_d, x, *reads, y)
+            a_s, a_d = net.feedback_update(module, a_s, a_d, x, y, *reads)
     return case, [t.numpy() for t in (*net._bound(a_s, a_d), a_s, a_d)]
 
 
@@ -357,8 +349,9 @@ def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: in
     of encoded cameras) for ``net`` into its model ``directory``; ModelError when ``net`` has no such pass, when the
     directory does not describe it, or when onnxruntime's differ from torch's by more than
     :data:`PARITY_TOLERANCE`."""
-    if not 1 <= step <= len(_feedback_modules(net)):
-        raise ModelError(f"this model has {len(_feedback_modules(net))} render feedback pass(es), not a pass {step}")
+    passes = len(net.feedback_modules())
+    if not 1 <= step <= passes:
+        raise ModelError(f"this model has {passes} render feedback pass(es), not a pass {step}")
     directory = Path(directory)
     meta = _checked_meta(net, directory)
     wrapper = _Feedback(net.eval(), step).eval()
@@ -630,7 +623,7 @@ def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: i
     the renderer and, for a model with render feedback, ``feedback.onnx``; returns their paths. The renderer is
     written first: the encoders' parity check runs the feedback through it."""
     paths = [export_renderer(net, directory)]
-    paths += [export_feedback(net, directory, k) for k in range(1, len(_feedback_modules(net)) + 1)]
+    paths += [export_feedback(net, directory, k) for k in range(1, len(net.feedback_modules()) + 1)]
     return paths + [export_encoder(net, directory, v) for v in range(1, views + 1)]
 
 

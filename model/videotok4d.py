@@ -251,26 +251,31 @@ class VideoTok4D(ModelIdentity, nn.Module):
                 * (covers.sum(1) > 0)[None, :, None]
         return a_s, a_d, x, chosen
 
+    def feedback_modules(self) -> list[RenderFeedback]:
+        """The render feedback passes in order (``config.feedback_passes``; empty without render feedback)."""
+        return [] if self.feedback is None else [self.feedback, *(self.feedback_later or ())]
+
     def _feedback(self, batch: SourceBatch, x: torch.Tensor, a_s: torch.Tensor, a_d: torch.Tensor,
                   chosen: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """A + dA of :class:`RenderFeedback`, once per pass (``config.feedback_passes``): the tokens so far
-        rendered at the encoded cameras (the decoder's steps and seed 0's noise, no gradient), the residual
-        x - Y read back around each token."""
-        for module in [self.feedback, *(self.feedback_later or ())]:
-            a_s, a_d = self._feedback_pass(module, batch, x, a_s, a_d, chosen)
+        rendered at the encoded cameras (:meth:`feedback_render`), the residual x - Y read back around each token."""
+        reads = self.feedback_reads(batch, chosen)  # where the residual is read: the same for every pass
+        for module in self.feedback_modules():
+            a_s, a_d = self.feedback_update(module, a_s, a_d, x, self.feedback_render(module, batch, a_s, a_d), *reads)
         return a_s, a_d
 
-    def _feedback_pass(self, module: RenderFeedback, batch: SourceBatch, x: torch.Tensor, a_s: torch.Tensor,
-                       a_d: torch.Tensor, chosen: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    def feedback_render(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
+                        a_d: torch.Tensor) -> torch.Tensor:
+        """The tokens of pre-activations A rendered at the encoded cameras as the decoder renders them (its steps,
+        the pass's seed-0 noise, no gradient): Y (B, T, C, h, w), each clip at its own trajectory."""
         V = batch.views
         z_s, z_d = self._bound(a_s, a_d)
         K_src, w2c_src = batch.source
         if V > 1:  # every clip renders with its scene's encoded cameras
             K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
-        T = x.shape[1]
-        y0 = self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
-                                 batch.K, batch.w2c, source=(K_src, w2c_src), noise=module.noise[:, :T])
-        return self.feedback_update(module, a_s, a_d, x, y0, *self.feedback_reads(batch, chosen))
+        return self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
+                                   batch.K, batch.w2c, source=(K_src, w2c_src),
+                                   noise=module.noise[:, :batch.frames.shape[1]])
 
     def feedback_reads(self, batch: SourceBatch, chosen: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         """Where render feedback reads the residual, fixed by the batch before any render: each dynamic token's

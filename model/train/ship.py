@@ -86,12 +86,13 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
     names = sorted(graphs or ["encoder.onnx"], key=lambda n: (not n.startswith("encoder"), len(n), n))
     encoders = [n for n in names if n.startswith("encoder")]
     most = max([int(n[len("encoder-v"):-len(".onnx")]) for n in encoders if n.startswith("encoder-v")] or [1])
+    others = [f"`{n}`: {what}" for n, what in (
+        ("renderer.onnx", "the renderer and the autoencoder's decoder"),
+        ("feedback.onnx", "the encoder's render feedback (the encoder graphs give the first pass, `renderer.onnx` "
+                          "renders it)")) if n in names]
     onnx_line = (f"- `{encoders[0]}`" + (f" ... `{encoders[-1]}`: the encoders for scenes of 1 to {most} cameras"
                                           if len(encoders) > 1 else ": the encoder for one camera per scene")
-                 + ((", `renderer.onnx`: the renderer and the autoencoder's decoder, and `feedback.onnx`: the encoder's "
-                     "render feedback (the encoder graphs give the first pass, `renderer.onnx` renders it)")
-                    if "feedback.onnx" in names else
-                    ", and `renderer.onnx`: the renderer and the autoencoder's decoder" if "renderer.onnx" in names else "")
+                 + "".join(f", {part}" for part in others[:-1]) + "".join(f", and {part}" for part in others[-1:])
                  + ", exported for onnxruntime from these weights (`vt4d encode` and `vt4d decode` run them without "
                    "torch; same fingerprint, tokens equal to float rounding)")
     lines = [
