@@ -11,7 +11,8 @@ them with ``RENDER_BATCH`` set to ``--views`` (one forward pass), alternating wh
 repeat.  For every torch thread count it reports the median wall and process CPU time per view of both, the
 speed-up per view (single / batched; also of the best repeats, the least disturbed on a shared machine), and the largest difference between a batched view and the same view
 alone (uint8 grey levels, and the renderer's float frames in [0, 1]).  ``--stages`` adds the split of one forward pass into the renderer's sampler
-(tokens -> latents) and the frozen decoder (latents -> frames), at batch 1 and at ``--views``, CPU time.
+(tokens -> latents) and the frozen decoder (latents -> frames), at batch 1 and at ``--views``, CPU time, and the
+decoder alone in its channels-last layout (as the codec runs it) beside the same convolutions on NCHW tensors.
 The machine is shared: load averages before and after are recorded.
 """
 
@@ -75,6 +76,28 @@ def stage_times(decoder: codec.SceneDecoder, targets: list, batch: int, repeats:
         sampler.append(c_lat / batch)
         frames.append(max(c_dec - c_lat, 0.0) / batch)
     return {"sampler_cpu_s_per_view": statistics.median(sampler), "decoder_cpu_s_per_view": statistics.median(frames)}
+
+
+def decoder_layouts(decoder: codec.SceneDecoder, targets: list, batch: int, repeats: int) -> dict[str, float]:
+    """CPU seconds per view of the frozen decoder alone on one forward pass's latents of ``batch`` views, side by
+    side: as the codec runs it (``decode_raw``: channels-last convolutions) and on the same tensors in NCHW order
+    (the decoder before), with the largest difference of their frames."""
+    net = decoder.model
+    z_s, z_d, K, w2c, source = model_inputs(decoder, targets[:batch])
+    ae = net.autoencoder
+    latents = net.render_latents(z_s, z_d, K, w2c, source=source)
+    raw = (latents.flatten(0, 1) * ae.latent_std[:, None, None] + ae.latent_mean[:, None, None]).contiguous()
+    timings: dict[str, list[float]] = {"channels_last": [], "nchw": []}
+    for r in range(repeats):
+        order = ("channels_last", "nchw") if r % 2 == 0 else ("nchw", "channels_last")
+        for name in order:
+            fn = (lambda: ae.decode_raw(raw)) if name == "channels_last" else (lambda: torch.sigmoid(ae.decoder(raw)))
+            _, _, cpu = timed(fn)
+            timings[name].append(cpu / batch)
+    difference = float((ae.decode_raw(raw) - torch.sigmoid(ae.decoder(raw))).abs().max())
+    return {"decoder_channels_last_cpu_s_per_view": statistics.median(timings["channels_last"]),
+            "decoder_nchw_cpu_s_per_view": statistics.median(timings["nchw"]),
+            "decoder_layouts_max_difference": difference}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.stages and args.runtime == "torch":
             run["stages_batch_1"] = stage_times(decoder, targets, 1, args.repeats)
             run["stages_batch_n"] = stage_times(decoder, targets, args.views, args.repeats)
+            with torch.no_grad():
+                run["decoder_layouts_batch_1"] = decoder_layouts(decoder, targets, 1, args.repeats)
+                run["decoder_layouts_batch_n"] = decoder_layouts(decoder, targets, args.views, args.repeats)
         runs.append(run)
         print(f"{threads or 'onnxruntime default'} thread(s): single {run['single_wall_s_per_view'] * 1000:.0f} ms/view wall "
               f"({run['single_cpu_s_per_view'] * 1000:.0f} CPU), batch of {args.views} "

@@ -23,6 +23,14 @@ def _norm(channels: int) -> nn.GroupNorm:
     return nn.GroupNorm(min(8, channels), channels)
 
 
+def _channels_last(x: torch.Tensor) -> torch.Tensor:
+    """The decoder's convolutions run in channels-last order (NHWC in memory): on the CPU oneDNN's convolutions of
+    these few channels take about half the time they take on NCHW tensors (bench/bench_render_batch.py --stages);
+    the frames are the same to float rounding (1e-6). The encoder stays NCHW: its latents feed the render
+    feedback, whose tokens the exported graphs must match to 2e-6, and it gains little (a tenth)."""
+    return x.contiguous(memory_format=torch.channels_last)
+
+
 class ResBlock(nn.Module):
     def __init__(self, channels: int) -> None:
         super().__init__()
@@ -62,7 +70,7 @@ class LatentAutoencoder(nn.Module):
 
     def decode_raw(self, latents: torch.Tensor) -> torch.Tensor:
         """Un-normalised latents (N, C, h, w) -> RGB (N, 3, H, W) in [0, 1]."""
-        return torch.sigmoid(self.decoder(latents))
+        return torch.sigmoid(self.decoder(_channels_last(latents))).contiguous()
 
     def encode(self, frames: torch.Tensor) -> torch.Tensor:
         """Video (B, T, 3, H, W) in [0, 1] -> normalised latents X (B, T, C, h, w)."""

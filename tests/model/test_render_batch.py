@@ -63,3 +63,20 @@ def test_views_in_one_batch_equal_each_view_rendered_alone(shipped):
         alone = shipped.render(z_s, z_d, K[i:i + 1], w2c[i:i + 1], seed=5, source=source)
         assert (batch[i:i + 1] - alone).abs().max().item() <= 1e-5
     assert (batch[0] - batch[1]).abs().max().item() > 0.01  # the views differ: the test compares something
+
+
+def test_decoder_in_channels_last_gives_the_nchw_frames_in_nchw_order():
+    """The decoder's convolutions run channels-last for speed (docs/benchmarks/render_batch.md); the frames are
+    the NCHW network's to float rounding, returned contiguous in NCHW order, and gradients still reach them."""
+    from vt4dcodec.model.autoencoder import LatentAutoencoder
+    from vt4dcodec.model.configs import get_config
+
+    torch.manual_seed(0)
+    ae = LatentAutoencoder(get_config("tiny"))
+    latents = torch.randn(3, ae.latent_mean.shape[0], 16, 16, requires_grad=True)
+    frames = ae.decode_raw(latents)
+    reference = torch.sigmoid(ae.decoder(latents.detach().contiguous()))
+    assert frames.is_contiguous() and frames.shape == reference.shape
+    assert float((frames - reference).abs().max()) <= 1e-5
+    frames.sum().backward()
+    assert latents.grad is not None and torch.isfinite(latents.grad).all() and latents.grad.abs().sum() > 0
