@@ -48,7 +48,7 @@ def model_inputs(decoder: codec.SceneDecoder, targets: list) -> tuple:
     z_s = torch.from_numpy(np.ascontiguousarray(decoder.scene.static_tokens, dtype=np.float32))[None].expand(n, -1, -1)
     z_d = torch.from_numpy(np.ascontiguousarray(decoder.scene.dynamic_tokens, dtype=np.float32))[None].expand(n, -1, -1)
     K = torch.from_numpy(np.stack([t.K for t in resolved]).astype(np.float32))
-    w2c = torch.from_numpy(np.stack([t.w2c for t in resolved]).astype(np.float32))
+    w2c = torch.from_numpy(decoder.model_w2c(np.stack([t.w2c for t in resolved])))
     source = decoder.source_cameras() if decoder.model.needs_source else None
     return z_s, z_d, K, w2c, None if source is None else tuple(t.expand(n, *t.shape[1:]) for t in source)
 

@@ -52,6 +52,7 @@ from .capture.trajectories import load_trajectory, make_trajectory, parse_trajec
 from .errors import (CaptureError, DeviceError, EntropyTablesError, MissingExtraError, ModelError, ModelMismatchError,
                      ModelNotFoundError, TrajectoryError)
 from .format import EntropyTables, ModelFingerprint, Provenance, Scene, load, open_scene
+from .reference import CENTRE_KEY, centre_from_metadata, centre_to_metadata, move_origin, needs_reference, reference_point
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -547,11 +548,18 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     refine the tokens ``refine`` iterations for ``quality``, optimising ``tune``."""
     cfg = net.config
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
-    views = [(fitted.frames[n], fitted.cameras[n], fitted.depth[n] if fitted.has_depth(n) else None) for n in names]
+    # the world origin is the renderer's depth reference; one too near an encoded camera moves (vt4dcodec.reference)
+    centre = None
+    if needs_reference([fitted.cameras[n] for n in names]):
+        centre = np.asarray(centre_to_metadata(reference_point([fitted.cameras[n] for n in names])), np.float64) / 1000.0
+    views = [(fitted.frames[n], _moved(fitted.cameras[n], centre), fitted.depth[n] if fitted.has_depth(n) else None)
+             for n in names]
     depth_sources = ["capture" if depth is not None else "estimated" for _, _, depth in views]
     z_s, z_d = encode_views(net, views, seed, feedback=cfg.feeds_back(quality))  # (the level's pass)
     info: dict[str, Any] = {"source_camera": names[0], "clip_start": int(start), "clip_frames": int(cfg.frames),
                             "depth_source": depth_sources[0]}
+    if centre is not None:
+        info[CENTRE_KEY] = centre_to_metadata(centre)
     if refiner is not None:  # _refiner gave one: refine > 0 and a quality level
         from .model.refine import TUNE_SSIM_WEIGHT, refine_tokens
 
@@ -580,6 +588,11 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
         encoding=encoding,
         quality=quality,
     )
+
+
+def _moved(trajectory: Trajectory, centre: "np.ndarray | None") -> Trajectory:
+    """``trajectory`` in the world frame whose origin is ``centre`` (None: unchanged; vt4dcodec.reference)."""
+    return trajectory if centre is None else dataclasses.replace(trajectory, w2c=move_origin(trajectory.w2c, centre))
 
 
 # --- decoding ---------------------------------------------------------------------------------------
@@ -668,6 +681,7 @@ class SceneDecoder:
             if (have.static_shape, have.dynamic_shape) != (stored.static_shape, stored.dynamic_shape):
                 raise ModelMismatchError(
                     f"cannot force: token shapes differ ({stored.short()} vs {have.short()})")
+        centre_from_metadata(scene.metadata)  # a malformed reference point: refused now, not at the first render
         return cls(scene=scene, model=net)
 
     def trajectory(self, spec: "Trajectory | str | os.PathLike", *,
@@ -692,12 +706,23 @@ class SceneDecoder:
             return {}
         return dict(zip(names, stored))
 
+    def centre(self) -> "np.ndarray | None":
+        """The world point the renderer measures depths from, metres (the file's ``metadata["vt4d"]["centre_mm"]``;
+        None: the world origin; :mod:`vt4dcodec.reference`)."""
+        return centre_from_metadata(self.scene.metadata)
+
+    def model_w2c(self, w2c: np.ndarray) -> np.ndarray:
+        """World-to-camera matrices (..., 4, 4) of the capture's frame as the renderer takes them: in the frame
+        whose origin is :meth:`centre` (float32)."""
+        return move_origin(np.asarray(w2c, np.float64), self.centre()).astype(np.float32)
+
     def source_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """The encoded cameras that place the tokens (the scene's cameras, then its extra cameras), fitted to
-        the model's image: (K (V, T, 3, 3), w2c (V, T, 4, 4)) float32."""
+        the model's image, as the renderer takes them (:meth:`model_w2c`): (K (V, T, 3, 3), w2c (V, T, 4, 4))
+        float32."""
         encoded = [self.trajectory("source")] + [self.trajectory(t) for t in self.scene.extra_cameras]
         return (np.stack([t.K for t in encoded]).astype(np.float32),
-                np.stack([t.w2c for t in encoded]).astype(np.float32))
+                self.model_w2c(np.stack([t.w2c for t in encoded])))
 
     def source_cameras(self) -> tuple["torch.Tensor", "torch.Tensor"]:
         """:meth:`source_arrays` as torch tensors with a batch axis: (K (1, V, T, 3, 3), w2c (1, V, T, 4, 4))."""
@@ -736,7 +761,7 @@ class SceneDecoder:
         for chunk in _render_batches(resolved):
             n = len(chunk)
             K = torch.from_numpy(np.stack([resolved[i].K for i in chunk]).astype(np.float32))
-            w2c = torch.from_numpy(np.stack([resolved[i].w2c for i in chunk]).astype(np.float32))
+            w2c = torch.from_numpy(self.model_w2c(np.stack([resolved[i].w2c for i in chunk])))
             src = None if source is None else tuple(t.expand(n, *t.shape[1:]) for t in source)
             frames = self.model.render(z_s.expand(n, -1, -1), z_d.expand(n, -1, -1), K, w2c, steps=steps,
                                        seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic, source=src)
@@ -759,7 +784,7 @@ class SceneDecoder:
         for chunk in _render_batches(resolved):
             n = len(chunk)
             K = np.stack([resolved[i].K for i in chunk]).astype(np.float32)
-            w2c = np.stack([resolved[i].w2c for i in chunk]).astype(np.float32)
+            w2c = self.model_w2c(np.stack([resolved[i].w2c for i in chunk]))
             src = (None, None) if K_src is None else (np.repeat(K_src, n, 0), np.repeat(w2c_src, n, 0))
             frames = renderer.render(np.repeat(z_s, n, 0), np.repeat(z_d, n, 0), K, w2c, *src, steps=steps,
                                      seed=seed, drop_static=drop_static, drop_dynamic=drop_dynamic)
