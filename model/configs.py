@@ -261,6 +261,10 @@ class ModelConfig(_Config):
         without a level store the feedback's tokens. 1: every level.
         feedback_window: with feedback_width, the side in encoder cells (odd) of the window of residual each
             anchored static token reads, centred on its cell. 3: its cell and one cell on each side.
+        reference_frame: the world frame the encoder and renderer work in (vt4dcodec.reference.model_centre;
+            the renderer measures token depths from its origin). "origin": the capture's own, unless its origin
+            is less than 0.5 m in front of an encoded camera; "cameras": always the frame moved to the encoded
+            cameras' reference point (their axes' meeting point, or 4 m ahead), in training and in the codec.
     Ablations (same token budget):
         unified_tokens: one set of N_s + N_d tokens from the Spatial Branch, no Temporal Branch. Every
             token is anchored, unless token_from_cell: then the first N_s are the anchored cell tokens (with
@@ -320,6 +324,7 @@ class ModelConfig(_Config):
     feedback_passes: int = 1
     feedback_quality: int = 1
     feedback_window: int = 3
+    reference_frame: str = "origin"
 
     _KIND: ClassVar[str] = "model"
     _LATER_FIELDS: ClassVar[dict[str, Any]] = {"prediction": "velocity", "render_patch_size": 0, "locality_sigma": 0.0,
@@ -333,7 +338,8 @@ class ModelConfig(_Config):
                                                "dynamic_from_patch": False, "entropy_levels": 0,
                                                "entropy_context": False, "entropy_rounding": (),
                                                "entropy_partners": (), "feedback_width": 0,
-                                               "feedback_passes": 1, "feedback_quality": 1, "feedback_window": 3}
+                                               "feedback_passes": 1, "feedback_quality": 1, "feedback_window": 3,
+                                               "reference_frame": "origin"}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -436,6 +442,8 @@ class ModelConfig(_Config):
         if isinstance(self.feedback_window, bool) or not isinstance(self.feedback_window, int) \
                 or not 1 <= self.feedback_window <= 15 or self.feedback_window % 2 == 0:
             raise ModelError(f"config feedback_window must be an odd integer 1 .. 15, got {self.feedback_window!r}")
+        if self.reference_frame not in ("origin", "cameras"):
+            raise ModelError(f"config reference_frame must be 'origin' or 'cameras', got {self.reference_frame!r}")
         if self.feedback_window != 3 and not self.feedback_width:
             raise ModelError("config feedback_window other than 3 needs feedback_width > 0 (it is the feedback's window)")
         if self.feedback_quality > 1 and not self.feedback_width:

@@ -99,3 +99,17 @@ def test_an_origin_moved_to_a_point_ahead_has_that_depth_and_the_same_intrinsics
     moved = dataclasses.replace(cam, w2c=reference.move_origin(cam.w2c, np.array([4.0, 0.0, 0.0])))
     np.testing.assert_array_equal(moved.K, cam.K)
     np.testing.assert_allclose(moved.w2c[:, 2, 3], 4.0, atol=1e-12)
+
+
+def test_model_centre_follows_the_reference_frame():
+    ring = [camera([4 * np.cos(a), 4 * np.sin(a), 1.5], [0.5, 0.0, 0.4]) for a in (0.0, 2.0, 4.0)]
+    assert reference.model_centre("origin", ring) is None  # the origin is in front: left alone
+    moved = reference.model_centre("cameras", ring)  # always the cameras' point, to the millimetre
+    np.testing.assert_allclose(moved, [0.5, 0.0, 0.4], atol=6e-4)
+    assert np.all(np.abs(moved * 1000 - np.round(moved * 1000)) < 1e-9)
+    at_camera = [camera([0.0, 0.0, 0.0], [4.0, 0.0, 0.0])]
+    np.testing.assert_allclose(reference.model_centre("origin", at_camera), [4.0, 0.0, 0.0])
+    w2c = np.stack([np.asarray(t.w2c) for t in ring])  # arrays (V, T, 4, 4) as the training data has them
+    np.testing.assert_array_equal(reference.model_centre("cameras", w2c), moved)
+    with pytest.raises(ValueError, match="reference_frame"):
+        reference.model_centre("floor", ring)

@@ -52,7 +52,7 @@ from .capture.trajectories import load_trajectory, make_trajectory, parse_trajec
 from .errors import (CaptureError, DeviceError, EntropyTablesError, MissingExtraError, ModelError, ModelMismatchError,
                      ModelNotFoundError, TrajectoryError)
 from .format import EntropyTables, ModelFingerprint, Provenance, Scene, load, open_scene
-from .reference import CENTRE_KEY, centre_from_metadata, centre_to_metadata, move_origin, needs_reference, reference_point
+from .reference import CENTRE_KEY, centre_from_metadata, centre_to_metadata, model_centre, move_origin
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -549,9 +549,7 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     cfg = net.config
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     # the world origin is the renderer's depth reference; one too near an encoded camera moves (vt4dcodec.reference)
-    centre = None
-    if needs_reference([fitted.cameras[n] for n in names]):
-        centre = np.asarray(centre_to_metadata(reference_point([fitted.cameras[n] for n in names])), np.float64) / 1000.0
+    centre = model_centre(cfg.reference_frame, [fitted.cameras[n] for n in names])
     views = [(fitted.frames[n], _moved(fitted.cameras[n], centre), fitted.depth[n] if fitted.has_depth(n) else None)
              for n in names]
     depth_sources = ["capture" if depth is not None else "estimated" for _, _, depth in views]

@@ -27,14 +27,15 @@ import numpy as np
 
 from .errors import FormatError
 
-__all__ = ["MIN_REFERENCE_DEPTH", "DEFAULT_REFERENCE_DEPTH", "CENTRE_KEY", "needs_reference", "reference_point",
-           "centre_from_metadata", "centre_to_metadata", "move_origin"]
+__all__ = ["MIN_REFERENCE_DEPTH", "DEFAULT_REFERENCE_DEPTH", "CENTRE_KEY", "REFERENCE_FRAMES", "needs_reference",
+           "reference_point", "model_centre", "centre_from_metadata", "centre_to_metadata", "move_origin"]
 
 MIN_REFERENCE_DEPTH = 0.5  # metres: an origin nearer than this to an encoded camera's image plane is moved
 DEFAULT_REFERENCE_DEPTH = 4.0  # metres ahead of the first encoded camera: the training rigs' median origin depth
 MIN_AXIS_SPREAD = 0.01  # smallest eigenvalue of the mean of (I - a a^T) over the axes a: about 8 degrees apart
 CENTRE_KEY = "centre_mm"
 MAX_CENTRE_MM = 10 ** 9  # 1,000 km: a stored reference point beyond this is refused
+REFERENCE_FRAMES = ("origin", "cameras")  # ModelConfig.reference_frame
 
 
 def _w2c(trajectories: Sequence[Any]) -> np.ndarray:
@@ -42,17 +43,26 @@ def _w2c(trajectories: Sequence[Any]) -> np.ndarray:
     return np.stack([np.asarray(t.w2c, np.float64).reshape(-1, 4, 4) for t in trajectories])
 
 
-def needs_reference(trajectories: Sequence[Any]) -> bool:
+def needs_reference(trajectories: Sequence[Any] | np.ndarray) -> bool:
     """Whether the world origin is less than MIN_REFERENCE_DEPTH in front of (or behind) any of ``trajectories``
-    (the encoded cameras of one clip) at any frame: z of the origin in camera = w2c[2, 3]."""
-    return bool((_w2c(trajectories)[..., 2, 3] < MIN_REFERENCE_DEPTH).any())
+    (the encoded cameras of one clip, or their w2c (V, T, 4, 4)) at any frame: z of the origin in camera =
+    w2c[2, 3]."""
+    return bool((_as_w2c(trajectories)[..., 2, 3] < MIN_REFERENCE_DEPTH).any())
 
 
-def reference_point(trajectories: Sequence[Any]) -> np.ndarray:
+def _as_w2c(trajectories: Sequence[Any] | np.ndarray) -> np.ndarray:
+    if isinstance(trajectories, np.ndarray):
+        return np.asarray(trajectories, np.float64).reshape(trajectories.shape[0], -1, 4, 4)
+    return _w2c(trajectories)
+
+
+def reference_point(trajectories: Sequence[Any] | np.ndarray) -> np.ndarray:
     """(3,) float64 world point, metres: where the encoded cameras' optical axes (every frame) come nearest to
     each other, when they spread at least MIN_AXIS_SPREAD and that point lies MIN_REFERENCE_DEPTH or more in front
-    of every camera at every frame; else DEFAULT_REFERENCE_DEPTH ahead of the first camera at its middle frame."""
-    w2c = _w2c(trajectories).reshape(-1, 4, 4)
+    of every camera at every frame; else DEFAULT_REFERENCE_DEPTH ahead of the first camera at its middle frame.
+    ``trajectories``: the encoded cameras of one clip, or their w2c (V, T, 4, 4)."""
+    per_camera = _as_w2c(trajectories)
+    w2c = per_camera.reshape(-1, 4, 4)
     R, t = w2c[:, :3, :3], w2c[:, :3, 3]
     centres = -np.einsum("nji,nj->ni", R, t)  # camera centres, world
     axes = R[:, 2]  # optical axes (unit rows of R), world
@@ -62,9 +72,22 @@ def reference_point(trajectories: Sequence[Any]) -> np.ndarray:
         point = np.linalg.solve(A, np.einsum("nij,nj->i", projectors, centres) / len(centres))
         if np.all(np.einsum("nij,j->ni", R, point)[:, 2] + t[:, 2] >= MIN_REFERENCE_DEPTH):
             return point
-    first = _w2c(trajectories[:1])[0]
+    first = per_camera[0]
     mid = first[first.shape[0] // 2]
     return -mid[:3, :3].T @ mid[:3, 3] + DEFAULT_REFERENCE_DEPTH * mid[2, :3]
+
+
+def model_centre(reference_frame: str, trajectories: Sequence[Any] | np.ndarray) -> np.ndarray | None:
+    """The point a model works from for these encoded cameras (one clip), rounded to the millimetre as the file
+    stores it, or None (the world origin). ``reference_frame`` (``ModelConfig.reference_frame``): ``"origin"``,
+    the world origin unless :func:`needs_reference`; ``"cameras"``, always :func:`reference_point` (a model
+    trained in that frame, so that it never sees the capture's own origin). The codec and the training data both
+    take it from here."""
+    if reference_frame not in REFERENCE_FRAMES:
+        raise ValueError(f"reference_frame must be one of {REFERENCE_FRAMES}, got {reference_frame!r}")
+    if reference_frame == "cameras" or needs_reference(trajectories):
+        return np.asarray(centre_to_metadata(reference_point(trajectories)), np.float64) / 1000.0
+    return None
 
 
 def centre_to_metadata(point: np.ndarray) -> list[int]:

@@ -81,8 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         row: dict = {"seed": seed}
         for name, (point, unmoved) in variants.items():
             cp = moved(cap, point)
-            with mock.patch.object(codec, "needs_reference", lambda trajectories: False) if unmoved else \
-                    mock.patch.object(codec, "needs_reference", codec.needs_reference):
+            with mock.patch.object(codec, "model_centre", lambda frame, trajectories: None) if unmoved else \
+                    mock.patch.object(codec, "model_centre", codec.model_centre):
                 scene = codec.encode(cp, net, cameras=[src], quality=args.quality)
             decoder = codec.SceneDecoder.open(dumps(scene), model=net)
             videos = decoder.render_many([cp.cameras[k] for k in targets])

@@ -35,6 +35,7 @@ from tqdm import tqdm
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.data.multiview import MultiViewPairs
 from vt4dcodec.errors import CaptureError
+from vt4dcodec.reference import model_centre, move_origin
 from vt4dcodec.synth import SynthConfig, generate_scene
 from vt4dcodec.synth.assets import PHOTO_TEXTURES, photo_image
 
@@ -110,11 +111,13 @@ class ScenePool:
         """motion_mask (C,T,h,w), track_xy (C,N,T,2), track_valid (C,N,T) of every camera as source."""
         return _cached_prepared(self, seed)
 
-    def source_inputs(self, seed: int, cameras: list[int]) -> list[SourceInputs]:
-        """The encoder inputs of each of ``cameras`` of scene ``seed`` as a source (float32 cameras)."""
+    def source_inputs(self, seed: int, cameras: list[int], centre: np.ndarray | None = None) -> list[SourceInputs]:
+        """The encoder inputs of each of ``cameras`` of scene ``seed`` as a source (float32 cameras), in the world
+        frame whose origin is ``centre`` (None: the scene's own; vt4dcodec.reference.model_centre)."""
         scene, prep = self.scene(seed), self.prepared(seed)
         return [SourceInputs(frames=scene["frames"][c], K=scene["K"][c].astype(np.float32),
-                             w2c=scene["w2c"][c].astype(np.float32), motion_mask=prep["motion_mask"][c],
+                             w2c=move_origin(scene["w2c"][c], centre).astype(np.float32),
+                             motion_mask=prep["motion_mask"][c],
                              track_xy=prep["track_xy"][c], track_valid=prep["track_valid"][c],
                              track_depth=track_depths(scene["depth"][c], prep["track_xy"][c], prep["track_valid"][c],
                                                       self.latent_size)) for c in cameras]
@@ -399,7 +402,7 @@ class PairDataset(Dataset):
 
     def __init__(self, pool: ScenePool, seeds: list[int], *, recon_share: float = 0.0,
                  neighbour_sigma_deg: float | None = None, latent_key: str | None = None,
-                 spread_share: float = 0.0) -> None:
+                 spread_share: float = 0.0, reference_frame: str = "origin") -> None:
         if pool.cameras < 2:
             raise ValueError("stage 2 needs at least 2 cameras per scene")
         if not 0.0 <= recon_share <= 1.0 or (neighbour_sigma_deg is not None and not neighbour_sigma_deg > 0):
@@ -407,6 +410,7 @@ class PairDataset(Dataset):
         if not 0.0 <= spread_share <= 1.0:
             raise ValueError("spread_share must be in [0, 1]")
         self.spread_share = float(spread_share)
+        self.reference_frame = reference_frame  # the model's config.reference_frame: the frame each item is in
         self.pool, self.seeds = pool, list(seeds)
         self.recon_share, self.sigma = float(recon_share), neighbour_sigma_deg
         self.latent_key = latent_key
@@ -452,8 +456,11 @@ class PairDataset(Dataset):
                 encoded += [rest[i] for i in pick]
         if self.sampled:
             tgt = self._draw_target(src, scene["w2c"], encoded)
-        sources = self.pool.source_inputs(seed, encoded)
-        item = (sources if views > 1 else sources[0], scene["frames"][tgt], scene["K"][tgt], scene["w2c"][tgt])
+        # the frame the codec would encode these cameras in (vt4dcodec.reference): sources and target alike
+        centre = model_centre(self.reference_frame, scene["w2c"][encoded])
+        sources = self.pool.source_inputs(seed, encoded, centre)
+        item = (sources if views > 1 else sources[0], scene["frames"][tgt], scene["K"][tgt],
+                move_origin(scene["w2c"][tgt], centre))
         if self.latent_key is None:
             return item
         latents = self.pool.latents(seed, self.latent_key)

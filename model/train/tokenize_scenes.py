@@ -38,6 +38,7 @@ from vt4dcodec.archive import ArchiveWriter, open_archive
 from vt4dcodec.cameras import Trajectory
 from vt4dcodec.errors import ArchiveError, ModelError
 from vt4dcodec.format import Provenance, Scene
+from vt4dcodec.reference import model_centre
 
 from ..inputs.source_inputs import SourceBatch
 from ..weights_io import from_pretrained
@@ -124,8 +125,12 @@ class ClipStore:
 
 @torch.no_grad()
 def tokenize_event(tokenizer: Any, pool: ScenePool, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(Z_s, Z_d) of every camera of one event, encoded as one batch by the frozen tokenizer."""
-    z_s, z_d = tokenizer.encode(SourceBatch.collate(pool.source_inputs(seed, list(range(pool.cameras)))))
+    """(Z_s, Z_d) of every camera of one event, encoded as one batch by the frozen tokenizer, each camera in the
+    world frame the codec would encode it in (vt4dcodec.reference.model_centre)."""
+    w2c = pool.scene(seed)["w2c"]
+    clips = [clip for c in range(pool.cameras)
+             for clip in pool.source_inputs(seed, [c], model_centre(tokenizer.config.reference_frame, w2c[[c]]))]
+    z_s, z_d = tokenizer.encode(SourceBatch.collate(clips))
     return [(z_s[c].numpy().astype(np.float32), z_d[c].numpy().astype(np.float32)) for c in range(pool.cameras)]
 
 

@@ -486,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cache_latents:
         latent_key = precompute_latents(pool, seeds, model.autoencoder, progress=not args.no_progress)
     dataset = PairDataset(pool, seeds, recon_share=args.recon_share, neighbour_sigma_deg=args.neighbour_sigma,
-                          spread_share=args.multi_spread, latent_key=latent_key)
+                          spread_share=args.multi_spread, latent_key=latent_key, reference_frame=cfg.reference_frame)
     sampler = None
     if args.multi_share > 0:
         try:

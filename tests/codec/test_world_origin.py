@@ -54,7 +54,7 @@ def test_an_origin_at_the_camera_renders_as_the_moved_frame(synth_scene, shipped
     truth = cap.frames["cam00"].astype(float)
     original = codec.SceneDecoder.open(dumps(codec.encode(cap, shipped, camera="cam00", quality=9)),
                                        model=shipped).render("source")
-    with mock.patch.object(codec, "needs_reference", lambda trajectories: False):
+    with mock.patch.object(codec, "model_centre", lambda frame, trajectories: None):
         unmoved = codec.encode(at_camera, shipped, camera="cam00", quality=9)
     broken = codec.SceneDecoder.open(dumps(unmoved), model=shipped).render("source")
 
@@ -75,3 +75,23 @@ def test_a_malformed_reference_point_is_refused_on_open(synth_scene, shipped):
     bad = dataclasses.replace(scene, metadata={"vt4d": {**scene.metadata["vt4d"], reference.CENTRE_KEY: [1, 2]}})
     with pytest.raises(FormatError, match="centre_mm"):
         codec.SceneDecoder.open(dumps(bad), model=shipped)
+
+
+def test_a_model_trained_in_the_cameras_frame_always_records_it(tmp_path, small_config, synth_scene):
+    """config.reference_frame = "cameras": every encode works in the frame moved to the encoded cameras' point,
+    whatever the capture's origin, so the same capture in two world frames gives the same tokens."""
+    import torch
+
+    from vt4dcodec.model import VideoTok4D, save_pretrained
+
+    torch.manual_seed(0)
+    directory = save_pretrained(VideoTok4D(small_config.replace(reference_frame="cameras")), tmp_path / "m",
+                                model_id="test-model", model_version="0.0")
+    cap = synth_scene.capture
+    scene = codec.encode(cap, directory, cameras=["cam00", "cam01"], seed=0)
+    assert reference.CENTRE_KEY in scene.metadata["vt4d"]
+    aside = codec.encode(moved(cap, np.array([2.0, -1.0, 0.5])), directory, cameras=["cam00", "cam01"], seed=0)
+    np.testing.assert_allclose(aside.static_tokens, scene.static_tokens, atol=1e-4)
+    centre = np.asarray(scene.metadata["vt4d"][reference.CENTRE_KEY]) / 1000.0
+    np.testing.assert_allclose(np.asarray(aside.metadata["vt4d"][reference.CENTRE_KEY]) / 1000.0,
+                               centre - [2.0, -1.0, 0.5], atol=1.5e-3)
