@@ -17,6 +17,7 @@ CUDA GPU (``vt4dcodec.codec.DEVICES``).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from typing import TYPE_CHECKING, Any
@@ -28,6 +29,7 @@ from .capture.capture import Capture
 from .capture.resample import fit_capture
 from .errors import CaptureError, MissingExtraError, ModelError, TrajectoryError
 from .format import Provenance, Scene
+from .reference import CENTRE_KEY, centre_to_metadata, model_centre, move_origin
 
 if TYPE_CHECKING:  # pragma: no cover
     from .model.onnx_prior import OnnxPrior
@@ -169,6 +171,10 @@ def generate(
         raise TrajectoryError(f"the anchor trajectory has {anchor.num_frames} frames; the prior samples scenes of "
                               f"{cfg.frames} frames")
 
+    stored_anchor = anchor  # the file keeps the capture's frame; a degenerate origin moves (vt4dcodec.reference)
+    centre = model_centre("origin", [cond_traj])
+    if centre is not None:
+        cond_traj, anchor = (dataclasses.replace(t, w2c=move_origin(t.w2c, centre)) for t in (cond_traj, anchor))
     tokens = None
     if cfg.cond_tokens:
         tokens = conditioning_tokens(prior, frames, cond_traj, tokenizer, runtime=runtime, device=device)
@@ -185,12 +191,13 @@ def generate(
             "clip_start": int(start), "clip_frames": int(cfg.frames)}
     if guidance != 1.0:
         info["guidance"] = float(guidance)
+    moved = {} if centre is None else {"vt4d": {CENTRE_KEY: centre_to_metadata(centre)}}
     return Scene(
         static_tokens=z_s[0].astype(np.float32),
         dynamic_tokens=z_d[0].astype(np.float32),
-        cameras=anchor,
+        cameras=stored_anchor,
         fingerprint=prior.tokenizer_fingerprint,
-        metadata={**(metadata or {}), "co4dgen": info},
+        metadata={**(metadata or {}), "co4dgen": info, **moved},
         provenance=Provenance.now(source_capture_id, "generated"),
         encoding=encoding,
     )

@@ -52,6 +52,33 @@ def test_generate_returns_a_seeded_generated_scene_for_the_anchor(capture, train
     assert [v.shape for v in views] == [(4, 32, 32, 3)] * 2
 
 
+def test_generate_moves_a_world_origin_at_the_camera_like_encode(capture, trained_prior, model_path):
+    """A conditioning camera with the world origin at its centre (vt4dcodec.reference): the sample is the one the
+    same video gives in the frame moved to the reference point, stored with its cameras in the capture's frame and
+    the point under metadata["vt4d"]["centre_mm"], which the decoder renders from."""
+    import dataclasses
+
+    from vt4dcodec.reference import CENTRE_KEY, move_origin
+
+    cam = capture.camera_names[0]
+    video, traj = capture.frames[cam], capture.cameras[cam]
+    w0 = np.asarray(traj.w2c, np.float64)[0]
+    at_camera = dataclasses.replace(traj, w2c=move_origin(traj.w2c, -w0[:3, :3].T @ w0[:3, 3]))
+    prior_dir = trained_prior / "prior"
+    moved = generate(video, at_camera, "orbit:degrees=20", seed=3, model=prior_dir, steps=3)
+    centre = np.asarray(moved.metadata["vt4d"][CENTRE_KEY], np.float64) / 1000.0
+    plain_traj = dataclasses.replace(at_camera, w2c=move_origin(at_camera.w2c, centre))
+    plain = generate(video, plain_traj, "orbit:degrees=20", seed=3, model=prior_dir, steps=3)
+    assert "vt4d" not in plain.metadata
+    np.testing.assert_allclose(moved.static_tokens, plain.static_tokens, atol=1e-5)
+    # stored in the conditioning capture's frame, rendered in the moved one
+    np.testing.assert_allclose(moved.cameras.w2c[:, :3, :3], plain.cameras.w2c[:, :3, :3], atol=1e-9)
+    assert not np.allclose(moved.cameras.w2c[:, :3, 3], plain.cameras.w2c[:, :3, 3])
+    a = SceneDecoder.open(moved).render("source", steps=1)
+    b = SceneDecoder.open(plain).render("source", steps=1)
+    assert np.abs(a.astype(int) - b.astype(int)).max() <= 2
+
+
 def test_generate_rejects_bad_inputs(capture, trained_prior):
     cam = capture.camera_names[0]
     video, traj = capture.frames[cam], capture.cameras[cam]
