@@ -52,7 +52,7 @@ from .capture.trajectories import load_trajectory, make_trajectory, parse_trajec
 from .errors import (CaptureError, DeviceError, EntropyTablesError, MissingExtraError, ModelError, ModelMismatchError,
                      ModelNotFoundError, TrajectoryError)
 from .format import EntropyTables, ModelFingerprint, Provenance, Scene, load, open_scene
-from .reference import CENTRE_KEY, centre_from_metadata, centre_to_metadata, model_centre, move_origin
+from .reference import CENTRE_KEY, centre_from_metadata, centre_to_metadata, model_centre, move_origin, move_trajectory
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -550,7 +550,7 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
     fitted = fit_capture(clip, height=cfg.image_size, width=cfg.image_size, num_frames=cfg.frames, fit=fit)
     # the world origin is the renderer's depth reference; one too near an encoded camera moves (vt4dcodec.reference)
     centre = model_centre(cfg.reference_frame, [fitted.cameras[n] for n in names])
-    views = [(fitted.frames[n], _moved(fitted.cameras[n], centre), fitted.depth[n] if fitted.has_depth(n) else None)
+    views = [(fitted.frames[n], move_trajectory(fitted.cameras[n], centre), fitted.depth[n] if fitted.has_depth(n) else None)
              for n in names]
     depth_sources = ["capture" if depth is not None else "estimated" for _, _, depth in views]
     z_s, z_d = encode_views(net, views, seed, feedback=cfg.feeds_back(quality))  # (the level's pass)
@@ -586,11 +586,6 @@ def _encode_clip(clip: Capture, net: "VideoTok4D | OnnxEncoder", encoding: str, 
         encoding=encoding,
         quality=quality,
     )
-
-
-def _moved(trajectory: Trajectory, centre: "np.ndarray | None") -> Trajectory:
-    """``trajectory`` in the world frame whose origin is ``centre`` (None: unchanged; vt4dcodec.reference)."""
-    return trajectory if centre is None else dataclasses.replace(trajectory, w2c=move_origin(trajectory.w2c, centre))
 
 
 # --- decoding ---------------------------------------------------------------------------------------

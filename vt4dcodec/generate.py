@@ -17,7 +17,6 @@ CUDA GPU (``vt4dcodec.codec.DEVICES``).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 from typing import TYPE_CHECKING, Any
@@ -29,7 +28,7 @@ from .capture.capture import Capture
 from .capture.resample import fit_capture
 from .errors import CaptureError, MissingExtraError, ModelError, TrajectoryError
 from .format import Provenance, Scene
-from .reference import CENTRE_KEY, centre_to_metadata, model_centre, move_origin
+from .reference import CENTRE_KEY, centre_to_metadata, model_centre, move_trajectory
 
 if TYPE_CHECKING:  # pragma: no cover
     from .model.onnx_prior import OnnxPrior
@@ -174,7 +173,7 @@ def generate(
     stored_anchor = anchor  # the file keeps the capture's frame; a degenerate origin moves (vt4dcodec.reference)
     centre = model_centre("origin", [cond_traj])
     if centre is not None:
-        cond_traj, anchor = (dataclasses.replace(t, w2c=move_origin(t.w2c, centre)) for t in (cond_traj, anchor))
+        cond_traj, anchor = move_trajectory(cond_traj, centre), move_trajectory(anchor, centre)
     tokens = None
     if cfg.cond_tokens:
         tokens = conditioning_tokens(prior, frames, cond_traj, tokenizer, runtime=runtime, device=device)

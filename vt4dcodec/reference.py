@@ -21,6 +21,7 @@ file without the key decodes as before. Torch-free.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Sequence
 
 import numpy as np
@@ -28,7 +29,8 @@ import numpy as np
 from .errors import FormatError
 
 __all__ = ["MIN_REFERENCE_DEPTH", "DEFAULT_REFERENCE_DEPTH", "CENTRE_KEY", "REFERENCE_FRAMES", "needs_reference",
-           "reference_point", "model_centre", "centre_from_metadata", "centre_to_metadata", "move_origin"]
+           "reference_point", "model_centre", "centre_from_metadata", "centre_to_metadata", "move_origin",
+           "move_trajectory"]
 
 MIN_REFERENCE_DEPTH = 0.5  # metres: an origin nearer than this to an encoded camera's image plane is moved
 DEFAULT_REFERENCE_DEPTH = 4.0  # metres ahead of the first encoded camera: the training rigs' median origin depth
@@ -120,3 +122,9 @@ def move_origin(w2c: np.ndarray, point: np.ndarray | None) -> np.ndarray:
     moved[..., :3, 3] = moved[..., :3, 3] + np.einsum("...ij,j->...i", moved[..., :3, :3], np.asarray(point,
                                                                                                        np.float64))
     return moved.astype(w2c.dtype)
+
+
+def move_trajectory(trajectory: Any, point: np.ndarray | None) -> Any:
+    """A trajectory (any dataclass with ``w2c``, e.g. :class:`~vt4dcodec.cameras.Trajectory`) in the frame whose
+    origin is ``point`` (:func:`move_origin`); ``point`` None: the trajectory itself."""
+    return trajectory if point is None else dataclasses.replace(trajectory, w2c=move_origin(trajectory.w2c, point))

@@ -43,7 +43,7 @@ from vt4dcodec.synth import SynthConfig, generate_scene
 
 def moved(capture, point: np.ndarray):
     """The capture in the world frame whose origin is ``point`` (old world coordinates)."""
-    return dataclasses.replace(capture, cameras={k: dataclasses.replace(v, w2c=reference.move_origin(v.w2c, point))
+    return dataclasses.replace(capture, cameras={k: reference.move_trajectory(v, point)
                                                  for k, v in capture.cameras.items()})
 
 
