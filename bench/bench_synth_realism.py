@@ -11,7 +11,7 @@ share of spectral energy above half the Nyquist frequency, the mean absolute fra
 the share of pixels that change by more than 4 % of the range (per frame step; caliscope runs at 6 fps,
 the synthetic scenes at 8).  Each statistic is a mean over clips (a clip: one camera's 8 frames) with its
 standard error.  For every style the table gives the distance to the real mean in units of the real
-clips' standard deviation, and "gap closed" compares the "room" style's distance with the "objects"
+clips' standard deviation, and "gap closed" compares each other style's distance with the "objects"
 style's.  Results: bench/results/synth_realism.json, a contact sheet with --figure.
 """
 
@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vt4dcodec.synth import SynthConfig, generate_scene  # noqa: E402
+from vt4dcodec.synth.generator import STYLES  # noqa: E402
 
 STATS = ("luma_mean", "luma_std", "saturation", "colourfulness", "gradient", "high_freq", "temporal_change",
          "moving_share")
@@ -93,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cameras", type=int, default=4, help="cameras per scene (default 4, as caliscope)")
     ap.add_argument("--capture", type=Path, default=None, help="caliscope recording (default: the shared sample)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench/results/synth_realism.json")
-    ap.add_argument("--figure", type=Path, default=None, help="write a contact sheet (real / objects / room)")
+    ap.add_argument("--styles", default=",".join(STYLES), help=f"synthetic styles, comma-separated (default: all, "
+                    f"{','.join(STYLES)}; the first is the baseline of 'gap closed')")
+    ap.add_argument("--figure", type=Path, default=None, help="write a contact sheet (real, then each style)")
     ap.add_argument("--quick", action="store_true", help="do not write results (smoke run)")
     args = ap.parse_args(argv)
     t0 = time.time()
@@ -103,28 +106,36 @@ def main(argv: list[str] | None = None) -> int:
     if args.capture is None:
         print("caliscope_4cam not found (--capture)", file=sys.stderr)
         return 2
+    styles = [s for s in args.styles.split(",") if s]
+    unknown = [s for s in styles if s not in STYLES]
+    if unknown or not styles:
+        print(f"--styles: unknown style {unknown} (known: {', '.join(STYLES)})", file=sys.stderr)
+        return 2
+    base = styles[0]
     clips = {"real": real_clips(Path(args.capture), 8)}
-    for style in ("objects", "room"):
+    for style in styles:
         clips[style] = synthetic_clips(style, args.scenes, args.first_seed, args.cameras)
     summary = {k: summarise([clip_stats(c) for c in v]) for k, v in clips.items()}
     table = {}
     for k in STATS:
         real = summary["real"][k]
         scale = max(real["sd"], 1e-9)
-        dist = {s: abs(summary[s][k]["mean"] - real["mean"]) / scale for s in ("objects", "room")}
-        table[k] = {"real": real["mean"], "objects": summary["objects"][k]["mean"], "room": summary["room"][k]["mean"],
-                    "distance_objects": dist["objects"], "distance_room": dist["room"],
-                    "gap_closed": 1.0 - dist["room"] / max(dist["objects"], 1e-9)}
+        dist = {s: abs(summary[s][k]["mean"] - real["mean"]) / scale for s in styles}
+        table[k] = {"real": real["mean"], **{s: summary[s][k]["mean"] for s in styles},
+                    **{"distance_" + s: dist[s] for s in styles},
+                    **{"gap_closed_" + s: 1.0 - dist[s] / max(dist[base], 1e-9) for s in styles[1:]}}
     result = {"command": "python bench/bench_synth_realism.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "clips": {k: len(v) for k, v in clips.items()}, "summary": summary, "table": table,
-              "mean_distance": {s: float(np.mean([table[k]["distance_" + s] for k in STATS])) for s in ("objects", "room")},
+              "mean_distance": {s: float(np.mean([table[k]["distance_" + s] for k in STATS])) for s in styles},
               "wall_s": round(time.time() - t0, 1)}
     print(f"clips: {result['clips']}")
-    print(f"{'statistic':16s} {'real':>8s} {'objects':>8s} {'room':>8s}  dist obj / room (real SDs)")
+    print(f"{'statistic':16s} {'real':>8s} " + " ".join(f"{s:>8s}" for s in styles) + "  distance " + " / ".join(styles)
+          + " (real SDs)")
     for k in STATS:
         r = table[k]
-        print(f"{k:16s} {r['real']:8.4f} {r['objects']:8.4f} {r['room']:8.4f}  {r['distance_objects']:5.2f} / {r['distance_room']:5.2f}")
-    print(f"mean distance: objects {result['mean_distance']['objects']:.2f}, room {result['mean_distance']['room']:.2f} real SDs")
+        print(f"{k:16s} {r['real']:8.4f} " + " ".join(f"{r[s]:8.4f}" for s in styles) + "  "
+              + " / ".join(f"{r['distance_' + s]:5.2f}" for s in styles))
+    print("mean distance: " + ", ".join(f"{s} {result['mean_distance'][s]:.2f}" for s in styles) + " real SDs")
     if not args.quick:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
@@ -132,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.figure is not None:
         import cv2
         rows = []
-        for k in ("real", "objects", "room"):
+        for k in ("real", *styles):
             picks = clips[k][:: max(1, len(clips[k]) // 4)][:4]
             rows.append(np.concatenate([c[len(c) // 2] for c in picks], axis=1))
         sheet = np.concatenate(rows, axis=0)

@@ -134,7 +134,8 @@ def scene_pool_and_seeds(args: argparse.Namespace, cfg: Any, info: DistInfo) -> 
     """The rank's share of the training scenes: seeds to generate, or indices into ``--data``."""
     cache = args.cache or args.out.parent / "scene_cache"
     if args.data is None:
-        pool = ScenePool.for_config(cfg, cache, args.cameras, room_share=getattr(args, "room_share", 0.0))
+        pool = ScenePool.for_config(cfg, cache, args.cameras, room_share=getattr(args, "room_share", 0.0),
+                                    closeup_share=getattr(args, "closeup_share", 0.0))
         return pool, rank_seeds(args.scene_seed, args.scenes, info.rank, info.world_size)
     captures = tuple(find_capture_dirs(args.data)[:args.scenes])
     pool = ScenePool.for_config(cfg, cache, args.cameras, captures=captures)
@@ -405,6 +406,10 @@ def common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="share of the synthetic scenes drawn in the \"room\" style (people in a furnished "
                              "room, webcam rigs, a sensor model; vt4dcodec.synth.room), by a hash of the seed "
                              "(default 0: every scene in the \"objects\" style)")
+    parser.add_argument("--closeup-share", type=float, default=0.0, metavar="P",
+                        help="share of the synthetic scenes drawn in the \"closeup\" style (the room style with "
+                             "webcams near one person, clutter and a contrastier sensor; vt4dcodec.synth.room.CLOSEUP), "
+                             "taken from the \"objects\" scenes: the room scenes stay where they are (default 0)")
     parser.add_argument("--cache", type=Path, default=None,
                         help="scene cache directory (default <out>/../scene_cache); shared across runs")
     parser.add_argument("--workers", type=int, default=1, help="DataLoader workers per process")

@@ -81,26 +81,33 @@ class ScenePool:
     split: str = "train"
     captures: tuple[Path, ...] = ()
     room_share: float = 0.0
+    closeup_share: float = 0.0
 
     @classmethod
     def for_config(cls, cfg: ModelConfig, cache: Path, cameras: int, captures: tuple[Path, ...] = (),
-                   room_share: float = 0.0) -> "ScenePool":
+                   room_share: float = 0.0, closeup_share: float = 0.0) -> "ScenePool":
         if not 0.0 <= room_share <= 1.0:
             raise ValueError(f"--room-share must be a share in [0, 1], got {room_share!r}")
+        if not 0.0 <= closeup_share <= 1.0 - room_share:
+            raise ValueError(f"--closeup-share must be a share in [0, 1 - room share], got {closeup_share!r}")
         return cls(Path(cache), cameras, cfg.frames, cfg.image_size, cfg.latent_size, cfg.n_tracks,
                    cfg.motion_isolation, captures=tuple(Path(p).resolve() for p in captures),
-                   room_share=float(room_share))
+                   room_share=float(room_share), closeup_share=float(closeup_share))
 
     def style(self, seed: int) -> str:
-        """The synthetic style of scene ``seed``: "room" for a fixed ``room_share`` of the seeds (by a hash
-        of the seed, so a scene's style never depends on the pool's size or order), else "objects"."""
+        """The synthetic style of scene ``seed``: "room" for a fixed ``room_share`` of the seeds, "closeup" for
+        the next ``closeup_share`` (by a hash of the seed, so a scene's style never depends on the pool's size or
+        order, and a closeup share leaves the room scenes where they were), else "objects"."""
         u = int.from_bytes(hashlib.sha256(f"room-share:{seed}".encode()).digest()[:8], "little") / 2.0**64
-        return "room" if u < self.room_share else "objects"
+        if u < self.room_share:
+            return "room"
+        return "closeup" if u < self.room_share + self.closeup_share else "objects"
 
     def _stem(self, seed: int) -> str:
         source = f"disk-{self.captures[seed].name}" if self.captures else f"{self.split}-{seed:06d}"
-        if not self.captures and self.style(seed) == "room":
-            source = "room-" + source
+        style = "objects" if self.captures else self.style(seed)
+        if style != "objects":
+            source = f"{style}-{source}"
         return f"{source}-c{self.cameras}-t{self.frames}-s{self.image_size}"
 
     def scene(self, seed: int) -> dict[str, np.ndarray]:

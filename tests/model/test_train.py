@@ -217,6 +217,21 @@ def test_room_share_picks_a_fixed_share_of_seeds_and_keys_their_cache():
         data.ScenePool.for_config(None, Path("/n"), 2, room_share=1.5)  # checked before the config is read
 
 
+def test_closeup_share_takes_objects_seeds_and_leaves_the_room_seeds():
+    from vt4dcodec.model.train import data
+
+    room = data.ScenePool(Path("/n"), 2, 4, 32, 8, 8, room_share=0.25)
+    both = data.ScenePool(Path("/n"), 2, 4, 32, 8, 8, room_share=0.25, closeup_share=0.3)
+    before, after = [room.style(s) for s in range(600)], [both.style(s) for s in range(600)]
+    assert all(a == "room" for b, a in zip(before, after) if b == "room")  # room scenes stay room scenes
+    assert all(b == "objects" for b, a in zip(before, after) if a == "closeup")
+    assert 0.22 < after.count("closeup") / 600 < 0.38
+    closeup = after.index("closeup")
+    assert both._stem(closeup).startswith("closeup-train-")
+    with pytest.raises(ValueError, match="closeup-share"):
+        data.ScenePool.for_config(None, Path("/n"), 2, room_share=0.8, closeup_share=0.3)
+
+
 def test_stage2_trains_on_room_scenes(runs, tmp_path):
     out = tmp_path / "tok-room"
     assert stage2.main(["--autoencoder", str(runs / "ae/autoencoder.safetensors"), "--out", str(out),

@@ -63,9 +63,10 @@ def add_synth_parser(sub: Any) -> None:
     p.add_argument("--min-objects", type=int_at_least(0), default=2, help="fewest objects (default 2)")
     p.add_argument("--max-objects", type=int_at_least(0), default=4, help="most objects (default 4)")
     p.add_argument("--static", action="store_true", help="objects (people) stand still (nothing moves)")
-    p.add_argument("--style", choices=("objects", "room"), default="objects",
+    p.add_argument("--style", choices=("objects", "room", "closeup"), default="objects",
                    help="objects: rigid shapes in a large room (default); room: people in a furnished room "
-                        "that looks like webcam footage (--min/--max-objects do not apply)")
+                        "that looks like webcam footage; closeup: the room with the webcams near one person, as "
+                        "desk and calibration recordings (--min/--max-objects apply to neither)")
     p.add_argument("--fixed-cameras", action="store_true", help="cameras do not move")
     add_overwrite_option(p, "regenerate scenes that already exist")
     p.set_defaults(func=run_synth)

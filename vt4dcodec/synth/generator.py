@@ -1,11 +1,13 @@
 """Synthetic multi-camera dynamic scenes, deterministic from (seed, split, config) (numpy only).
 
-Two styles.  ``"objects"`` (the default): a textured room (ground + four walls, photo or procedural
+Three styles.  ``"objects"`` (the default): a textured room (ground + four walls, photo or procedural
 textures of the split's pool), 2-4 textured rigid objects (spheres, boxes, cards) with linear,
 circular, bouncing or spinning motion near the centre, and K synchronized cameras 3-5 m around them
 (see :mod:`.rig`).  ``"room"``: scenes that look like real captures: articulated people walking or
 gesturing in a small furnished room with shadows, webcam-like rigs close to them and a sensor model
-(see :mod:`.room`).  Both render RGB, metric depth, exact optical flow t -> t+1, dynamic masks and
+(see :mod:`.room`); ``"closeup"``: the room style framed as desk and calibration recordings are, one
+person filling a third to half of the frame in a cluttered room through a contrastier sensor
+(:data:`.room.CLOSEUP`).  All render RGB, metric depth, exact optical flow t -> t+1, dynamic masks and
 object ids (see :mod:`.render`).
 """
 
@@ -22,11 +24,11 @@ from .assets import SynthError, check_split, texture_bank, texture_names
 from .motion import MOTION_KINDS, sample_motion
 from .render import FIRST_OBJECT_SURFACE, SHAPES, SceneLayout, SceneObject, render_layout
 from .rig import sample_rig
-from .room import apply_sensor, sample_room, sample_sensor
+from .room import CLOSEUP, ROOM, RoomLook, apply_sensor, sample_room, sample_sensor
 
 __all__ = ["STYLES", "SynthConfig", "SynthScene", "SceneSetup", "generate_scene", "scene_setup", "scene_id"]
 
-STYLES = ("objects", "room")
+STYLES = ("objects", "room", "closeup")
 
 MAX_SCENE_PIXELS = 64 * 2**20   # cameras x frames x height x width
 MAX_CAMERAS = 256
@@ -46,8 +48,9 @@ class SynthConfig:
         static: True -> the objects (people) stand still (nothing moves; flow is camera-induced only).
         camera_motion: False -> every camera is fixed.
         fps: frame rate; motion speeds are in metres/second, so fps sets the per-frame motion.
-        style: "objects" (rigid shapes in a large room) or "room" (people in a furnished room, webcam
-            rigs and a sensor model; :mod:`.room`).
+        style: "objects" (rigid shapes in a large room), "room" (people in a furnished room, webcam
+            rigs and a sensor model; :mod:`.room`) or "closeup" (the room style with the cameras near one
+            person, clutter and a contrastier sensor; :data:`.room.CLOSEUP`).
     """
 
     num_cameras: int = 10
@@ -181,6 +184,10 @@ class SceneSetup:
     layout: SceneLayout
 
 
+def _look(config: SynthConfig) -> RoomLook:
+    return CLOSEUP if config.style == "closeup" else ROOM
+
+
 def _check_request(seed: int, split: str, config: SynthConfig) -> None:
     check_split(split)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -195,10 +202,10 @@ def scene_setup(seed: int, *, split: str = "train", config: SynthConfig = SynthC
     _check_request(seed, split, config)
     rng = _rng(int(seed), split, config)
     times = np.arange(config.num_frames) / float(config.fps)
-    if config.style == "room":
+    if config.style in ("room", "closeup"):
         cameras, layout = sample_room(rng, texture_names=texture_names(split), num_cameras=config.num_cameras,
                                       times=times, width=config.width, height=config.height, static=config.static,
-                                      camera_motion=config.camera_motion)
+                                      camera_motion=config.camera_motion, look=_look(config))
         return SceneSetup(times=times, cameras=cameras, layout=layout)
     cameras = sample_rig(rng, num_cameras=config.num_cameras, times=times, width=config.width,
                          height=config.height, camera_motion=config.camera_motion)
@@ -213,8 +220,8 @@ def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = Syn
     bank = texture_bank(split)
     times, cameras, layout = setup.times, setup.cameras, setup.layout
     views = render_layout(layout, cameras, times, bank)
-    if config.style == "room":
-        sensors = sample_sensor(_rng(int(seed), split, config, stream=1), len(views))
+    if config.style in ("room", "closeup"):
+        sensors = sample_sensor(_rng(int(seed), split, config, stream=1), len(views), _look(config))
         for view, sensor in zip(views.values(), sensors):
             view.rgb = apply_sensor(view.rgb, sensor)
     moving = np.array([False] + [o.motion.moves for o in layout.objects])

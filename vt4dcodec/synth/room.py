@@ -13,6 +13,8 @@ only filters colours, and its blur is under a pixel).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..cameras import Trajectory, look_at
@@ -22,9 +24,52 @@ from .motion import MotionLaw, rotation_about
 from .render import SceneLayout, SceneObject
 from .rig import arc_azimuths
 
-__all__ = ["sample_room", "sample_room_rig", "sample_sensor", "apply_sensor"]
+__all__ = ["sample_room", "sample_room_rig", "sample_sensor", "apply_sensor", "RoomLook", "ROOM", "CLOSEUP"]
 
 _Z_UP = np.array([0.0, 0.0, 1.0])
+
+Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class RoomLook:
+    """The ranges a room scene is drawn from (:data:`ROOM` for ``style="room"``, :data:`CLOSEUP` for
+    ``style="closeup"``): camera distance from the people's ground point, height, field of view (degrees), aim
+    height and spread (m); the share of gesturing first people holding a board, of gesturing (not walking) people, of scenes with a second person; clothing
+    values; furniture and wall-card counts (inclusive) and the posters' texture kinds; the sensor's exposure
+    gain, gamma and noise sigma; the ambient light."""
+
+    radius: Range = (0.7, 1.8)
+    eye_z: Range = (1.1, 1.9)
+    fov: Range = (55.0, 85.0)
+    target_z: Range = (0.9, 1.5)
+    aim: float = 0.25
+    board: float = 0.5
+    gesture: float = 0.6
+    people_two: float = 0.35
+    shirt_value: Range = (0.12, 0.75)
+    trousers_value: Range = (0.08, 0.45)
+    furniture: tuple[int, int] = (3, 7)
+    cards: tuple[int, int] = (2, 4)
+    posters: tuple[str, ...] = ("photo",)
+    furniture_kinds: tuple[str, ...] = ("photo", "noise", "gradient", "stripes")
+    gain: Range = (0.75, 1.25)
+    gamma: Range = (1.0, 1.4)
+    ambient: Range = (0.2, 0.4)
+    noise: Range = (0.004, 0.015)
+
+
+ROOM = RoomLook()
+# What the "room" style's frames lacked against real desk and calibration recordings (docs/synth.md, "How far
+# from real footage"): one person filling a third of the frame (webcams 0.65-1.1 m away at 40-65
+# degrees, aimed at chest and head), more often holding a board, darker clothes, a cluttered room (more
+# furniture, posters and boards with hard-edged textures), and a sensor that clips bright panels and crushes
+# shadows (the contrast of a small sensor in indoor light) with less noise (webcam compression smooths it).
+CLOSEUP = RoomLook(radius=(0.65, 1.1), eye_z=(1.1, 1.7), fov=(40.0, 65.0), target_z=(1.1, 1.6), aim=0.12,
+                   board=0.65, gesture=0.85, people_two=0.15, shirt_value=(0.03, 0.35), trousers_value=(0.04, 0.35),
+                   furniture=(5, 9), cards=(4, 8), posters=("photo", "checker", "stripes"),
+                   furniture_kinds=("photo", "stripes", "checker", "noise"), gain=(1.3, 2.2), gamma=(1.2, 1.6),
+                   ambient=(0.2, 0.4), noise=(0.002, 0.008))
 _SKIN_PARTS = ("head",)
 _LEG_PARTS = ("thigh_l", "thigh_r", "shin_l", "shin_r")
 
@@ -60,16 +105,17 @@ def _skin(rng: np.random.Generator) -> tuple[float, float, float]:
 
 def sample_room_rig(
     rng: np.random.Generator, *, num_cameras: int, times: np.ndarray, width: int, height: int,
-    focus: np.ndarray, camera_motion: bool,
+    focus: np.ndarray, camera_motion: bool, look: RoomLook = ROOM,
 ) -> dict[str, Trajectory]:
     """``num_cameras`` synchronized cameras ``cam00``, ... around ``focus`` (2,), the people's ground point."""
     t = np.asarray(times, dtype=np.float64)[:, None]
     azim = arc_azimuths(rng, num_cameras, min_span=np.deg2rad(200), jitter=0.3)
-    radius = rng.uniform(0.7, 1.8, num_cameras)
-    eye_z = rng.uniform(1.1, 1.9, num_cameras)
-    fov = np.deg2rad(rng.uniform(55.0, 85.0, num_cameras))
-    target = np.stack([focus[0] + rng.uniform(-0.25, 0.25, num_cameras), focus[1] + rng.uniform(-0.25, 0.25, num_cameras),
-                       rng.uniform(0.9, 1.5, num_cameras)], -1)
+    radius = rng.uniform(*look.radius, num_cameras)
+    eye_z = rng.uniform(*look.eye_z, num_cameras)
+    fov = np.deg2rad(rng.uniform(*look.fov, num_cameras))
+    aim = look.aim
+    target = np.stack([focus[0] + rng.uniform(-aim, aim, num_cameras), focus[1] + rng.uniform(-aim, aim, num_cameras),
+                       rng.uniform(*look.target_z, num_cameras)], -1)
     handheld = (rng.random(num_cameras) < 0.35) & camera_motion
     cams: dict[str, Trajectory] = {}
     for i in range(num_cameras):
@@ -90,9 +136,10 @@ def sample_room_rig(
     return cams
 
 
-def _figure_objects(rng: np.random.Generator, figure: Figure, index: int, pools: dict[str, list[int]]) -> list[SceneObject]:
-    shirt = (_pick(rng, pools, "photo", "noise", "stripes", "checker", "dots"), _muted(rng, (0.12, 0.75), (0.0, 0.55)))
-    trousers = (_pick(rng, pools, "noise", "gradient", "stripes", "photo"), _muted(rng, (0.08, 0.45), (0.0, 0.4)))
+def _figure_objects(rng: np.random.Generator, figure: Figure, index: int, pools: dict[str, list[int]],
+                    look: RoomLook = ROOM) -> list[SceneObject]:
+    shirt = (_pick(rng, pools, "photo", "noise", "stripes", "checker", "dots"), _muted(rng, look.shirt_value, (0.0, 0.55)))
+    trousers = (_pick(rng, pools, "noise", "gradient", "stripes", "photo"), _muted(rng, look.trousers_value, (0.0, 0.4)))
     skin = (_pick(rng, pools, "gradient", "noise"), _skin(rng))
     bare_arms = rng.random() < 0.4
     objects = []
@@ -113,8 +160,9 @@ def _figure_objects(rng: np.random.Generator, figure: Figure, index: int, pools:
     return objects
 
 
-def _furniture(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int) -> list[SceneObject]:
-    """Static boxes (desks, cabinets, shelves) standing against the walls."""
+def _furniture(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int,
+               kinds: tuple[str, ...] = ("photo", "noise", "gradient", "stripes")) -> list[SceneObject]:
+    """Static boxes (desks, cabinets, shelves) standing against the walls, textured by one of ``kinds``."""
     out = []
     for _ in range(count):
         wall = int(rng.integers(4))
@@ -125,13 +173,14 @@ def _furniture(rng: np.random.Generator, room_half: float, pools: dict[str, list
         R0 = rotation_about(_Z_UP, 0.0 if wall < 2 else np.pi / 2)   # local x along the wall, local y towards it
         motion = MotionLaw("static", np.array([pos[0], pos[1], half[2]]), R0, {})
         tint = _muted(rng, (0.2, 0.85), (0.0, 0.35)) if rng.random() < 0.6 else None
-        out.append(SceneObject("box", tuple(float(h) for h in half), _pick(rng, pools, "photo", "noise", "gradient", "stripes"),
-                               motion, tint))
+        out.append(SceneObject("box", tuple(float(h) for h in half), _pick(rng, pools, *kinds), motion, tint))
     return out
 
 
-def _wall_cards(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int) -> list[SceneObject]:
-    """Static cards flat on the walls: posters (photos) and bright panels (windows, lamps, white boards)."""
+def _wall_cards(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int,
+                posters: tuple[str, ...] = ("photo",)) -> list[SceneObject]:
+    """Static cards flat on the walls: posters (textured by one of ``posters``) and bright panels (windows, lamps,
+    white boards)."""
     out = []
     for _ in range(count):
         wall = int(rng.integers(4))
@@ -145,37 +194,38 @@ def _wall_cards(rng: np.random.Generator, room_half: float, pools: dict[str, lis
         motion = MotionLaw("static", np.array([pos[0], pos[1], rng.uniform(1.0, 1.9)]), R0, {})
         bright = rng.random() < 0.6
         tint = (float(rng.uniform(0.85, 1.0)),) * 3 if bright else None
-        tex = _pick(rng, pools, "gradient", "noise") if bright else _pick(rng, pools, "photo")
+        tex = _pick(rng, pools, "gradient", "noise") if bright else _pick(rng, pools, *posters)
         out.append(SceneObject("card", (hw, hh), tex, motion, tint))
     return out
 
 
 def sample_room(
     rng: np.random.Generator, *, texture_names: list[str], num_cameras: int, times: np.ndarray, width: int,
-    height: int, static: bool, camera_motion: bool,
+    height: int, static: bool, camera_motion: bool, look: RoomLook = ROOM,
 ) -> tuple[dict[str, Trajectory], SceneLayout]:
-    """The cameras and layout of one room scene (people, board, furniture, light)."""
+    """The cameras and layout of one room scene (people, board, furniture, light), drawn from ``look``'s ranges."""
     pools = _textures_by_kind(texture_names)
     focus = rng.uniform(-0.3, 0.3, 2)
     cameras = sample_room_rig(rng, num_cameras=num_cameras, times=times, width=width, height=height,
-                              focus=focus, camera_motion=camera_motion)
+                              focus=focus, camera_motion=camera_motion, look=look)
     farthest = max(float(np.abs(c.centers[:, :2]).max()) for c in cameras.values())
     room_half = float(max(rng.uniform(2.6, 3.6), farthest + 1.0))
-    people = 1 if rng.random() < 0.65 else 2
+    people = 1 if rng.random() < 1.0 - look.people_two else 2
     objects: list[SceneObject] = []
     for k in range(people):
-        action = "still" if static else ("walk", "gesture")[int(rng.random() < 0.6)]
+        action = "still" if static else ("walk", "gesture")[int(rng.random() < look.gesture)]
         if k == 0:
             where, heading = focus, rng.uniform(0, 2 * np.pi)
         else:
             ang = rng.uniform(0, 2 * np.pi)
             where = focus + rng.uniform(0.8, 1.1) * np.array([np.cos(ang), np.sin(ang)])
             heading = ang + np.pi + rng.uniform(-1.0, 1.0)   # roughly facing the first person
-        board = action != "walk" and k == 0 and rng.random() < 0.5
+        board = action != "walk" and k == 0 and rng.random() < look.board
         figure = sample_figure(rng, action, position=where, heading=float(heading), board=board)
-        objects += _figure_objects(rng, figure, k, pools)
-    objects += _furniture(rng, room_half, pools, int(rng.integers(3, 8)))
-    objects += _wall_cards(rng, room_half, pools, int(rng.integers(2, 5)))
+        objects += _figure_objects(rng, figure, k, pools, look)
+    objects += _furniture(rng, room_half, pools, int(rng.integers(look.furniture[0], look.furniture[1] + 1)),
+                          look.furniture_kinds)
+    objects += _wall_cards(rng, room_half, pools, int(rng.integers(look.cards[0], look.cards[1] + 1)), look.posters)
     el = rng.uniform(np.deg2rad(45), np.deg2rad(80))
     az = rng.uniform(0, 2 * np.pi)
     layout = SceneLayout(
@@ -184,23 +234,23 @@ def sample_room(
         wall_textures=tuple(_pick(rng, pools, "photo", "photo", "photo", "noise", "gradient") for _ in range(4)),  # type: ignore[arg-type]
         wall_tile=float(rng.uniform(0.6, 2.0)),
         light_dir=np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]),
-        ambient=float(rng.uniform(0.2, 0.4)), objects=tuple(objects), shadows=True,
+        ambient=float(rng.uniform(*look.ambient)), objects=tuple(objects), shadows=True,
         surface_tints=(_muted(rng, (0.3, 0.85), (0.05, 0.45)) if rng.random() < 0.7 else None,
                        *(_muted(rng, (0.35, 0.95), (0.0, 0.3)) if rng.random() < 0.5 else None for _ in range(4))),
     )
     return cameras, layout
 
 
-def sample_sensor(rng: np.random.Generator, num_cameras: int) -> list[dict]:
+def sample_sensor(rng: np.random.Generator, num_cameras: int, look: RoomLook = ROOM) -> list[dict]:
     """Per camera: blur sigma (px), exposure gain, gamma (> 1: the darker, contrastier response of a small
     sensor in indoor light), white-balance gains (3,), saturation, vignetting, noise sigma."""
     out = []
     for _ in range(num_cameras):
         wb = 1.0 + rng.uniform(-0.08, 0.08, 3)
-        out.append(dict(blur=float(rng.uniform(0.2, 0.5)), gain=float(rng.uniform(0.75, 1.25)),
-                        gamma=float(rng.uniform(1.0, 1.4)),
+        out.append(dict(blur=float(rng.uniform(0.2, 0.5)), gain=float(rng.uniform(*look.gain)),
+                        gamma=float(rng.uniform(*look.gamma)),
                         white_balance=(wb / wb.mean()).tolist(), saturation=float(rng.uniform(0.5, 0.85)),
-                        vignetting=float(rng.uniform(0.1, 0.4)), noise=float(rng.uniform(0.004, 0.015)),
+                        vignetting=float(rng.uniform(0.1, 0.4)), noise=float(rng.uniform(*look.noise)),
                         noise_seed=int(rng.integers(2**31))))
     return out
 
