@@ -25,7 +25,6 @@ import torch
 
 from vt4dcodec import codec
 from vt4dcodec.capture.caliscope import find_sample_capture
-from vt4dcodec.capture.resample import fit_capture
 from vt4dcodec.eval.metrics import video_metrics
 from vt4dcodec.eval.real_footage import evaluate_cameras, open_capture
 
@@ -62,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     capture = open_capture(path, size=64)
     result: dict = {"command": "python bench/probes/probe_real_motion_error.py "
                     + " ".join(argv if argv is not None else sys.argv[1:]), "models": {}}
-    net = None
+    net, clips = None, []
     for name in args.model:
         net = codec.load_model(name)
         _, clips = evaluate_cameras(capture, net, [args.source], [args.source], quality=args.quality,
@@ -77,10 +76,8 @@ def main(argv: list[str] | None = None) -> int:
               f"per frame {summary['psnr_per_frame']}")
     assert net is not None
     ceiling = []
-    T, size = net.config.frames, net.config.image_size
-    for start in range(0, capture.num_frames - T + 1, T):
-        frames = fit_capture(codec.read_clip(capture, [args.source], start, T), height=size, width=size,
-                             fit="crop").frames[args.source]
+    for c in clips:  # the last model's clips: the fitted real frames every model was measured on
+        frames = c["cameras"][args.source]["truth"]
         with torch.no_grad():
             rec = net.autoencoder(torch.from_numpy(frames.astype(np.float32) / 255.0).permute(0, 3, 1, 2))
         rec_u8 = (rec.clamp(0, 1).permute(0, 2, 3, 1).numpy() * 255.0).round().astype(np.uint8)

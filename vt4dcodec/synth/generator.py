@@ -6,7 +6,7 @@ circular, bouncing or spinning motion near the centre, and K synchronized camera
 (see :mod:`.rig`).  ``"room"``: scenes that look like real captures: articulated people walking or
 gesturing in a small furnished room with shadows, webcam-like rigs close to them and a sensor model
 (see :mod:`.room`); ``"closeup"``: the room style framed as desk and calibration recordings are, one
-person filling a third to half of the frame in a cluttered room through a contrastier sensor
+person filling a third of the frame in a cluttered room through a contrastier sensor
 (:data:`.room.CLOSEUP`).  All render RGB, metric depth, exact optical flow t -> t+1, dynamic masks and
 object ids (see :mod:`.render`).
 """
@@ -184,8 +184,7 @@ class SceneSetup:
     layout: SceneLayout
 
 
-def _look(config: SynthConfig) -> RoomLook:
-    return CLOSEUP if config.style == "closeup" else ROOM
+_ROOM_LOOKS: dict[str, RoomLook] = {"room": ROOM, "closeup": CLOSEUP}  # the styles drawn by sample_room
 
 
 def _check_request(seed: int, split: str, config: SynthConfig) -> None:
@@ -202,10 +201,11 @@ def scene_setup(seed: int, *, split: str = "train", config: SynthConfig = SynthC
     _check_request(seed, split, config)
     rng = _rng(int(seed), split, config)
     times = np.arange(config.num_frames) / float(config.fps)
-    if config.style in ("room", "closeup"):
+    look = _ROOM_LOOKS.get(config.style)
+    if look is not None:
         cameras, layout = sample_room(rng, texture_names=texture_names(split), num_cameras=config.num_cameras,
                                       times=times, width=config.width, height=config.height, static=config.static,
-                                      camera_motion=config.camera_motion, look=_look(config))
+                                      camera_motion=config.camera_motion, look=look)
         return SceneSetup(times=times, cameras=cameras, layout=layout)
     cameras = sample_rig(rng, num_cameras=config.num_cameras, times=times, width=config.width,
                          height=config.height, camera_motion=config.camera_motion)
@@ -220,8 +220,9 @@ def generate_scene(seed: int, *, split: str = "train", config: SynthConfig = Syn
     bank = texture_bank(split)
     times, cameras, layout = setup.times, setup.cameras, setup.layout
     views = render_layout(layout, cameras, times, bank)
-    if config.style in ("room", "closeup"):
-        sensors = sample_sensor(_rng(int(seed), split, config, stream=1), len(views), _look(config))
+    look = _ROOM_LOOKS.get(config.style)
+    if look is not None:
+        sensors = sample_sensor(_rng(int(seed), split, config, stream=1), len(views), look)
         for view, sensor in zip(views.values(), sensors):
             view.rgb = apply_sensor(view.rgb, sensor)
     moving = np.array([False] + [o.motion.moves for o in layout.objects])

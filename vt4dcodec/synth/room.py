@@ -35,9 +35,9 @@ Range = tuple[float, float]
 class RoomLook:
     """The ranges a room scene is drawn from (:data:`ROOM` for ``style="room"``, :data:`CLOSEUP` for
     ``style="closeup"``): camera distance from the people's ground point, height, field of view (degrees), aim
-    height and spread (m); the share of gesturing first people holding a board, of gesturing (not walking) people, of scenes with a second person; clothing
-    values; furniture and wall-card counts (inclusive) and the posters' texture kinds; the sensor's exposure
-    gain, gamma and noise sigma; the ambient light."""
+    height and spread (m); the shares of gesturing first people holding a board, of gesturing (not walking)
+    people and of scenes with a second person; clothing values; furniture and wall-card counts (inclusive) and
+    their texture kinds; the sensor's exposure gain, gamma and noise sigma; the ambient light."""
 
     radius: Range = (0.7, 1.8)
     eye_z: Range = (1.1, 1.9)
@@ -69,7 +69,7 @@ CLOSEUP = RoomLook(radius=(0.65, 1.1), eye_z=(1.1, 1.7), fov=(40.0, 65.0), targe
                    board=0.65, gesture=0.85, people_two=0.15, shirt_value=(0.03, 0.35), trousers_value=(0.04, 0.35),
                    furniture=(5, 9), cards=(4, 8), posters=("photo", "checker", "stripes"),
                    furniture_kinds=("photo", "stripes", "checker", "noise"), gain=(1.3, 2.2), gamma=(1.2, 1.6),
-                   ambient=(0.2, 0.4), noise=(0.002, 0.008))
+                   noise=(0.002, 0.008))
 _SKIN_PARTS = ("head",)
 _LEG_PARTS = ("thigh_l", "thigh_r", "shin_l", "shin_r")
 
@@ -161,8 +161,8 @@ def _figure_objects(rng: np.random.Generator, figure: Figure, index: int, pools:
 
 
 def _furniture(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int,
-               kinds: tuple[str, ...] = ("photo", "noise", "gradient", "stripes")) -> list[SceneObject]:
-    """Static boxes (desks, cabinets, shelves) standing against the walls, textured by one of ``kinds``."""
+               look: RoomLook = ROOM) -> list[SceneObject]:
+    """Static boxes (desks, cabinets, shelves) standing against the walls, textured by one of ``look``'s kinds."""
     out = []
     for _ in range(count):
         wall = int(rng.integers(4))
@@ -173,14 +173,15 @@ def _furniture(rng: np.random.Generator, room_half: float, pools: dict[str, list
         R0 = rotation_about(_Z_UP, 0.0 if wall < 2 else np.pi / 2)   # local x along the wall, local y towards it
         motion = MotionLaw("static", np.array([pos[0], pos[1], half[2]]), R0, {})
         tint = _muted(rng, (0.2, 0.85), (0.0, 0.35)) if rng.random() < 0.6 else None
-        out.append(SceneObject("box", tuple(float(h) for h in half), _pick(rng, pools, *kinds), motion, tint))
+        out.append(SceneObject("box", tuple(float(h) for h in half), _pick(rng, pools, *look.furniture_kinds), motion,
+                               tint))
     return out
 
 
 def _wall_cards(rng: np.random.Generator, room_half: float, pools: dict[str, list[int]], count: int,
-                posters: tuple[str, ...] = ("photo",)) -> list[SceneObject]:
-    """Static cards flat on the walls: posters (textured by one of ``posters``) and bright panels (windows, lamps,
-    white boards)."""
+                look: RoomLook = ROOM) -> list[SceneObject]:
+    """Static cards flat on the walls: posters (textured by one of ``look.posters``) and bright panels (windows,
+    lamps, white boards)."""
     out = []
     for _ in range(count):
         wall = int(rng.integers(4))
@@ -194,7 +195,7 @@ def _wall_cards(rng: np.random.Generator, room_half: float, pools: dict[str, lis
         motion = MotionLaw("static", np.array([pos[0], pos[1], rng.uniform(1.0, 1.9)]), R0, {})
         bright = rng.random() < 0.6
         tint = (float(rng.uniform(0.85, 1.0)),) * 3 if bright else None
-        tex = _pick(rng, pools, "gradient", "noise") if bright else _pick(rng, pools, *posters)
+        tex = _pick(rng, pools, "gradient", "noise") if bright else _pick(rng, pools, *look.posters)
         out.append(SceneObject("card", (hw, hh), tex, motion, tint))
     return out
 
@@ -223,9 +224,8 @@ def sample_room(
         board = action != "walk" and k == 0 and rng.random() < look.board
         figure = sample_figure(rng, action, position=where, heading=float(heading), board=board)
         objects += _figure_objects(rng, figure, k, pools, look)
-    objects += _furniture(rng, room_half, pools, int(rng.integers(look.furniture[0], look.furniture[1] + 1)),
-                          look.furniture_kinds)
-    objects += _wall_cards(rng, room_half, pools, int(rng.integers(look.cards[0], look.cards[1] + 1)), look.posters)
+    objects += _furniture(rng, room_half, pools, int(rng.integers(look.furniture[0], look.furniture[1] + 1)), look)
+    objects += _wall_cards(rng, room_half, pools, int(rng.integers(look.cards[0], look.cards[1] + 1)), look)
     el = rng.uniform(np.deg2rad(45), np.deg2rad(80))
     az = rng.uniform(0, 2 * np.pi)
     layout = SceneLayout(
