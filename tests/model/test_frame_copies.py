@@ -269,3 +269,58 @@ def test_a_short_clip_gives_the_copies_of_missing_frames_nothing():
     assert float((a[:, 16:48] - plain[:, 16:48]).abs().max()) > 1e-3
     torch.testing.assert_close(a[:, 48:], plain[:, 48:])
     torch.testing.assert_close(a[:, :16], plain[:, :16])
+
+
+def test_blended_copies_weigh_the_frames_by_hats_around_their_groups_centres():
+    base = get_config("tiny", **SMALL, **FULL, frame_copies=True)
+    assert get_config("tiny", **SMALL, **FULL, frame_copies=True, copy_blend=False).sha256() == base.sha256()
+    assert get_config("tiny", **SMALL, **FULL, frame_copies=True, copy_blend=True).sha256() != base.sha256()
+    with pytest.raises(ModelError, match="copy_blend needs frame_copies"):
+        get_config("tiny", **SMALL, **FULL, copy_blend=True)
+    # three copies per anchor (n_static 48): two groups of two frames, centres at frames 0.5 and 2.5
+    three = small_model(frame_copies=True, copy_blend=True, n_static=48).renderer.copy_frames(1)
+    assert float(three[:16].sum()) == 0.0  # the time-average copies weigh no frame
+    assert three[16:32].tolist() == [[1.0, 0.75, 0.25, 0.0]] * 16
+    assert three[32:].tolist() == [[0.0, 0.25, 0.75, 1.0]] * 16
+    # one frame per group: the hats are the groups
+    blended = small_model(frame_copies=True, copy_blend=True)
+    assert torch.equal(blended.renderer.copy_frames(1), small_model(frame_copies=True).renderer.copy_frames(1))
+    # every frame's weights over an anchor's copies sum to 1; five cameras: no copies, nothing blended
+    eight = small_model(frame_copies=True, copy_blend=True, frames=8).renderer.copy_frames(1)
+    assert torch.allclose(eight.view(5, 16, 8).sum(0)[0], torch.ones(8))
+    assert float(blended.renderer.copy_frames(5).sum()) == 0.0
+
+
+def test_blended_copies_read_their_hat_weighted_change():
+    model = small_model(frame_copies=True, copy_blend=True, n_static=48)
+    batch = random_batch(model.config, B=1)
+    with torch.no_grad():
+        x = model.latents(batch.frames)
+        change = model.token_frame_cells(x, 1)  # (1, 48, C p p)
+        cells = patchify(x.float(), 2)[0]  # (T, P, C p p)
+        for copy, hat in ((1, [1.0, 0.75, 0.25, 0.0]), (2, [0.0, 0.25, 0.75, 1.0])):
+            w = torch.tensor(hat) / sum(hat)
+            expected = torch.einsum("tpc,t->pc", cells, w) - cells.mean(0)
+            torch.testing.assert_close(change[0, 16 * copy:16 * (copy + 1)], expected, atol=1e-5, rtol=1e-5)
+        assert float(change[0, :16].abs().max()) == 0.0
+        assert torch.isfinite(model.encode(batch)[0]).all()
+
+
+def test_with_the_origin_as_a_knot_an_anchors_copies_weigh_every_frame_by_hats_at_evenly_spaced_knots():
+    with pytest.raises(ModelError, match="copy_blend_origin needs copy_blend"):
+        get_config("tiny", **SMALL, **FULL, frame_copies=True, copy_blend_origin=True)
+    r = small_model(frame_copies=True, copy_blend=True, copy_blend_origin=True, frames=8).renderer
+    covers, norm = r.copy_frames(1), r.copy_norm_frames(1)  # 5 tokens a cell: knots at frames 0, 1.75, 3.5, 5.25, 7
+    t = torch.arange(8.0)
+
+    def hat(knot: float) -> torch.Tensor:
+        return (1.0 - (t - knot).abs() / 1.75).clamp_min(0.0)
+
+    for copy, knot in ((1, 0.0), (2, 1.75), (3, 5.25), (4, 7.0)):
+        torch.testing.assert_close(covers[16 * copy], hat(knot))
+    assert float(covers[:16].abs().sum()) == 0.0  # the time-average copy adds no change of its own ...
+    torch.testing.assert_close(norm[:16], hat(3.5).expand(16, -1))  # ... but weighs in the normaliser
+    torch.testing.assert_close(norm[16:], covers[16:])
+    torch.testing.assert_close(norm.view(5, 16, 8).sum(0), torch.ones(16, 8))
+    # five cameras: one token per anchor, nothing to blend or normalise
+    assert float(r.copy_norm_frames(5).abs().sum()) == 0.0

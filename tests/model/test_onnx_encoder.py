@@ -81,14 +81,21 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
             assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
-@pytest.mark.parametrize("views,passes", [(1, 1), (2, 1), (1, 2)])
-def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int):
+BLENDS = {"groups": {}, "blend": {"copy_blend": True}, "blend-origin": {"copy_blend": True, "copy_blend_origin": True}}
+
+
+@pytest.mark.parametrize("views,passes,blend", [(1, 1, "groups"), (2, 1, "groups"), (1, 2, "groups"),
+                                               (1, 1, "blend"), (1, 1, "blend-origin")])
+def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int,
+                                                                        blend: str):
     """Render feedback in three graphs: the encoder's gives the first pass (z_s0, z_d0: the tokens of the same
     weights without the feedback) and what the feedback reads, ``renderer.onnx`` renders it (seed-0 noise, the
-    decoder's steps), and one feedback graph per pass (any camera count) gives the tokens."""
+    decoder's steps), and one feedback graph per pass (any camera count) gives the tokens. Blended frame copies
+    (their soft weights are tables of the renderer's graph) alike."""
     torch.manual_seed(0)
     net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
-                                dynamic_gate_copies=True, feedback_width=16, feedback_passes=passes)).eval()
+                                dynamic_gate_copies=True, feedback_width=16, feedback_passes=passes,
+                                **BLENDS[blend])).eval()
     for module in [net.feedback, *(net.feedback_later or ())]:
         for layer in (module.static[2], module.dynamic[2]):
             torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
