@@ -182,9 +182,7 @@ class ModelConfig(_Config):
         copy_blend_origin: with copy_blend, the time-average copy is a knot too: an anchor's n tokens are n
         knots evenly spaced from the first frame to the last, the time-average copy the middle one (knot
         floor((n - 1) / 2)), the frame copies the others in order, and the frame splat is normalised over
-        all n weights (the time-average copy adds no change of its own); the encoder reads every token's
-        cell weighed by the middle knot's hat as the anchor's base value (instead of the time average), and
-        each copy's change from that base. n tokens then span n dimensions
+        all n weights (the time-average copy adds no change of its own). n tokens then span n dimensions
         of a cell's time series instead of n - 1: 5 hats reconstruct the source view at 30.73 dB against
         30.44 for 4 (caliscope cam_0: 29.57 against 28.93).
         frame_gate_deg: with frame_copies, > 0 weighs each copy's frame splat in target frame t by

@@ -245,12 +245,10 @@ def render_noise(frames: int, channels: int, size: int, seed: int) -> torch.Tens
     return torch.randn((1, frames, channels, size, size), generator=generator)
 
 
-def frame_group_change(values: torch.Tensor, covers: torch.Tensor, base: torch.Tensor | None = None) -> torch.Tensor:
+def frame_group_change(values: torch.Tensor, covers: torch.Tensor) -> torch.Tensor:
     """Each anchored token's frame group's mean minus its time average: values (S, N_a, T, F) at the token's cell
     per frame, covers (N_a, T) the frames of its group (``Renderer.copy_frames``) -> (S, N_a, F), zero for a
-    token that covers no frame. ``base`` (N_a, T), if given, weighs the frames of the mean subtracted instead
-    (``Renderer.anchor_base_frames``)."""
+    token that covers no frame."""
     count = covers.sum(1)
     group = torch.einsum("sntc,nt->snc", values, covers / count.clamp_min(1.0)[:, None])
-    reference = values.mean(2) if base is None else torch.einsum("sntc,nt->snc", values, base / base.sum(1, keepdim=True))
-    return (group - reference) * (count > 0)[None, :, None]
+    return (group - values.mean(2)) * (count > 0)[None, :, None]

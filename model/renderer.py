@@ -343,20 +343,6 @@ class Renderer(nn.Module):
         origin = ((rank == 0) & (groups > 0))[:, None] * self._knot_weights(rank, groups, self.cfg.frames)
         return covers + origin
 
-    def anchor_base_frames(self, views: int, frames: int | None = None) -> torch.Tensor:
-        """(N_anchored, frames) the weights over the clip's first ``frames`` frames (all by default) of what each
-        anchored token's cell holds as its anchor's base value: 1 in every frame (the time average), or with
-        ``config.copy_blend_origin``, for tokens whose anchor has frame copies, the time-average copy's hat at
-        the middle knot (:meth:`copy_norm_frames`) -- 1 everywhere again where a short clip misses that hat."""
-        cfg = self.cfg
-        T = cfg.frames if frames is None else frames
-        ones = torch.ones(self.n_anchored, T, device=self.anchor_cells.device)
-        if not cfg.copy_blend_origin:
-            return ones
-        index, same = self._same_anchor(views)
-        hat = self._knot_weights(torch.zeros_like(index), same.sum(1) - 1, cfg.frames)[:, :T]
-        return torch.where(hat.sum(1, keepdim=True) > 0, hat, ones)
-
     def copy_resolution(self, views: int) -> torch.Tensor:
         """(views,) float in [0, 1]: per encoded camera, the share of its anchored cells whose frame copies
         (:meth:`copy_frames`) split the clip into two or more frame groups (3 or more tokens on the anchor),

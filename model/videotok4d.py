@@ -675,34 +675,24 @@ class VideoTok4D(ModelIdentity, nn.Module):
         from latents (B, T, C, h, w) of S = B / views scenes; token i's cell is encoder cell i mod P of
         encoded camera :meth:`Renderer.token_cameras` (i mod V with ``config.anchor_views``, else 0)."""
         cfg, r = self.config, self.renderer
-        B, T = latents.shape[:2]
-        if cfg.copy_blend_origin:  # the anchor's base value: the frames weighed by the middle knot's hat
-            base = r.anchor_base_frames(views, T).to(latents.device)
-            return torch.einsum("sntc,nt->snc", self._frame_cells(latents, views), base / base.sum(1, keepdim=True))
+        B = latents.shape[0]
         cells = patchify(latents.float().mean(1, keepdim=True), cfg.patch_size)[:, 0]  # (B, P, C p p)
         cells = cells.view(B // views, views, cells.shape[1], cells.shape[2])
         index = torch.arange(r.n_anchored, device=cells.device)
         return cells[:, r.token_cameras(views), index % cells.shape[2]]
 
-    def _frame_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
-        """Each anchored static token's cell in every frame: (S, N_anchored, T, C p p) from latents (B, T, C, h, w)."""
+    def token_frame_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
+        """Each anchored static token's cell (as :meth:`token_cells`) averaged over the frames of its frame
+        group (:meth:`Renderer.copy_frames`) minus the time average: (S, N_anchored, C p p), zero for a
+        token that covers no frame (the time-average copies, and groups beyond the clip's T frames)."""
         cfg, r = self.config, self.renderer
         B, T = latents.shape[:2]
         P = cfg.patches_per_side ** 2
         cells = patchify(latents.float(), cfg.patch_size)  # (B, T, P, C p p)
         cells = cells.view(B // views, views, T, P, cells.shape[-1]).transpose(2, 3)  # (S, V, P, T, C p p)
         index = torch.arange(r.n_anchored, device=cells.device)
-        return cells[:, r.token_cameras(views), index % P]
-
-    def token_frame_cells(self, latents: torch.Tensor, views: int) -> torch.Tensor:
-        """Each anchored static token's cell (as :meth:`token_cells`) averaged over the frames of its frame
-        group (:meth:`Renderer.copy_frames`) minus the time average (minus the anchor's base value,
-        :meth:`token_cells`, with ``config.copy_blend_origin``): (S, N_anchored, C p p), zero for a token that
-        covers no frame (the time-average copies, and groups beyond the clip's T frames)."""
-        r, T = self.renderer, latents.shape[1]
-        mine = self._frame_cells(latents, views)  # (S, N_a, T, C p p)
-        base = r.anchor_base_frames(views, T).to(mine.device) if self.config.copy_blend_origin else None
-        return frame_group_change(mine, r.copy_frames(views)[:, :T].to(mine.device), base)
+        mine = cells[:, r.token_cameras(views), index % P]  # (S, N_a, T, C p p)
+        return frame_group_change(mine, r.copy_frames(views)[:, :T].to(cells.device))
 
     def forward(self, batch: SourceBatch, target_frames: torch.Tensor, K_tgt: torch.Tensor, w2c_tgt: torch.Tensor,
                 generator: torch.Generator | None = None, **loss_options: Any) -> tuple[torch.Tensor, dict[str, float]]:

@@ -324,29 +324,3 @@ def test_with_the_origin_as_a_knot_an_anchors_copies_weigh_every_frame_by_hats_a
     torch.testing.assert_close(norm.view(5, 16, 8).sum(0), torch.ones(16, 8))
     # five cameras: one token per anchor, nothing to blend or normalise
     assert float(r.copy_norm_frames(5).abs().sum()) == 0.0
-
-
-def test_with_the_origin_as_a_knot_each_token_reads_its_cell_around_its_knot():
-    """The time-average copy's cell is weighed by its hat at the middle knot (the anchor's base value), each frame
-    copy's change is its hat's mean minus that base; a clip too short for the middle hat falls back to the mean."""
-    model = small_model(frame_copies=True, copy_blend=True, copy_blend_origin=True, frames=8)
-    batch = random_batch(model.config, B=1)
-    t = torch.arange(8.0)
-
-    def hat(knot: float) -> torch.Tensor:
-        w = (1.0 - (t - knot).abs() / 1.75).clamp_min(0.0)
-        return w / w.sum()
-
-    with torch.no_grad():
-        x = model.latents(batch.frames)
-        cells = patchify(x.float(), 2)[0]  # (T, P, C p p)
-        base = torch.einsum("tpc,t->pc", cells, hat(3.5))
-        for copy in range(5):  # every token of an anchor has the same base value
-            torch.testing.assert_close(model.token_cells(x, 1)[0, 16 * copy:16 * (copy + 1)], base)
-        change = model.token_frame_cells(x, 1)[0]
-        assert float(change[:16].abs().max()) == 0.0
-        for copy, knot in ((1, 0.0), (2, 1.75), (3, 5.25), (4, 7.0)):
-            torch.testing.assert_close(change[16 * copy:16 * (copy + 1)], torch.einsum("tpc,t->pc", cells, hat(knot)) - base)
-        short = model.token_cells(x[:, :2], 1)[0, :16]  # frames 0-1: the middle hat is zero there
-        torch.testing.assert_close(short, cells[:2].mean(0))
-        assert torch.isfinite(model.encode(batch)[0]).all()
