@@ -178,13 +178,8 @@ class ModelConfig(_Config):
         the same hat-weighted average of its cell minus the time average. On held-out scenes the frozen
         autoencoder's latent projected onto 4 hat functions reconstructs the source view at 30.44 dB
         against 29.99 for 4 frame-group averages (caliscope cam_0: 28.93 against 28.10;
-        bench/probes/probe_temporal_basis.py): a cell's change through the clip is smooth, not a staircase.
-        copy_blend_origin: with copy_blend, the time-average copy is a knot too: an anchor's n tokens are n
-        knots evenly spaced from the first frame to the last, the time-average copy the middle one (knot
-        floor((n - 1) / 2)), the frame copies the others in order, and the frame splat is normalised over
-        all n weights (the time-average copy adds no change of its own). n tokens then span n dimensions
-        of a cell's time series instead of n - 1: 5 hats reconstruct the source view at 30.73 dB against
-        30.44 for 4 (caliscope cam_0: 29.57 against 28.93).
+        bench/probes/probe_temporal_basis.py). Trained from vt4d-tiny 2.1.0 (leg cb1) it renders the source
+        view no better than the same steps without it (-0.04 dB; docs/training.md, "Blended frame copies").
         frame_gate_deg: with frame_copies, > 0 weighs each copy's frame splat in target frame t by
         exp(-a^2 / 2 s^2), a the angle at the token between the rays from its encoded camera and from
         the target camera, s this many degrees: a frame copy holds what its cell did as seen along the
@@ -323,7 +318,6 @@ class ModelConfig(_Config):
     frame_copies: bool = False
     frame_gate_deg: float = 0.0
     copy_blend: bool = False
-    copy_blend_origin: bool = False
     spread_views: bool = False
     view_gate_deg: float = 0.0
     pixel_splat: bool = False
@@ -347,8 +341,7 @@ class ModelConfig(_Config):
                                                "query_from_grid": False, "project_anchors": False,
                                                "anchor_views": False, "token_splat": False,
                                                "token_from_cell": False, "frame_copies": False,
-                                               "frame_gate_deg": 0.0, "copy_blend": False, "copy_blend_origin": False,
-                                               "spread_views": False,
+                                               "frame_gate_deg": 0.0, "copy_blend": False, "spread_views": False,
                                                "view_gate_deg": 0.0, "pixel_splat": False,
                                                "patch_gate_deg": 0.0, "dynamic_splat": 0,
                                                "dynamic_gate_deg": 0.0, "dynamic_gate_copies": False,
@@ -382,7 +375,7 @@ class ModelConfig(_Config):
                 or not 0.0 <= self.locality_sigma < 1e6:
             raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
         _require_bools(self, ("query_from_grid", "project_anchors", "anchor_views", "token_splat", "token_from_cell",
-                              "frame_copies", "copy_blend", "copy_blend_origin", "spread_views", "pixel_splat", "dynamic_gate_copies",
+                              "frame_copies", "copy_blend", "spread_views", "pixel_splat", "dynamic_gate_copies",
                               "dynamic_from_patch"))
         _require_degrees(self, ("frame_gate_deg", "view_gate_deg", "patch_gate_deg", "dynamic_gate_deg"))
         if self.query_from_grid and not self.locality_sigma > 0:
@@ -402,8 +395,6 @@ class ModelConfig(_Config):
                              "frame group's cell and splats it in those frames)")
         if self.copy_blend and not self.frame_copies:
             raise ModelError("config copy_blend needs frame_copies (it blends the frame copies over time)")
-        if self.copy_blend_origin and not self.copy_blend:
-            raise ModelError("config copy_blend_origin needs copy_blend (it makes the time-average copy a knot)")
         if self.frame_gate_deg > 0 and not self.frame_copies:
             raise ModelError("config frame_gate_deg needs frame_copies (it weighs the frame copies' splat)")
         if self.spread_views and not self.anchor_views:

@@ -427,7 +427,6 @@ class _RenderStep(nn.Module):
             tables = {
                 "token_cameras": [r.token_cameras(v) if anchored else torch.zeros(0, dtype=torch.long) for v in counts],
                 "copy_frames": [r.copy_frames(v) if anchored else torch.zeros(0, cfg.frames) for v in counts],
-                "copy_norm_frames": [r.copy_norm_frames(v) if anchored else torch.zeros(0, cfg.frames) for v in counts],
                 "copy_origin": [r.copy_origin(v) if anchored else torch.zeros(0, dtype=torch.long) for v in counts],
                 "copy_resolution": [F.pad(r.copy_resolution(v), (0, MAX_VIEWS - v)) if anchored
                                     else torch.zeros(MAX_VIEWS) for v in counts],
@@ -436,8 +435,6 @@ class _RenderStep(nn.Module):
         self.register_buffer("token_cameras", torch.stack(tables["token_cameras"]).to(torch.int16))
         copy_frames = torch.stack(tables["copy_frames"])  # 0/1, or hat weights with config.copy_blend
         self.register_buffer("copy_frames", copy_frames.float() if cfg.copy_blend else copy_frames.to(torch.uint8))
-        if cfg.copy_blend_origin:  # the frame splat's normaliser differs from copy_frames only then
-            self.register_buffer("copy_norm_frames", torch.stack(tables["copy_norm_frames"]).float())
         self.register_buffer("copy_origin", torch.stack(tables["copy_origin"]).to(torch.int16))
         self.register_buffer("copy_resolution", torch.stack(tables["copy_resolution"]).float())
         self.register_buffer("dynamic_cameras", torch.stack(tables["dynamic_cameras"]).to(torch.int16))
@@ -450,7 +447,6 @@ class _RenderStep(nn.Module):
         copy_origin, copy_resolution = self.copy_origin[at].long(), self.copy_resolution[at]
         dynamic = self.dynamic_cameras[at].long()
         cfg = r.cfg
-        copy_norm = self.copy_norm_frames[at] if cfg.copy_blend_origin else copy_frames
 
         def embed_tokens(z_s: torch.Tensor, z_d: torch.Tensor, drop_static: torch.Tensor, drop_dynamic: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -474,7 +470,6 @@ class _RenderStep(nn.Module):
             return torch.cat([top, torch.zeros_like(top[:, :1]).expand(-1, heads - near, -1, -1)], dim=1)
 
         patches = {"token_cameras": lambda views: token_cameras, "copy_frames": lambda views: copy_frames,
-                   "copy_norm_frames": lambda views: copy_norm,
                    "copy_origin": lambda views: copy_origin, "copy_resolution": lambda views: copy_resolution,
                    "embed_tokens": embed_tokens, "_bias_from_logit": bias_from_logit}
         functions = {"dynamic_token_cameras": lambda n, views, device=None: dynamic}

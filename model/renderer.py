@@ -307,8 +307,6 @@ class Renderer(nn.Module):
         groups = same.sum(1) - 1  # n - 1 frame groups per anchor
         t = torch.arange(frames, device=index.device)
         copy = rank[:, None] >= 1
-        if cfg.copy_blend_origin:
-            return copy * self._knot_weights(rank, groups, frames)
         if cfg.copy_blend:  # hat weights around each group's centre, frames clamped to the first and last centres
             span = frames / groups.clamp_min(1).float()[:, None]  # (Na, 1) frames per group
             centre = (rank[:, None] - 0.5) * span - 0.5
@@ -316,32 +314,6 @@ class Renderer(nn.Module):
             return (copy * (1.0 - (at - centre).abs() / span).clamp_min(0.0)).float()
         group_of_frame = t[None, :] * groups[:, None] // frames  # (Na, frames)
         return (copy & (group_of_frame == rank[:, None] - 1)).float()
-
-    @staticmethod
-    def _knot_weights(rank: torch.Tensor, groups: torch.Tensor, frames: int) -> torch.Tensor:
-        """(N_a, frames) hat weight in each frame of each anchored token as a knot (``config.copy_blend_origin``):
-        an anchor's n = groups + 1 tokens are knots evenly spaced over frames 0 .. frames - 1, the time-average
-        copy (rank 0) the middle knot floor(groups / 2), copy r >= 1 knot r - 1 below it and r above; 1 in
-        every frame for an anchor with a single token."""
-        middle = groups // 2
-        knot = torch.where(rank == 0, middle, torch.where(rank - 1 < middle, rank - 1, rank)).float()[:, None]
-        spacing = (frames - 1) / groups.clamp_min(1).float()[:, None]
-        t = torch.arange(frames, device=rank.device).float()[None, :]
-        hat = (1.0 - (t - knot * spacing).abs() / spacing).clamp_min(0.0)
-        return torch.where(groups[:, None] > 0, hat, torch.ones_like(hat))
-
-    def copy_norm_frames(self, views: int) -> torch.Tensor:
-        """(N_anchored, frames): the weights the frame splat is normalised over in frame t, :meth:`copy_frames`
-        plus, with ``config.copy_blend_origin``, each time-average copy's own knot weight (copies covering
-        nothing of an anchor without copies keep 0)."""
-        covers = self.copy_frames(views)
-        if not self.cfg.copy_blend_origin:
-            return covers
-        index, same = self._same_anchor(views)
-        rank = (same & (index[None, :] < index[:, None])).sum(1)
-        groups = same.sum(1) - 1
-        origin = ((rank == 0) & (groups > 0))[:, None] * self._knot_weights(rank, groups, self.cfg.frames)
-        return covers + origin
 
     def copy_resolution(self, views: int) -> torch.Tensor:
         """(views,) float in [0, 1]: per encoded camera, the share of its anchored cells whose frame copies
@@ -494,8 +466,8 @@ class Renderer(nn.Module):
 
         out = splat(self.splat, tokens, shared(rows)) / total(rows)
         if self.splat_frames is not None:
-            norm = total(rows * per_pixel(self.copy_norm_frames(views)[:, :T].T[None]))
             rows = rows * per_pixel(self.copy_frames(views)[:, :T].T[None])  # the copies covering frame t
+            norm = total(rows)
             if gate is not None:
                 rows = rows * per_pixel(gate)
             change = self.frame_difference(z_s, views).to(self.splat_frames.weight.dtype)
@@ -594,9 +566,8 @@ class Renderer(nn.Module):
         if self.splat_frames is None:
             return splat
         covers = self.copy_frames(views)[:, :logit.shape[1]].T.to(g.dtype)  # (T, Na): copy n covers frame t
-        norm = (g * self.copy_norm_frames(views)[:, :logit.shape[1]].T.to(g.dtype)[None, :, None, :]).sum(-1, keepdim=True)
         g = g * covers[None, :, None, :]
-        weights = g / (norm + SPLAT_FLOOR)
+        weights = g / (g.sum(-1, keepdim=True) + SPLAT_FLOOR)
         if gate is not None:
             weights = weights * gate[:, :, None].to(weights.dtype)
         if share is not None:

@@ -305,22 +305,3 @@ def test_blended_copies_read_their_hat_weighted_change():
         assert float(change[0, :16].abs().max()) == 0.0
         assert torch.isfinite(model.encode(batch)[0]).all()
 
-
-def test_with_the_origin_as_a_knot_an_anchors_copies_weigh_every_frame_by_hats_at_evenly_spaced_knots():
-    with pytest.raises(ModelError, match="copy_blend_origin needs copy_blend"):
-        get_config("tiny", **SMALL, **FULL, frame_copies=True, copy_blend_origin=True)
-    r = small_model(frame_copies=True, copy_blend=True, copy_blend_origin=True, frames=8).renderer
-    covers, norm = r.copy_frames(1), r.copy_norm_frames(1)  # 5 tokens a cell: knots at frames 0, 1.75, 3.5, 5.25, 7
-    t = torch.arange(8.0)
-
-    def hat(knot: float) -> torch.Tensor:
-        return (1.0 - (t - knot).abs() / 1.75).clamp_min(0.0)
-
-    for copy, knot in ((1, 0.0), (2, 1.75), (3, 5.25), (4, 7.0)):
-        torch.testing.assert_close(covers[16 * copy], hat(knot))
-    assert float(covers[:16].abs().sum()) == 0.0  # the time-average copy adds no change of its own ...
-    torch.testing.assert_close(norm[:16], hat(3.5).expand(16, -1))  # ... but weighs in the normaliser
-    torch.testing.assert_close(norm[16:], covers[16:])
-    torch.testing.assert_close(norm.view(5, 16, 8).sum(0), torch.ones(16, 8))
-    # five cameras: one token per anchor, nothing to blend or normalise
-    assert float(r.copy_norm_frames(5).abs().sum()) == 0.0

@@ -81,11 +81,11 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
             assert a.shape == b.shape and np.abs(a - b).max() <= TOKEN_TOLERANCE
 
 
-BLENDS = {"groups": {}, "blend": {"copy_blend": True}, "blend-origin": {"copy_blend": True, "copy_blend_origin": True}}
+BLENDS = {"groups": {}, "blend": {"copy_blend": True}}
 
 
 @pytest.mark.parametrize("views,passes,blend", [(1, 1, "groups"), (2, 1, "groups"), (1, 2, "groups"),
-                                               (1, 1, "blend"), (1, 1, "blend-origin")])
+                                               (1, 1, "blend")])
 def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int,
                                                                         blend: str):
     """Render feedback in three graphs: the encoder's gives the first pass (z_s0, z_d0: the tokens of the same
