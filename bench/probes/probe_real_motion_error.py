@@ -31,11 +31,14 @@ from vt4dcodec.eval.real_footage import evaluate_cameras, open_capture
 MOVING = 0.08  # a pixel moves where a channel is this far (of the range) from its temporal median
 
 
-def split_error(truth: np.ndarray, render: np.ndarray) -> dict[str, float | list[float]]:
+def split_error(truth: np.ndarray, render: np.ndarray, moving: np.ndarray | None = None
+                ) -> dict[str, float | list[float]]:
     """(T, H, W, 3) uint8 truth and render -> PSNR, moving share, the moving pixels' share of the error, PSNR
-    with the moving pixels exact, per-frame PSNR."""
+    with the moving pixels exact, per-frame PSNR. ``moving`` (T, H, W) bool: the moving pixels where they are
+    known (synthetic masks); by default those a channel more than :data:`MOVING` from its temporal median."""
     t, r = truth.astype(np.float64) / 255.0, render.astype(np.float64) / 255.0
-    moving = np.abs(t - np.median(t, axis=0, keepdims=True)).max(-1) > MOVING
+    if moving is None:
+        moving = np.abs(t - np.median(t, axis=0, keepdims=True)).max(-1) > MOVING
     err = ((t - r) ** 2).mean(-1)
     still = float((err * ~moving).sum() / err.size)
     return {"psnr": float(-10 * np.log10(err.mean())), "moving_share": float(moving.mean()),

@@ -26,13 +26,8 @@ from vt4dcodec.eval.protocol import EvalSettings, make_scene
 from vt4dcodec.eval.report import write_json
 from vt4dcodec.format import dumps
 
-
-def split(truth: np.ndarray, video: np.ndarray, moving: np.ndarray) -> tuple[float, float, float]:
-    """(PSNR, the moving pixels' share of the squared error, PSNR with them exact) of uint8 (T, H, W, 3) videos."""
-    err = (((truth.astype(np.float64) - video.astype(np.float64)) / 255.0) ** 2).mean(-1)
-    still = float((err * ~moving).sum() / err.size)
-    return (float(-10 * np.log10(err.mean())), float((err * moving).sum() / err.sum()),
-            float(-10 * np.log10(max(still, 1e-12))))
+from probe_real_motion_error import split_error  # the probes' folder: sys.path[0] when run as a script
+from probe_temporal_basis import BASES, projected_videos, projection
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,10 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     nets = {name: codec.load_model(name) for name in args.model}
     ae = nets[args.model[0]].autoencoder
-    pairs = torch.tensor(np.kron(np.eye(4), np.full((2, 2), 0.5)), dtype=torch.float32)  # (8, 8) pair averaging
+    references = {"pair_average": projection(BASES["groups4"]), "autoencoder": projection(BASES["exact"])}
     settings = EvalSettings(scenes=args.scenes)
-    rows: dict[str, list[tuple[float, float, float]]] = {**{n: [] for n in args.model}, "pair_average": [],
-                                                         "autoencoder": []}
+    rows: dict[str, list[dict]] = {name: [] for name in [*args.model, *references]}
     moving_share = []
     for seed in settings.seeds:
         sc = make_scene(seed, settings, "source")
@@ -59,22 +53,19 @@ def main(argv: list[str] | None = None) -> int:
         for name, net in nets.items():
             blob = dumps(codec.encode(sc.capture, net, "learned-rans", cameras=[cam], seed=0, quality=args.quality))
             video = codec.SceneDecoder.open(blob, model=net).render_many([sc.capture.cameras[cam]], seed=0)[0]
-            rows[name].append(split(truth, video, moving))
-        x = torch.from_numpy(truth.astype(np.float32) / 255.0).permute(0, 3, 1, 2)[None]
-        with torch.no_grad():
-            z = ae.encode(x)
-            for name, latent in (("pair_average", torch.einsum("st,btchw->bschw", pairs, z)), ("autoencoder", z)):
-                video = (ae.decode(latent).clamp(0, 1)[0].permute(0, 2, 3, 1).numpy() * 255.0).round().astype(np.uint8)
-                rows[name].append(split(truth, video, moving))
+            rows[name].append(split_error(truth, video, moving))
+        for name, video in projected_videos(ae, truth, references).items():
+            rows[name].append(split_error(truth, video, moving))
     result = {"command": "python bench/probes/probe_source_error_split.py " + " ".join(argv if argv is not None
                                                                                        else sys.argv[1:]),
               "scenes": args.scenes, "quality": args.quality, "moving_share": float(np.mean(moving_share)),
               "rows": []}
     for name, values in rows.items():
-        a = np.array(values)
-        entry = {"name": name, "psnr": round(float(a[:, 0].mean()), 3),
-                 "psnr_se": round(float(a[:, 0].std(ddof=1) / np.sqrt(len(a))), 3),
-                 "moving_error_share": round(float(a[:, 1].mean()), 4), "psnr_moving_exact": round(float(a[:, 2].mean()), 3)}
+        psnr = np.array([v["psnr"] for v in values])
+        entry = {"name": name, "psnr": round(float(psnr.mean()), 3),
+                 "psnr_se": round(float(psnr.std(ddof=1) / np.sqrt(len(psnr))), 3),
+                 "moving_error_share": round(float(np.mean([v["moving_error_share"] for v in values])), 4),
+                 "psnr_moving_exact": round(float(np.mean([v["psnr_moving_exact"] for v in values])), 3)}
         result["rows"].append(entry)
         print(f"{name:24s} PSNR {entry['psnr']:.2f} +- {entry['psnr_se']:.2f}; moving pixels hold "
               f"{entry['moving_error_share']:.1%} of the error; with them exact {entry['psnr_moving_exact']:.2f} dB")

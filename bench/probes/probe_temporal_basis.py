@@ -66,21 +66,33 @@ BASES = {"time_mean": np.ones((FRAMES, 1)), "groups4": groups(4), "hat4": hats(n
          "hat5": hats(np.linspace(0.0, 7.0, 5)), "dct4": dct(4), "dct5": dct(5), "exact": np.eye(FRAMES)}
 
 
+def projection(basis: np.ndarray) -> torch.Tensor:
+    """(frames, frames) float32: the least-squares projection onto the span of ``basis``'s columns."""
+    return torch.tensor(basis @ np.linalg.pinv(basis), dtype=torch.float32)
+
+
+def projected_videos(ae, frames: np.ndarray, projections: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    """Per projection: the autoencoder ``ae``'s decode (uint8 (T, H, W, 3)) of ``frames``' latent with every
+    value's time series projected (:func:`projection`)."""
+    x = torch.from_numpy(frames.astype(np.float32) / 255.0).permute(0, 3, 1, 2)[None]
+    out = {}
+    with torch.no_grad():
+        z = ae.encode(x)
+        for name, proj in projections.items():
+            video = ae.decode(torch.einsum("st,btchw->bschw", proj, z)).clamp(0, 1)[0]
+            out[name] = (video.permute(0, 2, 3, 1).numpy() * 255.0).round().astype(np.uint8)
+    return out
+
+
 def basis_psnrs(net, clips: list[np.ndarray]) -> dict[str, dict[str, float]]:
     """Per basis: mean PSNR and SSIM over ``clips`` ((8, H, W, 3) uint8 each) of the autoencoder's decode of the
     latent projected onto the basis, with the PSNR's standard error."""
-    ae = net.autoencoder
-    projections = {k: torch.tensor(b @ np.linalg.pinv(b), dtype=torch.float32) for k, b in BASES.items()}
+    projections = {k: projection(b) for k, b in BASES.items()}
     scores: dict[str, list[tuple[float, float]]] = {k: [] for k in BASES}
     for frames in clips:
-        x = torch.from_numpy(frames.astype(np.float32) / 255.0).permute(0, 3, 1, 2)[None]
-        with torch.no_grad():
-            z = ae.encode(x)
-            for name, proj in projections.items():
-                video = ae.decode(torch.einsum("st,btchw->bschw", proj, z)).clamp(0, 1)[0]
-                u8 = (video.permute(0, 2, 3, 1).numpy() * 255.0).round().astype(np.uint8)
-                m = video_metrics(u8, frames, np.zeros(frames.shape[:3], bool))
-                scores[name].append((m["psnr"], m["ssim"]))
+        for name, u8 in projected_videos(net.autoencoder, frames, projections).items():
+            m = video_metrics(u8, frames, np.zeros(frames.shape[:3], bool))
+            scores[name].append((m["psnr"], m["ssim"]))
     out = {}
     for name, rows in scores.items():
         p = np.array([r[0] for r in rows])
