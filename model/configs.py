@@ -270,6 +270,11 @@ class ModelConfig(_Config):
         without a level store the feedback's tokens. 1: every level.
         feedback_window: with feedback_width, the side in encoder cells (odd) of the window of residual each
             anchored static token reads, centred on its cell. 3: its cell and one cell on each side.
+        feedback_gradient: with feedback_width, each pass also reads the gradient of its render's squared latent
+            error with respect to every token (the renderer's whole response to the token, where the residual
+            window sees only its cell's surroundings): a second zero-initialised MLP per token group maps [Z, the
+            gradient scaled to unit RMS per scene] to a further change of pre-activation. One backward pass
+            through the renderer at encode time (torch); False: the residual window only.
         reference_frame: the world frame the encoder and renderer work in (vt4dcodec.reference.model_centre;
             the renderer measures token depths from its origin). "origin": the capture's own, unless its origin
             is less than 0.5 m in front of an encoded camera; "cameras": always the frame moved to the encoded
@@ -334,6 +339,7 @@ class ModelConfig(_Config):
     feedback_passes: int = 1
     feedback_quality: int = 1
     feedback_window: int = 3
+    feedback_gradient: bool = False
     reference_frame: str = "origin"
 
     _KIND: ClassVar[str] = "model"
@@ -349,7 +355,7 @@ class ModelConfig(_Config):
                                                "entropy_context": False, "entropy_rounding": (),
                                                "entropy_partners": (), "feedback_width": 0,
                                                "feedback_passes": 1, "feedback_quality": 1, "feedback_window": 3,
-                                               "reference_frame": "origin"}
+                                               "feedback_gradient": False, "reference_frame": "origin"}
 
     def __post_init__(self) -> None:
         _require_positive_ints(self, ("frames", "image_size", "latent_channels", "ae_downsample", "ae_width",
@@ -376,7 +382,7 @@ class ModelConfig(_Config):
             raise ModelError(f"config locality_sigma must be a number >= 0, got {self.locality_sigma!r}")
         _require_bools(self, ("query_from_grid", "project_anchors", "anchor_views", "token_splat", "token_from_cell",
                               "frame_copies", "copy_blend", "spread_views", "pixel_splat", "dynamic_gate_copies",
-                              "dynamic_from_patch"))
+                              "dynamic_from_patch", "feedback_gradient"))
         _require_degrees(self, ("frame_gate_deg", "view_gate_deg", "patch_gate_deg", "dynamic_gate_deg"))
         if self.query_from_grid and not self.locality_sigma > 0:
             raise ModelError("config query_from_grid needs locality_sigma > 0 (it reads each query's anchor cell)")
@@ -458,6 +464,8 @@ class ModelConfig(_Config):
             raise ModelError(f"config reference_frame must be 'origin' or 'cameras', got {self.reference_frame!r}")
         if self.feedback_window != 3 and not self.feedback_width:
             raise ModelError("config feedback_window other than 3 needs feedback_width > 0 (it is the feedback's window)")
+        if self.feedback_gradient and not self.feedback_width:
+            raise ModelError("config feedback_gradient needs feedback_width > 0 (the gradient is read by render feedback)")
         if self.feedback_quality > 1 and not self.feedback_width:
             raise ModelError("config feedback_quality > 1 needs feedback_width > 0 (it says where the feedback is used)")
         if not (self.mlp_ratio > 0 and 0.0 <= self.token_noise < 1.0):
@@ -513,7 +521,8 @@ class ModelConfig(_Config):
     def without_feedback(self) -> "ModelConfig":
         """This config with render feedback off (every ``feedback_*`` field at its default): the config of the
         encoder's first pass."""
-        return dataclasses.replace(self, feedback_width=0, feedback_passes=1, feedback_quality=1, feedback_window=3)
+        return dataclasses.replace(self, feedback_width=0, feedback_passes=1, feedback_quality=1, feedback_window=3,
+                                   feedback_gradient=False)
 
     def feeds_back(self, quality: int | None) -> bool:
         """Whether a file of quality level ``quality`` (None: an encoding without levels) stores the tokens after

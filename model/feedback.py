@@ -25,10 +25,21 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vt4dcodec.errors import ModelError
+
 from .configs import ModelConfig
 from .layers import frame_group_change, render_noise
 
-__all__ = ["RenderFeedback"]
+__all__ = ["RenderFeedback", "gradient_features"]
+
+GRADIENT_EPS = 1e-20  # RMS floor of a scene's render gradient (an exact render has none)
+
+
+def gradient_features(z: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """z, g (S, N, d): tokens and the render error's gradient by them -> [z, g / RMS, log RMS] (S, N, 2 d + 1),
+    the RMS over each scene's N d values: the direction at unit scale, and the scale apart."""
+    rms = g.float().square().mean(dim=(1, 2), keepdim=True).add(GRADIENT_EPS).sqrt()
+    return torch.cat([z.float(), g.float() / rms, rms.log().expand(*g.shape[:2], 1)], dim=-1)
 
 
 def _mlp(inputs: int, width: int, outputs: int) -> nn.Sequential:
@@ -53,6 +64,11 @@ class RenderFeedback(nn.Module):
         cell = C * self.window ** 2
         self.static = _mlp(d + 2 * cell, cfg.feedback_width, d)
         self.dynamic = _mlp(d + C * cfg.dynamic_splat ** 2, cfg.feedback_width, d)
+        self.static_grad: nn.Sequential | None = None
+        self.dynamic_grad: nn.Sequential | None = None
+        if cfg.feedback_gradient:  # [Z, its render gradient at unit RMS, log RMS] -> a further dA (zero at init)
+            self.static_grad = _mlp(2 * d + 1, cfg.feedback_width, d)
+            self.dynamic_grad = _mlp(2 * d + 1, cfg.feedback_width, d)
         # the decoder's starting noise at seed 0 (VideoTok4D.render_latents): a constant of the encoder's graph
         self.register_buffer("noise", render_noise(cfg.frames, C, cfg.latent_size, 0), persistent=False)
 
@@ -64,13 +80,22 @@ class RenderFeedback(nn.Module):
         return cols.transpose(1, 2).reshape(B, T, cols.shape[2], cols.shape[1])
 
     def forward(self, z_s: torch.Tensor, z_d: torch.Tensor, residual: torch.Tensor, track_residual: torch.Tensor,
-                cameras: torch.Tensor, covers: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                cameras: torch.Tensor, covers: torch.Tensor, gradients: tuple[torch.Tensor, torch.Tensor] | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         """z_s (S, N_s, d), z_d (S, N_d, d): the first tokens; residual (B, T, C, h, w), B = S V clips
         scene-major; track_residual (S, N_d, q C): R along each dynamic token's track; cameras (N_a,): each
         anchored token's encoded camera; covers (N_a, T): the frames of its frame group (all zero for the
-        time-average copies). Returns (dA_s (S, N_a, d), dA_d (S, N_d, d))."""
+        time-average copies); gradients (``feedback_gradient`` only): the render's squared latent error
+        differentiated by Z_s (S, N_s, d) and Z_d (S, N_d, d). Returns (dA_s (S, N_a, d), dA_d (S, N_d, d))."""
         f_s, f_d = self.features(z_s, z_d, residual, track_residual, cameras, covers)
-        return self.static(f_s), self.dynamic(f_d)
+        d_s, d_d = self.static(f_s), self.dynamic(f_d)
+        if self.static_grad is not None and self.dynamic_grad is not None:
+            if gradients is None:
+                raise ModelError("a feedback_gradient model's feedback needs the render gradients")
+            n_a = cameras.shape[0]
+            d_s = d_s + self.static_grad(gradient_features(z_s[:, :n_a], gradients[0][:, :n_a]))
+            d_d = d_d + self.dynamic_grad(gradient_features(z_d, gradients[1]))
+        return d_s, d_d
 
     def features(self, z_s: torch.Tensor, z_d: torch.Tensor, residual: torch.Tensor, track_residual: torch.Tensor,
                  cameras: torch.Tensor, covers: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

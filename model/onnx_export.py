@@ -352,6 +352,9 @@ def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: in
     passes = len(net.feedback_modules())
     if not 1 <= step <= passes:
         raise ModelError(f"this model has {passes} render feedback pass(es), not a pass {step}")
+    if net.config.feedback_gradient:
+        raise ModelError("a feedback_gradient model's feedback reads the render's gradient, which has no ONNX graph "
+                         "yet (bench/probes/probe_gradient_export.py): run it with runtime='torch'")
     directory = Path(directory)
     meta = _checked_meta(net, directory)
     wrapper = _Feedback(net.eval(), step).eval()
@@ -622,7 +625,10 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
 def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: int = EXPORT_VIEWS) -> list[Path]:
     """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras,
     the renderer and, for a model with render feedback, ``feedback.onnx``; returns their paths. The renderer is
-    written first: the encoders' parity check runs the feedback through it."""
+    written first: the encoders' parity check runs the feedback through it. ModelError, before any graph is
+    written, for render feedback that reads the render's gradient (config ``feedback_gradient``)."""
+    if net.config.feedback_gradient:
+        export_feedback(net, directory)  # raises: checked before the renderer graph is written
     paths = [export_renderer(net, directory)]
     paths += [export_feedback(net, directory, k) for k in range(1, len(net.feedback_modules()) + 1)]
     return paths + [export_encoder(net, directory, v) for v in range(1, views + 1)]

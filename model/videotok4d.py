@@ -261,7 +261,12 @@ class VideoTok4D(ModelIdentity, nn.Module):
         rendered at the encoded cameras (:meth:`feedback_render`), the residual x - Y read back around each token."""
         reads = self.feedback_reads(batch, chosen)  # where the residual is read: the same for every pass
         for module in self.feedback_modules():
-            a_s, a_d = self.feedback_update(module, a_s, a_d, x, self.feedback_render(module, batch, a_s, a_d), *reads)
+            if self.config.feedback_gradient:
+                y0, *gradients = self.feedback_render_gradients(module, batch, a_s, a_d, x)
+                a_s, a_d = self.feedback_update(module, a_s, a_d, x, y0, *reads, gradients=(gradients[0], gradients[1]))
+            else:
+                a_s, a_d = self.feedback_update(module, a_s, a_d, x, self.feedback_render(module, batch, a_s, a_d),
+                                                *reads)
         return a_s, a_d
 
     def feedback_render(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
@@ -277,6 +282,27 @@ class VideoTok4D(ModelIdentity, nn.Module):
                                    batch.K, batch.w2c, source=(K_src, w2c_src),
                                    noise=module.noise[:, :batch.frames.shape[1]])
 
+    def feedback_render_gradients(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
+                                  a_d: torch.Tensor, x: torch.Tensor
+                                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`feedback_render`'s Y with the gradient of the squared latent error sum (x - Y)^2 by the tokens:
+        (Y (B, T, C, h, w), dL/dZ_s (S, N_s, d), dL/dZ_d (S, N_d, d)), all without a graph (a stop-gradient, as
+        Y's). One backward pass through the renderer, whatever the caller's grad mode."""
+        V = batch.views
+        z_s, z_d = self._bound(a_s, a_d)
+        K_src, w2c_src = batch.source
+        if V > 1:
+            K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
+        with torch.enable_grad():
+            zs = z_s.detach().requires_grad_(True)
+            zd = z_d.detach().requires_grad_(True)
+            y = type(self).render_latents.__wrapped__(  # the decoder's integration, with gradients
+                self, zs.repeat_interleave(V, 0), zd.repeat_interleave(V, 0), batch.K, batch.w2c,
+                source=(K_src, w2c_src), noise=module.noise[:, :batch.frames.shape[1]])
+            loss = (x.detach().float() - y).square().sum()
+            g_s, g_d = torch.autograd.grad(loss, [zs, zd])
+        return y.detach(), g_s, g_d
+
     def feedback_reads(self, batch: SourceBatch, chosen: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         """Where render feedback reads the residual, fixed by the batch before any render: each dynamic token's
         track as (clip (S N_d,) long, at (S N_d, T, q, 2) latent px, weight (S N_d, T)) (:meth:`_track_sampling`),
@@ -287,13 +313,15 @@ class VideoTok4D(ModelIdentity, nn.Module):
 
     def feedback_update(self, module: RenderFeedback, a_s: torch.Tensor, a_d: torch.Tensor, x: torch.Tensor,
                         y0: torch.Tensor, clip: torch.Tensor, at: torch.Tensor, weight: torch.Tensor,
-                        cameras: torch.Tensor, covers: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                        cameras: torch.Tensor, covers: torch.Tensor,
+                        gradients: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """One feedback pass from its render: pre-activations A (S, N_s, d), (S, N_d, d), source latents x and
-        their render Y (B, T, C, h, w) at the encoded cameras, the reads of :meth:`feedback_reads` -> A + dA."""
+        their render Y (B, T, C, h, w) at the encoded cameras, the reads of :meth:`feedback_reads` -> A + dA;
+        gradients: the render error's by the tokens (:meth:`feedback_render_gradients`, ``feedback_gradient``)."""
         z_s, z_d = self._bound(a_s, a_d)
         residual = x.float() - y0
         track = self._sample_tracks(residual, clip, at, weight, a_d.shape[0], a_d.shape[1])[0].flatten(2)
-        d_s, d_d = module(z_s, z_d, residual, track, cameras, covers)  # track: (S, N_d, q C)
+        d_s, d_d = module(z_s, z_d, residual, track, cameras, covers, gradients)  # track: (S, N_d, q C)
         n = d_s.shape[1]
         return torch.cat([a_s[:, :n] + d_s, a_s[:, n:]], dim=1), a_d + d_d
 

@@ -155,3 +155,76 @@ def test_a_further_pass_starts_as_the_model_without_it_and_reads_what_the_previo
     two.feedback_later.requires_grad_(True)
     sum(z.square().sum() for z in two.encode(batch)).backward()
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in two.feedback_later.parameters())
+
+
+def test_gradient_feedback_config_is_checked_and_kept_out_of_the_first_pass():
+    cfg = get_config("tiny", **SMALL, feedback_width=16)
+    assert get_config("tiny", **SMALL, feedback_width=16, feedback_gradient=False).sha256() == cfg.sha256()
+    grad = get_config("tiny", **SMALL, feedback_width=16, feedback_gradient=True)
+    assert grad.sha256() != cfg.sha256() and grad.without_feedback() == cfg.without_feedback()
+    with pytest.raises(ModelError, match="feedback_gradient needs feedback_width"):
+        get_config("tiny", **SMALL, feedback_gradient=True)
+    with pytest.raises(ModelError, match="feedback_gradient"):
+        get_config("tiny", **SMALL, feedback_width=16, feedback_gradient=1)
+
+
+def test_render_gradients_are_the_render_errors_derivative():
+    """feedback_render_gradients: Y equals feedback_render's, and the gradient is d/dZ sum (x - Y)^2 (a central
+    difference along a random direction agrees), also when called under no_grad as the codec encodes. Like
+    refinement's, it is the renderer's training gradient: exact but for the time-average copies."""
+    cfg = get_config("tiny", **SMALL, feedback_width=16, feedback_gradient=True)
+    torch.manual_seed(3)
+    net = VideoTok4D(cfg).eval()
+    net.decode_steps = 1
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    a_s = torch.randn(2, cfg.n_static, cfg.token_dim)
+    a_d = torch.randn(2, cfg.n_dynamic, cfg.token_dim)
+    x = torch.randn(2, cfg.frames, cfg.latent_channels, cfg.latent_size, cfg.latent_size)
+    fb = net.feedback
+    with torch.no_grad():
+        y, g_s, g_d = net.feedback_render_gradients(fb, batch, a_s, a_d, x)
+        assert torch.allclose(y, net.feedback_render(fb, batch, a_s, a_d), atol=1e-6)
+        z_s, z_d = net._bound(a_s, a_d)
+        u_s, u_d = torch.randn_like(z_s), torch.randn_like(z_d)
+        # the frame splat holds each time-average copy fixed under the copies' differences (a training gradient by
+        # design, renderer.frame_difference): the derivative is exact along every other token
+        u_s[:, net.renderer.copy_origin(1).unique()] = 0.0
+        eps = 3e-3
+
+        def err(sign: float) -> float:
+            r = net.render_latents.__wrapped__(net, z_s + sign * eps * u_s, z_d + sign * eps * u_d, batch.K, batch.w2c,
+                                               source=batch.source, noise=fb.noise[:, :cfg.frames])
+            return float((x - r).double().square().sum())
+        numeric = (err(1.0) - err(-1.0)) / (2 * eps)
+    analytic = float((g_s * u_s).sum() + (g_d * u_d).sum())
+    assert abs(numeric - analytic) <= 1e-2 * max(1.0, abs(numeric))
+    assert not g_s.requires_grad and not y.requires_grad
+
+
+def test_gradient_feedback_starts_as_the_model_without_it_and_trains():
+    """A model given feedback_gradient, warm-started from one without: the same tokens (the gradient MLPs' output
+    layers are zero); once they move the tokens move, and the tokenizer loss reaches them."""
+    torch.manual_seed(4)
+    cfg = get_config("tiny", **SMALL, feedback_width=16)
+    old = VideoTok4D(cfg).eval()
+    for layer in (old.feedback.static[2], old.feedback.dynamic[2]):
+        torch.nn.init.normal_(layer.weight, std=0.1)
+    new = VideoTok4D(cfg.replace(feedback_gradient=True)).eval()
+    old.decode_steps = new.decode_steps = 1
+    missing = new.load_state_dict(old.state_dict(), strict=False).missing_keys
+    assert missing and all(".static_grad." in k or ".dynamic_grad." in k for k in missing)
+    batch = random_batch(cfg, B=2, n_tracks=8)
+    with torch.no_grad():
+        a_old, a_new = old.encode_preactivations(batch), new.encode_preactivations(batch)
+    assert torch.equal(a_old[0], a_new[0]) and torch.equal(a_old[1], a_new[1])
+    new.train()
+    for layer in (new.feedback.static_grad[2], new.feedback.dynamic_grad[2], new.renderer.dynamic_content):
+        torch.nn.init.normal_(layer.weight, std=0.01)
+    frames = torch.rand(2, cfg.frames, 3, cfg.image_size, cfg.image_size)
+    loss, _ = new.rectified_flow_loss(batch, frames, batch.K, batch.w2c, tau=torch.ones(2), patch_weight=1.0)
+    loss.backward()
+    for mlp in (new.feedback.static_grad, new.feedback.dynamic_grad):
+        assert all(p.grad is not None and float(p.grad.abs().sum()) > 0 for p in mlp.parameters())
+    with torch.no_grad():
+        moved = new.eval().encode_preactivations(batch)
+    assert not torch.equal(moved[0], a_old[0]) and not torch.equal(moved[1], a_old[1])

@@ -23,7 +23,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.model import SourceBatch, SourceInputs, VideoTok4D, get_config, save_pretrained
 from vt4dcodec.model.inputs.source_inputs import stack_inputs
 from vt4dcodec.model.onnx_encoder import ONNX_FILE, OnnxEncoder
-from vt4dcodec.model.onnx_export import example_inputs, export_encoder, export_feedback, export_renderer
+from vt4dcodec.model.onnx_export import example_inputs, export_encoder, export_feedback, export_model, export_renderer
 from vt4dcodec.model.weights_io import SHIPPED_DIR
 from vt4dcodec.synth import SynthConfig, generate_scene
 
@@ -310,3 +310,16 @@ def test_a_small_models_renderer_and_two_camera_encoder_export_and_match_torch(s
     (copy / RENDERER_FILE).write_bytes(graph.SerializeToString())
     with pytest.raises(ModelError, match="export it again"):
         OnnxRenderer.open(copy)
+
+
+def test_gradient_feedback_is_refused_before_any_graph_is_written(tmp_path):
+    """Render feedback that reads the render's gradient has no ONNX graph yet: export names the torch runtime and
+    leaves the model directory without graphs (no renderer written before the refusal)."""
+    net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
+                                dynamic_gate_copies=True, feedback_width=16, feedback_gradient=True)).eval()
+    net.decode_steps = 1
+    directory = save_pretrained(net, tmp_path / "gf", model_id="gf", model_version="0", storage_dtype="float16")
+    net = codec.load_model(directory)
+    with pytest.raises(ModelError, match="runtime='torch'"):
+        export_model(net, directory)
+    assert not list(Path(directory).glob("*.onnx"))
