@@ -344,6 +344,13 @@ def _feedback_case(net: VideoTok4D, step: int, views: int, seed: int
     return case, [t.numpy() for t in (*net._bound(a_s, a_d), a_s, a_d)]
 
 
+def _refuse_gradient_feedback(net: VideoTok4D) -> None:
+    """ModelError for render feedback that reads the render's gradient (config ``feedback_gradient``)."""
+    if net.config.feedback_gradient:
+        raise ModelError("a feedback_gradient model's feedback reads the render's gradient, which has no ONNX graph "
+                         "yet (bench/probes/probe_gradient_export.py): run it with runtime='torch'")
+
+
 def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: int = 1) -> Path:
     """Write the graph of render feedback pass ``step`` (``feedback.onnx``, ``feedback-p{step}.onnx``; any number
     of encoded cameras) for ``net`` into its model ``directory``; ModelError when ``net`` has no such pass, when the
@@ -352,9 +359,7 @@ def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: in
     passes = len(net.feedback_modules())
     if not 1 <= step <= passes:
         raise ModelError(f"this model has {passes} render feedback pass(es), not a pass {step}")
-    if net.config.feedback_gradient:
-        raise ModelError("a feedback_gradient model's feedback reads the render's gradient, which has no ONNX graph "
-                         "yet (bench/probes/probe_gradient_export.py): run it with runtime='torch'")
+    _refuse_gradient_feedback(net)
     directory = Path(directory)
     meta = _checked_meta(net, directory)
     wrapper = _Feedback(net.eval(), step).eval()
@@ -627,8 +632,7 @@ def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: i
     the renderer and, for a model with render feedback, ``feedback.onnx``; returns their paths. The renderer is
     written first: the encoders' parity check runs the feedback through it. ModelError, before any graph is
     written, for render feedback that reads the render's gradient (config ``feedback_gradient``)."""
-    if net.config.feedback_gradient:
-        export_feedback(net, directory)  # raises: checked before the renderer graph is written
+    _refuse_gradient_feedback(net)
     paths = [export_renderer(net, directory)]
     paths += [export_feedback(net, directory, k) for k in range(1, len(net.feedback_modules()) + 1)]
     return paths + [export_encoder(net, directory, v) for v in range(1, views + 1)]

@@ -14,6 +14,7 @@ with ``seed``: the same tokens and seed give the same frames.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -261,26 +262,21 @@ class VideoTok4D(ModelIdentity, nn.Module):
         rendered at the encoded cameras (:meth:`feedback_render`), the residual x - Y read back around each token."""
         reads = self.feedback_reads(batch, chosen)  # where the residual is read: the same for every pass
         for module in self.feedback_modules():
+            gradients = None
             if self.config.feedback_gradient:
-                y0, *gradients = self.feedback_render_gradients(module, batch, a_s, a_d, x)
-                a_s, a_d = self.feedback_update(module, a_s, a_d, x, y0, *reads, gradients=(gradients[0], gradients[1]))
+                y0, g_s, g_d = self.feedback_render_gradients(module, batch, a_s, a_d, x)
+                gradients = (g_s, g_d)
             else:
-                a_s, a_d = self.feedback_update(module, a_s, a_d, x, self.feedback_render(module, batch, a_s, a_d),
-                                                *reads)
+                y0 = self.feedback_render(module, batch, a_s, a_d)
+            a_s, a_d = self.feedback_update(module, a_s, a_d, x, y0, *reads, gradients=gradients)
         return a_s, a_d
 
     def feedback_render(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
                         a_d: torch.Tensor) -> torch.Tensor:
         """The tokens of pre-activations A rendered at the encoded cameras as the decoder renders them (its steps,
         the pass's seed-0 noise, no gradient): Y (B, T, C, h, w), each clip at its own trajectory."""
-        V = batch.views
         z_s, z_d = self._bound(a_s, a_d)
-        K_src, w2c_src = batch.source
-        if V > 1:  # every clip renders with its scene's encoded cameras
-            K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
-        return self.render_latents(z_s.detach().repeat_interleave(V, 0), z_d.detach().repeat_interleave(V, 0),
-                                   batch.K, batch.w2c, source=(K_src, w2c_src),
-                                   noise=module.noise[:, :batch.frames.shape[1]])
+        return self._render_encoded(module, batch, z_s.detach(), z_d.detach(), self.render_latents)
 
     def feedback_render_gradients(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
                                   a_d: torch.Tensor, x: torch.Tensor
@@ -288,20 +284,24 @@ class VideoTok4D(ModelIdentity, nn.Module):
         """:meth:`feedback_render`'s Y with the gradient of the squared latent error sum (x - Y)^2 by the tokens:
         (Y (B, T, C, h, w), dL/dZ_s (S, N_s, d), dL/dZ_d (S, N_d, d)), all without a graph (a stop-gradient, as
         Y's). One backward pass through the renderer, whatever the caller's grad mode."""
-        V = batch.views
         z_s, z_d = self._bound(a_s, a_d)
-        K_src, w2c_src = batch.source
-        if V > 1:
-            K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
+        render = functools.partial(type(self).render_latents.__wrapped__, self)  # the decoder's, with gradients
         with torch.enable_grad():
-            zs = z_s.detach().requires_grad_(True)
-            zd = z_d.detach().requires_grad_(True)
-            y = type(self).render_latents.__wrapped__(  # the decoder's integration, with gradients
-                self, zs.repeat_interleave(V, 0), zd.repeat_interleave(V, 0), batch.K, batch.w2c,
-                source=(K_src, w2c_src), noise=module.noise[:, :batch.frames.shape[1]])
-            loss = (x.detach().float() - y).square().sum()
-            g_s, g_d = torch.autograd.grad(loss, [zs, zd])
+            zs, zd = z_s.detach().requires_grad_(True), z_d.detach().requires_grad_(True)
+            y = self._render_encoded(module, batch, zs, zd, render)
+            g_s, g_d = torch.autograd.grad((x.detach().float() - y).square().sum(), [zs, zd])
         return y.detach(), g_s, g_d
+
+    def _render_encoded(self, module: RenderFeedback, batch: SourceBatch, z_s: torch.Tensor, z_d: torch.Tensor,
+                        render: Callable[..., torch.Tensor]) -> torch.Tensor:
+        """Each scene's tokens (S, N, d) rendered by ``render`` (:meth:`render_latents` or its undecorated
+        function) at its clips' own trajectories, placed by the scene's encoded cameras, from the pass's noise."""
+        V = batch.views
+        K_src, w2c_src = batch.source
+        if V > 1:  # every clip renders with its scene's encoded cameras
+            K_src, w2c_src = K_src.repeat_interleave(V, 0), w2c_src.repeat_interleave(V, 0)
+        return render(z_s.repeat_interleave(V, 0), z_d.repeat_interleave(V, 0), batch.K, batch.w2c,
+                      source=(K_src, w2c_src), noise=module.noise[:, :batch.frames.shape[1]])
 
     def feedback_reads(self, batch: SourceBatch, chosen: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         """Where render feedback reads the residual, fixed by the batch before any render: each dynamic token's
