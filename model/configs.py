@@ -529,6 +529,17 @@ class ModelConfig(_Config):
         render feedback (``feedback_quality``), rather than the first pass."""
         return bool(self.feedback_width) and (quality is None or quality >= self.feedback_quality)
 
+    def update_bases_sha256s(self) -> tuple[str, ...]:
+        """Config hashes of the earlier models an update of this config may read (``train.ship --reads``): itself
+        with fewer render feedback passes or without the render's gradient, and without render feedback (each an
+        encoder whose first pass, token quantizer and entropy tables this config keeps)."""
+        hashes = [self.without_feedback().sha256()]
+        if self.feedback_width:
+            for passes in range(1, self.feedback_passes + 1):
+                for gradient in dict.fromkeys((False, self.feedback_gradient)):
+                    hashes.append(self.replace(feedback_passes=passes, feedback_gradient=gradient).sha256())
+        return tuple(dict.fromkeys(hashes))
+
     def first_pass_sha256s(self) -> tuple[str, ...]:
         """Config hashes of a tokenizer whose tokens are this model's first pass: this config and its
         :meth:`networks` with render feedback off. () without feedback (the tokens are the first pass)."""

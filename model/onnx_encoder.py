@@ -10,8 +10,12 @@ without feedback, which a prior trained on them is conditioned on) and what the 
 (:data:`FEEDBACK_STATE`); ``renderer.onnx`` renders Z^0 at the encoded cameras (the decoder's steps, seed 0, the
 latents ``y_next``), and ``feedback.onnx`` (:data:`FEEDBACK_INPUTS` -> :data:`FEEDBACK_OUTPUTS`, any V) adds the
 feedback; a model of several passes (``config.feedback_passes``) renders again and runs ``feedback-p{k}.onnx``
-for pass k = 2, 3, ... The renderer places splats with float64 geometry, so a render -- and the tokens the
-feedback makes of it -- agree with torch's to float rounding.
+for pass k = 2, 3, ... A feedback that also reads the render's gradient (``config.feedback_gradient``) renders
+with ``render-gradient.onnx`` (``render-gradient-v{V}.onnx`` for V cameras) instead: the same render Y and the
+gradient of sum (x - Y)^2 by the tokens (:data:`GRADIENT_INPUTS` -> :data:`GRADIENT_OUTPUTS`; one backward
+pass through the renderer, traced to a graph of its own per camera count), and its feedback graphs take the
+gradient too (:func:`feedback_inputs`). The renderer places splats with float64 geometry, so a render -- and
+the tokens the feedback makes of it -- agree with torch's to float rounding.
 
 The weights are float16 where the float32 value is exactly a float16 (the shipped weights are): external
 tensors into ``model.safetensors`` (or, in older exports, stored in the graph), so the graph computes with the
@@ -49,6 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = ["OnnxEncoder", "ONNX_FILE", "ONNX_FORMAT", "INPUT_NAMES", "OUTPUT_NAMES", "FIRST_PASS_NAMES", "output_names",
            "FEEDBACK_STATE", "FEEDBACK_INPUTS", "FEEDBACK_OUTPUTS", "FEEDBACK_FILE", "FEEDBACK_FORMAT", "feedback_file",
+           "feedback_inputs", "GRADIENT_INPUTS", "GRADIENT_OUTPUTS", "GRADIENT_FORMAT", "gradient_file",
            "onnx_available",
            "has_onnx_encoder", "encoder_file"]
 
@@ -66,11 +71,28 @@ FEEDBACK_INPUTS = FEEDBACK_STATE + ("y0",)  # y0: Z^0 rendered at the encoded ca
 FEEDBACK_OUTPUTS = ("z_s", "z_d", "a_s", "a_d")  # the tokens after the pass and their pre-activations
 FEEDBACK_FILE = "feedback.onnx"
 FEEDBACK_FORMAT = "vt4d-feedback-onnx/1"
+# a feedback that reads the render's gradient (config.feedback_gradient): the graph of the render and its gradient
+# takes the tokens so far (1, N_s, d), (1, N_d, d), the source latents x (V, T, C, h, w) and the encoded cameras
+# K (V, T, 3, 3), w2c (V, T, 4, 4); it gives their render y0 (V, T, C, h, w) at the encoded cameras (the
+# decoder's steps, seed-0 noise) and the gradient of sum (x - y0)^2 by the tokens, g_s (1, N_s, d), g_d (1, N_d, d)
+GRADIENT_INPUTS = ("z_s", "z_d", "x", "K", "w2c")
+GRADIENT_OUTPUTS = ("y0", "g_s", "g_d")
+GRADIENT_FORMAT = "vt4d-render-gradient-onnx/1"
 
 
 def output_names(config: ModelConfig) -> tuple[str, ...]:
     """The outputs of the encoder graph of a model with ``config``."""
     return FIRST_PASS_NAMES + FEEDBACK_STATE if config.feedback_width else OUTPUT_NAMES
+
+
+def feedback_inputs(config: ModelConfig) -> tuple[str, ...]:
+    """The inputs of the feedback graphs of a model with ``config``: with ``feedback_gradient`` the gradient too."""
+    return FEEDBACK_INPUTS + GRADIENT_OUTPUTS[1:] if config.feedback_gradient else FEEDBACK_INPUTS
+
+
+def gradient_file(views: int = 1) -> str:
+    """The file name of the graph of the render and its gradient for scenes of ``views`` cameras."""
+    return "render-gradient.onnx" if views == 1 else f"render-gradient-v{int(views)}.onnx"
 
 
 def feedback_file(step: int = 1) -> str:
@@ -95,9 +117,11 @@ class OnnxEncoder:
     """
 
     def __init__(self, directory: Path, meta: dict[str, Any], session: Any, views: int, device: str = "cpu",
-                 feedback: "tuple[list[Any], OnnxRenderer] | None" = None) -> None:
+                 feedback: "tuple[list[Any], OnnxRenderer | Any] | None" = None) -> None:
         self.directory, self.session, self.views, self.device = directory, session, views, device
-        self._feedback = feedback  # (a session per feedback pass, the renderer) of a model with render feedback
+        # a model with render feedback: (a session per feedback pass, what renders for it: the renderer, or the
+        # session of the render-gradient graph where the feedback reads the gradient)
+        self._feedback = feedback
         self.config: ModelConfig = meta["config"]
         self.model_id: str = meta["model_id"]
         self.model_version: str = meta["model_version"]
@@ -142,20 +166,30 @@ class OnnxEncoder:
         if stored != str(views):
             raise ModelError(f"{path}: vt4d_views must be {str(views)!r}, got {stored!r}")
         feedback = None
-        if meta["config"].feedback_width:  # its second look renders with the renderer's graph
+        cfg = meta["config"]
+        if cfg.feedback_width:  # its later looks render with the renderer's graph, or the render-gradient graph
             from .onnx_renderer import RENDERER_FILE, OnnxRenderer
 
-            passes = [feedback_file(k) for k in range(1, meta["config"].feedback_passes + 1)]
-            for name in (*passes, RENDERER_FILE):
+            passes = [feedback_file(k) for k in range(1, cfg.feedback_passes + 1)]
+            render = gradient_file(views) if cfg.feedback_gradient else RENDERER_FILE
+            for name in (*passes, render):
                 if not (directory / name).is_file():
                     raise ModelNotFoundError(f"{directory} has no {name}, which its encoder's render feedback needs "
                                              f"(export it with `python -m vt4dcodec.model.onnx_export {directory}`, "
                                              "or encode with runtime='torch')")
-            sessions = [open_checked(directory / name, meta, fmt=FEEDBACK_FORMAT, inputs=FEEDBACK_INPUTS,
+            sessions = [open_checked(directory / name, meta, fmt=FEEDBACK_FORMAT, inputs=feedback_inputs(cfg),
                                      outputs=FEEDBACK_OUTPUTS, what="render feedback", device=device,
                                      threads=threads)[0] for name in passes]
-            feedback = (sessions, OnnxRenderer.from_file(directory / RENDERER_FILE, meta, threads=threads,
-                                                         device=device))
+            if cfg.feedback_gradient:
+                renderer, _, props = open_checked(directory / render, meta, fmt=GRADIENT_FORMAT, inputs=GRADIENT_INPUTS,
+                                                  outputs=GRADIENT_OUTPUTS, what="render gradient", device=device,
+                                                  threads=threads)
+                if props.get("vt4d_views", "") != str(views):
+                    raise ModelError(f"{directory / render}: vt4d_views must be {str(views)!r}, "
+                                     f"got {props.get('vt4d_views', '')!r}")
+            else:
+                renderer = OnnxRenderer.from_file(directory / RENDERER_FILE, meta, threads=threads, device=device)
+            feedback = (sessions, renderer)
         return cls(directory, meta, session, views, where, feedback)
 
     def stored_fingerprint(self) -> ModelFingerprint:
@@ -193,8 +227,13 @@ class OnnxEncoder:
         K_src = np.broadcast_to(arrays["K"][None, :, mid], (V, V, 3, 3))
         w2c_src = np.broadcast_to(arrays["w2c"][None, :, mid], (V, V, 4, 4))
         for session in sessions:  # each pass looks at what the tokens so far render
-            y = renderer.render_latents(np.repeat(z_s, V, 0), np.repeat(z_d, V, 0), arrays["K"], arrays["w2c"],
-                                        K_src, w2c_src, seed=0)
-            z_s, z_d, a_s, a_d = session.run(list(FEEDBACK_OUTPUTS), dict(zip(FEEDBACK_INPUTS, (*state, y))))
+            if cfg.feedback_gradient:  # the render and its gradient by the tokens
+                looked = renderer.run(list(GRADIENT_OUTPUTS), dict(zip(GRADIENT_INPUTS, (
+                    z_s, z_d, state[2], arrays["K"], arrays["w2c"]))))
+            else:
+                looked = [renderer.render_latents(np.repeat(z_s, V, 0), np.repeat(z_d, V, 0), arrays["K"],
+                                                  arrays["w2c"], K_src, w2c_src, seed=0)]
+            z_s, z_d, a_s, a_d = session.run(list(FEEDBACK_OUTPUTS), dict(zip(feedback_inputs(cfg),
+                                                                              (*state, *looked))))
             state[:2] = [a_s, a_d]
         return np.asarray(z_s, np.float32), np.asarray(z_d, np.float32)

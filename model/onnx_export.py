@@ -13,6 +13,10 @@ What it writes beside ``model.safetensors`` (:func:`export_model`; run when a mo
   update from the first pass and its render, for any number of encoded cameras; the encoder graphs of such a
   model stop at the first pass and output what the feedback reads, and ``model.onnx_encoder`` renders it
   with ``renderer.onnx``, so the renderer is stored once;
+* for a feedback that reads the render's gradient (``config.feedback_gradient``), ``render-gradient.onnx`` and
+  ``render-gradient-v{V}.onnx`` (V = 2 .. :data:`EXPORT_VIEWS`): the render at the encoded cameras and the
+  gradient of the squared latent error by the tokens, which the encoder runs instead of the renderer (see
+  below: traced otherwise, one graph per camera count);
 * for a Co4DGen prior directory (:func:`export_prior`), ``prior-condition.onnx`` and ``prior-velocity.onnx``
   beside ``prior.safetensors`` (``model.onnx_prior`` runs its sampler).
 
@@ -31,15 +35,26 @@ copies, copy origins and resolutions, stored for 1 .. MAX_VIEWS cameras and gath
 count its source cameras have).  Before a graph replaces an old one, onnxruntime's output on example
 inputs must match torch's within :data:`PARITY_TOLERANCE`.  Needs the ``onnx`` package (``train`` and
 ``test`` extras).
+
+The render-gradient graphs are a backward pass, which that exporter cannot trace: ``torch.func`` differentiates
+the decoder's render (:func:`_render_gradient`), ``make_fx`` traces forward and backward to aten operations
+(attention on its math kernel; decompositions for the few operators without an ONNX form) and torch's dynamo
+exporter writes the graph (it needs the ``onnxscript`` package, in the same extras). The trace fixes the shapes
+and the camera count's index tables, hence one graph per camera count, each checked against torch's
+render and gradient on captures it was not traced on (:data:`GRADIENT_TOLERANCE`); its weights are linked into
+``model.safetensors`` as above.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import hashlib
+import importlib.util
 import io
 import json
+import logging
 import os
 import struct
 import sys
@@ -59,17 +74,21 @@ from .directories import WEIGHTS_FILE, model_directory, read_model_meta
 from .entropy import MAX_VIEWS
 from .inputs.source_inputs import SourceBatch
 from .layers import dynamic_token_cameras, locality_heads
-from .onnx_encoder import (FEEDBACK_FORMAT, FEEDBACK_INPUTS, FEEDBACK_OUTPUTS, INPUT_NAMES, ONNX_FORMAT, OnnxEncoder,
-                           encoder_file, feedback_file, output_names)
+from .onnx_encoder import (FEEDBACK_FORMAT, FEEDBACK_OUTPUTS, GRADIENT_FORMAT, GRADIENT_INPUTS, GRADIENT_OUTPUTS,
+                           INPUT_NAMES, ONNX_FORMAT, OnnxEncoder, encoder_file, feedback_file, feedback_inputs,
+                           gradient_file, output_names)
 from .onnx_session import open_checked
 from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, RENDERER_OUTPUTS, OnnxRenderer)
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
 
-__all__ = ["export_encoder", "export_feedback", "export_renderer", "export_model", "export_prior", "example_inputs", "example_render_inputs",
-           "PARITY_TOLERANCE", "EXPORT_VIEWS"]
+__all__ = ["export_encoder", "export_feedback", "export_gradient", "export_renderer", "export_model", "export_prior",
+           "example_inputs", "example_render_inputs", "PARITY_TOLERANCE", "GRADIENT_TOLERANCE", "EXPORT_VIEWS"]
 
 PARITY_TOLERANCE = 1e-4  # max |difference| of tokens (or frames in [0, 1]) between onnxruntime and torch
+# max |difference| of a render gradient relative to its largest |value| (vt4d-tiny gf1: 1.1e-6 measured)
+GRADIENT_TOLERANCE = 1e-4
+FOLD_LIMIT = 256  # the render-gradient graphs fold constants of at most this many elements (never a weight)
 OPSET = 17
 EXPORT_VIEWS = 10  # encoder graphs for scenes of 1 .. EXPORT_VIEWS cameras (a 10-camera rig; more: the torch runtime)
 
@@ -317,38 +336,37 @@ class _Encode(nn.Module):
 
 class _Feedback(nn.Module):
     """``VideoTok4D.feedback_update`` of render feedback pass ``step`` (1, 2, ...) of one scene: inputs
-    :data:`FEEDBACK_INPUTS`, outputs :data:`FEEDBACK_OUTPUTS` (the bounded tokens and their pre-activations)."""
+    ``feedback_inputs(config)`` (the render's gradient last where the feedback reads it), outputs
+    :data:`FEEDBACK_OUTPUTS` (the bounded tokens and their pre-activations)."""
 
     def __init__(self, net: VideoTok4D, step: int) -> None:
         super().__init__()
         self.net, self.module = net, net.feedback_modules()[step - 1]
 
     def forward(self, a_s: torch.Tensor, a_d: torch.Tensor, x: torch.Tensor, clip: torch.Tensor, at: torch.Tensor,
-                weight: torch.Tensor, cameras: torch.Tensor, covers: torch.Tensor, y0: torch.Tensor
-                ) -> tuple[torch.Tensor, ...]:
-        a_s, a_d = self.net.feedback_update(self.module, a_s, a_d, x, y0, clip, at, weight, cameras, covers)
+                weight: torch.Tensor, cameras: torch.Tensor, covers: torch.Tensor, y0: torch.Tensor,
+                *gradients: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        a_s, a_d = self.net.feedback_update(self.module, a_s, a_d, x, y0, clip, at, weight, cameras, covers,
+                                            gradients=(gradients[0], gradients[1]) if gradients else None)
         return (*self.net._bound(a_s, a_d), a_s, a_d)
 
 
 def _feedback_case(net: VideoTok4D, step: int, views: int, seed: int
                    ) -> tuple[tuple[torch.Tensor, ...], list[np.ndarray]]:
-    """(:data:`FEEDBACK_INPUTS` of pass ``step`` on example inputs for ``views`` cameras, torch's outputs)."""
+    """(``feedback_inputs(config)`` of pass ``step`` on example inputs for ``views`` cameras, torch's outputs)."""
     inputs = example_inputs(net, seed=seed, views=views)
     batch = SourceBatch(**dict(zip(INPUT_NAMES, inputs)), views=views)
     with torch.no_grad():
         a_s, a_d, x, *reads = _Encode(net, views)(*inputs)[2:]
         for module in net.feedback_modules()[:step]:
-            y = net.feedback_render(module, batch, a_s, a_d)
-            case = (a_s, a_d, x, *reads, y)
-            a_s, a_d = net.feedback_update(module, a_s, a_d, x, y, *reads)
+            if net.config.feedback_gradient:
+                y, *gradients = net.feedback_render_gradients(module, batch, a_s, a_d, x)
+            else:
+                y, gradients = net.feedback_render(module, batch, a_s, a_d), []
+            case = (a_s, a_d, x, *reads, y, *gradients)
+            a_s, a_d = net.feedback_update(module, a_s, a_d, x, y, *reads,
+                                           gradients=(gradients[0], gradients[1]) if gradients else None)
     return case, [t.numpy() for t in (*net._bound(a_s, a_d), a_s, a_d)]
-
-
-def _refuse_gradient_feedback(net: VideoTok4D) -> None:
-    """ModelError for render feedback that reads the render's gradient (config ``feedback_gradient``)."""
-    if net.config.feedback_gradient:
-        raise ModelError("a feedback_gradient model's feedback reads the render's gradient, which has no ONNX graph "
-                         "yet (bench/probes/probe_gradient_export.py): run it with runtime='torch'")
 
 
 def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: int = 1) -> Path:
@@ -359,22 +377,190 @@ def export_feedback(net: VideoTok4D, directory: str | os.PathLike[str], step: in
     passes = len(net.feedback_modules())
     if not 1 <= step <= passes:
         raise ModelError(f"this model has {passes} render feedback pass(es), not a pass {step}")
-    _refuse_gradient_feedback(net)
     directory = Path(directory)
     meta = _checked_meta(net, directory)
     wrapper = _Feedback(net.eval(), step).eval()
     inputs, _ = _feedback_case(net, step, 2, 0)
-    model = _trace(wrapper, inputs, list(FEEDBACK_INPUTS), list(FEEDBACK_OUTPUTS), {"x": {0: "V"}, "y0": {0: "V"}})
+    names = feedback_inputs(net.config)
+    model = _trace(wrapper, inputs, list(names), list(FEEDBACK_OUTPUTS), {"x": {0: "V"}, "y0": {0: "V"}})
 
     def check(path: Path) -> None:
-        session, _, _ = open_checked(path, meta, fmt=FEEDBACK_FORMAT, inputs=FEEDBACK_INPUTS, outputs=FEEDBACK_OUTPUTS,
+        session, _, _ = open_checked(path, meta, fmt=FEEDBACK_FORMAT, inputs=names, outputs=FEEDBACK_OUTPUTS,
                                      what="render feedback")
         for views, seed in ((1, 1), (3, 2)):
             case, want = _feedback_case(net, step, views, seed)
-            _parity(session.run(list(FEEDBACK_OUTPUTS), {n: t.numpy() for n, t in zip(FEEDBACK_INPUTS, case)}), want,
+            _parity(session.run(list(FEEDBACK_OUTPUTS), {n: t.numpy() for n, t in zip(names, case)}), want,
                     f"render feedback pass {step} ({views} camera(s))")
 
     return _finish(model, directory, meta, FEEDBACK_FORMAT, feedback_file(step), {}, check)
+
+
+# --- the render and its gradient ------------------------------------------------------------------------
+def _render_gradient(net: VideoTok4D, views: int) -> Any:
+    """``VideoTok4D.feedback_render_gradients`` of one scene of ``views`` cameras as a function of the
+    :data:`GRADIENT_INPUTS` tensors -> (y0, g_s, g_d) (:data:`GRADIENT_OUTPUTS`), differentiated by ``torch.func``.
+    Every feedback pass renders from the same seed-0 noise, so one graph serves them all (checked)."""
+    first, *later = net.feedback_modules()
+    if any(not torch.equal(module.noise, first.noise) for module in later):
+        raise ModelError("the render feedback passes render from different noise: one render-gradient graph "
+                         "cannot serve them")
+    render = functools.partial(type(net).render_latents.__wrapped__, net)  # the decoder's, with gradients
+
+    def error(z_s: torch.Tensor, z_d: torch.Tensor, x: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        # the render reads the cameras and the clip count and length only: x stands for the other fields
+        batch = SourceBatch(frames=x, K=K, w2c=w2c, motion_mask=x, track_xy=x, track_valid=x, views=views)
+        y = net._render_encoded(first, batch, z_s, z_d, render)
+        return (x - y).square().sum(), y
+
+    gradient = torch.func.grad_and_value(error, argnums=(0, 1), has_aux=True)
+
+    def render_gradient(z_s: torch.Tensor, z_d: torch.Tensor, x: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor
+                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        (g_s, g_d), (_, y) = gradient(z_s, z_d, x, K, w2c)
+        return y, g_s, g_d
+
+    return render_gradient
+
+
+def _gradient_case(net: VideoTok4D, views: int, seed: int) -> tuple[tuple[torch.Tensor, ...], list[np.ndarray]]:
+    """(:data:`GRADIENT_INPUTS` of the first pass on example inputs for ``views`` cameras, torch's
+    ``feedback_render_gradients`` of them)."""
+    inputs = example_inputs(net, seed=seed, views=views)
+    batch = SourceBatch(**dict(zip(INPUT_NAMES, inputs)), views=views)
+    with torch.no_grad():
+        a_s, a_d, x, _ = net._first_preactivations(batch)
+        want = net.feedback_render_gradients(net.feedback_modules()[0], batch, a_s, a_d, x)
+    return (*net._bound(a_s, a_d), x.float(), batch.K, batch.w2c), [t.numpy() for t in want]
+
+
+@contextlib.contextmanager
+def _differentiable_trace(net: VideoTok4D) -> Iterator[None]:
+    """While a gradient is traced: frozen parameters (the gradient is by the tokens only), no camera value checks
+    (a trace cannot branch on values; the inputs are the encoder's own), math attention and :func:`_traceable_linalg`."""
+    from torch.nn.attention import SDPBackend, sdpa_kernel
+
+    grads = [p.requires_grad for p in net.parameters()]
+    for param in net.parameters():
+        param.requires_grad_(False)
+    net._check_cameras = lambda *args, **kwargs: None  # type: ignore[method-assign]
+    try:
+        with _traceable_linalg(), sdpa_kernel(SDPBackend.MATH):
+            yield
+    finally:
+        del net._check_cameras
+        for param, grad in zip(net.parameters(), grads):
+            param.requires_grad_(grad)
+
+
+def _trace_gradient(net: VideoTok4D, views: int, example: tuple[torch.Tensor, ...]) -> Any:
+    """The render-gradient graph (an ``onnx.ModelProto``) of ``views`` cameras traced on ``example``."""
+    import torch._decomp as decomp
+    from torch.fx.experimental.proxy_tensor import make_fx
+
+    aten = torch.ops.aten
+    table = dict(decomp.core_aten_decompositions())
+    table.update(decomp.get_decompositions([aten._softmax, aten._log_softmax]))
+
+    def empty_permuted(size: Any, physical_layout: Any, dtype: Any = None, layout: Any = None, device: Any = None,
+                       pin_memory: Any = None) -> torch.Tensor:  # no ONNX form; its values are never read
+        return torch.empty(size, dtype=dtype, device=device)
+
+    table[aten.empty_permuted.default] = empty_permuted
+    function = _render_gradient(net, views)
+    # the weights enter the trace as inputs: as constants, make_fx would run what is done to them (a linear layer's
+    # transpose) at trace time and store the results, a copy of the weights that is not model.safetensors'
+    weights = {name: param.detach() for name, param in net.named_parameters()}
+
+    def with_weights(values: dict[str, torch.Tensor], *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        with torch.nn.utils.stateless._reparametrize_module(net, values):
+            return function(*inputs)
+
+    with _differentiable_trace(net):
+        traced = make_fx(with_weights, decomposition_table=table)(weights, *example)
+
+    class Graph(nn.Module):
+        """The traced function with the weights as buffers: initializers of the exported graph."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.traced, self.names = traced, list(weights)
+            for k, value in enumerate(weights.values()):
+                self.register_buffer(f"w{k}", value)
+
+        def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+            values = {name: getattr(self, f"w{k}") for k, name in enumerate(self.names)}
+            return tuple(self.traced(values, *inputs))
+
+    loggers = [logging.getLogger(name) for name in ("torch.onnx", "onnxscript", "onnx_ir")]
+    levels = [logger.level for logger in loggers]
+    try:  # the exporter's progress lines and its notes on torchvision operators this graph never uses
+        for logger in loggers:
+            logger.setLevel(logging.ERROR)
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(Graph(), example, dynamo=True, input_names=list(GRADIENT_INPUTS),
+                                        output_names=list(GRADIENT_OUTPUTS), verbose=False, optimize=False)
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
+    import onnx
+    import onnxscript.optimizer
+
+    # optimised with the weights as graph inputs: as initializers, the optimiser would fold every transposed weight
+    # into a new constant (a copy of the weights in each graph, 7 MB for vt4d-tiny, that _link_weights cannot find)
+    model = program.model_proto
+    weights_in = list(model.graph.initializer)
+    del model.graph.initializer[:]
+    inputs = list(model.graph.input)
+    model.graph.input.extend(onnx.helper.make_tensor_value_info(w.name, w.data_type, list(w.dims)) for w in weights_in)
+    model = onnxscript.optimizer.optimize(model, input_size_limit=FOLD_LIMIT, output_size_limit=FOLD_LIMIT)
+    used = {name for node in model.graph.node for name in node.input}
+    del model.graph.input[:]
+    model.graph.input.extend(inputs)
+    model.graph.initializer.extend(w for w in weights_in if w.name in used)
+    del model.graph.value_info[:]  # renamed by _compact_names
+    del model.graph.metadata_props[:]
+    for node in model.graph.node:  # the exporter's notes on each node (stack traces, fx names): 80 % of the bytes
+        del node.metadata_props[:]
+        node.doc_string = ""
+    _fill_uniform_constants(model)
+    return model
+
+
+def export_gradient(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
+    """Write the render-gradient graph for scenes of ``views`` cameras (``render-gradient.onnx`` for one) of a
+    ``feedback_gradient`` model into its model ``directory``; ModelError for a model whose feedback reads no
+    gradient, when the directory does not describe ``net``, or when onnxruntime's render differs from torch's by
+    more than :data:`PARITY_TOLERANCE` or its gradient by more than :data:`GRADIENT_TOLERANCE` of its scale,
+    on captures other than the traced one. Needs ``onnxscript`` (the dynamo exporter)."""
+    if not net.config.feedback_gradient:
+        raise ModelError("this model's render feedback reads no gradient (config feedback_gradient): it has no "
+                         "render-gradient graph")
+    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
+        raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
+    if importlib.util.find_spec("onnxscript") is None:
+        raise ModelError("exporting a render-gradient graph needs onnxscript (pip install onnxscript; in the "
+                         "'train' extra)")
+    directory = Path(directory)
+    meta = _checked_meta(net, directory)
+    net = net.eval()
+    model = _trace_gradient(net, views, _gradient_case(net, views, 0)[0])
+
+    def check(path: Path) -> None:
+        session, _, _ = open_checked(path, meta, fmt=GRADIENT_FORMAT, inputs=GRADIENT_INPUTS, outputs=GRADIENT_OUTPUTS,
+                                     what="render gradient")
+        for seed in (1, 2):
+            case, want = _gradient_case(net, views, seed)
+            got = session.run(list(GRADIENT_OUTPUTS), {n: t.numpy() for n, t in zip(GRADIENT_INPUTS, case)})
+            _parity(got[:1], want[:1], f"render at the encoded cameras ({views} camera(s))")
+            scale = max(float(np.abs(w).max()) for w in want[1:])
+            error = max(float(np.abs(g - w).max()) for g, w in zip(got[1:], want[1:])) / max(scale, 1e-30)
+            if error > GRADIENT_TOLERANCE:
+                raise ModelError(f"exported render gradient ({views} camera(s)) differs from torch by {error:.2e} "
+                                 f"of its scale (> {GRADIENT_TOLERANCE})")
+
+    return _finish(model, directory, meta, GRADIENT_FORMAT, gradient_file(views), {"vt4d_views": str(views)}, check)
 
 
 def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: int = 1) -> Path:
@@ -629,11 +815,12 @@ def export_prior(prior: Any, directory: str | os.PathLike[str]) -> list[Path]:
 
 def export_model(net: VideoTok4D, directory: str | os.PathLike[str], *, views: int = EXPORT_VIEWS) -> list[Path]:
     """Every graph of :mod:`this module <vt4dcodec.model.onnx_export>`: the encoders for 1 .. ``views`` cameras,
-    the renderer and, for a model with render feedback, ``feedback.onnx``; returns their paths. The renderer is
-    written first: the encoders' parity check runs the feedback through it. ModelError, before any graph is
-    written, for render feedback that reads the render's gradient (config ``feedback_gradient``)."""
-    _refuse_gradient_feedback(net)
+    the renderer and, for a model with render feedback, ``feedback.onnx`` (and one graph per further pass) and, where
+    the feedback reads the render's gradient, the render-gradient graphs for 1 .. ``views`` cameras; returns their
+    paths. The encoders come last: their parity check runs the feedback through the graphs before them."""
     paths = [export_renderer(net, directory)]
+    if net.config.feedback_gradient:
+        paths += [export_gradient(net, directory, v) for v in range(1, views + 1)]
     paths += [export_feedback(net, directory, k) for k in range(1, len(net.feedback_modules()) + 1)]
     return paths + [export_encoder(net, directory, v) for v in range(1, views + 1)]
 
@@ -642,7 +829,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vt4dcodec.model.onnx_export", description=__doc__.split("\n\n")[0])
     parser.add_argument("model", help="a shipped model id or a model directory (a tokenizer's, or a prior's)")
     parser.add_argument("--views", type=int, default=EXPORT_VIEWS,
-                        help=f"encoder graphs for scenes of 1 .. VIEWS cameras (default {EXPORT_VIEWS})")
+                        help=f"encoder (and render-gradient) graphs for scenes of 1 .. VIEWS cameras (default "
+                             f"{EXPORT_VIEWS})")
     args = parser.parse_args(argv)
     try:
         from .directories import PRIOR_META_FILE, shipped_prior_ids

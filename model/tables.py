@@ -100,9 +100,10 @@ def tables_from_directory(directory: Path, fingerprint: ModelFingerprint | None 
 def reads_tables_of(meta: dict[str, Any], own: ModelFingerprint, fingerprint: ModelFingerprint) -> bool:
     """Whether the model of ``meta`` (fingerprint ``own``) holds the entropy tables of model ``fingerprint``: one of
     its ``reads`` (:func:`~.directories.meta_token_sources`) with its own id, token shapes and config, or its
-    config without render feedback -- an earlier model whose renderer it replaced or whose encoder it gave render
-    feedback (``train.ship --reads`` checked every other tensor equal)."""
-    configs = (own.config_sha256, meta["config"].without_feedback().sha256())
+    config without render feedback, or with fewer feedback passes or without the render's gradient -- an earlier
+    model whose renderer it replaced or whose encoder's render feedback it added or grew (``train.ship --reads``
+    checked every other tensor equal; ``ModelConfig.update_bases_sha256s``)."""
+    configs = (own.config_sha256, *meta["config"].update_bases_sha256s())
     return ((fingerprint.config_sha256, fingerprint.weights_sha256) in meta_token_sources(meta)
             and fingerprint.config_sha256 in configs and same_token_layout(own, fingerprint))
 

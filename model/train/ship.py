@@ -88,8 +88,10 @@ def model_card(model_id: str, version: str, run: Path, ae_run: Path | None, fing
     most = max([int(n[len("encoder-v"):-len(".onnx")]) for n in encoders if n.startswith("encoder-v")] or [1])
     others = [f"`{n}`: {what}" for n, what in (
         ("renderer.onnx", "the renderer and the autoencoder's decoder"),
-        ("feedback.onnx", "the encoder's render feedback (the encoder graphs give the first pass, `renderer.onnx` "
-                          "renders it)")) if n in names]
+        ("feedback.onnx", "the encoder's render feedback (the encoder graphs give the first pass, "
+                          + ("`render-gradient*.onnx` render it and differentiate the render by the tokens, one "
+                             "graph per camera count)" if any(n.startswith("render-gradient") for n in names)
+                             else "`renderer.onnx` renders it)"))) if n in names]
     onnx_line = (f"- `{encoders[0]}`" + (f" ... `{encoders[-1]}`: the encoders for scenes of 1 to {most} cameras"
                                           if len(encoders) > 1 else ": the encoder for one camera per scene")
                  + "".join(f", {part}" for part in others[:-1]) + "".join(f", and {part}" for part in others[-1:])
@@ -208,17 +210,22 @@ def reconfigure(model: VideoTok4D, overrides: dict) -> VideoTok4D:
 def token_sources_of(model: VideoTok4D, base_name: str) -> list[dict[str, str]]:
     """The ``reads`` record of ``model`` as an update of ``base_name`` that reads its tokens: the base's
     fingerprint, and the earlier models whose tokens the base read (its networks' digests where they differ from
-    its own, its own ``reads``). The update may replace the renderer and may add render feedback to an encoder
-    without it. ModelError unless the model has the base's config (the ``feedback_*`` fields aside where the base
-    has none) and, stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's (new
-    tensors can only be ``feedback.*``: the config allows no other) -- the same first-pass encoder, token quantizer
-    and entropy tables, so every file of the base holds tokens the model reads as the base did, and its first pass
-    is the base's encode."""
+    its own, its own ``reads``). The update may replace the renderer, may add render feedback to an encoder
+    without it, and may add to a base's render feedback further passes (``feedback_passes``) and the render's
+    gradient (``feedback_gradient``). ModelError unless the model has the base's config (those fields aside) and,
+    stored as float16, every tensor of the base outside ``renderer.*`` equal to the base's (new tensors can only
+    be the feedback's: the config allows no other) -- the same first-pass encoder, token quantizer and entropy
+    tables, so every file of the base holds tokens the model reads as the base did, and its first pass is the
+    base's encode."""
     base = from_pretrained(base_name)
-    plain = model.config.without_feedback() if not base.config.feedback_width else model.config
+    if not base.config.feedback_width:
+        plain = model.config.without_feedback()
+    else:  # the base's feedback kept; passes and the gradient may be added
+        plain = model.config.replace(feedback_passes=base.config.feedback_passes,
+                                     feedback_gradient=base.config.feedback_gradient)
     if base.config != plain:
         raise ModelError(f"{base_name}'s config differs from the model's: an update that reads its tokens keeps the "
-                         f"config (render feedback aside)")
+                         f"config (render feedback, its passes and its gradient aside)")
     ours, theirs = storage_state(model, "float16")[0], base.state_dict()
     differ = sorted(k for k in theirs if not k.startswith("renderer.") and not torch.equal(ours[k], theirs[k]))
     if differ:
@@ -258,8 +265,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="config fields to change at ship time that add no weights, e.g. spread_views=true")
     parser.add_argument("--reads", type=str, default=None, metavar="MODEL",
                         help="an update of MODEL (shipped id or directory, e.g. the model it replaces) that replaced its "
-                             "renderer or added render feedback to its encoder: checked to have MODEL's config "
-                             "(feedback_width aside) and every tensor of MODEL outside renderer.* (encoder, entropy "
+                             "renderer or added render feedback (or feedback passes, or the render's gradient) to its "
+                             "encoder: checked to have MODEL's config (those fields aside) and every tensor of MODEL "
+                             "outside renderer.* (encoder, entropy "
                              "tables), and recorded so MODEL's files, and a prior trained on its tokens, stay readable")
     args = parser.parse_args(argv)
     overrides = parse_overrides(args.set)

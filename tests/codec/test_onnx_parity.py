@@ -7,6 +7,7 @@ shipped prior's samples (``prior-condition.onnx``, ``prior-velocity.onnx``) with
 from __future__ import annotations
 
 import numpy as np
+import onnx
 import pytest
 import torch
 
@@ -15,8 +16,9 @@ from vt4dcodec.media import psnr
 from vt4dcodec.generate import generate, load_prior_model
 from vt4dcodec.model.directories import PRIOR_META_FILE, model_directory, shipped_model_ids, shipped_prior_ids
 from vt4dcodec.model.onnx_prior import OnnxPrior, has_onnx_prior
-from vt4dcodec.model.onnx_encoder import OnnxEncoder, has_onnx_encoder
+from vt4dcodec.model.onnx_encoder import OnnxEncoder, gradient_file, has_onnx_encoder
 from vt4dcodec.model.onnx_export import EXPORT_VIEWS
+from vt4dcodec.model.weights_io import from_pretrained
 from vt4dcodec.model.onnx_renderer import OnnxRenderer, has_onnx_renderer, seeded_noise
 from vt4dcodec.synth import SynthConfig, generate_scene
 
@@ -33,8 +35,25 @@ def test_every_shipped_model_ships_its_graphs():
         assert has_onnx_renderer(directory), model
         for views in range(1, EXPORT_VIEWS + 1):
             assert has_onnx_encoder(directory, views), (model, views)
-        sizes = sorted(p.stat().st_size for p in directory.glob("*.onnx"))
+        graphs = sorted(directory.glob("*.onnx"))
+        # the encoders, the renderer and the feedback (the render-gradient graphs, a backward pass each, are extra)
+        sizes = sorted(p.stat().st_size for p in graphs if not p.name.startswith("render-gradient"))
         assert sum(sizes) < 4_000_000 and sizes[-1] < 1_000_000, sizes  # the weights stay in model.safetensors
+        gradient = [p for p in graphs if p.name.startswith("render-gradient")]
+        if from_pretrained(directory).config.feedback_gradient:  # one per camera count, structure only
+            assert sorted(p.name for p in gradient) == sorted(gradient_file(v) for v in range(1, EXPORT_VIEWS + 1))
+            assert max(p.stat().st_size for p in gradient) < 400_000, [p.stat().st_size for p in gradient]
+        else:
+            assert not gradient
+        weights = {tuple(v.shape) for v in from_pretrained(directory).state_dict().values() if v.numel() >= 4096}
+        weights |= {shape[::-1] for shape in weights}
+        for path in graphs:  # what a graph stores itself (the render noise, index tables) holds no weight, transposed
+            graph = onnx.load(str(path), load_external_data=False).graph
+            stored = [t for t in graph.initializer if t.data_location != onnx.TensorProto.EXTERNAL]
+            stored += [a.t for node in graph.node if node.op_type == "Constant" for a in node.attribute if a.name == "value"]
+            copies = [tuple(t.dims) for t in stored if tuple(t.dims) in weights and
+                      t.data_type in (onnx.TensorProto.FLOAT, onnx.TensorProto.FLOAT16)]
+            assert not copies, (path.name, copies)
     assert PRIORS
     for prior in PRIORS:
         directory = model_directory(prior, PRIOR_META_FILE)

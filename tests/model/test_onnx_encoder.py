@@ -23,7 +23,7 @@ from vt4dcodec.errors import ModelError, ModelNotFoundError
 from vt4dcodec.model import SourceBatch, SourceInputs, VideoTok4D, get_config, save_pretrained
 from vt4dcodec.model.inputs.source_inputs import stack_inputs
 from vt4dcodec.model.onnx_encoder import ONNX_FILE, OnnxEncoder
-from vt4dcodec.model.onnx_export import example_inputs, export_encoder, export_feedback, export_model, export_renderer
+from vt4dcodec.model.onnx_export import (example_inputs, export_encoder, export_feedback, export_gradient, export_renderer)
 from vt4dcodec.model.weights_io import SHIPPED_DIR
 from vt4dcodec.synth import SynthConfig, generate_scene
 
@@ -84,27 +84,35 @@ def test_the_dynamic_splat_encoder_exports_and_gives_the_torch_tokens(tmp_path):
 BLENDS = {"groups": {}, "blend": {"copy_blend": True}}
 
 
-@pytest.mark.parametrize("views,passes,blend", [(1, 1, "groups"), (2, 1, "groups"), (1, 2, "groups"),
-                                               (1, 1, "blend")])
+@pytest.mark.parametrize("views,passes,blend,gradient", [(1, 1, "groups", False), (2, 1, "groups", False),
+                                                        (1, 2, "groups", False), (1, 1, "blend", False),
+                                                        (2, 2, "groups", True)])
 def test_the_render_feedback_encoder_exports_and_gives_the_torch_tokens(tmp_path, views: int, passes: int,
-                                                                        blend: str):
+                                                                        blend: str, gradient: bool):
     """Render feedback in three graphs: the encoder's gives the first pass (z_s0, z_d0: the tokens of the same
     weights without the feedback) and what the feedback reads, ``renderer.onnx`` renders it (seed-0 noise, the
     decoder's steps), and one feedback graph per pass (any camera count) gives the tokens. Blended frame copies
-    (their soft weights are tables of the renderer's graph) alike."""
+    (their soft weights are tables of the renderer's graph) alike. A feedback that reads the render's gradient
+    renders with the render-gradient graph of its camera count instead (a backward pass through the renderer,
+    traced by torch.func and the dynamo exporter)."""
     torch.manual_seed(0)
     net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
                                 dynamic_gate_copies=True, feedback_width=16, feedback_passes=passes,
-                                **BLENDS[blend])).eval()
+                                feedback_gradient=gradient, **BLENDS[blend])).eval()
     for module in [net.feedback, *(net.feedback_later or ())]:
-        for layer in (module.static[2], module.dynamic[2]):
-            torch.nn.init.normal_(layer.weight, std=0.1)  # a feedback that moves the tokens
+        layers = (module.static, module.dynamic) + ((module.static_grad, module.dynamic_grad) if gradient else ())
+        for layer in layers:
+            torch.nn.init.normal_(layer[2].weight, std=0.1)  # a feedback that moves the tokens
     net.decode_steps = 1
     directory = save_pretrained(net, tmp_path / "fb", model_id="fb", model_version="0", storage_dtype="float16")
     net = codec.load_model(directory)
     export_renderer(net, directory)
     assert [export_feedback(net, directory, k).name for k in range(1, passes + 1)] == \
         ["feedback.onnx", "feedback-p2.onnx"][:passes]
+    if gradient:
+        assert export_gradient(net, directory, views).name == f"render-gradient-v{views}.onnx"
+        with pytest.raises(ModelNotFoundError, match=f"no render-gradient-v{views + 1}.onnx"):
+            export_encoder(net, directory, views=views + 1)  # its feedback needs the graph of its camera count
     export_encoder(net, directory, views=views)
     encoder = OnnxEncoder.open(directory, views=views) if views > 1 else OnnxEncoder.open(directory)
     for seed in (3, 4):
@@ -312,14 +320,11 @@ def test_a_small_models_renderer_and_two_camera_encoder_export_and_match_torch(s
         OnnxRenderer.open(copy)
 
 
-def test_gradient_feedback_is_refused_before_any_graph_is_written(tmp_path):
-    """Render feedback that reads the render's gradient has no ONNX graph yet: export names the torch runtime and
-    leaves the model directory without graphs (no renderer written before the refusal)."""
-    net = VideoTok4D(get_config("tiny", **RECIPE, dynamic_splat=2, dynamic_from_patch=True, dynamic_gate_deg=8.0,
-                                dynamic_gate_copies=True, feedback_width=16, feedback_gradient=True)).eval()
-    net.decode_steps = 1
-    directory = save_pretrained(net, tmp_path / "gf", model_id="gf", model_version="0", storage_dtype="float16")
-    net = codec.load_model(directory)
-    with pytest.raises(ModelError, match="runtime='torch'"):
-        export_model(net, directory)
-    assert not list(Path(directory).glob("*.onnx"))
+def test_render_gradient_export_refuses_a_model_without_it(small, tmp_path):
+    """Only a feedback that reads the render's gradient has a render-gradient graph; a model without it is refused
+    before anything is traced or written."""
+    net, directory = small
+    before = sorted(p.name for p in Path(directory).glob("*.onnx"))
+    with pytest.raises(ModelError, match="feedback_gradient"):
+        export_gradient(net, directory)
+    assert sorted(p.name for p in Path(directory).glob("*.onnx")) == before

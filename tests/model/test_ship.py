@@ -284,3 +284,18 @@ def test_reads_records_render_feedback_added_to_the_encoder_and_a_prior_is_condi
         token_sources_of(changed, str(tmp_path / "new"))
     with pytest.raises(ModelError, match="config"):  # no other config change
         token_sources_of(reconfigure(from_pretrained(tmp_path / "new"), {"spread_views": True}), str(tmp_path / "base"))
+    # ... and may add to it: a further pass and the render's gradient (new tensors; the base's feedback kept)
+    kept = from_pretrained(tmp_path / "new")
+    grown = VideoTok4D(kept.config.replace(feedback_gradient=True, feedback_passes=2)).eval()
+    assert set(grown.load_state_dict(kept.state_dict(), strict=False).missing_keys) == \
+        {k for k in grown.state_dict() if k.startswith(("feedback_later.", "feedback.static_grad.", "feedback.dynamic_grad."))}
+    new_fp = kept.fingerprint("t", "2")
+    reads = token_sources_of(grown, str(tmp_path / "new"))
+    assert reads[0]["weights_sha256"] == new_fp.weights_sha256
+    save_pretrained(grown, tmp_path / "grown", model_id="t", model_version="4", storage_dtype="float16", reads=reads)
+    for fp in (new_fp, old_fp):  # the files of the model it grew, and of that one's base, find their tables in it
+        assert tables_from_directory(tmp_path / "grown", fp).fingerprint == fp
+    with torch.no_grad():
+        grown.feedback.dynamic[0].weight.mul_(1.5)
+    with pytest.raises(ModelError, match="outside renderer"):
+        token_sources_of(grown, str(tmp_path / "new"))
