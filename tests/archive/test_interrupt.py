@@ -27,11 +27,17 @@ def _inputs(tmp_path, n=SCENES, prefix="scene"):
     return d
 
 
+def _default_sigint():
+    """In the child before it starts: SIGINT to its default, so Python turns it into KeyboardInterrupt even where the
+    tests run as a background job, whose shell ignores SIGINT for everything it starts (a child inherits that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _pack_and_signal(inputs, out, sig, *extra, after=5):
     """Run `vt4d pack INPUTS -o OUT EXTRA` slowly, send ``sig`` once ``after`` appends returned; (announced keys,
     exit status, stderr)."""
     proc = subprocess.Popen([sys.executable, PACK, "0.05", "pack", str(inputs), "-o", str(out), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     announced = []
     try:
         while len(announced) < after:
