@@ -109,6 +109,13 @@ def has_onnx_encoder(directory: str | os.PathLike[str], views: int = 1) -> bool:
     return (Path(directory) / encoder_file(views)).is_file()
 
 
+def _check_views(path: Path, props: dict[str, str], views: int) -> None:
+    """ModelError unless a graph's metadata says it takes ``views`` cameras per scene (``vt4d_views``)."""
+    stored = props.get("vt4d_views", "")
+    if stored != str(views):
+        raise ModelError(f"{path}: vt4d_views must be {str(views)!r}, got {stored!r}")
+
+
 class OnnxEncoder:
     """A model directory's encoder graph for ``views`` cameras on an onnxruntime session.
 
@@ -162,9 +169,7 @@ class OnnxEncoder:
         session, where, props = open_checked(path, meta, fmt=ONNX_FORMAT, inputs=INPUT_NAMES,
                                              outputs=output_names(meta["config"]),
                                              what="encoder", device=device, threads=threads)
-        stored = props.get("vt4d_views", "")
-        if stored != str(views):
-            raise ModelError(f"{path}: vt4d_views must be {str(views)!r}, got {stored!r}")
+        _check_views(path, props, views)
         feedback = None
         cfg = meta["config"]
         if cfg.feedback_width:  # its later looks render with the renderer's graph, or the render-gradient graph
@@ -184,9 +189,7 @@ class OnnxEncoder:
                 renderer, _, props = open_checked(directory / render, meta, fmt=GRADIENT_FORMAT, inputs=GRADIENT_INPUTS,
                                                   outputs=GRADIENT_OUTPUTS, what="render gradient", device=device,
                                                   threads=threads)
-                if props.get("vt4d_views", "") != str(views):
-                    raise ModelError(f"{directory / render}: vt4d_views must be {str(views)!r}, "
-                                     f"got {props.get('vt4d_views', '')!r}")
+                _check_views(directory / render, props, views)
             else:
                 renderer = OnnxRenderer.from_file(directory / RENDERER_FILE, meta, threads=threads, device=device)
             feedback = (sessions, renderer)

@@ -49,9 +49,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import hashlib
-import importlib.util
 import io
 import json
 import logging
@@ -77,7 +75,7 @@ from .layers import dynamic_token_cameras, locality_heads
 from .onnx_encoder import (FEEDBACK_FORMAT, FEEDBACK_OUTPUTS, GRADIENT_FORMAT, GRADIENT_INPUTS, GRADIENT_OUTPUTS,
                            INPUT_NAMES, ONNX_FORMAT, OnnxEncoder, encoder_file, feedback_file, feedback_inputs,
                            gradient_file, output_names)
-from .onnx_session import open_checked
+from .onnx_session import module_available, open_checked
 from .onnx_renderer import (RENDERER_FILE, RENDERER_FORMAT, RENDERER_INPUTS, RENDERER_OUTPUTS, OnnxRenderer)
 from .videotok4d import VideoTok4D
 from .weights_io import from_pretrained
@@ -309,6 +307,11 @@ def _checked_meta(net: VideoTok4D, directory: Path) -> dict[str, Any]:
     return meta
 
 
+def _check_views(views: int) -> None:
+    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
+        raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
+
+
 def _parity(got: list[np.ndarray], want: list[np.ndarray], what: str) -> None:
     error = max(float(np.abs(a - b).max()) for a, b in zip(got, want))
     if error > PARITY_TOLERANCE:
@@ -359,13 +362,9 @@ def _feedback_case(net: VideoTok4D, step: int, views: int, seed: int
     with torch.no_grad():
         a_s, a_d, x, *reads = _Encode(net, views)(*inputs)[2:]
         for module in net.feedback_modules()[:step]:
-            if net.config.feedback_gradient:
-                y, *gradients = net.feedback_render_gradients(module, batch, a_s, a_d, x)
-            else:
-                y, gradients = net.feedback_render(module, batch, a_s, a_d), []
-            case = (a_s, a_d, x, *reads, y, *gradients)
-            a_s, a_d = net.feedback_update(module, a_s, a_d, x, y, *reads,
-                                           gradients=(gradients[0], gradients[1]) if gradients else None)
+            y, gradients = net.feedback_look(module, batch, a_s, a_d, x)
+            case = (a_s, a_d, x, *reads, y, *(gradients or ()))
+            a_s, a_d = net.feedback_update(module, a_s, a_d, x, y, *reads, gradients=gradients)
     return case, [t.numpy() for t in (*net._bound(a_s, a_d), a_s, a_d)]
 
 
@@ -404,14 +403,12 @@ def _render_gradient(net: VideoTok4D, views: int) -> Any:
     if any(not torch.equal(module.noise, first.noise) for module in later):
         raise ModelError("the render feedback passes render from different noise: one render-gradient graph "
                          "cannot serve them")
-    render = functools.partial(type(net).render_latents.__wrapped__, net)  # the decoder's, with gradients
 
     def error(z_s: torch.Tensor, z_d: torch.Tensor, x: torch.Tensor, K: torch.Tensor, w2c: torch.Tensor
               ) -> tuple[torch.Tensor, torch.Tensor]:
         # the render reads the cameras and the clip count and length only: x stands for the other fields
         batch = SourceBatch(frames=x, K=K, w2c=w2c, motion_mask=x, track_xy=x, track_valid=x, views=views)
-        y = net._render_encoded(first, batch, z_s, z_d, render)
-        return (x - y).square().sum(), y
+        return net.feedback_render_error(first, batch, z_s, z_d, x)
 
     gradient = torch.func.grad_and_value(error, argnums=(0, 1), has_aux=True)
 
@@ -537,9 +534,8 @@ def export_gradient(net: VideoTok4D, directory: str | os.PathLike[str], views: i
     if not net.config.feedback_gradient:
         raise ModelError("this model's render feedback reads no gradient (config feedback_gradient): it has no "
                          "render-gradient graph")
-    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
-        raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
-    if importlib.util.find_spec("onnxscript") is None:
+    _check_views(views)
+    if not module_available("onnxscript"):
         raise ModelError("exporting a render-gradient graph needs onnxscript (pip install onnxscript; in the "
                          "'train' extra)")
     directory = Path(directory)
@@ -569,8 +565,7 @@ def export_encoder(net: VideoTok4D, directory: str | os.PathLike[str], views: in
     directory does not describe ``net`` or when onnxruntime's tokens differ from torch's by more than
     :data:`PARITY_TOLERANCE`. A model with render feedback renders with the directory's ``renderer.onnx`` and
     feedback graphs, written first (:func:`export_model` does)."""
-    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
-        raise ModelError(f"views must be 1 .. {MAX_VIEWS}, got {views!r}")
+    _check_views(views)
     directory = Path(directory)
     meta = _checked_meta(net, directory)
     wrapper = _Encode(net.eval(), views).eval()

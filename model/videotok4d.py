@@ -262,14 +262,18 @@ class VideoTok4D(ModelIdentity, nn.Module):
         rendered at the encoded cameras (:meth:`feedback_render`), the residual x - Y read back around each token."""
         reads = self.feedback_reads(batch, chosen)  # where the residual is read: the same for every pass
         for module in self.feedback_modules():
-            gradients = None
-            if self.config.feedback_gradient:
-                y0, g_s, g_d = self.feedback_render_gradients(module, batch, a_s, a_d, x)
-                gradients = (g_s, g_d)
-            else:
-                y0 = self.feedback_render(module, batch, a_s, a_d)
+            y0, gradients = self.feedback_look(module, batch, a_s, a_d, x)
             a_s, a_d = self.feedback_update(module, a_s, a_d, x, y0, *reads, gradients=gradients)
         return a_s, a_d
+
+    def feedback_look(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor, a_d: torch.Tensor,
+                      x: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+        """What a feedback pass reads of the tokens so far: their render Y (:meth:`feedback_render`) and, with
+        ``feedback_gradient``, the render error's gradients (:meth:`feedback_render_gradients`; else None)."""
+        if not self.config.feedback_gradient:
+            return self.feedback_render(module, batch, a_s, a_d), None
+        y0, g_s, g_d = self.feedback_render_gradients(module, batch, a_s, a_d, x)
+        return y0, (g_s, g_d)
 
     def feedback_render(self, module: RenderFeedback, batch: SourceBatch, a_s: torch.Tensor,
                         a_d: torch.Tensor) -> torch.Tensor:
@@ -285,12 +289,20 @@ class VideoTok4D(ModelIdentity, nn.Module):
         (Y (B, T, C, h, w), dL/dZ_s (S, N_s, d), dL/dZ_d (S, N_d, d)), all without a graph (a stop-gradient, as
         Y's). One backward pass through the renderer, whatever the caller's grad mode."""
         z_s, z_d = self._bound(a_s, a_d)
-        render = functools.partial(type(self).render_latents.__wrapped__, self)  # the decoder's, with gradients
         with torch.enable_grad():
             zs, zd = z_s.detach().requires_grad_(True), z_d.detach().requires_grad_(True)
-            y = self._render_encoded(module, batch, zs, zd, render)
-            g_s, g_d = torch.autograd.grad((x.detach().float() - y).square().sum(), [zs, zd])
+            error, y = self.feedback_render_error(module, batch, zs, zd, x.detach().float())
+            g_s, g_d = torch.autograd.grad(error, [zs, zd])
         return y.detach(), g_s, g_d
+
+    def feedback_render_error(self, module: RenderFeedback, batch: SourceBatch, z_s: torch.Tensor, z_d: torch.Tensor,
+                              x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The squared latent error sum (x - Y)^2 of the tokens Z rendered at the encoded cameras (the decoder's
+        render, differentiable: :meth:`render_latents` without its no-grad) and Y: what
+        :meth:`feedback_render_gradients` differentiates (and ``onnx_export`` traces)."""
+        render = functools.partial(type(self).render_latents.__wrapped__, self)
+        y = self._render_encoded(module, batch, z_s, z_d, render)
+        return (x - y).square().sum(), y
 
     def _render_encoded(self, module: RenderFeedback, batch: SourceBatch, z_s: torch.Tensor, z_d: torch.Tensor,
                         render: Callable[..., torch.Tensor]) -> torch.Tensor:
