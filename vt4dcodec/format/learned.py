@@ -246,16 +246,33 @@ def writer_codes(tokens: np.ndarray, tables: EntropyTables, level: int, which: s
     ``|x| > 1 - f`` -- and for a CHANGE value of its difference to its origin's stored code, so a frame copy
     that barely moved stores "no change", which costs next to nothing. Any codes are valid in a file; these
     spend fewer bytes where the model's distortion rises least (the rounding offsets of video encoders' rate-
-    distortion optimised quantization)."""
+    distortion optimised quantization). A smaller code is not always a cheaper one (a frame copy whose origin's
+    code shrank stores a change where round to nearest stored none), so the dead-zoned matrix is kept only where
+    its stream is no longer than round to nearest's with plain and with adaptive rows; else round to nearest,
+    which is then better in rate and in distortion, and dead zones never cost a file bytes."""
     q = quantize(tokens, tables, level, which)
     if tables.rounding is None:
         return q
+    dead = _dead_zone_codes(tokens, q, tables, level, which, views)
+    if np.array_equal(dead, q):
+        return q
+    for adaptive in (False, True):
+        if _coded_length(dead, tables, level, which, views, adaptive) > \
+                _coded_length(q, tables, level, which, views, adaptive):
+            return q
+    return dead
+
+
+def _dead_zone_codes(tokens: np.ndarray, q: np.ndarray, tables: EntropyTables, level: int, which: str,
+                     views: int) -> np.ndarray:
+    """The dead-zoned codes of :func:`writer_codes` (``q``: the matrix's round-to-nearest codes)."""
+    assert tables.rounding is not None
     f = tables.rounding[level]
     half = tables.half_range(level)[_group(which)][None, :]
     x = np.asarray(tokens, np.float64) / tables.steps[level, _group(which)].astype(np.float64)
     if which == "dynamic":
         return q if f[DYNAMIC] == 0.5 else _dead_zone(x, f[DYNAMIC], half)
-    out = q if f[MEAN] == 0.5 else _dead_zone(x, f[MEAN], half)
+    out = q.copy() if f[MEAN] == 0.5 else _dead_zone(x, f[MEAN], half)
     origin, change = tables.copies(views)
     if f[CHANGE] != 0.5 and change.any():
         base = out[origin[change]]
@@ -263,6 +280,13 @@ def writer_codes(tokens: np.ndarray, tables: EntropyTables, level: int, which: s
     elif change.any():
         out[change] = q[change]
     return out
+
+
+def _coded_length(codes: np.ndarray, tables: EntropyTables, level: int, which: str, views: int,
+                  adaptive: bool) -> int:
+    """Bytes of the rANS stream of a code matrix (:func:`encode_learned_tokens` without its two-byte head)."""
+    symbols, contexts = coded_symbols(codes, tables, level, views, which)
+    return len(rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]), adaptive))
 
 
 def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
