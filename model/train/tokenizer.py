@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -222,13 +223,36 @@ def frame_copy_maps(state: dict[str, torch.Tensor], old: ModelConfig, new: Model
     return maps
 
 
-def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False) -> VideoTok4D:
+def repeated_feedback(state: dict[str, torch.Tensor], old: ModelConfig, new: ModelConfig,
+                      scale: float | None) -> dict[str, torch.Tensor]:
+    """``state`` of a model with ``old.feedback_passes`` render feedback passes, with each pass that ``new`` adds
+    (``feedback_later.{k}.*``) a copy of the saved model's last pass whose output layers are multiplied by
+    ``scale``: the new pass starts as the last look taken again at ``scale`` times its step (the first pass read
+    afresh at the tokens it made; scale 1/2 is a damped second step of a learned optimiser). ``state`` unchanged
+    where ``scale`` is None (the new passes start fresh: zero output, the saved model's encode) or nothing is
+    added."""
+    if scale is None or not old.feedback_width or new.feedback_passes <= old.feedback_passes:
+        return state
+    last = "feedback." if old.feedback_passes == 1 else f"feedback_later.{old.feedback_passes - 2}."
+    pass_state = {k[len(last):]: v for k, v in state.items() if k.startswith(last)}
+    out = dict(state)
+    for k in range(old.feedback_passes - 1, new.feedback_passes - 1):
+        for name, value in pass_state.items():
+            output_layer = name.split(".")[1:2] == ["2"]  # (static|dynamic|static_grad|dynamic_grad).2.*: the MLPs' last
+            out[f"feedback_later.{k}.{name}"] = value.clone() * scale if output_layer else value.clone()
+    return out
+
+
+def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = False,
+                     repeat_feedback: float | None = None) -> VideoTok4D:
     """A saved model (shipped id, model directory or training run directory) to continue training: its weights, autoencoder included
     (frozen), as float32. Its config must equal this run's; with ``partial`` it may differ in sizes
     outside the autoencoder (e.g. ``render_patch_size``): every tensor whose name and shape match is
     copied, the others keep their fresh initialisation and are listed on stdout; a static token set grown
     by a whole factor (``n_static``) starts as copies of the saved tokens (:func:`grown_static_tokens`), and
-    ``frame_copies`` switched on starts from the saved cell and splat maps (:func:`frame_copy_maps`)."""
+    ``frame_copies`` switched on starts from the saved cell and splat maps (:func:`frame_copy_maps`), and feedback
+    passes added start as the saved last pass scaled by ``repeat_feedback`` (:func:`repeated_feedback`; None:
+    fresh)."""
     source = model_from_run_or_saved(name_or_path)  # a run's latest checkpoint (e.g. under checkpoints/) or a model
     if source.config == cfg:
         model = source
@@ -240,6 +264,7 @@ def warm_start_model(cfg: ModelConfig, name_or_path: str, *, partial: bool = Fal
         model = VideoTok4D(cfg)
         fresh = model.state_dict()
         saved = frame_copy_maps(grown_static_tokens(source.state_dict(), source.config, cfg), source.config, cfg)
+        saved = repeated_feedback(saved, source.config, cfg, repeat_feedback)
         fits = {k: v.to(fresh[k].dtype) for k, v in saved.items() if k in fresh and fresh[k].shape == v.shape}
         ae = [k for k in fresh if k.startswith("autoencoder.")]
         if any(k not in fits for k in ae):
@@ -332,6 +357,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --init: the saved model's config may differ outside the autoencoder (e.g. "
                              "render_patch_size); copy the tensors whose shapes fit, start the rest fresh; "
                              "n_static = k x the saved one repeats each static token's query k times")
+    parser.add_argument("--repeat-feedback", type=float, default=None, metavar="SCALE",
+                        help="with --init-partial and more feedback_passes than the saved model: each added pass "
+                             "starts as the saved last pass with its output scaled by SCALE (default: fresh, "
+                             "zero output)")
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"),
                         help="where the model trains (auto: CUDA when torch sees it); the data stays on the CPU")
     parser.add_argument("--prefill-workers", type=int, default=0, metavar="N",
@@ -457,6 +486,9 @@ def main(argv: list[str] | None = None) -> int:
                            or sum(stored_weights) <= 0):
         parser.error(f"--stored-levels needs one weight >= 0 per quality level of the model ({cfg.entropy_levels}), "
                      "not all zero, and no --rate-lambdas")
+    if args.repeat_feedback is not None and (not args.init_partial or not math.isfinite(args.repeat_feedback)):
+        parser.error("--repeat-feedback takes a finite scale and goes with --init-partial (passes added to a saved "
+                     "model's render feedback)")
     args.out.mkdir(parents=True, exist_ok=True)
 
     starts = [flag for flag, value in (("--init", args.init), ("--autoencoder", args.autoencoder),
@@ -465,7 +497,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("give one of --init (a saved model to continue), --autoencoder (a stage-1 output) or "
                      f"--autoencoder-from (a saved model whose autoencoder a fresh tokenizer uses); got {starts or 'none'}")
     if args.init is not None:
-        model = warm_start_model(cfg, args.init, partial=args.init_partial)  # a checkpoint in --out, if any, still wins (train_loop)
+        model = warm_start_model(cfg, args.init, partial=args.init_partial, repeat_feedback=args.repeat_feedback)  # a checkpoint in --out, if any, still wins (train_loop)
     elif args.autoencoder is not None:
         model = build_model(cfg, args.autoencoder)
     else:

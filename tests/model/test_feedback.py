@@ -228,3 +228,38 @@ def test_gradient_feedback_starts_as_the_model_without_it_and_trains():
     with torch.no_grad():
         moved = new.eval().encode_preactivations(batch)
     assert not torch.equal(moved[0], a_old[0]) and not torch.equal(moved[1], a_old[1])
+
+
+@pytest.mark.parametrize("scale", [0.0, 0.5, 1.0])
+def test_an_added_pass_can_start_as_the_last_pass_taken_again_at_a_scale(scale: float):
+    """--repeat-feedback: each pass added to a saved model starts as that model's last pass with its MLPs' output
+    layers times ``scale`` (every MLP gives ``scale`` x the last pass's output); at scale 0 the tokens are the
+    saved model's; passes added to a model of two copy its second; without a scale they start fresh."""
+    from vt4dcodec.model.train.tokenizer import repeated_feedback
+
+    torch.manual_seed(5)
+    cfg = get_config("tiny", **SMALL, feedback_width=16, feedback_gradient=True)
+    one = VideoTok4D(cfg).eval()
+    for mlp in ("static", "dynamic", "static_grad", "dynamic_grad"):
+        torch.nn.init.normal_(getattr(one.feedback, mlp)[2].weight, std=0.1)
+    two_cfg = cfg.replace(feedback_passes=2)
+    state = repeated_feedback(one.state_dict(), cfg, two_cfg, scale)
+    two = VideoTok4D(two_cfg).eval()
+    two.load_state_dict(state, strict=True)
+    for mlp in ("static", "dynamic", "static_grad", "dynamic_grad"):
+        first, added = getattr(one.feedback, mlp), getattr(two.feedback_later[0], mlp)
+        x = torch.randn(5, first[0].in_features)
+        torch.testing.assert_close(added(x), scale * first(x))
+    one.decode_steps = two.decode_steps = 1
+    batch = random_batch(cfg, B=1, n_tracks=8)
+    with torch.no_grad():
+        same = all(torch.equal(a, b) for a, b in zip(one.encode(batch), two.encode(batch)))
+    assert same == (scale == 0.0)
+    three = repeated_feedback(two.state_dict(), two_cfg, cfg.replace(feedback_passes=3), 0.25)
+    for name, value in two.state_dict().items():
+        if name.startswith("feedback_later.0."):
+            copied = three[name.replace("feedback_later.0.", "feedback_later.1.")]
+            torch.testing.assert_close(copied, value * 0.25 if ".2." in name else value)
+    plain = one.state_dict()
+    assert repeated_feedback(plain, cfg, two_cfg, None) is plain
+    assert repeated_feedback(plain, cfg, cfg, 0.5) is plain

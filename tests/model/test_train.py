@@ -558,7 +558,9 @@ def test_stored_levels_trains_the_renderer_alone_and_keeps_the_frozen_tables(tmp
     levels = [json.loads(line)["level"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert len(levels) == 2 and set(levels) <= {0.0, 1.0}
     for bad in (["--stored-levels", "1"], ["--stored-levels", "0,0"], ["--stored-levels", "1,x"],
-                ["--stored-levels", "1,1", "--rate-lambdas", "1,1"]):
+                ["--stored-levels", "1,1", "--rate-lambdas", "1,1"],
+                ["--stored-levels", "1,1", "--repeat-feedback", "0.5"],  # not without --init-partial
+                ["--stored-levels", "1,1", "--init-partial", "--repeat-feedback", "nan"]):
         with pytest.raises(SystemExit):
             stage2.main([*args, "--out", str(tmp_path / "bad"), *bad])
     unfrozen = VideoTok4D(cfg)
