@@ -239,7 +239,7 @@ def repeated_feedback(state: dict[str, torch.Tensor], old: ModelConfig, new: Mod
     for k in range(old.feedback_passes - 1, new.feedback_passes - 1):
         for name, value in pass_state.items():
             output_layer = name.split(".")[1:2] == ["2"]  # (static|dynamic|static_grad|dynamic_grad).2.*: the MLPs' last
-            out[f"feedback_later.{k}.{name}"] = value.clone() * scale if output_layer else value.clone()
+            out[f"feedback_later.{k}.{name}"] = value * scale if output_layer else value.clone()
     return out
 
 

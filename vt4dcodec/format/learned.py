@@ -257,8 +257,8 @@ def writer_codes(tokens: np.ndarray, tables: EntropyTables, level: int, which: s
     if np.array_equal(dead, q):
         return q
     for adaptive in (False, True):
-        if _coded_length(dead, tables, level, which, views, adaptive) > \
-                _coded_length(q, tables, level, which, views, adaptive):
+        if len(_stream(dead, tables, level, which, views, adaptive)) > \
+                len(_stream(q, tables, level, which, views, adaptive)):
             return q
     return dead
 
@@ -282,11 +282,10 @@ def _dead_zone_codes(tokens: np.ndarray, q: np.ndarray, tables: EntropyTables, l
     return out
 
 
-def _coded_length(codes: np.ndarray, tables: EntropyTables, level: int, which: str, views: int,
-                  adaptive: bool) -> int:
-    """Bytes of the rANS stream of a code matrix (:func:`encode_learned_tokens` without its two-byte head)."""
+def _stream(codes: np.ndarray, tables: EntropyTables, level: int, which: str, views: int, adaptive: bool) -> bytes:
+    """The rANS stream of a code matrix (:func:`encode_learned_tokens`'s payload without its two-byte head)."""
     symbols, contexts = coded_symbols(codes, tables, level, views, which)
-    return len(rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]), adaptive))
+    return rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]), adaptive)
 
 
 def dequantize(codes: np.ndarray, tables: EntropyTables, level: int, which: str) -> np.ndarray:
@@ -308,9 +307,8 @@ def encode_learned_tokens(tokens: np.ndarray, tables: EntropyTables, level: int,
         raise LimitExceededError(f"{x.size} learned-rans values in one matrix exceed the limit of {MAX_LEARNED_VALUES}")
     if not np.isfinite(x).all():
         raise FormatError("tokens must be finite")
-    symbols, contexts = coded_symbols(writer_codes(x, tables, level, which, views), tables, level, views, which)
-    stream = rans_encode_ctx(symbols, contexts, tables.freqs[level].reshape(-1, tables.freqs.shape[3]), adaptive)
-    return bytes([level, views]) + stream
+    return bytes([level, views]) + _stream(writer_codes(x, tables, level, which, views), tables, level, which, views,
+                                           adaptive)
 
 
 def coded_symbols(codes: np.ndarray, tables: EntropyTables, level: int, views: int, which: str
