@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     train = collect(net, list(range(args.train)), "train", args.quality)
     test = collect(net, list(range(1000, 1000 + args.test)), "test", args.quality)
     print(f"collected {len(train)} + {len(test)} encodes in {time.time() - t0:.0f} s", flush=True)
-    cat = {k: torch.cat([item[k] if k != "code" else item[k] for item in train]) for k in ("splat", "rays", "code", "gt", "tokens")}
+    cat = {k: torch.cat([item[k] for item in train]) for k in ("splat", "rays", "code", "gt", "tokens")}
     views = cat["splat"].shape[0]
     head = ViewHead(net.config.latent_channels, net.config.token_dim, args.width, args.layers,
                     cat["tokens"].shape[1] if args.attend else 0)
